@@ -1,0 +1,12 @@
+"""Typed, validated models of the scenario files.
+
+Three kinds of TOML file describe a run: a *vehicle* file (every true parameter of the plant), a
+*setup* file (the bench: each sensor, its range, rate, imperfections, bus and address) and a
+*campaign* file (the tests, the plant rate and the seed). Each loads into a pydantic model; a bad
+file raises :class:`~benchtwin.errors.ConfigError` with one line per problem naming the file, the
+key, the value and what is allowed.
+"""
+
+from benchtwin.config._base import StrictModel, load_model, scenario_path, validate_data
+
+__all__ = ["StrictModel", "load_model", "scenario_path", "validate_data"]

@@ -1,0 +1,221 @@
+"""The Trace: the emulator's truth on one time base, in SI units with the unit in each name.
+
+Channel names end in their unit: ``_s``, ``_m``, ``_mps``, ``_mps2``, ``_radps``, ``_nm``, ``_n``,
+``_w``, ``_a``, ``_v``, ``_pa``, ``_degc``, ``_kgps``, ``_frac`` (0..1), ``_pct`` (0..100) or a
+dimensionless state (``gear_actual``, ``k0_closed``). See :data:`TRACE_CHANNELS` for the contract
+that the sensors rely on.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchtwin.errors import DataError, MissingChannelError
+from benchtwin.segments import Segment, segments_from_json, segments_to_json
+
+__all__ = ["TRACE_CHANNELS", "Trace"]
+
+#: The channels every Trace from the emulator carries, with their meaning. Sign conventions:
+#: torques positive when driving the wheels; battery and HV currents positive when discharging;
+#: brake pressures gauge; forces positive in the direction of travel resisting the vehicle.
+TRACE_CHANNELS: dict[str, str] = {
+    "vehicle_speed_mps": "vehicle (wheel) speed",
+    "vehicle_accel_mps2": "vehicle acceleration",
+    "distance_m": "distance driven",
+    "dyno_set_speed_mps": "speed set point of the dyno speed loop (NaN in road-load mode)",
+    "dyno_speed_mps": "roller surface speed",
+    "dyno_force_front_n": "tractive force measured on the front roller (positive: vehicle pushes)",
+    "dyno_force_rear_n": "tractive force measured on the rear roller (positive: vehicle pushes)",
+    "road_load_force_n": "F0 + F1 v + F2 v^2 that the dyno simulates",
+    "pedal_pct": "accelerator pedal position",
+    "brake_pedal_pct": "brake pedal demand",
+    "hybrid_mode": "0 Hybrid, 1 Electric, 2 E-Save, 3 Charge",
+    "engine_speed_radps": "crankshaft speed",
+    "engine_torque_nm": "engine brake torque at the crankshaft",
+    "engine_on": "1 when firing",
+    "fuel_mass_flow_kgps": "fuel mass flow",
+    "engine_coolant_in_degc": "engine coolant inlet temperature",
+    "engine_coolant_out_degc": "engine coolant outlet temperature",
+    "k0_closed": "1 when the K0 clutch is closed",
+    "em_speed_radps": "motor speed (= torque converter pump speed)",
+    "em_torque_nm": "motor shaft torque (positive motoring)",
+    "em_elec_power_w": "motor DC electrical power at the HPCU (positive drawn from the HV bus)",
+    "hpcu_hv_current_a": "HPCU high-voltage side current (positive into the HPCU)",
+    "hpcu_hv_voltage_v": "HPCU high-voltage side voltage",
+    "tc_pump_torque_nm": "torque converter pump torque",
+    "tc_turbine_speed_radps": "turbine (gearbox input) speed",
+    "tc_turbine_torque_nm": "turbine torque",
+    "lockup_closed": "1 when the lock-up clutch is closed",
+    "gear_target": "target gear requested by the shift schedule (0 neutral)",
+    "gear_actual": "gear engaged (0 neutral)",
+    "trans_input_torque_nm": "gearbox input torque",
+    "shaft_torque_nm": "propeller shaft torque (gearbox output)",
+    "shaft_speed_radps": "propeller shaft speed",
+    "wheel_speed_radps": "rear wheel speed",
+    "brake_pressure_fl_pa": "front-left caliper pressure",
+    "brake_pressure_fr_pa": "front-right caliper pressure",
+    "brake_pressure_rl_pa": "rear-left caliper pressure",
+    "brake_pressure_rr_pa": "rear-right caliper pressure",
+    "master_cylinder_pa": "master cylinder pressure",
+    "brake_torque_front_nm": "hydraulic brake torque, front axle",
+    "brake_torque_rear_nm": "hydraulic brake torque, rear axle",
+    "battery_current_a": "HV battery current (positive discharge)",
+    "battery_voltage_v": "HV battery terminal voltage",
+    "battery_ocv_v": "HV battery open-circuit voltage",
+    "battery_soc_frac": "true state of charge of the pack",
+    "displayed_soc_pct": "state of charge displayed to the user (usable window)",
+    "battery_temp_degc": "HV battery surface temperature",
+    "battery_coolant_in_degc": "HV battery coolant inlet",
+    "battery_coolant_out_degc": "HV battery coolant outlet",
+    "hpcu_coolant_in_degc": "HPCU coolant inlet",
+    "hpcu_coolant_out_degc": "HPCU coolant outlet",
+    "motor_coolant_in_degc": "motor coolant inlet",
+    "motor_coolant_out_degc": "motor coolant outlet",
+    "dcdc_lv_current_a": "DC/DC converter low-voltage output current",
+    "dcdc_lv_voltage_v": "DC/DC converter low-voltage output voltage",
+    "lv_battery_current_a": "12 V battery current (positive discharge)",
+    "lv_battery_voltage_v": "12 V battery voltage",
+}
+
+
+@dataclass
+class Trace:
+    """Named numpy arrays on one time base, plus the segment table.
+
+    Attributes
+    ----------
+    time_s:
+        Monotonic plant time, seconds.
+    channels:
+        Channel name -> array of the same length as ``time_s``.
+    segments:
+        The tests of the campaign, in time order.
+    meta:
+        Free metadata (vehicle name, campaign seed, plant rate), JSON-serialisable.
+    """
+
+    time_s: np.ndarray
+    channels: dict[str, np.ndarray]
+    segments: list[Segment] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.time_s = np.asarray(self.time_s, dtype=np.float64)
+        n = self.time_s.shape[0]
+        for name, values in self.channels.items():
+            arr = np.asarray(values)
+            if arr.shape != (n,):
+                raise DataError(f"trace channel {name!r} has shape {arr.shape}, expected ({n},)")
+            self.channels[name] = arr
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "time_s":
+            return self.time_s
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise MissingChannelError(f"trace has no channel {name!r}") from None
+
+    def __contains__(self, name: object) -> bool:
+        return name == "time_s" or name in self.channels
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.channels)
+
+    def __len__(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @property
+    def dt_s(self) -> float:
+        """The plant step (median spacing of ``time_s``)."""
+        if len(self) < 2:
+            return float("nan")
+        return float(np.median(np.diff(self.time_s)))
+
+    @property
+    def duration_s(self) -> float:
+        """Time span covered by the trace."""
+        return float(self.time_s[-1] - self.time_s[0]) if len(self) else 0.0
+
+    def slice_time(self, start_s: float, end_s: float) -> Trace:
+        """Return the part of the trace with ``start_s <= t < end_s`` (segments clipped)."""
+        mask = (self.time_s >= start_s) & (self.time_s < end_s)
+        segs = [s for s in self.segments if s.end_s > start_s and s.start_s < end_s]
+        return Trace(self.time_s[mask], {k: v[mask] for k, v in self.channels.items()}, segs, dict(self.meta))
+
+    def segment(self, name: str) -> Trace:
+        """Return the part of the trace covered by the segment called ``name``."""
+        for seg in self.segments:
+            if seg.name == name:
+                return self.slice_time(seg.start_s, seg.end_s)
+        raise MissingChannelError(f"trace has no segment {name!r}")
+
+    def save(self, directory: str | Path) -> Path:
+        """Save as ``trace.mf4`` (asammdf) plus ``segments.json`` and ``meta.json`` in ``directory``.
+
+        Returns
+        -------
+        Path
+            The MF4 file written.
+        """
+        from asammdf import MDF, Signal
+
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        mdf = MDF(version="4.10")
+        sigs = [
+            Signal(samples=np.asarray(v, dtype=np.float64), timestamps=self.time_s, name=k,
+                   unit=_unit_of(k), comment=TRACE_CHANNELS.get(k, ""))
+            for k, v in self.channels.items()
+        ]
+        if sigs:
+            mdf.append(sigs, comment="benchtwin trace (truth)")
+        out = directory / "trace.mf4"
+        mdf.save(out, overwrite=True)
+        mdf.close()
+        (directory / "segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
+        (directory / "meta.json").write_text(json.dumps(self.meta, indent=1, default=str), encoding="utf-8")
+        return out
+
+    @classmethod
+    def load(cls, directory: str | Path) -> Trace:
+        """Load a trace written by :meth:`save`."""
+        from asammdf import MDF
+
+        directory = Path(directory)
+        path = directory / "trace.mf4"
+        if not path.exists():
+            raise DataError(f"{directory}: no trace.mf4 found")
+        channels: dict[str, np.ndarray] = {}
+        time_s = np.zeros(0)
+        with MDF(path) as mdf:
+            for name in mdf.channels_db:
+                if name.startswith("time") or name.startswith("$"):
+                    continue
+                sig = mdf.get(name)
+                channels[name] = np.asarray(sig.samples, dtype=np.float64)
+                time_s = np.asarray(sig.timestamps, dtype=np.float64)
+        seg_path = directory / "segments.json"
+        segments = segments_from_json(seg_path.read_text(encoding="utf-8"), str(seg_path)) if seg_path.exists() else []
+        meta_path = directory / "meta.json"
+        meta = json.loads(meta_path.read_text(encoding="utf-8")) if meta_path.exists() else {}
+        return cls(time_s, channels, segments, meta)
+
+
+_UNIT_SUFFIXES: Mapping[str, str] = {
+    "_mps2": "m/s^2", "_mps": "m/s", "_radps": "rad/s", "_nm": "Nm", "_n": "N", "_w": "W", "_a": "A",
+    "_v": "V", "_pa": "Pa", "_degc": "degC", "_kgps": "kg/s", "_frac": "1", "_pct": "%", "_s": "s", "_m": "m",
+}
+
+
+def _unit_of(name: str) -> str:
+    for suffix, unit in _UNIT_SUFFIXES.items():
+        if name.endswith(suffix):
+            return unit
+    return ""
