@@ -1,0 +1,242 @@
+"""Helpers that pull channels out of a Recording for identification.
+
+A Recording keeps each source on its own time base with quality flags per sample. Identification
+methods need the channels they use on one uniform grid, with a mask of the grid samples that must
+not be used (flagged at the source, missing, outside a channel's span). :func:`gather` does that,
+counting the flagged samples so every fit can report them as excluded. The other helpers restrict
+the grid to segments of given kinds (when the Recording has a segment table), find contiguous runs,
+differentiate smoothly and check that a regressor really varies.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from benchtwin.errors import DataError, MissingChannelError, NoExcitationError
+from benchtwin.recording import Channel, Flag, Recording
+
+__all__ = [
+    "BAD_FLAGS",
+    "STATE_ROLES",
+    "Grid",
+    "check_spread",
+    "gather",
+    "runs",
+    "segment_mask",
+    "segment_names",
+    "smooth_derivative",
+]
+
+#: roles that are discrete states: zero-order hold, never interpolated
+STATE_ROLES = frozenset({"gear_target", "gear_actual", "k0_closed", "lockup_closed", "hybrid_mode", "engine_on"})
+
+_BAD = int(Flag.bad())
+BAD_FLAGS = _BAD  #: the Flag bits that make a sample unusable
+
+
+@dataclass
+class Grid:
+    """Channels of a Recording on one uniform time base.
+
+    Attributes
+    ----------
+    t:
+        Grid times, s.
+    values:
+        Channel name -> values on the grid (NaN where the channel has no data).
+    bad:
+        Grid samples unusable for any of the *required* channels (flagged, missing, non-finite).
+    flagged:
+        Grid samples excluded because a required channel carried a bad quality flag there
+        (a subset of ``bad``; these are what fits report as excluded).
+    rate_hz:
+        Grid rate.
+    present:
+        Names of optional channels that were present.
+    """
+
+    t: np.ndarray
+    values: dict[str, np.ndarray]
+    bad: np.ndarray
+    flagged: np.ndarray
+    rate_hz: float
+    present: set[str] = field(default_factory=set)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.values[name]
+        except KeyError:
+            raise MissingChannelError(f"channel {name!r} was not gathered") from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.values
+
+    @property
+    def dt(self) -> float:
+        """Grid step, s."""
+        return 1.0 / self.rate_hz
+
+
+def _sample(ch: Channel, t: np.ndarray, hold: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Values of ``ch`` at ``t`` and a mask of grid samples touched by a flagged source sample."""
+    v = ch.at(t, hold=hold)
+    n = len(ch)
+    raw_bad = ((ch.flags & _BAD) != 0) | ~np.isfinite(ch.values)
+    idx = np.searchsorted(ch.timestamps, t, side="right") - 1
+    i0 = np.clip(idx, 0, n - 1)
+    flagged = raw_bad[i0].copy()
+    if not hold:
+        # a linearly interpolated value depends on the sample after as well
+        i1 = np.clip(idx + 1, 0, n - 1)
+        flagged |= raw_bad[i1] & (ch.timestamps[i1] > t)
+    flagged &= (idx >= 0) & (t <= ch.timestamps[-1])
+    return v, flagged
+
+
+def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: Iterable[str] = (),
+           hold: Iterable[str] = (), what: str = "identification") -> Grid:
+    """Resample required and optional channels of ``rec`` onto one grid.
+
+    Parameters
+    ----------
+    rec:
+        The Recording.
+    names:
+        Required channels; the grid spans their common overlap.
+    rate_hz:
+        Grid rate, Hz.
+    optional:
+        Channels used when present (NaN outside their span; they do not make samples bad).
+    hold:
+        Extra channels to zero-order hold (state roles are always held).
+    what:
+        Name of the method, for messages.
+
+    Returns
+    -------
+    Grid
+
+    Raises
+    ------
+    MissingChannelError
+        If a required channel is absent.
+    DataError
+        If a required channel is empty or the channels do not overlap in time.
+    """
+    names = list(names)
+    missing = [n for n in names if n not in rec]
+    if missing:
+        raise MissingChannelError(f"{what}: the recording lacks {', '.join(missing)} "
+                                  f"(has: {', '.join(sorted(rec.channels)) or 'none'})")
+    if not rate_hz > 0:
+        raise DataError(f"{what}: grid rate must be positive, got {rate_hz}")
+    chans = [rec[n] for n in names]
+    empty = [c.name for c in chans if len(c) == 0]
+    if empty:
+        raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
+    lo = max(float(c.timestamps[0]) for c in chans)
+    hi = min(float(c.timestamps[-1]) for c in chans)
+    if not hi > lo:
+        raise DataError(f"{what}: channels {', '.join(names)} do not overlap in time")
+    t = lo + np.arange(int(np.floor((hi - lo) * rate_hz)) + 1) / rate_hz
+    held = set(hold) | STATE_ROLES
+    values: dict[str, np.ndarray] = {}
+    bad = np.zeros(t.shape, dtype=bool)
+    flagged = np.zeros(t.shape, dtype=bool)
+    for c in chans:
+        v, fl = _sample(c, t, c.name in held)
+        values[c.name] = v
+        flagged |= fl
+        bad |= fl | ~np.isfinite(v)
+    present = set()
+    for n in optional:
+        if n in rec and len(rec[n]) and n not in values:
+            v, fl = _sample(rec[n], t, n in held)
+            v[fl] = np.nan
+            values[n] = v
+            present.add(n)
+    return Grid(t, values, bad, flagged, rate_hz, present)
+
+
+def segment_mask(rec: Recording, t: np.ndarray, kinds: Iterable[str] | None) -> np.ndarray | None:
+    """Grid samples inside segments of the given kinds, or None when the table has none of them.
+
+    None means "search the whole recording": the segment table narrows the search when it can,
+    but is never required.
+    """
+    if kinds is None:
+        return None
+    kinds = set(kinds)
+    segs = [s for s in rec.segments if s.kind in kinds]
+    if not segs:
+        return None
+    mask = np.zeros(t.shape, dtype=bool)
+    for s in segs:
+        mask |= s.contains(t)
+    return mask
+
+
+def segment_names(rec: Recording, times: Iterable[float]) -> list[str]:
+    """Names of the segments containing any of ``times`` (sorted, unique)."""
+    times = np.asarray(list(times), dtype=float)
+    out = set()
+    for s in rec.segments:
+        if times.size and np.any(s.contains(times)):
+            out.add(s.name)
+    return sorted(out)
+
+
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Contiguous runs of True in ``mask`` as half-open index ranges ``(i0, i1)``."""
+    m = np.asarray(mask, dtype=bool).astype(np.int8)
+    if m.size == 0:
+        return []
+    d = np.diff(np.concatenate(([0], m, [0])))
+    starts = np.flatnonzero(d == 1)
+    ends = np.flatnonzero(d == -1)
+    return list(zip(starts.tolist(), ends.tolist()))
+
+
+def smooth_derivative(x: np.ndarray, dt: float, window_s: float, *, valid: np.ndarray | None = None,
+                      polyorder: int = 3) -> np.ndarray:
+    """Savitzky-Golay derivative of ``x`` (uniform step ``dt``), computed run by run over ``valid``.
+
+    Samples outside ``valid`` and runs shorter than the window get NaN, so a derivative never
+    spans a flagged sample or a gap.
+    """
+    x = np.asarray(x, dtype=float)
+    valid = np.isfinite(x) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(x))
+    w = max(round(window_s / dt) | 1, polyorder + 2 | 1)
+    out = np.full(x.shape, np.nan)
+    for i0, i1 in runs(valid):
+        if i1 - i0 >= w:
+            out[i0:i1] = savgol_filter(x[i0:i1], w, polyorder, deriv=1, delta=dt, mode="interp")
+    return out
+
+
+def check_spread(x: np.ndarray, min_spread: float, what: str, name: str, unit: str = "") -> None:
+    """Raise NoExcitationError when ``x`` spans less than ``min_spread``.
+
+    Parameters
+    ----------
+    x:
+        Regressor values over the points used.
+    min_spread:
+        Smallest acceptable ``max(x) - min(x)``.
+    what, name, unit:
+        Method, regressor and unit, for the message.
+    """
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return
+    spread = float(x.max() - x.min())
+    if spread < min_spread:
+        raise NoExcitationError(
+            f"{what}: {name} spans only {spread:.4g} {unit} over {x.size} points (from {x.min():.4g} to "
+            f"{x.max():.4g}); at least {min_spread:.4g} {unit} is needed to separate the parameters"
+        )

@@ -1,0 +1,278 @@
+"""Transmission efficiency per gear: mesh efficiency eta_m and minimum input torque C0 (eq. 13-17).
+
+From steady points with the lock-up clutch closed (turbine = pump = motor speed):
+
+- input torque ``C_in`` = motor torque + engine torque (only with K0 closed), input speed = motor speed;
+- output power on the propeller shaft: shaft torque x shaft speed, the shaft speed from the vehicle
+  speed, the wheel radius and the final drive (public specs).
+
+Drive points (``P_out > 0``): ``eta = P_out / P_in = eta_m (1 - C0 / C_in)``, least squares on
+regressors ``[1, -1/C_in]`` with unknowns ``[eta_m, eta_m C0]`` (eq. 15-17). Coast/regen points
+(``P_out < 0``): ``eta = P_in / P_out = eta_m (1 - C0 / C)`` with ``C = |T_out| / i_g`` the
+wheel-side torque referred to the input (docs/models.md). Each gear and direction is its own fit:
+``transmission.gear5`` (drive) and ``transmission.gear5_coast``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from benchtwin.errors import IdentificationError, InsufficientDataError
+from benchtwin.identification._fit import FitResult, IdentificationResult, derived, linear_fit
+from benchtwin.identification._signals import check_spread
+from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
+from benchtwin.recording import Recording
+
+__all__ = ["TransmissionPoints", "fit_transmission_efficiency", "identify_transmission", "transmission_points"]
+
+RPM = 2.0 * math.pi / 60.0
+
+_REQUIRED = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "engine_torque_nm", "shaft_torque_nm")
+_STATES = ("gear_actual", "gear_target", "k0_closed", "lockup_closed")
+
+
+@dataclass
+class TransmissionPoints:
+    """Steady operating points of the transmission (one per steady window).
+
+    Attributes
+    ----------
+    gear:
+        Actual gear.
+    c_in, w_in:
+        Input torque (Nm) and speed (rad/s).
+    t_out, w_out:
+        Propeller shaft torque (Nm) and speed (rad/s).
+    p_in, p_out:
+        Input and output power (W), window means of the products.
+    usable:
+        Points inside the model's domain (lock-up closed, no slip, engine torque accounted for).
+    segments:
+        Segment name per point.
+    reasons:
+        Why points were dropped (counts), for the fit's reasons.
+    n_flagged:
+        Grid samples excluded because a source sample was flagged.
+    """
+
+    gear: np.ndarray
+    c_in: np.ndarray
+    w_in: np.ndarray
+    t_out: np.ndarray
+    w_out: np.ndarray
+    p_in: np.ndarray
+    p_out: np.ndarray
+    usable: np.ndarray
+    segments: list[str]
+    reasons: list[str]
+    n_flagged: int
+
+
+def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWindows | None = None,
+                        kinds: Iterable[str] | None = ("ramp_up", "constant_drive"), rate_hz: float = 10.0,
+                        max_slip: float = 0.01, tolerances: Mapping[str, Tolerance] | None = None,
+                        max_duration_s: float | None = None) -> TransmissionPoints:
+    """Steady transmission points of a Recording.
+
+    Parameters
+    ----------
+    rec:
+        The Recording (roles of :mod:`benchtwin.roles`).
+    specs:
+        Public specs: gear ratios, final drive, wheel radius.
+    steady:
+        Steady windows already found on the required channels (else found here).
+    kinds:
+        Segment kinds to search when the Recording has a segment table.
+    rate_hz:
+        Grid rate for steady-state detection.
+    max_slip:
+        Largest relative difference between motor speed and shaft speed x gear ratio accepted as
+        "lock-up closed" (torque converter slip would make the input torque unknown).
+    tolerances:
+        Overrides of the steadiness thresholds.
+    max_duration_s:
+        Cut long holds into pieces of this length.
+
+    Returns
+    -------
+    TransmissionPoints
+    """
+    if steady is None:
+        steady = find_steady_windows(rec, list(_REQUIRED), states=_STATES,
+                                     extra=("gear_actual",), optional=("engine_speed_rpm",), kinds=kinds,
+                                     rate_hz=rate_hz, tolerances=tolerances, max_duration_s=max_duration_s)
+    g = steady.grid
+    ratios = np.asarray(specs.gear_ratios, dtype=float)
+    gear = steady.means("gear_actual").round()
+    n = len(steady)
+    reasons: list[str] = []
+    k0 = steady.state("k0_closed") if "k0_closed" in g else None
+    if k0 is None:
+        if "engine_speed_rpm" in g:
+            # K0 state not recorded: the engine is coupled when it turns with the motor
+            eng = steady.means("engine_speed_rpm")
+            em = steady.means("em_speed_rpm")
+            k0 = (np.abs(eng - em) <= 0.02 * np.maximum(np.abs(em), 1.0)).astype(float)
+            reasons.append("k0_closed not recorded: K0 taken as closed where engine speed = motor speed")
+        else:
+            k0 = np.ones(n)
+            reasons.append("k0_closed and engine speed not recorded: engine torque always counted as input")
+    k0 = np.nan_to_num(k0, nan=0.0) > 0.5
+    # window means over each source's own samples (the grid only locates the windows)
+    t_em = steady.raw_average(rec, "em_torque_nm")
+    t_eng = steady.raw_average(rec, "engine_torque_nm")
+    c_in = np.where(k0, t_em + t_eng, t_em)
+    w_in = steady.raw_average(rec, "em_speed_rpm") * RPM
+    p_in = c_in * w_in
+    t_out = steady.raw_average(rec, "shaft_torque_nm")
+    w_out = steady.raw_average(rec, "vehicle_speed_kmh") / 3.6 / specs.wheel_radius_m * specs.final_drive_ratio
+    p_out = t_out * w_out
+    usable = np.ones(n, dtype=bool)
+    in_range = (gear >= 1) & (gear <= ratios.size)
+    if (~in_range).any():
+        reasons.append(f"{int((~in_range).sum())} steady windows in neutral or an unknown gear")
+    usable &= in_range
+    if "gear_target" in g:
+        shifting = in_range & (steady.state("gear_target").round() != gear)
+        if shifting.any():
+            reasons.append(f"{int(shifting.sum())} windows with a shift pending (target gear != actual gear)")
+        usable &= ~shifting
+    ig = np.where(in_range, ratios[np.clip(gear.astype(int) - 1, 0, ratios.size - 1)], np.nan)
+    slip = np.abs(w_in - w_out * ig) / np.maximum(np.abs(w_out * ig), 1e-6)
+    slipping = in_range & ~(slip <= max_slip)
+    if "lockup_closed" in g:
+        slipping |= in_range & ~(steady.state("lockup_closed") > 0.5)
+    if slipping.any():
+        reasons.append(f"{int(slipping.sum())} windows with the lock-up open or slipping (> {max_slip:.0%})")
+    usable &= ~slipping
+    still = ~(np.abs(w_out) > 1.0)
+    if (still & usable).any():
+        reasons.append(f"{int((still & usable).sum())} windows at standstill")
+    usable &= ~still
+    return TransmissionPoints(gear, c_in, w_in, t_out, w_out, p_in, p_out, usable,
+                              [w.segment for w in steady.windows], reasons, steady.n_excluded)
+
+
+def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "transmission",
+                                segments: Sequence[str] = (), n_excluded: int = 0, min_points: int = 3,
+                                min_rel_spread: float = 0.1, weighted: bool = True) -> FitResult:
+    """Least squares of eq. 15-17: ``eta = eta_m - (eta_m C0) / C``.
+
+    Parameters
+    ----------
+    c:
+        Torque referred to the input (``C_in`` in drive, ``|T_out| / i_g`` in coast), Nm, positive.
+    eta:
+        Measured efficiency (drive ``P_out/P_in``, coast ``P_in/P_out``).
+    min_rel_spread:
+        Smallest spread of ``1/C`` relative to its mean that is accepted as excitation.
+    weighted:
+        Weight each point by ``C^2``. The torque sensors' noise is absolute, so the noise of a
+        measured efficiency grows as ``1/C``; weighting by the inverse variance keeps low-torque
+        points from dominating and makes the standard errors honest (the paper's plain OLS is
+        ``weighted=False``; both give the same result on exact data).
+
+    Returns
+    -------
+    FitResult
+        Parameters ``eta_m``, ``eta_m_C0`` and derived ``C0`` (Nm); data ``c``, ``eta``, ``eta_fit``
+        and the model curve ``c_curve``, ``eta_curve``.
+
+    Raises
+    ------
+    InsufficientDataError, NoExcitationError, CollinearError
+    """
+    c = np.asarray(c, dtype=float)
+    eta = np.asarray(eta, dtype=float)
+    if c.size < max(min_points, 3):
+        raise InsufficientDataError(f"{what}: {c.size} steady points; need at least {max(min_points, 3)}")
+    inv = 1.0 / c
+    check_spread(inv, min_rel_spread * float(np.mean(np.abs(inv))), what, "1/C_in", "1/Nm")
+    A = np.column_stack([np.ones_like(c), -inv])
+    fit = linear_fit(A, eta, ["eta_m", "eta_m_C0"], units=["-", "Nm"], segments=segments, min_points=min_points,
+                     n_excluded=n_excluded, what=what, weights=c**2 / np.mean(c**2) if weighted else None)
+    derived(fit, "C0", lambda x: x[1] / x[0], unit="Nm")
+    cc = np.linspace(max(float(c.min()) * 0.8, 1e-3), float(c.max()) * 1.1, 200)
+    fit.data.update(c=c, eta=eta, eta_fit=fit.data["y_fit"], c_curve=cc,
+                    eta_curve=fit.value("eta_m") * (1.0 - fit.value("C0") / cc))
+    if not 0.5 < fit.value("eta_m") <= 1.0:
+        fit.flag(f"eta_m = {fit.value('eta_m'):.4f} is outside (0.5, 1]: the points do not follow eq. 14")
+    return fit
+
+
+def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterable[int] | None = None,
+                          points: TransmissionPoints | None = None, min_points: int = 3,
+                          **kwargs: object) -> IdentificationResult:
+    """eta_m and C0 per gear, drive and coast, from the steady points of a Recording.
+
+    Parameters
+    ----------
+    rec:
+        The Recording.
+    specs:
+        Public specs (gear ratios, final drive, wheel radius).
+    gears:
+        Gears to fit (default: every gear with steady points).
+    points:
+        Points from :func:`transmission_points` (else computed here; ``kwargs`` go to it).
+    min_points:
+        Fewest points per gear and direction.
+
+    Returns
+    -------
+    IdentificationResult
+        Fits ``transmission.gear<g>`` (drive) and ``transmission.gear<g>_coast``; gears or
+        directions that could not be fitted are in ``errors`` with the reason.
+
+    Raises
+    ------
+    InsufficientDataError
+        When no gear at all could be fitted.
+    """
+    pts = points if points is not None else transmission_points(rec, specs, **kwargs)  # type: ignore[arg-type]
+    ratios = np.asarray(specs.gear_ratios, dtype=float)
+    out = IdentificationResult()
+    present = sorted({int(x) for x in pts.gear[pts.usable]})
+    wanted = present if gears is None else [int(x) for x in gears]
+    n_dropped = int((~pts.usable).sum())
+    for gg in wanted:
+        ig = ratios[gg - 1] if 1 <= gg <= ratios.size else float("nan")
+        sel = pts.usable & (pts.gear == gg)
+        for direction in ("drive", "coast"):
+            key = f"transmission.gear{gg}" + ("" if direction == "drive" else "_coast")
+            if direction == "drive":
+                m = sel & (pts.p_out > 0) & (pts.p_in > 0)
+                c = pts.c_in[m]
+                eta = pts.p_out[m] / pts.p_in[m]
+            else:
+                m = sel & (pts.p_out < 0) & (pts.p_in < 0)
+                c = np.abs(pts.t_out[m]) / ig
+                eta = pts.p_in[m] / pts.p_out[m]
+            dom = (eta > 0.0) & (eta < 1.2) & (c > 0)
+            n_dom = int((~dom).sum())
+            segs = sorted({s for s, k in zip(np.asarray(pts.segments, dtype=object)[m], dom) if k and s})
+            try:
+                fit = fit_transmission_efficiency(c[dom], eta[dom], what=key, segments=segs,
+                                                  n_excluded=pts.n_flagged + n_dom, min_points=min_points)
+            except IdentificationError as exc:
+                out.errors[key] = f"{type(exc).__name__}: {exc}"
+                continue
+            fit.data["speed_rpm"] = (pts.w_in[m][dom] / RPM)
+            fit.data["gear_ratio"] = np.array([ig])
+            for r in pts.reasons:
+                fit.reasons.append(r)
+            if n_dom:
+                fit.reasons.append(f"{n_dom} points outside the model's domain (dead band or eta >= 1.2)")
+            out.fits[key] = fit
+    out.meta["transmission"] = {"steady_points": int(pts.gear.size), "dropped_points": n_dropped,
+                                "flagged_samples": pts.n_flagged}
+    if not out.fits:
+        detail = "; ".join(f"{k}: {v}" for k, v in out.errors.items()) or "no steady point in any gear"
+        raise InsufficientDataError(f"transmission: no gear could be fitted ({detail})")
+    return out
