@@ -15,7 +15,8 @@ import numpy as np
 
 from benchtwin.errors import DataError
 
-__all__ = ["FRAME_DTYPE", "DeviceOutputs", "FrameTable", "ProcessImage", "RegisterSnapshots"]
+__all__ = ["FRAME_DTYPE", "POLL_OK", "POLL_TIMEOUT", "DeviceOutputs", "FrameTable", "PollLog", "ProcessImage",
+           "RegisterSnapshots", "TransportEvent"]
 
 #: one CAN frame: time (s, on the sending device's clock as seen by the bus), 11/29-bit identifier,
 #: extended flag, data length code and eight data bytes (unused bytes zero)
@@ -162,3 +163,108 @@ class DeviceOutputs:
     def n_frames(self) -> int:
         """Total CAN frames over all buses."""
         return sum(len(t) for t in self.can.values())
+
+
+#: status of one Modbus poll in a :class:`PollLog`: 0 ok, 1..11 the Modbus exception code, -1 timeout
+POLL_OK = 0
+POLL_TIMEOUT = -1
+
+
+@dataclass
+class PollLog:
+    """Every poll an acquisition made of one Modbus device (what came back, or why nothing did).
+
+    Batch delivery makes it by sampling :class:`RegisterSnapshots` at the poll times with the
+    configured poll faults; the live recorder fills it from a pymodbus client. Either way the
+    acquisition decodes it the same way.
+
+    Attributes
+    ----------
+    device:
+        Device name from the setup file.
+    unit_id:
+        Modbus device (unit) id polled.
+    function_code:
+        3 (read holding registers) or 4 (read input registers).
+    first_register:
+        Address of column 0 of ``values``.
+    times:
+        Time each answer (or timeout) was logged, seconds on the acquisition's clock, shape ``(N,)``.
+    values:
+        uint16 ``(N, count)``; rows of failed polls hold zeros and must not be used.
+    status:
+        int16 ``(N,)``: :data:`POLL_OK` (0), a Modbus exception code 1..11, or :data:`POLL_TIMEOUT` (-1).
+    """
+
+    device: str
+    unit_id: int
+    function_code: int
+    first_register: int
+    times: np.ndarray
+    values: np.ndarray
+    status: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.times = np.asarray(self.times, dtype=np.float64)
+        self.values = np.asarray(self.values, dtype=np.uint16)
+        self.status = np.asarray(self.status, dtype=np.int16)
+        n = self.times.shape[0]
+        if self.values.ndim != 2 or self.values.shape[0] != n or self.status.shape != (n,):
+            raise DataError(f"poll log {self.device!r}: times {self.times.shape}, values {self.values.shape} and "
+                            f"status {self.status.shape} do not match")
+        if self.function_code not in (3, 4):
+            raise DataError(f"poll log {self.device!r}: function code {self.function_code} is not 3 or 4")
+
+    def __len__(self) -> int:
+        return int(self.times.shape[0])
+
+    @property
+    def count(self) -> int:
+        """Registers read per poll."""
+        return int(self.values.shape[1])
+
+    @classmethod
+    def empty(cls, device: str, unit_id: int, function_code: int, first_register: int, count: int) -> PollLog:
+        """A log without polls (e.g. to fill while recording live)."""
+        return cls(device, unit_id, function_code, first_register, np.zeros(0), np.zeros((0, count), np.uint16),
+                   np.zeros(0, np.int16))
+
+    @classmethod
+    def concat(cls, parts: list[PollLog]) -> PollLog:
+        """Join logs of one device (e.g. chunks flushed while recording), sorted by time."""
+        if not parts:
+            raise DataError("no poll logs to join")
+        first = parts[0]
+        for p in parts[1:]:
+            if (p.device, p.unit_id, p.function_code, p.first_register, p.count) != (
+                    first.device, first.unit_id, first.function_code, first.first_register, first.count):
+                raise DataError(f"poll logs of {first.device!r} and {p.device!r} have different layouts")
+        times = np.concatenate([p.times for p in parts])
+        order = np.argsort(times, kind="stable")
+        return cls(first.device, first.unit_id, first.function_code, first.first_register, times[order],
+                   np.concatenate([p.values for p in parts])[order], np.concatenate([p.status for p in parts])[order])
+
+
+@dataclass
+class TransportEvent:
+    """Something a transport did during a run that the Recording must flag (a drop, a reconnect).
+
+    Attributes
+    ----------
+    time_s:
+        When it happened, seconds on the acquisition's clock.
+    source:
+        Bus name, Modbus device or CANopen node concerned (``"*"`` for all).
+    kind:
+        ``"drop"`` (connection lost), ``"reconnect"``, ``"overrun"`` (frames lost in a buffer) or ``"end"``.
+    end_s:
+        For a drop, when the data came back (``inf`` if never); equal to ``time_s`` otherwise.
+    detail:
+        Free text (error message).
+    """
+
+    time_s: float
+    source: str
+    kind: str
+    end_s: float = float("nan")
+    detail: str = ""

@@ -10,3 +10,6 @@ key, the value and what is allowed.
 from benchtwin.config._base import StrictModel, load_model, scenario_path, validate_data
 
 __all__ = ["StrictModel", "load_model", "scenario_path", "validate_data"]
+from benchtwin.config.setup import SetupConfig, load_setup
+
+__all__ += ["SetupConfig", "load_setup"]

@@ -1,0 +1,321 @@
+"""The setup file: the bench's sensors, their ranges, rates, buses, addresses and imperfections.
+
+A setup file (``scenarios/setups/*.toml``) loads into :class:`SetupConfig`. Each sensor has its
+measured-quantity errors (:class:`ChannelErrors`, in the unit the sensor measures: A, V, bar, Nm,
+degC, or the vehicle signal's own unit) and its link errors (:class:`LinkErrors`: latency, clock,
+frame faults). Everything left out is ideal; ``scenarios/setups/ideal.toml`` is the ideal chain.
+
+Saturation is the sensor's range (``current_range_a``, ``range_bar``, the telemetry's +-10 V, the
+thermo module's range): values beyond it are clipped and flagged, as on the real device.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from benchtwin.config._base import StrictModel, load_model, scenario_path
+from benchtwin.errors import ConfigError
+
+__all__ = [
+    "IVT_PLACES",
+    "K_TEL_STEPS",
+    "THERMO_PLACES",
+    "BusConfig",
+    "ChannelErrors",
+    "DynoConfig",
+    "IvtConfig",
+    "LinkErrors",
+    "PressureConfig",
+    "SetupConfig",
+    "ShaftConfig",
+    "StuckInterval",
+    "TelemetryConfig",
+    "ThermoConfig",
+    "VehicleCanConfig",
+    "load_setup",
+]
+
+#: IVT-S places of the paper -> (trace current, trace voltage, recording current role, voltage role)
+IVT_PLACES: dict[str, tuple[str, str, str, str]] = {
+    "battery": ("battery_current_a", "battery_voltage_v", "battery_current_a", "battery_voltage_v"),
+    "hpcu": ("hpcu_hv_current_a", "hpcu_hv_voltage_v", "hpcu_current_a", "hpcu_voltage_v"),
+    "dcdc": ("dcdc_lv_current_a", "dcdc_lv_voltage_v", "dcdc_lv_current_a", "dcdc_lv_voltage_v"),
+    "lv_battery": ("lv_battery_current_a", "lv_battery_voltage_v", "lv_battery_current_a", "lv_battery_voltage_v"),
+}
+
+#: thermocouple places of the paper (trace channel = role name)
+THERMO_PLACES: tuple[str, ...] = (
+    "engine_coolant_in_degc", "engine_coolant_out_degc", "battery_coolant_in_degc", "battery_coolant_out_degc",
+    "battery_temp_degc", "hpcu_coolant_in_degc", "hpcu_coolant_out_degc", "motor_coolant_in_degc",
+    "motor_coolant_out_degc",
+)
+
+#: telemetry gains selectable on the rotary switch (paper, Table 2)
+K_TEL_STEPS: tuple[int, ...] = (250, 500, 1000, 2000, 4000, 8000)
+
+
+class StuckInterval(StrictModel):
+    """The sensor output freezes at its last value from ``start_s`` to ``end_s`` (plant time)."""
+
+    start_s: float
+    end_s: float
+
+    @model_validator(mode="after")
+    def _order(self) -> StuckInterval:
+        if not self.end_s > self.start_s:
+            raise ValueError(f"end_s ({self.end_s}) must be after start_s ({self.start_s})")
+        return self
+
+
+class ChannelErrors(StrictModel):
+    """Errors of one measured quantity, in the unit the sensor measures (A, V, bar, Nm, degC, ...).
+
+    The measured value is ``(1 + gain_error_frac) * filtered(true) + offset + noise``, then
+    quantised to ``quantisation_step`` (on top of the wire's own resolution) and clipped to range.
+    """
+
+    noise_std: float = Field(0.0, ge=0, description="white noise standard deviation")
+    offset: float = Field(0.0, description="constant offset")
+    gain_error_frac: float = Field(0.0, gt=-1, description="relative gain error (0.01 = +1 %)")
+    quantisation_step: float = Field(0.0, ge=0, description="extra quantisation step (0: the wire's own only)")
+    bandwidth_hz: float = Field(0.0, ge=0, description="-3 dB bandwidth of the sensor (0: unlimited)")
+    filter_order: Literal[1, 2] = Field(1, description="1: first-order lag, 2: second-order low-pass")
+    damping: float = Field(0.707, gt=0, description="damping ratio of the second-order filter")
+    stuck: list[StuckInterval] = Field(default_factory=list, description="intervals where the output freezes")
+
+    @property
+    def ideal(self) -> bool:
+        """True when the channel adds no error."""
+        return (self.noise_std == 0 and self.offset == 0 and self.gain_error_frac == 0 and self.quantisation_step == 0
+                and self.bandwidth_hz == 0 and not self.stuck)
+
+
+class LinkErrors(StrictModel):
+    """Timing and delivery errors of one device."""
+
+    latency_s: float = Field(0.0, ge=0, description="delay between measuring and sending")
+    clock_offset_s: float = Field(0.0, description="device clock minus plant clock at t = 0")
+    clock_drift_ppm: float = Field(0.0, gt=-1e5, lt=1e5, description="device clock rate error, ppm")
+    drop_prob: float = Field(0.0, ge=0, lt=1, description="probability that a frame is lost")
+    duplicate_prob: float = Field(0.0, ge=0, lt=1, description="probability that a frame is sent twice")
+    reorder_prob: float = Field(0.0, ge=0, lt=1, description="probability that a frame swaps with the next one")
+
+    @property
+    def ideal(self) -> bool:
+        """True when the link adds no error."""
+        return (self.latency_s == 0 and self.clock_offset_s == 0 and self.clock_drift_ppm == 0 and self.drop_prob == 0
+                and self.duplicate_prob == 0 and self.reorder_prob == 0)
+
+
+class BusConfig(StrictModel):
+    """One CAN bus of the bench."""
+
+    bitrate: int = Field(500_000, gt=0, description="nominal bit rate, bit/s")
+    description: str = ""
+
+
+class IvtConfig(StrictModel):
+    """One IVT-S shunt (Isabellenhuette) at one place of the HV/LV network."""
+
+    bus: str = "instrument"
+    result_base_id: int = Field(0x521, ge=0, le=0x7F8, description="CAN id of the current result; +1..+7 follow")
+    command_id: int = Field(0x411, ge=0, le=0x7FF)
+    response_id: int = Field(0x511, ge=0, le=0x7FF)
+    mode: Literal["cyclic", "triggered"] = "cyclic"
+    cycle_ms: int = Field(20, ge=1, le=60000, description="cycle time in cyclic mode")
+    trigger_period_ms: int = Field(20, ge=1, description="how often the acquisition triggers in triggered mode")
+    results: list[Literal["I", "U1", "U2", "U3", "T", "W", "As", "Wh"]] = Field(
+        default_factory=lambda: ["I", "U1", "U2", "U3", "T", "W", "As", "Wh"], description="results sent")
+    current_range_a: float = Field(1000.0, gt=0)
+    voltage_range_v: float = Field(600.0, gt=0)
+    adc_bits: int = Field(16, ge=8, le=32, description="the shunt's converter resolution over +-range")
+    temperature_degc: float = Field(25.0, description="shunt temperature reported in T")
+    current_errors: ChannelErrors = Field(default_factory=ChannelErrors)
+    voltage_errors: ChannelErrors = Field(default_factory=ChannelErrors)
+    link: LinkErrors = Field(default_factory=LinkErrors)
+
+    @property
+    def result_ids(self) -> list[int]:
+        """CAN ids of the eight results (I, U1, U2, U3, T, W, As, Wh)."""
+        return [self.result_base_id + k for k in range(8)]
+
+
+class PressureConfig(StrictModel):
+    """SPA100 transducers on the four calipers and the master cylinder, read by a Modbus TCP module."""
+
+    device: str = "brake_pressure"
+    unit_id: int = Field(1, ge=0, le=247)
+    host: str = "127.0.0.1"
+    port: int = Field(5020, ge=1, le=65535)
+    full_scale_bar: float = Field(100.0, gt=0, description="SPA100 range 0..full_scale_bar")
+    full_scale_v: float = Field(5.0, gt=0, description="SPA100 output at full scale")
+    update_hz: float = Field(500.0, gt=0, description="module register update rate")
+    poll_hz: float = Field(100.0, gt=0, description="acquisition poll rate")
+    poll_latency_s: float = Field(0.002, ge=0, description="request-to-answer time of a poll")
+    timeout_prob: float = Field(0.0, ge=0, lt=1, description="probability a poll times out")
+    exception_prob: float = Field(0.0, ge=0, lt=1, description="probability a poll answers an exception")
+    exception_code: int = Field(6, ge=1, le=11, description="exception code answered (6: device busy)")
+    errors: ChannelErrors = Field(default_factory=ChannelErrors, description="errors in bar")
+    link: LinkErrors = Field(default_factory=LinkErrors)
+
+
+class ShaftConfig(StrictModel):
+    """The propeller shaft and its strain-gauge full bridge (paper eq. 1-12)."""
+
+    youngs_modulus_pa: float = Field(210e9, gt=0)
+    poisson: float = Field(0.3, ge=0, lt=0.5)
+    gauge_factor: float = Field(2.0, gt=0)
+    supply_v: float = Field(5.0, gt=0, description="bridge supply V_s")
+    outer_radius_m: float = Field(0.0205036, gt=0)
+    inner_radius_m: float = Field(0.0, ge=0)
+
+    @model_validator(mode="after")
+    def _radii(self) -> ShaftConfig:
+        if not self.inner_radius_m < self.outer_radius_m:
+            raise ValueError("inner_radius_m must be smaller than outer_radius_m")
+        return self
+
+    @property
+    def polar_moment_m4(self) -> float:
+        """I_p = pi (R_e^4 - R_i^4) / 2 (eq. 8)."""
+        return math.pi * (self.outer_radius_m**4 - self.inner_radius_m**4) / 2.0
+
+
+class TelemetryConfig(StrictModel):
+    """Strain gauge + telemetry + 12-bit AD module for the propeller-shaft torque."""
+
+    bus: str = "instrument"
+    can_id: int = Field(0x310, ge=0, le=0x7FF)
+    rate_hz: float = Field(500.0, gt=0, description="AD module frame rate")
+    k_tel: int = Field(1000, description="telemetry gain (rotary switch)")
+    vout_max_v: float = Field(10.0, gt=0, description="telemetry output range +-V")
+    resolution_floor_nm: float = Field(0.3, ge=0, description="telemetry noise floor (Table 2: 0.3 Nm)")
+    shaft: ShaftConfig = Field(default_factory=ShaftConfig)
+    errors: ChannelErrors = Field(default_factory=ChannelErrors, description="errors in Nm at the shaft")
+    link: LinkErrors = Field(default_factory=LinkErrors)
+
+    @model_validator(mode="after")
+    def _gain(self) -> TelemetryConfig:
+        if self.k_tel not in K_TEL_STEPS:
+            raise ValueError(f"k_tel {self.k_tel} is not a switch position; allowed: {list(K_TEL_STEPS)}")
+        return self
+
+
+class ThermoConfig(StrictModel):
+    """Type K thermocouples on a CANopen thermo module with cold-junction compensation."""
+
+    bus: str = "instrument"
+    node_id: int = Field(5, ge=1, le=127)
+    pdo_period_ms: int = Field(100, ge=1, le=65535, description="TPDO event timer")
+    places: list[str] = Field(default_factory=lambda: list(THERMO_PLACES),
+                              description="trace channel of each input, in input order (max 9)")
+    cold_junction_degc: float = Field(25.0, description="terminal temperature")
+    cold_junction_error_degc: float = Field(0.0, description="error of the module's cold-junction sensor")
+    emf_resolution_uv: float = Field(0.5, ge=0, description="input converter resolution, microvolt")
+    range_min_degc: float = -40.0
+    range_max_degc: float = 1100.0
+    errors: ChannelErrors = Field(default_factory=ChannelErrors, description="errors in degC")
+    link: LinkErrors = Field(default_factory=LinkErrors)
+
+    @model_validator(mode="after")
+    def _places(self) -> ThermoConfig:
+        bad = [p for p in self.places if p not in THERMO_PLACES]
+        if bad or len(self.places) > 9 or len(set(self.places)) != len(self.places):
+            raise ValueError(f"places must be up to 9 distinct of {list(THERMO_PLACES)}; got {self.places}")
+        return self
+
+
+class VehicleCanConfig(StrictModel):
+    """The vehicle CAN tap (ECU signals, see ``benchtwin/chain/dbc/vehicle.dbc``)."""
+
+    bus: str = "vehicle"
+    errors: dict[str, ChannelErrors] = Field(default_factory=dict,
+                                             description="per Recording role, in the role's unit")
+    link: LinkErrors = Field(default_factory=LinkErrors)
+
+
+class DynoConfig(StrictModel):
+    """The chassis dyno's CAN broadcast (``dyno.dbc``, 100 Hz)."""
+
+    bus: str = "dyno"
+    errors: dict[str, ChannelErrors] = Field(default_factory=dict,
+                                             description="per Recording role, in the role's unit")
+    link: LinkErrors = Field(default_factory=LinkErrors)
+
+
+class SetupConfig(StrictModel):
+    """A bench setup: buses and every sensor (see the module docstring)."""
+
+    name: str = "setup"
+    description: str = ""
+    buses: dict[str, BusConfig] = Field(default_factory=lambda: {
+        "vehicle": BusConfig(bitrate=500_000), "instrument": BusConfig(bitrate=1_000_000),
+        "dyno": BusConfig(bitrate=500_000)})
+    ivt: dict[str, IvtConfig] = Field(default_factory=dict, description="shunt place -> shunt")
+    pressure: PressureConfig | None = None
+    telemetry: TelemetryConfig | None = None
+    thermo: ThermoConfig | None = None
+    vehicle_can: VehicleCanConfig | None = None
+    dyno: DynoConfig | None = None
+
+    @model_validator(mode="after")
+    def _check(self) -> SetupConfig:
+        for place in self.ivt:
+            if place not in IVT_PLACES:
+                raise ValueError(f"ivt place {place!r} unknown; allowed: {list(IVT_PLACES)}")
+        buses = {f"ivt.{k}": v.bus for k, v in self.ivt.items()}
+        for key in ("telemetry", "thermo", "vehicle_can", "dyno"):
+            dev = getattr(self, key)
+            if dev is not None:
+                buses[key] = dev.bus
+        for key, bus in buses.items():
+            if bus not in self.buses:
+                raise ValueError(f"{key}.bus = {bus!r} is not a bus of [buses] ({', '.join(self.buses)})")
+        # identifiers must be unique per bus
+        used: dict[tuple[str, int], str] = {}
+
+        def claim(bus: str, cid: int, who: str) -> None:
+            if (bus, cid) in used:
+                raise ValueError(f"CAN id 0x{cid:X} on bus {bus!r} used by {used[(bus, cid)]} and {who}")
+            used[(bus, cid)] = who
+
+        for k, v in self.ivt.items():
+            for cid in [*v.result_ids, v.command_id, v.response_id]:
+                claim(v.bus, cid, f"ivt.{k}")
+        if self.telemetry is not None:
+            claim(self.telemetry.bus, self.telemetry.can_id, "telemetry")
+        if self.thermo is not None:
+            for n in range(3):
+                claim(self.thermo.bus, 0x180 + 0x100 * n + self.thermo.node_id, "thermo")
+        if self.vehicle_can is not None:
+            for cid in (0x0A0, 0x0B0, 0x0C0, 0x0D0, 0x0E0, 0x1A0, 0x3A0):
+                claim(self.vehicle_can.bus, cid, "vehicle_can")
+        if self.dyno is not None:
+            for cid in (0x700, 0x701):
+                claim(self.dyno.bus, cid, "dyno")
+        return self
+
+    def bitrate(self, bus: str) -> int:
+        """Bit rate of a bus."""
+        try:
+            return self.buses[bus].bitrate
+        except KeyError:
+            raise ConfigError(f"setup {self.name!r} has no bus {bus!r}") from None
+
+
+def load_setup(path: str | Path) -> SetupConfig:
+    """Load a setup file; a bare name (``paper``) means the shipped ``scenarios/setups/<name>.toml``.
+
+    Raises
+    ------
+    ConfigError
+        File missing or invalid (the message names the file, the key and what is allowed).
+    """
+    p = Path(path)
+    if not p.suffix and not p.exists():
+        p = scenario_path("setups", f"{p.name}.toml")
+    return load_model(SetupConfig, p)

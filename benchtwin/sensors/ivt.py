@@ -1,0 +1,281 @@
+"""Isabellenhuette IVT-S current/voltage shunt: measurement model, result frames and command channel.
+
+Result frames (6 bytes, big-endian; see ``benchtwin/chain/dbc/ivt_s.dbc``)::
+
+    byte 0      mux: 0x00 I, 0x01 U1, 0x02 U2, 0x03 U3, 0x04 T, 0x05 W, 0x06 As, 0x07 Wh
+    byte 1      low nibble: cyclic message counter; high nibble: status
+                (bit4 OCS, bit5 result out of range / channel error, bit6 measurement error, bit7 system error)
+    bytes 2..5  signed int32: mA, mV, mV, mV, 0.1 degC, W, As, Wh
+
+e.g. I = -12345 mA with counter 5 is ``00 05 FF FF CF C7``.
+
+Measurement: the shunt's own 16-bit converter over +-range (LSB 30.5 mA at 1000 A, 18.3 mV at
+600 V), then the integer result units. Out of range: the value is clipped at the range and the
+status bit 5 is set. Power W = I * U1; charge As and energy Wh are integrated from I and I*U1.
+U2 and U3 are not wired at the paper's places and read 0 V.
+
+Commands (:class:`IvtDevice`, used by the live half; answers have byte 0 = command + 0x80,
+0xFF for an unknown command): 0x20+n configure result n (byte 1 bits 0-1: 0 off, 1 triggered,
+2 cyclic; bytes 2-3 cycle time ms, big-endian), 0x30 reset errors, 0x31 trigger (byte 2 bit mask
+of results), 0x34 set mode (byte 1 bit 0: 1 run, 0 stop).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from benchtwin.chain.frames import FRAME_DTYPE
+from benchtwin.config.setup import IVT_PLACES, IvtConfig
+from benchtwin.errors import FrameError
+from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
+from benchtwin.trace import Trace
+
+__all__ = [
+    "CMD_CONFIGURE",
+    "CMD_RESET_ERRORS",
+    "CMD_SET_MODE",
+    "CMD_TRIGGER",
+    "MODE_CYCLIC",
+    "MODE_OFF",
+    "MODE_TRIGGERED",
+    "RESULT_NAMES",
+    "STATUS_OUT_OF_RANGE",
+    "IvtAnswer",
+    "IvtDevice",
+    "IvtSamples",
+    "encode_ivt",
+    "ivt_samples",
+    "pack_results",
+    "unpack_result",
+]
+
+RESULT_NAMES: tuple[str, ...] = ("I", "U1", "U2", "U3", "T", "W", "As", "Wh")
+CMD_CONFIGURE = 0x20
+CMD_RESET_ERRORS = 0x30
+CMD_TRIGGER = 0x31
+CMD_SET_MODE = 0x34
+MODE_OFF, MODE_TRIGGERED, MODE_CYCLIC = 0, 1, 2
+#: status nibble bits (byte 1 bits 4..7)
+STATUS_OCS, STATUS_OUT_OF_RANGE, STATUS_MEAS_ERROR, STATUS_SYS_ERROR = 0x1, 0x2, 0x4, 0x8
+#: delay between a trigger command and the triggered results
+TRIGGER_RESPONSE_S = 0.0002
+#: spacing of the results of one cycle on the bus (they are sent back to back)
+RESULT_SPACING_S = 0.00015
+
+
+def pack_results(mux: np.ndarray, counter: np.ndarray, status: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Pack result frames column-wise into ``(n, 8)`` bytes (bytes 6, 7 zero)."""
+    n = np.size(value)
+    out = np.zeros((n, 8), dtype=np.uint8)
+    out[:, 0] = np.broadcast_to(np.asarray(mux, dtype=np.uint8), (n,))
+    out[:, 1] = (np.broadcast_to(np.asarray(counter, dtype=np.int64), (n,)) & 0xF) | (
+        (np.broadcast_to(np.asarray(status, dtype=np.int64), (n,)) & 0xF) << 4)
+    v = np.asarray(value, dtype=np.int64).astype(">i4")
+    out[:, 2:6] = v.view(np.uint8).reshape(n, 4)
+    return out
+
+
+def unpack_result(data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse of :func:`pack_results`: mux, counter, status, int32 value (int64 arrays)."""
+    data = np.ascontiguousarray(data, dtype=np.uint8)
+    mux = data[:, 0].astype(np.int64)
+    counter = (data[:, 1] & 0xF).astype(np.int64)
+    status = (data[:, 1] >> 4).astype(np.int64)
+    value = np.ascontiguousarray(data[:, 2:6]).view(">i4")[:, 0].astype(np.int64)
+    return mux, counter, status, value
+
+
+@dataclass
+class IvtSamples:
+    """The shunt's results at its sample times, before framing (what the live half can page through).
+
+    ``values[k]`` and ``status[k]`` are the int32 result and status nibble of result ``k``
+    (0 I .. 7 Wh) at ``t_device``.
+    """
+
+    t_device: np.ndarray
+    t_plant: np.ndarray
+    values: np.ndarray
+    status: np.ndarray
+
+
+def _adc(x: np.ndarray, full_range: float, bits: int) -> tuple[np.ndarray, np.ndarray]:
+    lsb = 2.0 * full_range / 2**bits
+    over = np.abs(x) > full_range
+    return np.rint(np.clip(x, -full_range, full_range) / lsb) * lsb, over
+
+
+def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator, t_device: np.ndarray
+                ) -> IvtSamples:
+    """All eight results of the shunt at device times ``t_device``.
+
+    Parameters
+    ----------
+    trace:
+        The truth.
+    place:
+        One of :data:`~benchtwin.config.setup.IVT_PLACES`.
+    cfg:
+        The shunt's setup.
+    rng:
+        The device's generator.
+    t_device:
+        Sample times on the shunt's clock.
+    """
+    ch_i, ch_u, _, _ = IVT_PLACES[place]
+    clock = DeviceClock.of(cfg.link)
+    t = clock.to_plant(t_device)
+    i_true, u_true = trace[ch_i], trace[ch_u]
+    i_m = measure(trace.time_s, i_true, t, cfg.current_errors, rng, latency_s=cfg.link.latency_s)
+    u_m = measure(trace.time_s, u_true, t, cfg.voltage_errors, rng, latency_s=cfg.link.latency_s)
+    i_q, i_over = _adc(i_m, cfg.current_range_a, cfg.adc_bits)
+    u_q, u_over = _adc(u_m, cfg.voltage_range_v, cfg.adc_bits)
+    # charge and energy integrate the measured signals on the trace grid (the shunt integrates internally)
+    dt = np.diff(trace.time_s, prepend=trace.time_s[0])
+    i_g = np.clip(i_true * (1 + cfg.current_errors.gain_error_frac) + cfg.current_errors.offset,
+                  -cfg.current_range_a, cfg.current_range_a)
+    u_g = np.clip(u_true * (1 + cfg.voltage_errors.gain_error_frac) + cfg.voltage_errors.offset,
+                  -cfg.voltage_range_v, cfg.voltage_range_v)
+    p_g = i_g * u_g
+    q = np.concatenate([[0.0], np.cumsum(0.5 * (i_g[1:] + i_g[:-1]) * dt[1:])])
+    e = np.concatenate([[0.0], np.cumsum(0.5 * (p_g[1:] + p_g[:-1]) * dt[1:])]) / 3600.0
+    ts = t - cfg.link.latency_s
+    n = t.shape[0]
+    values = np.zeros((8, n), dtype=np.int64)
+    status = np.zeros((8, n), dtype=np.int64)
+    values[0] = np.rint(i_q * 1000.0)
+    values[1] = np.rint(u_q * 1000.0)
+    values[4] = np.rint(cfg.temperature_degc * 10.0)
+    values[5] = np.rint(i_q * u_q)
+    values[6] = np.trunc(np.interp(ts, trace.time_s, q))
+    values[7] = np.trunc(np.interp(ts, trace.time_s, e))
+    status[0] = np.where(i_over, STATUS_OUT_OF_RANGE, 0)
+    status[1] = np.where(u_over, STATUS_OUT_OF_RANGE, 0)
+    status[5] = np.where(i_over | u_over, STATUS_OUT_OF_RANGE, 0)
+    values = np.clip(values, -(2**31), 2**31 - 1)
+    return IvtSamples(np.asarray(t_device, dtype=np.float64), t, values, status)
+
+
+def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator) -> np.ndarray:
+    """All frames the shunt (and, in triggered mode, the bench's trigger commands) put on the bus.
+
+    Returns
+    -------
+    numpy.ndarray
+        FRAME_DTYPE array sorted by timestamp.
+    """
+    clock = DeviceClock.of(cfg.link)
+    t0, t1 = float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9
+    enabled = [RESULT_NAMES.index(r) for r in cfg.results]
+    parts = []
+    if cfg.mode == "cyclic":
+        t_dev = clock.ticks(t0, t1, cfg.cycle_ms / 1000.0)
+    else:
+        # the bench triggers every trigger_period on its own (plant) clock; the shunt answers on its clock
+        t_cmd = np.arange(np.ceil(t0 * 1000.0 / cfg.trigger_period_ms), np.ceil(t1 * 1000.0 / cfg.trigger_period_ms)
+                          ) * cfg.trigger_period_ms / 1000.0
+        t_cmd = t_cmd[t_cmd < t1 - TRIGGER_RESPONSE_S - RESULT_SPACING_S * 8]
+        t_dev = clock.to_device(t_cmd + TRIGGER_RESPONSE_S)
+        mask = sum(1 << k for k in enabled)
+        for cid, payload, dt in ((cfg.command_id, [CMD_TRIGGER, 0, mask, 0, 0, 0, 0, 0], 0.0),
+                                 (cfg.response_id, [CMD_TRIGGER | 0x80, 0, mask, 0, 0, 0, 0, 0], TRIGGER_RESPONSE_S)):
+            fr = np.zeros(t_cmd.shape[0], dtype=FRAME_DTYPE)
+            fr["timestamp"] = t_cmd + dt if cid == cfg.command_id else clock.to_device(t_cmd + dt)
+            fr["arbitration_id"] = cid
+            fr["dlc"] = 8
+            fr["data"] = np.array(payload, dtype=np.uint8)
+            parts.append(fr)
+    s = ivt_samples(trace, place, cfg, rng, t_dev)
+    n = s.t_device.shape[0]
+    counter = np.arange(n, dtype=np.int64) & 0xF
+    for k in enabled:
+        fr = np.zeros(n, dtype=FRAME_DTYPE)
+        fr["timestamp"] = s.t_device + RESULT_SPACING_S * k
+        fr["arbitration_id"] = cfg.result_base_id + k
+        fr["dlc"] = 6
+        fr["data"] = pack_results(k, counter, s.status[k], s.values[k])
+        parts.append(fr)
+    frames = np.concatenate(parts) if parts else np.zeros(0, FRAME_DTYPE)
+    frames = frames[np.argsort(frames["timestamp"], kind="stable")]
+    return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
+
+
+@dataclass
+class IvtAnswer:
+    """What the shunt does after a command: the answer frame's data and the results to send now."""
+
+    data: bytes
+    triggered: list[int] = field(default_factory=list)
+
+
+@dataclass
+class IvtDevice:
+    """The shunt's command state machine (configure, trigger, run/stop, reset errors).
+
+    The live half wires :meth:`handle_command` to frames received on ``command_id`` and sends the
+    answer on ``response_id``; :meth:`cyclic_due` tells which results are due at a device time and
+    :meth:`result_frame` builds a result frame with the running counter of that result.
+    """
+
+    cfg: IvtConfig
+    running: bool = True
+    modes: list[int] = field(default_factory=list)
+    cycles_ms: list[int] = field(default_factory=list)
+    counters: list[int] = field(default_factory=lambda: [0] * 8)
+    latched_status: int = 0
+
+    def __post_init__(self) -> None:
+        enabled = {RESULT_NAMES.index(r) for r in self.cfg.results}
+        mode = MODE_CYCLIC if self.cfg.mode == "cyclic" else MODE_TRIGGERED
+        if not self.modes:
+            self.modes = [mode if k in enabled else MODE_OFF for k in range(8)]
+        if not self.cycles_ms:
+            self.cycles_ms = [self.cfg.cycle_ms] * 8
+
+    def handle_command(self, data: bytes) -> IvtAnswer:
+        """Apply one command frame and return the answer.
+
+        Raises
+        ------
+        FrameError
+            If the frame is empty (no command byte).
+        """
+        if len(data) == 0:
+            raise FrameError("IVT-S command frame without data", code=None)
+        cmd = data[0]
+        body = bytes(data[1:8]).ljust(7, b"\x00")
+        if CMD_CONFIGURE <= cmd < CMD_CONFIGURE + 8:
+            ch = cmd - CMD_CONFIGURE
+            self.modes[ch] = body[0] & 0x3 if (body[0] & 0x3) != 3 else MODE_OFF
+            cycle = int.from_bytes(body[1:3], "big")
+            if cycle > 0:
+                self.cycles_ms[ch] = cycle
+            return IvtAnswer(bytes([cmd | 0x80]) + body)
+        if cmd == CMD_RESET_ERRORS:
+            self.latched_status = 0
+            return IvtAnswer(bytes([cmd | 0x80]) + body)
+        if cmd == CMD_TRIGGER:
+            mask = body[1]
+            chans = [k for k in range(8) if mask >> k & 1 and self.modes[k] == MODE_TRIGGERED] if self.running else []
+            return IvtAnswer(bytes([cmd | 0x80]) + body, chans)
+        if cmd == CMD_SET_MODE:
+            self.running = bool(body[0] & 1)
+            return IvtAnswer(bytes([cmd | 0x80]) + body)
+        return IvtAnswer(bytes([0xFF, cmd]) + body[1:])
+
+    def cyclic_due(self, t_prev_ms: float, t_now_ms: float) -> list[int]:
+        """Results in cyclic mode whose cycle boundary falls in ``(t_prev_ms, t_now_ms]`` (device ms)."""
+        if not self.running:
+            return []
+        return [k for k in range(8) if self.modes[k] == MODE_CYCLIC
+                and np.floor(t_now_ms / self.cycles_ms[k]) > np.floor(t_prev_ms / self.cycles_ms[k])]
+
+    def result_frame(self, k: int, value: int, status: int = 0) -> tuple[int, bytes]:
+        """Arbitration id and 6 data bytes of result ``k`` with the next counter value."""
+        c = self.counters[k]
+        self.counters[k] = (c + 1) & 0xF
+        st = (status | self.latched_status) & 0xF
+        data = pack_results(np.array([k]), np.array([c]), np.array([st]), np.array([value]))[0, :6].tobytes()
+        return self.cfg.result_base_id + k, data

@@ -1,0 +1,116 @@
+"""The wire formats: shipped DBCs (cantools), vectorised codec vs cantools, EDS PDO layout, register map."""
+
+from __future__ import annotations
+
+import cantools
+import numpy as np
+import pytest
+
+from benchtwin.chain.canopen_pdo import EDS_PATH, load_od, pdo_layout
+from benchtwin.chain.codec import MessageCodec
+from benchtwin.chain.dbc import DBC_DIR, build_ad_module, build_dyno, build_ivt, build_vehicle, bus_database, load_dbc
+from benchtwin.chain.frames import POLL_TIMEOUT, PollLog, ProcessImage
+from benchtwin.chain.modbus_map import INPUT_COUNT, counts_to_volts, volts_to_counts
+from benchtwin.config import load_setup
+from benchtwin.errors import DataError
+
+BUILDERS = {"vehicle": build_vehicle, "dyno": build_dyno, "ivt_s": build_ivt, "ad_module": build_ad_module}
+
+
+@pytest.mark.parametrize("stem", sorted(BUILDERS))
+def test_shipped_dbc_matches_definitions(stem: str) -> None:
+    shipped = cantools.database.load_file(str(DBC_DIR / f"{stem}.dbc"))
+    built = BUILDERS[stem]()
+    assert [(m.frame_id, m.name, m.length, m.cycle_time) for m in shipped.messages] == [
+        (m.frame_id, m.name, m.length, m.cycle_time) for m in built.messages]
+    for ms, mb in zip(shipped.messages, built.messages):
+        assert [(s.name, s.start, s.length, s.byte_order, s.is_signed, s.scale, s.offset) for s in ms.signals] == [
+            (s.name, s.start, s.length, s.byte_order, s.is_signed, s.scale, s.offset) for s in mb.signals]
+
+
+def test_vehicle_dbc_cycle_times_realistic() -> None:
+    db = load_dbc("vehicle")
+    assert all(10 <= m.cycle_time <= 100 for m in db.messages)
+    assert "GenMsgCycleTime" in (DBC_DIR / "vehicle.dbc").read_text()
+
+
+def test_ivt_example_frame_with_cantools() -> None:
+    msg = load_dbc("ivt_s").get_message_by_frame_id(0x521)
+    data = msg.encode({"IVT_I_MuxID": 0, "IVT_I_Status": 0, "IVT_I_Counter": 5, "IVT_I": -12345})
+    assert data.hex() == "0005ffffcfc7"
+    assert msg.decode(bytes.fromhex("0005ffffcfc7"))["IVT_I"] == -12345
+
+
+@pytest.mark.parametrize("stem", sorted(BUILDERS))
+def test_vectorised_codec_agrees_with_cantools(stem: str) -> None:
+    rng = np.random.default_rng(1)
+    for msg in load_dbc(stem).messages:
+        codec = MessageCodec(msg)
+        n = 200
+        raw = {name: rng.integers(s.raw_min, s.raw_max, n, endpoint=True) for name, s in codec.signals.items()}
+        data = codec.pack(raw)
+        for k in range(0, n, 17):
+            ref = msg.encode({name: int(v[k]) for name, v in raw.items()}, scaling=False, strict=False)
+            assert data[k, :msg.length].tobytes() == ref, (msg.name, k)
+        back = codec.unpack(data)
+        for name in raw:
+            np.testing.assert_array_equal(back[name], raw[name])
+        phys = codec.decode(data)
+        k = 3
+        ref_phys = msg.decode(data[k, :msg.length].tobytes(), decode_choices=False)
+        for name, v in ref_phys.items():
+            assert phys[name][k] == pytest.approx(float(v), abs=1e-9)
+
+
+def test_bus_database_moves_each_shunt() -> None:
+    setup = load_setup("paper")
+    db = bus_database(setup, "instrument")
+    assert db.get_message_by_name("IVT_Battery_Result_I").frame_id == 0x521
+    assert db.get_message_by_name("IVT_Hpcu_Result_I").frame_id == 0x531
+    assert db.get_message_by_name("IVT_Hpcu_Msg_Command").frame_id == 0x412
+    assert db.get_message_by_name("AD_Torque").frame_id == setup.telemetry.can_id
+    ids = [m.frame_id for m in db.messages]
+    assert len(ids) == len(set(ids))
+
+
+def test_eds_pdo_layout_from_canopen_od() -> None:
+    od = load_od(7)
+    assert od[0x1000].default == 0x00040194
+    layout = pdo_layout(7)
+    assert [t.cob_id for t in layout.tpdos] == [0x187, 0x287, 0x387]
+    assert layout.entries[:9] == [(0x9130, k) for k in range(1, 10)]
+    assert layout.entries[9] == (0x2100, 0)
+    assert layout.scale((0x9130, 3)) == pytest.approx(0.1)
+    values = np.array([[1, -2, 3, -4, 5, -6, 7, -8, 32767, 250], [-32768, 0, 0, 0, 0, 0, 0, 0, 9, 251]])
+    img = ProcessImage("thermo", 7, np.array([0.0, 0.1]), layout.entries, values)
+    frames = layout.pack(img)
+    assert len(frames) == 6
+    back = {}
+    for tp in layout.tpdos:
+        sel = frames["arbitration_id"] == tp.cob_id
+        assert np.all(frames["dlc"][sel] == tp.length)
+        back.update(layout.unpack(tp, frames["data"][sel]))
+    for k, e in enumerate(layout.entries):
+        np.testing.assert_array_equal(back[e], values[:, k])
+    assert EDS_PATH.exists()
+
+
+def test_register_map_adc() -> None:
+    counts, high, low = volts_to_counts(np.array([-0.1, 0.0, 5.0, 10.0, 11.0]))
+    assert counts.tolist() == [0, 0, 32768, 65535, 65535]
+    assert high.tolist() == [False, False, False, True, True]
+    assert low.tolist() == [True, True, False, False, False]
+    assert counts_to_volts(np.array([65535]))[0] == pytest.approx(10.0)
+    assert INPUT_COUNT == 14
+
+
+def test_poll_log_validation_and_concat() -> None:
+    a = PollLog("p", 1, 4, 0, [0.0, 0.02], np.zeros((2, 14)), [0, POLL_TIMEOUT])
+    b = PollLog("p", 1, 4, 0, [0.01], np.ones((1, 14)), [6])
+    c = PollLog.concat([a, b])
+    assert c.times.tolist() == [0.0, 0.01, 0.02]
+    assert c.status.tolist() == [0, 6, -1]
+    with pytest.raises(DataError):
+        PollLog("p", 1, 5, 0, [0.0], np.zeros((1, 2)), [0])
+    with pytest.raises(DataError):
+        PollLog("p", 1, 4, 0, [0.0, 1.0], np.zeros((1, 2)), [0])
