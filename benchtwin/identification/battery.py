@@ -1,0 +1,564 @@
+"""HV battery identification (eq. 29-30 of the paper) and a map-free OCV/R mode for real logs.
+
+Two ways to describe a pack from a Recording of its terminal voltage ``V`` and current ``I``
+(positive discharge, IVT-S), with the displayed SOC ``s`` from the vehicle CAN:
+
+1. **Scaled literature maps** (:func:`identify_battery`, the paper's method). The cell maps
+   ``OCV_lit(s)``, ``R_lit,dch(s)``, ``R_lit,ch(s)`` (benchtwin/data/nmc_cell_literature.csv) are
+   scaled so that ``V = (alpha OCV_lit(s) - I beta R_lit(s)) n_cells`` (eq. 30), with ``beta_dch``
+   and ``R_dch`` for ``I > 0`` and ``beta_ch``, ``R_ch`` for ``I < 0``. For given maps the model is
+   linear in ``(alpha, beta_dch, beta_ch)``, so the RMSE minimisation of the paper is an ordinary
+   least-squares problem solved exactly by :func:`benchtwin.identification._fit.linear_fit`.
+2. **Map-free** (:func:`identify_battery_map_free`), for a pack whose chemistry differs from the
+   literature maps: ``OCV(s)``, ``R_dch(s)`` and ``R_ch(s)`` are continuous piecewise-linear
+   functions of SOC (hat basis on SOC nodes), all fitted at once by linear least squares
+   (``V = OCV(s) - I R(s)``); with one node (or no SOC signal) this is the plain OCV/R fit.
+   :func:`identify_battery_r0_steps` gives the ohmic resistance ``R0`` from current steps
+   (HPPC pulse edges): ``R0 = -dV/dI`` across one sample.
+
+Every result is a :class:`~benchtwin.identification._fit.FitResult` whose ``data`` carries the
+arrays the figures need (time, measured and modelled voltage, corrected maps).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from benchtwin.errors import DataError, InsufficientDataError, MissingChannelError, NoExcitationError
+from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
+from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.recording import Recording
+
+__all__ = [
+    "CellMaps",
+    "coulomb_soc",
+    "identify_battery",
+    "identify_battery_map_free",
+    "identify_battery_ocv_rest",
+    "identify_battery_r0_steps",
+    "load_literature_maps",
+]
+
+#: segment kinds that are depletion / charge tests (used when the Recording has a segment table)
+BATTERY_SEGMENT_KINDS: tuple[str, ...] = ("constant_drive",)
+
+
+@dataclass(frozen=True)
+class CellMaps:
+    """Cell maps over the displayed SOC axis.
+
+    Attributes
+    ----------
+    soc_pct:
+        SOC breakpoints, %, increasing.
+    ocv_v, r_discharge_ohm, r_charge_ohm:
+        Cell open-circuit voltage and internal resistances at the breakpoints.
+    """
+
+    soc_pct: np.ndarray
+    ocv_v: np.ndarray
+    r_discharge_ohm: np.ndarray
+    r_charge_ohm: np.ndarray
+
+    def ocv(self, soc_pct: np.ndarray) -> np.ndarray:
+        """OCV at ``soc_pct`` (linear interpolation, clamped at the ends)."""
+        return np.interp(soc_pct, self.soc_pct, self.ocv_v)
+
+    def r_discharge(self, soc_pct: np.ndarray) -> np.ndarray:
+        """Discharge resistance at ``soc_pct``."""
+        return np.interp(soc_pct, self.soc_pct, self.r_discharge_ohm)
+
+    def r_charge(self, soc_pct: np.ndarray) -> np.ndarray:
+        """Charge resistance at ``soc_pct``."""
+        return np.interp(soc_pct, self.soc_pct, self.r_charge_ohm)
+
+
+def load_literature_maps(path: str | Path | None = None) -> CellMaps:
+    """Read cell maps from a CSV with columns ``soc_pct, ocv_v, r_discharge_ohm, r_charge_ohm``.
+
+    Parameters
+    ----------
+    path:
+        CSV file; default the shipped generic NMC maps (``benchtwin/data/nmc_cell_literature.csv``).
+
+    Raises
+    ------
+    DataError
+        If the file is missing, malformed or its SOC axis is not increasing.
+    """
+    if path is None:
+        text = resources.files("benchtwin.data").joinpath("nmc_cell_literature.csv").read_text(encoding="utf-8")
+        src = "nmc_cell_literature.csv"
+    else:
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise DataError(f"{path}: cannot read cell maps ({exc.strerror})") from None
+        src = str(path)
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise DataError(f"{src}: no data")
+    header = [h.strip() for h in lines[0].split(",")]
+    need = ("soc_pct", "ocv_v", "r_discharge_ohm", "r_charge_ohm")
+    missing = [n for n in need if n not in header]
+    if missing:
+        raise DataError(f"{src}: missing column(s) {', '.join(missing)}")
+    try:
+        rows = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:]])
+    except ValueError as exc:
+        raise DataError(f"{src}: not numeric ({exc})") from None
+    cols = {n: rows[:, header.index(n)] for n in need}
+    if rows.shape[0] < 2 or np.any(np.diff(cols["soc_pct"]) <= 0):
+        raise DataError(f"{src}: soc_pct must have at least two increasing breakpoints")
+    return CellMaps(cols["soc_pct"], cols["ocv_v"], cols["r_discharge_ohm"], cols["r_charge_ohm"])
+
+
+def coulomb_soc(t_s: np.ndarray, current_a: np.ndarray, capacity_ah: float, *, soc_at_max_charge_pct: float = 100.0
+                ) -> np.ndarray:
+    """SOC by coulomb counting when a log has no SOC signal.
+
+    The charge content is integrated from the current (positive discharge, trapezoidal rule) and
+    referenced so that its maximum over the log is ``soc_at_max_charge_pct`` (for an HPPC test that
+    starts with a full charge, the fully charged cell is 100 %).
+
+    Parameters
+    ----------
+    t_s, current_a:
+        Time and current (A, positive discharge).
+    capacity_ah:
+        Capacity used to scale charge to percent.
+    """
+    if not capacity_ah > 0:
+        raise DataError(f"capacity_ah must be positive, got {capacity_ah}")
+    t_s = np.asarray(t_s, dtype=float)
+    i = np.nan_to_num(np.asarray(current_a, dtype=float))
+    dq = np.r_[0.0, -0.5 * (i[1:] + i[:-1]) * np.diff(t_s)] / 3600.0
+    q = np.cumsum(dq)
+    return soc_at_max_charge_pct + (q - q.max()) / capacity_ah * 100.0
+
+
+def _native_rate(rec: Recording, name: str, cap_hz: float = 50.0) -> float:
+    ts = rec[name].timestamps
+    if ts.size < 3:
+        raise InsufficientDataError(f"channel {name!r} has {ts.size} samples")
+    dt = float(np.median(np.diff(ts)))
+    return min(cap_hz, 1.0 / dt) if dt > 0 else cap_hz
+
+
+def _segment_mask(rec: Recording, t: np.ndarray, kinds: tuple[str, ...] | None) -> tuple[np.ndarray, list[str]]:
+    """Mask of samples inside segments of the given kinds; all samples when none match or no table."""
+    if not kinds or not rec.segments:
+        return np.ones(t.shape, dtype=bool), []
+    mask = np.zeros(t.shape, dtype=bool)
+    names = []
+    for seg in rec.segments:
+        if seg.kind in kinds:
+            m = seg.contains(t)
+            if m.any():
+                mask |= m
+                names.append(seg.name)
+    if not names:
+        return np.ones(t.shape, dtype=bool), []
+    return mask, names
+
+
+def _in_gaps(rec: Recording, names: list[str], t: np.ndarray, factor: float = 3.0) -> np.ndarray:
+    """Grid points that fall in a gap of any channel longer than ``factor`` times its median interval.
+
+    Interpolating across a pause in the log would invent samples; those grid points are left out.
+    """
+    out = np.zeros(t.shape, dtype=bool)
+    for n in names:
+        ts = rec[n].timestamps
+        if ts.size < 3:
+            continue
+        dt = np.diff(ts)
+        big = np.flatnonzero(dt > factor * np.median(dt))
+        for k in big:
+            out |= (t > ts[k]) & (t < ts[k + 1])
+    return out
+
+
+def strict_resample(rec: Recording, names: list[str], rate_hz: float, *, hold: tuple[str, ...] = ()
+                    ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """:meth:`Recording.resample` that also drops grid points next to a bad sample or inside a gap.
+
+    A grid point interpolated between a good and a flagged sample carries part of the flagged value;
+    one inside a pause of the log carries an invented value. Both are marked bad here.
+    """
+    from benchtwin.recording import Flag
+
+    t, v, bad = rec.resample(names, rate_hz, hold=hold)
+    for n in names:
+        ch = rec[n]
+        if n in hold or len(ch) < 2:
+            continue
+        sbad = ~ch.good
+        if sbad.any():
+            nxt = np.clip(np.searchsorted(ch.timestamps, t, side="left"), 0, len(ch) - 1)
+            bad |= sbad[nxt] | ((ch.flags[nxt] & int(Flag.bad())) != 0)
+    bad |= _in_gaps(rec, [n for n in names if n not in hold], t)
+    return t, v, bad
+
+
+def _battery_samples(rec: Recording, *, soc: bool, rate_hz: float | None, kinds: tuple[str, ...] | None
+                     ) -> tuple[dict[str, np.ndarray], np.ndarray, list[str], int]:
+    names = ["battery_voltage_v", "battery_current_a"] + (["displayed_soc_pct"] if soc else [])
+    for n in names:
+        if n not in rec:
+            raise MissingChannelError(f"battery identification needs channel {n!r}")
+    rate = rate_hz or _native_rate(rec, "battery_voltage_v")
+    # displayed SOC is interpolated, not held: its CAN steps are a quantisation of a continuous SOC
+    t, v, bad = strict_resample(rec, names, rate)
+    seg_mask, segs = _segment_mask(rec, t, kinds)
+    use = seg_mask & ~bad
+    v["t"] = t
+    return v, use, segs, int((seg_mask & bad).sum())
+
+
+def identify_battery(
+    rec: Recording,
+    specs: VehicleSpecs | None = None,
+    *,
+    n_cells: int | None = None,
+    maps: CellMaps | None = None,
+    rate_hz: float | None = None,
+    segment_kinds: tuple[str, ...] | None = BATTERY_SEGMENT_KINDS,
+    min_points: int = 20,
+    min_direction_points: int = 10,
+) -> FitResult:
+    """Identify ``alpha``, ``beta_discharge`` and ``beta_charge`` of eq. 30.
+
+    Parameters
+    ----------
+    rec:
+        Recording with ``battery_voltage_v``, ``battery_current_a`` (positive discharge) and
+        ``displayed_soc_pct``.
+    specs:
+        Public specs; ``n_cells_series`` is used unless ``n_cells`` is given.
+    maps:
+        Literature cell maps (default: the shipped NMC maps).
+    rate_hz:
+        Common time base for the channels; default the voltage channel's own rate (<= 50 Hz).
+    segment_kinds:
+        Segment kinds holding depletion and charge tests; all samples are used when the Recording
+        has no such segment.
+    min_points, min_direction_points:
+        Minimum usable samples overall and per current direction.
+
+    Returns
+    -------
+    FitResult
+        Parameters ``alpha``, ``beta_discharge``, ``beta_charge`` with statistics; ``adj_r2`` of
+        the voltage fit. ``data`` holds ``t``, ``v_meas``, ``v_model``, ``v_lit`` (the uncorrected
+        literature model), ``current``, ``soc`` and the corrected maps on ``map_soc``:
+        ``map_ocv`` (alpha OCV), ``map_r_dch`` (beta_dch R_dch), ``map_r_ch`` (beta_ch R_ch), all
+        per cell. When one current direction has too few points its beta is not identified and the
+        fit is flagged.
+
+    Raises
+    ------
+    MissingChannelError
+        A needed channel is absent.
+    InsufficientDataError, NoExcitationError, CollinearError
+        The data cannot support the fit.
+    """
+    if n_cells is None:
+        if specs is None:
+            raise DataError("identify_battery needs specs (n_cells_series) or n_cells")
+        n_cells = specs.n_cells_series
+    maps = maps or load_literature_maps()
+    d, use, segs, n_bad = _battery_samples(rec, soc=True, rate_hz=rate_hz, kinds=segment_kinds)
+    s, i, v = d["displayed_soc_pct"][use], d["battery_current_a"][use], d["battery_voltage_v"][use]
+    if s.size < min_points:
+        raise InsufficientDataError(f"battery: {s.size} usable samples, need {min_points}")
+    v_cell = v / n_cells
+    dch, ch = i > 0, i < 0
+    cols = {"alpha": maps.ocv(s), "beta_discharge": -i * maps.r_discharge(s) * dch,
+            "beta_charge": -i * maps.r_charge(s) * ch}
+    reasons = []
+    for name, m, what in (("beta_discharge", dch, "discharge"), ("beta_charge", ch, "charge")):
+        if int(m.sum()) < min_direction_points:
+            reasons.append(f"only {int(m.sum())} {what} samples: {name} not identified")
+            cols.pop(name)
+    if "beta_discharge" not in cols and "beta_charge" not in cols:
+        raise NoExcitationError("battery: no current through the pack in the data; alpha and beta are not separable")
+    names = list(cols)
+    A = np.column_stack([cols[n] for n in names])
+    fit = linear_fit(A, v_cell, names, units=[""] * len(names), segments=segs, min_points=min_points,
+                     n_excluded=n_bad, what="battery eq. 30")
+    for r in reasons:
+        fit.flag(r)
+    # the paper's statistics are on the pack voltage (same R^2, RMSE in volts of the pack)
+    fit.rmse *= n_cells
+    alpha = fit.value("alpha")
+    b_d = fit.value("beta_discharge") if "beta_discharge" in fit.params else float("nan")
+    b_c = fit.value("beta_charge") if "beta_charge" in fit.params else float("nan")
+    t = d["t"][use]
+    lit = (maps.ocv(s) - i * np.where(dch, maps.r_discharge(s), maps.r_charge(s))) * n_cells
+    fit.data.update({
+        "t": t, "v_meas": v, "v_model": fit.data["y_fit"] * n_cells, "v_lit": lit, "current": i, "soc": s,
+        "map_soc": maps.soc_pct, "map_ocv": alpha * maps.ocv_v, "map_r_dch": b_d * maps.r_discharge_ohm,
+        "map_r_ch": b_c * maps.r_charge_ohm, "lit_ocv": maps.ocv_v, "lit_r_dch": maps.r_discharge_ohm,
+        "lit_r_ch": maps.r_charge_ohm,
+    })
+    return fit
+
+
+def _hat_basis(x: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Piecewise-linear (hat) basis: column k is 1 at node k, 0 at its neighbours; clamped outside."""
+    x = np.clip(x, nodes[0], nodes[-1])
+    eye = np.eye(nodes.size)
+    return np.column_stack([np.interp(x, nodes, eye[k]) for k in range(nodes.size)])
+
+
+def identify_battery_map_free(
+    rec: Recording,
+    *,
+    n_cells: int = 1,
+    soc_nodes_pct: np.ndarray | list[float] | None = None,
+    capacity_ah: float | None = None,
+    min_abs_current_a: float = 0.0,
+    rate_hz: float | None = None,
+    min_node_points: int = 10,
+    segment_kinds: tuple[str, ...] | None = None,
+) -> FitResult:
+    """Identify OCV(SOC), R_dch(SOC) and R_ch(SOC) directly, without literature maps.
+
+    ``V / n_cells = OCV(s) - I R_dch(s) [I > 0] - I R_ch(s) [I < 0]`` with each function
+    piecewise linear in SOC between ``soc_nodes_pct`` (a hat basis), fitted at once by linear least
+    squares. With a single node, or when the log has neither an SOC channel nor ``capacity_ah``,
+    the functions are constants: the plain OCV/R fit.
+
+    Parameters
+    ----------
+    rec:
+        Recording with ``battery_voltage_v`` and ``battery_current_a`` (positive discharge), and
+        optionally ``displayed_soc_pct``.
+    n_cells:
+        Divide the voltage by this (1: pack values; the cell count: per-cell values).
+    soc_nodes_pct:
+        SOC nodes; default one node (constant OCV and R).
+    capacity_ah:
+        When the log has no ``displayed_soc_pct``, SOC is coulomb-counted with this capacity
+        (:func:`coulomb_soc`, 100 % at the maximum charge content of the log).
+    min_abs_current_a:
+        Samples with ``0 < |I| <`` this are left out (near-zero current carries relaxation
+        voltage, not OCV, on a dynamic trace); rest samples with ``I == 0`` exactly are kept.
+    min_node_points:
+        A node whose support has fewer samples of one direction loses that resistance (flagged).
+
+    Returns
+    -------
+    FitResult
+        Parameters ``ocv_v``, ``r_discharge_ohm``, ``r_charge_ohm`` (single node) or
+        ``ocv_v_soc050`` etc. per node; ``data`` holds ``soc_nodes``, ``ocv_nodes``,
+        ``r_dch_nodes``, ``r_ch_nodes`` (NaN where not identified), ``t``, ``v_meas``, ``v_model``.
+
+    Raises
+    ------
+    MissingChannelError, InsufficientDataError, NoExcitationError, CollinearError
+    """
+    has_soc = "displayed_soc_pct" in rec
+    d, use, segs, n_bad = _battery_samples(rec, soc=has_soc, rate_hz=rate_hz, kinds=segment_kinds)
+    t, i, v = d["t"], d["battery_current_a"], d["battery_voltage_v"]
+    if has_soc:
+        s = d["displayed_soc_pct"]
+    elif capacity_ah is not None:
+        s = coulomb_soc(t, i, capacity_ah)
+    else:
+        s = np.full(t.shape, 50.0)
+    nodes = np.array([50.0] if soc_nodes_pct is None else soc_nodes_pct, dtype=float)
+    if not has_soc and capacity_ah is None:
+        nodes = nodes[:1] * 0 + 50.0
+    if nodes.ndim != 1 or nodes.size == 0 or np.any(np.diff(nodes) <= 0):
+        raise DataError(f"soc_nodes_pct must be increasing, got {nodes.tolist()}")
+    near_zero = (np.abs(i) < min_abs_current_a) & (i != 0)
+    n_near_zero = int((use & near_zero).sum())
+    use = use & ~near_zero
+    t, i, v, s = t[use], i[use], v[use] / n_cells, s[use]
+    if t.size < 3 * nodes.size + 1:
+        raise InsufficientDataError(f"battery map-free: {t.size} usable samples for {nodes.size} SOC node(s)")
+    H = np.ones((t.size, 1)) if nodes.size == 1 else _hat_basis(s, nodes)
+    tag = (lambda k: "") if nodes.size == 1 else (lambda k: f"_soc{round(nodes[k]):03d}")
+    dch, ch = i > 0, i < 0
+    cols, names, units, reasons, keys = [], [], [], [], []
+    for k in range(nodes.size):
+        support = H[:, k] > 0.0
+        if support.sum() < min_node_points:
+            reasons.append(f"SOC node {nodes[k]:g} %: {int(support.sum())} samples, not identified")
+            continue
+        cols.append(H[:, k])
+        names.append(f"ocv_v{tag(k)}")
+        units.append("V")
+        keys.append(("ocv", k))
+        for nm, m, key in (("r_discharge_ohm", dch, "r_dch"), ("r_charge_ohm", ch, "r_ch")):
+            if int((support & m).sum()) < min_node_points:
+                reasons.append(f"SOC node {nodes[k]:g} %: {int((support & m).sum())} samples of "
+                               f"{nm.split('_')[1]}, {nm} not identified")
+                continue
+            cols.append(-i * m * H[:, k])
+            names.append(f"{nm}{tag(k)}")
+            units.append("ohm")
+            keys.append((key, k))
+    if not cols:
+        raise InsufficientDataError("battery map-free: no SOC node has enough samples")
+    if not any(k[0] != "ocv" for k in keys):
+        raise NoExcitationError("battery map-free: no current through the pack; R is not identifiable")
+    fit = linear_fit(np.column_stack(cols), v, names, units=units, segments=segs, min_points=3 * nodes.size + 1,
+                     n_excluded=n_bad + n_near_zero, what="battery OCV/R (map-free)")
+    for r in reasons:
+        fit.flag(r)
+    out = {key: np.full(nodes.size, np.nan) for key in ("ocv", "r_dch", "r_ch")}
+    for (key, k), nm in zip(keys, names):
+        out[key][k] = fit.value(nm)
+    fit.data.update({"soc_nodes": nodes, "ocv_nodes": out["ocv"], "r_dch_nodes": out["r_dch"],
+                     "r_ch_nodes": out["r_ch"], "t": t, "v_meas": v * n_cells,
+                     "v_model": fit.data["y_fit"] * n_cells, "current": i, "soc": s})
+    return fit
+
+
+def identify_battery_r0_steps(
+    rec: Recording,
+    *,
+    n_cells: int = 1,
+    min_step_a: float = 5.0,
+    max_prior_change_a: float = 0.5,
+    capacity_ah: float | None = None,
+    soc_nodes_pct: np.ndarray | list[float] | None = None,
+    min_steps: int = 3,
+) -> FitResult:
+    """Ohmic resistance R0 from current steps (HPPC pulse edges): ``dV = -R0 dI`` across one sample.
+
+    A step is a sample ``k`` where ``|I_k - I_(k-1)| >= min_step_a`` after a sample of nearly
+    constant current (``|I_(k-1) - I_(k-2)| <= max_prior_change_a``). Over one sample interval the
+    diffusion and charge-transfer voltages barely move, so the slope of ``dV`` on ``dI`` is the
+    ohmic resistance (plus what the polarisation builds within one sample: the shorter the sample
+    interval, the closer to R0).
+
+    Parameters
+    ----------
+    rec:
+        Recording with ``battery_voltage_v`` and ``battery_current_a`` sampled together (one source).
+    n_cells:
+        Divide the voltage by this.
+    soc_nodes_pct, capacity_ah:
+        When given (with an SOC channel or a capacity for coulomb counting), R0 is also reported
+        per SOC bin centred on the nodes (``r0_ohm_soc050``...).
+    min_steps:
+        Minimum number of steps (per bin).
+
+    Returns
+    -------
+    FitResult
+        ``r0_ohm`` over all steps (no intercept) and per SOC bin; ``data`` holds ``di``, ``dv``,
+        ``soc`` of each step.
+    """
+    for n in ("battery_voltage_v", "battery_current_a"):
+        if n not in rec:
+            raise MissingChannelError(f"R0 step identification needs channel {n!r}")
+    ci, cv = rec["battery_current_a"], rec["battery_voltage_v"]
+    t = ci.timestamps
+    if cv.timestamps.shape == t.shape and np.array_equal(cv.timestamps, t):
+        v = cv.values
+    else:
+        v = cv.at(t)
+    i = ci.values
+    good = ci.good & np.isfinite(v) & (cv.flags_at(t) == 0)
+    di = np.diff(i)
+    k = np.arange(2, i.size)
+    step = (np.abs(di[1:]) >= min_step_a) & (np.abs(di[:-1]) <= max_prior_change_a) & good[k] & good[k - 1]
+    k = k[step]
+    if k.size < min_steps:
+        raise InsufficientDataError(f"R0 steps: {k.size} current steps of at least {min_step_a} A, need {min_steps}")
+    dI = i[k] - i[k - 1]
+    dV = (v[k] - v[k - 1]) / n_cells
+    fit = linear_fit(-dI[:, None], dV, ["r0_ohm"], units=["ohm"], min_points=min_steps, what="battery R0 steps")
+    soc = None
+    if "displayed_soc_pct" in rec:
+        soc = rec["displayed_soc_pct"].at(t[k], hold=True)
+    elif capacity_ah is not None:
+        soc = coulomb_soc(t, i, capacity_ah)[k]
+    if soc is not None and soc_nodes_pct is not None:
+        nodes = np.asarray(soc_nodes_pct, dtype=float)
+        edges = np.r_[-np.inf, 0.5 * (nodes[1:] + nodes[:-1]), np.inf]
+        r_nodes = np.full(nodes.size, np.nan)
+        for j, node in enumerate(nodes):
+            m = (soc >= edges[j]) & (soc < edges[j + 1])
+            if m.sum() < min_steps:
+                continue
+            sub = linear_fit(-dI[m, None], dV[m], ["r0"], min_points=min_steps, what=f"R0 at {node:g} %")
+            p = sub["r0"]
+            fit.add(ParameterEstimate(f"r0_ohm_soc{round(node):03d}", p.value, p.std_error, p.ci95, sub.r2,
+                                      sub.n_points, "ohm"))
+            r_nodes[j] = p.value
+        fit.data.update({"soc_nodes": nodes, "r0_nodes": r_nodes})
+    fit.data.update({"di": dI, "dv": dV, "soc": soc if soc is not None else np.full(k.size, np.nan)})
+    return fit
+
+
+def identify_battery_ocv_rest(
+    rec: Recording,
+    *,
+    n_cells: int = 1,
+    capacity_ah: float | None = None,
+    min_rest_s: float = 600.0,
+    rest_current_a: float = 0.05,
+    average_s: float = 10.0,
+) -> FitResult:
+    """OCV(SOC) from the ends of long rests (the HPPC definition of OCV).
+
+    A rest is a run of samples with ``|I| <= rest_current_a`` lasting at least ``min_rest_s``;
+    its OCV is the mean voltage over its last ``average_s`` seconds (the cell has relaxed), at the
+    SOC of that moment (``displayed_soc_pct`` or coulomb counting with ``capacity_ah``).
+
+    Returns
+    -------
+    FitResult
+        One parameter per rest, ``ocv_v_soc087`` (SOC rounded to 1 %), with the standard deviation
+        of the averaged samples as its standard error; ``data`` holds ``soc`` and ``ocv`` sorted by SOC.
+
+    Raises
+    ------
+    InsufficientDataError
+        Fewer than two long rests.
+    """
+    for n in ("battery_voltage_v", "battery_current_a"):
+        if n not in rec:
+            raise MissingChannelError(f"OCV from rests needs channel {n!r}")
+    ci, cv = rec["battery_current_a"], rec["battery_voltage_v"]
+    t, i = ci.timestamps, ci.values
+    v = cv.values if np.array_equal(cv.timestamps, t) else cv.at(t)
+    if "displayed_soc_pct" in rec:
+        soc = rec["displayed_soc_pct"].at(t, hold=True)
+    elif capacity_ah is not None:
+        soc = coulomb_soc(t, i, capacity_ah)
+    else:
+        raise MissingChannelError("OCV from rests needs displayed_soc_pct or capacity_ah for coulomb counting")
+    rest = (np.abs(i) <= rest_current_a) & ci.good & np.isfinite(v)
+    edges = np.flatnonzero(np.diff(np.r_[0, rest.astype(np.int8), 0]))
+    points = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        if t[b - 1] - t[a] < min_rest_s:
+            continue
+        m = slice(a, b)
+        last = t[m] >= t[b - 1] - average_s
+        vv = v[m][last] / n_cells
+        points.append((float(soc[b - 1]), float(vv.mean()), float(vv.std(ddof=1)) if vv.size > 1 else float("nan"),
+                       int(vv.size)))
+    if len(points) < 2:
+        raise InsufficientDataError(f"OCV from rests: {len(points)} rest(s) of at least {min_rest_s:g} s, need 2")
+    points.sort()
+    s_arr = np.array([p[0] for p in points])
+    o_arr = np.array([p[1] for p in points])
+    params = {}
+    for s_, o_, se, n in points:
+        name = f"ocv_v_soc{round(s_):03d}"
+        params[name] = ParameterEstimate(name, o_, se, (o_ - 2 * se, o_ + 2 * se), float("nan"), n, "V")
+    fit = FitResult(params, float("nan"), float("nan"), float("nan"), sum(p[3] for p in points),
+                    data={"soc": s_arr, "ocv": o_arr})
+    return fit

@@ -1,0 +1,168 @@
+"""Import real-car logs (CSV or MF4) into a :class:`~benchtwin.recording.Recording` through a signal map.
+
+Identification runs unchanged on the result: every mapped column becomes a channel named by its
+role, in the role's unit, with all-OK quality flags (NaN cells stay NaN and are skipped by
+identification). Columns that are not mapped are left out.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+
+from benchtwin.errors import ConfigError, DataError, MissingChannelError
+from benchtwin.identification.signal_map import SignalMap, convert_units, load_signal_map
+from benchtwin.recording import Channel, Recording
+from benchtwin.roles import ROLES
+
+__all__ = ["import_csv", "import_log", "import_mf4", "read_csv_table"]
+
+
+def read_csv_table(path: str | Path, *, delimiter: str | None = None, comment: str = "#", header_row: int = 0
+                   ) -> dict[str, np.ndarray]:
+    """Read a delimited text table into column name -> float array.
+
+    Parameters
+    ----------
+    path:
+        The file.
+    delimiter:
+        Column separator; sniffed among comma, tab, semicolon and space when ``None``.
+    comment:
+        Lines starting with this (after leading blanks) are skipped.
+    header_row:
+        Index of the header line among the non-comment, non-blank lines; lines before it are skipped.
+
+    Returns
+    -------
+    dict
+        Column name -> values; cells that are not numbers become NaN, columns that hold no number at all
+        are dropped.
+
+    Raises
+    ------
+    DataError
+        Missing file, no header or no data rows.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+    lines = [ln for ln in text.splitlines() if ln.strip() and not (comment and ln.lstrip().startswith(comment))]
+    if len(lines) <= header_row + 1:
+        raise DataError(f"{path}: no header and data rows after {header_row} skipped line(s)")
+    lines = lines[header_row:]
+    if delimiter is None:
+        try:
+            delimiter = csv.Sniffer().sniff("\n".join(lines[:20]), delimiters=",\t; ").delimiter
+        except csv.Error:
+            delimiter = ","
+    rows = list(csv.reader(io.StringIO("\n".join(lines)), delimiter=delimiter, skipinitialspace=True))
+    header = [h.strip() for h in rows[0]]
+    data = rows[1:]
+    out: dict[str, np.ndarray] = {}
+    for j, name in enumerate(header):
+        if not name:
+            continue
+        col = np.full(len(data), np.nan)
+        for r, row in enumerate(data):
+            if j < len(row):
+                with contextlib.suppress(ValueError):
+                    col[r] = float(row[j])
+        if np.isfinite(col).any():
+            out[name] = col
+    if not out:
+        raise DataError(f"{path}: no numeric column found (delimiter {delimiter!r})")
+    return out
+
+
+def _to_recording(table_time: np.ndarray, columns: dict[str, tuple[np.ndarray, np.ndarray, str]], smap: SignalMap,
+                  origin: str) -> Recording:
+    rec = Recording(meta={"imported_from": origin, "source_format": smap.source.format or "",
+                          "signal_map_roles": sorted(smap.channels)})
+    for role, cm in smap.channels.items():
+        if cm.column not in columns:
+            avail = ", ".join(sorted(columns))
+            raise MissingChannelError(f"{origin}: signal map channels.{role}.column = {cm.column!r} is not in the log "
+                                      f"(columns: {avail})")
+        t, values, file_unit = columns[cm.column]
+        unit = cm.unit if cm.unit is not None else (file_unit or ROLES[role][0])
+        conv = convert_units(values, unit, ROLES[role][0], key=f"channels.{role}.unit")
+        conv = conv * cm.scale + cm.offset
+        keep = np.isfinite(t)
+        ts = t[keep]
+        order = np.argsort(ts, kind="stable")
+        rec.add(Channel(role, ROLES[role][0], ts[order], conv[keep][order], source=smap.source.source_name))
+    return rec
+
+
+def import_csv(path: str | Path, smap: SignalMap) -> Recording:
+    """Import a CSV/TSV log into a Recording.
+
+    Raises
+    ------
+    DataError, MissingChannelError, ConfigError
+        Unreadable file, a mapped column missing, or no time column.
+    """
+    src = smap.source
+    table = read_csv_table(path, delimiter=src.delimiter, comment=src.comment, header_row=src.header_row)
+    tcol = src.time_column
+    if tcol is None:
+        cands = [c for c in table if c.lower().startswith("time")]
+        if not cands:
+            raise ConfigError(f"{path}: set source.time_column in the signal map (no column named time*)")
+        tcol = cands[0]
+    if tcol not in table:
+        raise MissingChannelError(f"{path}: time column {tcol!r} not in the log (columns: {', '.join(table)})")
+    t = convert_units(table[tcol], src.time_unit, "s", key="source.time_unit")
+    cols = {name: (t, vals, "") for name, vals in table.items()}
+    return _to_recording(t, cols, smap, str(path))
+
+
+def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
+    """Import an MF4 log (asammdf) into a Recording; each mapped channel keeps its own time base.
+
+    The unit of a mapped channel is taken from the file when the signal map gives none.
+    """
+    from asammdf import MDF
+
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such file")
+    try:
+        mdf = MDF(path)
+    except Exception as exc:  # asammdf raises many kinds on a bad file
+        raise DataError(f"{path}: not a readable MF4 file ({exc})") from exc
+    cols: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
+    with mdf:
+        for role, cm in smap.channels.items():
+            try:
+                sig = mdf.get(cm.column)
+            except Exception:  # asammdf raises MdfException for an unknown name
+                continue
+            t = np.asarray(sig.timestamps, dtype=float)
+            if smap.source.time_column:
+                try:
+                    tsig = mdf.get(smap.source.time_column)
+                    t = np.interp(t, tsig.timestamps, np.asarray(tsig.samples, dtype=float))
+                except Exception as exc:
+                    raise MissingChannelError(f"{path}: time channel {smap.source.time_column!r}: {exc}") from None
+            t = convert_units(t, smap.source.time_unit, "s", key="source.time_unit")
+            try:
+                vals = np.asarray(sig.samples, dtype=float)
+            except (TypeError, ValueError):
+                raise DataError(f"{path}: channel {cm.column!r} (for {role}) is not numeric") from None
+            cols[cm.column] = (t, vals, str(sig.unit or ""))
+    return _to_recording(np.array([]), cols, smap, str(path))
+
+
+def import_log(path: str | Path, signal_map: SignalMap | str | Path) -> Recording:
+    """Import a CSV or MF4 log through a signal map (format from the map, else the file extension)."""
+    smap = signal_map if isinstance(signal_map, SignalMap) else load_signal_map(signal_map)
+    fmt = smap.source.format or ("mf4" if Path(path).suffix.lower() in (".mf4", ".mdf", ".dat") else "csv")
+    return import_mf4(path, smap) if fmt == "mf4" else import_csv(path, smap)

@@ -1,0 +1,129 @@
+"""Gear-shift thresholds: speed-vs-pedal lines for every gear pair, up and down (paper, Figure 21).
+
+The model (docs/models.md): for each pair ``(g, g+1)`` the gearbox asks for an upshift when
+``v >= u0 + u1 * pedal`` and for a downshift from ``g+1`` to ``g`` when ``v <= d0 + d1 * pedal``
+(v in km/h, pedal in %). The *target* gear on the CAN changes at once when a threshold is crossed;
+the actual gear follows after the actuation delay, so events are taken where ``gear_target``
+changes (never ``gear_actual``, whose speed would be late by the delay times the acceleration).
+
+At each event the vehicle speed and pedal of the first sample with the new target are recorded;
+per pair and direction, ``v = c0 + c1 pedal`` is fitted by least squares. A pair with too few
+events or too little pedal spread gets a *flagged* result (no confident line): with events at one
+pedal position only, the speed is reported as ``c0`` and the slope as NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchtwin.errors import MissingChannelError
+from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
+from benchtwin.recording import Recording
+
+__all__ = ["find_shift_events", "identify_shift_thresholds"]
+
+
+def find_shift_events(rec: Recording) -> dict[str, np.ndarray]:
+    """Target-gear change events.
+
+    Returns
+    -------
+    dict
+        ``t`` (s), ``from_gear``, ``to_gear``, ``speed_kmh`` and ``pedal_pct`` at each change of
+        ``gear_target`` (speed and pedal interpolated at the change's timestamp on their own clocks),
+        and ``good`` (False where speed or pedal is flagged bad or missing there).
+
+    Raises
+    ------
+    MissingChannelError
+        ``gear_target``, ``vehicle_speed_kmh`` or ``pedal_pct`` is absent.
+    """
+    for n in ("gear_target", "vehicle_speed_kmh", "pedal_pct"):
+        if n not in rec:
+            raise MissingChannelError(f"shift-threshold identification needs channel {n!r}")
+    gch = rec["gear_target"]
+    ok = gch.good
+    ts, g = gch.timestamps[ok], np.rint(gch.values[ok]).astype(int)
+    k = np.flatnonzero(np.diff(g) != 0) + 1
+    t_ev = ts[k]
+    sp, pd = rec["vehicle_speed_kmh"], rec["pedal_pct"]
+    v = sp.at(t_ev)
+    p = pd.at(t_ev)
+    from benchtwin.recording import Flag
+
+    good = np.isfinite(v) & np.isfinite(p) & ((sp.flags_at(t_ev) & int(Flag.bad())) == 0) \
+        & ((pd.flags_at(t_ev) & int(Flag.bad())) == 0)
+    return {"t": t_ev, "from_gear": g[k - 1], "to_gear": g[k], "speed_kmh": v, "pedal_pct": p, "good": good}
+
+
+def _flagged(name: str, v: np.ndarray, p: np.ndarray, reason: str, segs: list[str]) -> FitResult:
+    n = int(v.size)
+    c0 = float(np.mean(v)) if n else float("nan")
+    se = float(np.std(v, ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+    params = {
+        "c0_kmh": ParameterEstimate("c0_kmh", c0, se, (c0 - 2 * se, c0 + 2 * se), float("nan"), n, "km/h", segs),
+        "c1_kmh_per_pct": ParameterEstimate("c1_kmh_per_pct", float("nan"), float("nan"),
+                                            (float("nan"), float("nan")), float("nan"), n, "km/h/%", segs),
+    }
+    fit = FitResult(params, float("nan"), float("nan"), float("nan"), n, segments=segs,
+                    data={"pedal": p, "speed": v})
+    fit.flag(f"{name}: {reason}")
+    return fit
+
+
+def identify_shift_thresholds(
+    rec: Recording,
+    *,
+    n_gears: int | None = None,
+    min_events: int = 3,
+    min_pedal_spread_pct: float = 10.0,
+) -> dict[str, FitResult]:
+    """Fit the shift lines of every gear pair and direction.
+
+    Parameters
+    ----------
+    rec:
+        Recording with ``gear_target``, ``vehicle_speed_kmh`` and ``pedal_pct``.
+    n_gears:
+        Number of forward gears; every pair ``1-2 ... (n-1)-n`` gets a result (flagged when it has
+        no events). Default: the highest target gear seen.
+    min_events:
+        Fewer events than this: flagged.
+    min_pedal_spread_pct:
+        Pedal range (max - min) of a pair's events below this: flagged (slope not identifiable).
+
+    Returns
+    -------
+    dict
+        ``up_1_2``, ``down_2_1``, ... -> :class:`FitResult` with ``c0_kmh`` and ``c1_kmh_per_pct``
+        (``v = c0 + c1 pedal``); ``data`` holds ``pedal`` and ``speed`` of the events. Events that
+        skip a gear (3 -> 5) or involve neutral are not used; events whose speed or pedal is flagged
+        are counted in the pair's ``n_excluded``.
+    """
+    ev = find_shift_events(rec)
+    seen = int(max(ev["from_gear"].max(initial=0), ev["to_gear"].max(initial=0)))
+    n_gears = n_gears or seen
+    adjacent = (np.abs(ev["to_gear"] - ev["from_gear"]) == 1) & (np.minimum(ev["from_gear"], ev["to_gear"]) >= 1)
+    out: dict[str, FitResult] = {}
+    for g in range(1, max(n_gears, 1)):
+        for direction, a, b in (("up", g, g + 1), ("down", g + 1, g)):
+            name = f"{direction}_{a}_{b}"
+            m = adjacent & (ev["from_gear"] == a) & (ev["to_gear"] == b)
+            n_bad = int((m & ~ev["good"]).sum())
+            m &= ev["good"]
+            v, p = ev["speed_kmh"][m], ev["pedal_pct"][m]
+            segs = sorted({s.name for s in rec.segments if np.any(s.contains(ev["t"][m]))}) if rec.segments else []
+            spread = float(p.max() - p.min()) if p.size else 0.0
+            if v.size < min_events:
+                fit = _flagged(name, v, p, f"{v.size} target-gear change event(s), need {min_events}", segs)
+            elif spread < min_pedal_spread_pct:
+                fit = _flagged(name, v, p, f"pedal spread {spread:.1f} % < {min_pedal_spread_pct:g} %: "
+                               "slope not identifiable", segs)
+            else:
+                fit = linear_fit(np.column_stack([np.ones_like(p), p]), v, ["c0_kmh", "c1_kmh_per_pct"],
+                                 units=["km/h", "km/h/%"], segments=segs, min_points=min_events,
+                                 what=f"shift line {name}")
+                fit.data.update({"pedal": p, "speed": v})
+            fit.n_excluded += n_bad
+            out[name] = fit
+    return out

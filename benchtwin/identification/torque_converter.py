@@ -1,0 +1,310 @@
+"""Torque converter identification (eq. 31-39 of the paper): a0..a8, the coupling point, TR and CF curves.
+
+Model (docs/models.md), speeds in rad/s, torques in Nm, ``SR = w_t / w_p``:
+
+- converter mode, ``SR < Gamma``: ``T_p = a0 w_p^2 + a1 w_p w_t + a2 w_t^2`` and
+  ``T_t = a3 w_p^2 + a4 w_p w_t + a5 w_t^2`` (eq. 35), fitted together by one stacked least-squares
+  problem (eq. 37-38);
+- coupling mode, ``SR >= Gamma``: ``T_p = T_t = a6 w_p^2 + a7 w_p w_t + a8 w_t^2`` (eq. 36, 39).
+
+``Gamma`` is "the first SR where TR reaches 1": a first estimate from the binned median torque ratio
+of the data, refined as the root of ``TR_model(SR) = 1`` of the converter fit, after which the data
+are split again at the refined value and both modes refitted.
+
+From a Recording (:func:`identify_torque_converter`): the turbine speed comes from the vehicle speed
+(eq. 31: ``w_t = v / R_w * i_g * i_fd``), the turbine torque from the propeller-shaft torque through
+the transmission model of the engaged gear (eq. 32 in the form of docs/models.md:
+``T_t = T_out / (i_g eta_m) + C0``), the pump speed and torque are the motor's (K0 open: the engine is
+decoupled). Only samples with the lock-up open, no shift in progress (target = actual gear, held for
+a while), positive torques and a quasi-steady pump speed are used.
+
+The curves: torque ratio ``TR = T_t / T_p`` against SR (Figure 18) and capacity factor
+``CF = n_p / sqrt(T_p)`` (rpm / sqrt(Nm), i.e. the K-factor) against SR (Figure 19), each with the R^2
+of the model curve against the data points.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from benchtwin.errors import InsufficientDataError, MissingChannelError
+from benchtwin.identification._fit import FitResult, derived, linear_fit, r_squared
+from benchtwin.identification.battery import strict_resample
+from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.recording import Recording
+
+__all__ = [
+    "RPM_PER_RADS",
+    "coupling_point",
+    "fit_torque_converter",
+    "identify_torque_converter",
+    "tc_torques",
+]
+
+#: rpm per rad/s
+RPM_PER_RADS = 60.0 / (2.0 * np.pi)
+
+
+def tc_torques(a: np.ndarray, gamma: float, w_p: np.ndarray, w_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pump and turbine torque of the model (eq. 35-36) for coefficients ``a = a0..a8``."""
+    a = np.asarray(a, dtype=float)
+    w_p = np.asarray(w_p, dtype=float)
+    w_t = np.asarray(w_t, dtype=float)
+    q = np.stack([w_p**2, w_p * w_t, w_t**2])
+    tp = a[0:3] @ q
+    tt = a[3:6] @ q
+    tc = a[6:9] @ q
+    sr = np.divide(w_t, w_p, out=np.zeros_like(w_t), where=w_p != 0)
+    coupling = sr >= gamma
+    return np.where(coupling, tc, tp), np.where(coupling, tc, tt)
+
+
+def coupling_point(a_conv: np.ndarray, *, lo: float = 0.0, hi: float = 1.2) -> float:
+    """Smallest SR in ``(lo, hi]`` where the converter-mode torque ratio equals 1 (NaN if none).
+
+    ``(a3 - a0) + (a4 - a1) SR + (a5 - a2) SR^2 = 0``.
+    """
+    a = np.asarray(a_conv, dtype=float)
+    c0, c1, c2 = a[3] - a[0], a[4] - a[1], a[5] - a[2]
+    roots = np.roots([c2, c1, c0]) if abs(c2) > 1e-30 else (np.array([-c0 / c1]) if c1 != 0 else np.array([]))
+    real = np.sort([r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and lo < r.real <= hi])
+    return float(real[0]) if real.size else float("nan")
+
+
+def _gamma_from_data(sr: np.ndarray, tr: np.ndarray, tr_tol: float, bin_width: float = 0.02,
+                     min_bin: int = 3) -> float:
+    """First SR bin whose median TR is within ``tr_tol`` of 1 (or below) and stays so in the next bins."""
+    edges = np.arange(0.0, max(1.0, float(sr.max())) + bin_width, bin_width)
+    idx = np.digitize(sr, edges) - 1
+    meds = []
+    for k in range(edges.size - 1):
+        m = idx == k
+        if m.sum() >= min_bin:
+            meds.append((edges[k], float(np.median(tr[m]))))
+    for j, (lo, med) in enumerate(meds):
+        if med <= 1.0 + tr_tol and all(m2 <= 1.0 + 2 * tr_tol for _, m2 in meds[j:j + 3]):
+            return float(lo)
+    return float("nan")
+
+
+def fit_torque_converter(
+    w_p: np.ndarray,
+    w_t: np.ndarray,
+    t_p: np.ndarray,
+    t_t: np.ndarray,
+    *,
+    gamma: float | None = None,
+    tr_tol: float = 0.02,
+    min_points: int = 10,
+    segments: list[str] | None = None,
+    n_excluded: int = 0,
+) -> dict[str, FitResult]:
+    """Fit a0..a8 and the coupling point to pump/turbine speed and torque points.
+
+    Parameters
+    ----------
+    w_p, w_t:
+        Pump and turbine speed, rad/s.
+    t_p, t_t:
+        Pump and turbine torque, Nm (positive: drive).
+    gamma:
+        Coupling speed ratio if known; else found from the data (module docstring).
+    tr_tol:
+        Tolerance on "TR reaches 1" for the first estimate of ``gamma``.
+    min_points:
+        Minimum points per mode.
+
+    Returns
+    -------
+    dict
+        ``converter`` (a0..a5 and ``gamma_coupling``), ``coupling`` (a6..a8; missing when the data
+        have fewer than ``min_points`` coupling points, see ``converter.reasons``), ``torque_ratio``
+        (R^2 of TR over all points; data ``sr``, ``tr``, ``tr_model``), ``capacity_factor`` (R^2 of
+        CF in converter mode; data ``sr``, ``cf``, ``cf_model``, ``coupling``) and
+        ``capacity_factor_coupling`` (R^2 of CF in coupling mode) when it exists.
+
+    Raises
+    ------
+    InsufficientDataError
+        Too few converter-mode points.
+    """
+    w_p, w_t, t_p, t_t = (np.asarray(x, dtype=float) for x in (w_p, w_t, t_p, t_t))
+    ok = np.isfinite(w_p) & np.isfinite(w_t) & np.isfinite(t_p) & np.isfinite(t_t) & (w_p > 0) & (t_p > 0)
+    ok &= (w_t >= 0) & (w_t <= 1.05 * w_p)
+    n_excluded += int((~ok).sum())
+    w_p, w_t, t_p, t_t = w_p[ok], w_t[ok], t_p[ok], t_t[ok]
+    segments = list(segments or [])
+    if w_p.size < 2 * min_points:
+        raise InsufficientDataError(f"torque converter: {w_p.size} usable points, need {2 * min_points}")
+    sr = w_t / w_p
+    tr = t_t / t_p
+    reasons = []
+    g0 = float(gamma) if gamma is not None else _gamma_from_data(sr, tr, tr_tol)
+    if not np.isfinite(g0):
+        g0 = float(sr.max()) + 1e-9
+        reasons.append("the torque ratio never reaches 1 in the data: no coupling-mode points")
+    q = np.column_stack([w_p**2, w_p * w_t, w_t**2])
+
+    def conv_fit(mask: np.ndarray) -> FitResult:
+        n = int(mask.sum())
+        if n < min_points:
+            raise InsufficientDataError(f"torque converter: {n} converter-mode points (SR < {g0:.3f}), "
+                                        f"need {min_points}")
+        z = np.zeros((n, 3))
+        A = np.vstack([np.hstack([q[mask], z]), np.hstack([z, q[mask]])])
+        b = np.r_[t_p[mask], t_t[mask]]
+        return linear_fit(A, b, [f"a{k}" for k in range(6)], units=["Nm*s^2/rad^2"] * 6, segments=segments,
+                          min_points=2 * min_points, n_excluded=n_excluded, what="torque converter (eq. 37-38)")
+
+    conv = conv_fit(sr < g0)
+    g = g0
+    if gamma is None:
+        g1 = coupling_point(np.array([conv.value(f"a{k}") for k in range(6)]), lo=0.3, hi=1.0)
+        if np.isfinite(g1) and abs(g1 - g0) < 0.15 and int((sr < g1).sum()) >= min_points:
+            g = g1
+            conv = conv_fit(sr < g)
+    derived(conv, "gamma_coupling",
+            lambda x: coupling_point(x, lo=0.3, hi=1.0) if gamma is None else float(gamma))
+    if gamma is not None or not np.isfinite(conv.value("gamma_coupling")):
+        conv.params["gamma_coupling"].value = g
+    conv.params["gamma_coupling"].unit = ""
+    cm = sr >= g
+    out: dict[str, FitResult] = {"converter": conv}
+    a = np.full(9, np.nan)
+    a[:6] = [conv.value(f"a{k}") for k in range(6)]
+    if int(cm.sum()) >= min_points:
+        coup = linear_fit(q[cm], t_p[cm], ["a6", "a7", "a8"], units=["Nm*s^2/rad^2"] * 3, segments=segments,
+                          min_points=min_points, what="torque converter coupling (eq. 39)")
+        a[6:] = [coup.value(f"a{k}") for k in (6, 7, 8)]
+        out["coupling"] = coup
+    else:
+        reasons.append(f"{int(cm.sum())} coupling-mode points (SR >= {g:.3f}): a6..a8 not identified")
+    for r in reasons:
+        conv.flag(r)
+    # curves
+    conv_m = ~cm
+    den = a[0] + a[1] * sr + a[2] * sr**2
+    tr_model = np.where(cm, 1.0, (a[3] + a[4] * sr + a[5] * sr**2) / den)
+    tr_r2, _ = r_squared(tr, tr_model)
+    tp_coef = np.where(cm, a[6] + a[7] * sr + a[8] * sr**2, den)
+    cf = w_p * RPM_PER_RADS / np.sqrt(t_p)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cf_model = RPM_PER_RADS / np.sqrt(tp_coef)
+    n = sr.size
+    curve_data = {"sr": sr, "tr": tr, "tr_model": tr_model, "cf": cf, "cf_model": cf_model,
+                  "coupling": cm.astype(float), "w_p": w_p, "w_t": w_t, "t_p": t_p, "t_t": t_t,
+                  "a": a, "gamma": np.array([g])}
+    out["torque_ratio"] = FitResult({}, tr_r2, float("nan"), float(np.sqrt(np.mean((tr - tr_model) ** 2))), n,
+                                    segments=segments, data=curve_data)
+    cf_r2, _ = r_squared(cf[conv_m], cf_model[conv_m])
+    out["capacity_factor"] = FitResult({}, cf_r2, float("nan"),
+                                       float(np.sqrt(np.mean((cf[conv_m] - cf_model[conv_m]) ** 2))),
+                                       int(conv_m.sum()), segments=segments, data=curve_data)
+    if "coupling" in out:
+        fin = cm & np.isfinite(cf_model)
+        cf_r2c, _ = r_squared(cf[fin], cf_model[fin])
+        out["capacity_factor_coupling"] = FitResult(
+            {}, cf_r2c, float("nan"), float(np.sqrt(np.mean((cf[fin] - cf_model[fin]) ** 2))) if fin.any()
+            else float("nan"), int(fin.sum()), segments=segments, data=curve_data)
+    return out
+
+
+def _hold_mask(gear_change: np.ndarray, n_hold: int) -> np.ndarray:
+    """True where no gear change happened within ``n_hold`` samples either side."""
+    if n_hold <= 0:
+        return ~gear_change
+    k = np.ones(2 * n_hold + 1)
+    return np.convolve(gear_change.astype(float), k, mode="same") == 0
+
+
+def identify_torque_converter(
+    rec: Recording,
+    specs: VehicleSpecs,
+    *,
+    transmission: Mapping[int, tuple[float, float]] | None = None,
+    rate_hz: float = 10.0,
+    max_pump_accel_rpm_s: float = 150.0,
+    min_pump_speed_rpm: float = 300.0,
+    min_pump_torque_nm: float = 5.0,
+    shift_hold_s: float = 1.0,
+    gamma: float | None = None,
+    min_points: int = 10,
+) -> dict[str, FitResult]:
+    """Identify the torque converter from a Recording (module docstring).
+
+    Parameters
+    ----------
+    rec:
+        Needs ``vehicle_speed_kmh``, ``em_speed_rpm``, ``em_torque_nm``, ``shaft_torque_nm``,
+        ``gear_actual``, ``lockup_closed``; uses ``gear_target``, ``k0_closed`` (else ``engine_on``)
+        when present.
+    specs:
+        Gear ratios, final drive, wheel radius.
+    transmission:
+        Gear -> ``(eta_m, C0)`` from the transmission identification. Without it, eta = 1 and
+        C0 = 0 and the result is flagged (turbine torque underestimated by the gearbox losses).
+    max_pump_accel_rpm_s:
+        Quasi-steady limit on ``|d n_p / dt|``: inertia torques stay small.
+    shift_hold_s:
+        Samples within this time of a gear change (target or actual) are left out.
+
+    Returns
+    -------
+    dict
+        As :func:`fit_torque_converter`.
+
+    Raises
+    ------
+    MissingChannelError, InsufficientDataError
+    """
+    need = ["vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm", "gear_actual", "lockup_closed"]
+    missing = [n for n in need if n not in rec]
+    if missing:
+        raise MissingChannelError(f"torque converter identification needs channel(s) {', '.join(missing)}")
+    opt = [n for n in ("gear_target", "k0_closed", "engine_on") if n in rec]
+    states = {"gear_actual", "lockup_closed", "gear_target", "k0_closed", "engine_on"}
+    t, d, bad = strict_resample(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)))
+    gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
+    change = np.r_[False, np.diff(gear) != 0]
+    if "gear_target" in d:
+        tgt = np.rint(np.nan_to_num(d["gear_target"])).astype(int)
+        change |= np.r_[False, np.diff(tgt) != 0] | (tgt != gear)
+    use = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz))
+    use &= (gear >= 1) & (gear <= len(specs.gear_ratios))
+    use &= np.nan_to_num(d["lockup_closed"]) < 0.5
+    reasons = []
+    if "k0_closed" in d:
+        use &= np.nan_to_num(d["k0_closed"], nan=1.0) < 0.5
+    elif "engine_on" in d:
+        use &= np.nan_to_num(d["engine_on"], nan=1.0) < 0.5
+    else:
+        reasons.append("no K0 or engine state in the recording: pump torque taken as motor torque everywhere")
+    n_p = d["em_speed_rpm"]
+    dn = np.gradient(n_p, t)
+    use &= np.abs(dn) <= max_pump_accel_rpm_s
+    use &= (n_p >= min_pump_speed_rpm) & (d["em_torque_nm"] >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
+    segs = sorted({s.name for s in rec.segments if np.any(s.contains(t[use]))}) if rec.segments else []
+    g = np.clip(gear, 1, len(specs.gear_ratios))
+    ig = np.asarray(specs.gear_ratios)[g - 1]
+    w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
+    if transmission:
+        eta = np.array([transmission.get(int(k), (np.nan, np.nan))[0] for k in g])
+        c0 = np.array([transmission.get(int(k), (np.nan, np.nan))[1] for k in g])
+        lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in transmission})
+        if lacking:
+            reasons.append(f"no transmission model for gear(s) {lacking}: their points are left out")
+    else:
+        eta, c0 = np.ones_like(ig), np.zeros_like(ig)
+        reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
+    t_t = d["shaft_torque_nm"] / (ig * eta) + c0
+    use &= np.isfinite(t_t)
+    n_total = int(t.size)
+    res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], d["em_torque_nm"][use], t_t[use], gamma=gamma,
+                               min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()))
+    for r in reasons:
+        res["converter"].flag(r)
+        if "coupling" in res:
+            res["coupling"].flag(r)
+    return res
