@@ -1,0 +1,254 @@
+"""The thermo module as a CANopen device (canopen LocalNode) and its acquisition (canopen RemoteNode).
+
+Both sides are built from one EDS (the device and the master mirror each other over one object
+dictionary). The device (:class:`ThermoNode`) takes a :class:`~benchtwin.chain.frames.ProcessImage`:
+at each row's time (the scheduler calls :meth:`ThermoNode.update`) it writes the values into the
+LocalNode's SDO data store (so an SDO upload returns the current value) and into every enabled TPDO
+that maps one of them, and transmits those TPDOs. The acquisition (:class:`ThermoAcquisition`) is a
+RemoteNode that records every TPDO it receives (arrival time, raw values) and can SDO-read.
+
+A process-image column that no enabled TPDO maps is still served by SDO.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+import numpy as np
+
+from benchtwin.chain.frames import ProcessImage
+from benchtwin.chain.live.scheduler import Stream
+from benchtwin.errors import CanopenError, ConfigError, TransportTimeoutError
+
+__all__ = ["PdoLog", "ThermoAcquisition", "ThermoNode"]
+
+log = logging.getLogger(__name__)
+
+EdsLike = str | Path | canopen.ObjectDictionary
+
+
+def _attach(bus: can.BusABC, notifier: can.Notifier | None) -> tuple[canopen.Network, can.Notifier, bool]:
+    network = canopen.Network(bus)
+    own = notifier is None
+    if notifier is None:
+        notifier = can.Notifier(bus, [], timeout=0.2)
+    for listener in network.listeners:
+        notifier.add_listener(listener)
+    network.notifier = notifier
+    return network, notifier, own
+
+
+def _od_var(od: Any, index: int, sub: int) -> Any:
+    obj = od[index]
+    if isinstance(obj, canopen.objectdictionary.ODVariable):
+        if sub:
+            raise KeyError(sub)
+        return obj
+    return obj[sub]
+
+
+def _enabled_tpdos(pdo_maps: Any) -> list[Any]:
+    out = []
+    for m in pdo_maps.map.values():
+        if m.enabled and len(m.map):
+            out.append(m)
+    return out
+
+
+class ThermoNode:
+    """The emulated CANopen thermo module.
+
+    Parameters
+    ----------
+    image:
+        Values over time; its ``entries`` must exist in the EDS.
+    eds:
+        EDS file (or a canopen ObjectDictionary) of the module.
+    bus:
+        Device-side python-can bus the node lives on.
+    notifier:
+        A python-can notifier already reading ``bus`` (shared with other listeners); one is made
+        otherwise.
+    """
+
+    def __init__(self, image: ProcessImage, eds: EdsLike, bus: can.BusABC,
+                 notifier: can.Notifier | None = None) -> None:
+        if not 1 <= image.node_id <= 127:
+            raise ConfigError(f"canopen node {image.node!r}: node id {image.node_id} outside 1..127")
+        self.image = image
+        self.network, self._notifier, self._own_notifier = _attach(bus, notifier)
+        try:
+            self.node = canopen.LocalNode(image.node_id, eds if isinstance(eds, canopen.ObjectDictionary) else str(eds))
+        except (OSError, ValueError, KeyError) as exc:
+            raise ConfigError(f"canopen node {image.node!r}: cannot load EDS {eds}: {exc}") from exc
+        self.network.add_node(self.node)
+        od = self.node.object_dictionary
+        self._vars = []
+        for index, sub in image.entries:
+            try:
+                self._vars.append(_od_var(od, index, sub))
+            except KeyError:
+                raise ConfigError(f"canopen node {image.node!r}: entry 0x{index:04X}:{sub} is not in the EDS") from None
+        self.node.tpdo.read(from_od=True)
+        col = {e: k for k, e in enumerate(image.entries)}
+        # per enabled TPDO: (map, [(pdo variable, column)])
+        self._tpdos: list[tuple[Any, list[tuple[Any, int]]]] = []
+        for m in _enabled_tpdos(self.node.tpdo):
+            pairs = [(v, col[(v.index, v.subindex)]) for v in m.map if (v.index, v.subindex) in col]
+            if pairs:
+                self._tpdos.append((m, pairs))
+        self.pdos_sent = 0
+        self.updates = 0
+
+    @property
+    def cob_ids(self) -> list[int]:
+        """COB-IDs of the TPDOs that carry process-image values."""
+        return [m.cob_id for m, _ in self._tpdos]
+
+    def update(self, row: int) -> int:
+        """Take process-image row ``row``: SDO store and TPDOs; transmit the TPDOs; return how many."""
+        values = self.image.values[row].tolist()
+        for var, v in zip(self._vars, values):
+            self.node.set_data(var.index, var.subindex, var.encode_raw(int(v)))
+        sent = 0
+        for m, pairs in self._tpdos:
+            for pv, k in pairs:
+                pv.raw = int(values[k])
+            m.transmit()
+            sent += 1
+        self.pdos_sent += sent
+        self.updates += 1
+        return sent
+
+    def stream(self, name: str | None = None) -> Stream:
+        """A scheduler stream applying each process-image row at its time."""
+
+        def deliver(i0: int, i1: int) -> int:
+            for r in range(i0, i1):
+                self.update(r)
+            return i1 - i0
+
+        return Stream(name or f"canopen:{self.image.node}", self.image.times, deliver, kind="canopen")
+
+    def close(self) -> None:
+        """Detach from the bus (stops the notifier if this node made it)."""
+        for listener in self.network.listeners:
+            self._notifier.remove_listener(listener)
+        if self._own_notifier:
+            self._notifier.stop()
+
+
+@dataclass
+class PdoLog:
+    """TPDOs one acquisition received: arrival times and raw values per mapped entry."""
+
+    entries: list[tuple[int, int]]
+    times: list[float] = field(default_factory=list)
+    values: list[list[int | None]] = field(default_factory=list)
+    cob_ids: list[int] = field(default_factory=list)
+
+    def as_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(times, values with NaN where a PDO did not carry an entry, cob ids)."""
+        t = np.asarray(self.times, dtype=np.float64)
+        v = np.array([[np.nan if x is None else float(x) for x in row] for row in self.values],
+                     dtype=np.float64).reshape(len(self.times), len(self.entries))
+        return t, v, np.asarray(self.cob_ids, dtype=np.uint32)
+
+
+class ThermoAcquisition:
+    """The acquisition side of the thermo module: a canopen RemoteNode that logs TPDOs and SDO-reads.
+
+    Parameters
+    ----------
+    node_id:
+        Node id of the module.
+    eds:
+        The module's EDS (the same file the device uses).
+    bus:
+        Acquisition-side python-can bus.
+    entries:
+        Object-dictionary entries to log (default: every entry the enabled TPDOs map).
+    notifier:
+        A notifier already reading ``bus``; one is made otherwise.
+    """
+
+    def __init__(self, node_id: int, eds: EdsLike, bus: can.BusABC, entries: Sequence[tuple[int, int]] | None = None,
+                 notifier: can.Notifier | None = None, sdo_timeout_s: float = 1.0) -> None:
+        self.network, self._notifier, self._own_notifier = _attach(bus, notifier)
+        try:
+            self.node = canopen.RemoteNode(node_id, eds if isinstance(eds, canopen.ObjectDictionary) else str(eds))
+        except (OSError, ValueError, KeyError) as exc:
+            raise ConfigError(f"canopen node {node_id}: cannot load EDS {eds}: {exc}") from exc
+        self.node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
+        self.network.add_node(self.node)
+        self.node.tpdo.read(from_od=True)
+        maps = _enabled_tpdos(self.node.tpdo)
+        if entries is None:
+            entries = [(v.index, v.subindex) for m in maps for v in m.map]
+        self.log = PdoLog(list(entries))
+        self._lock = threading.Lock()
+        col = {e: k for k, e in enumerate(self.log.entries)}
+        for m in maps:
+            pairs = [(v, col[(v.index, v.subindex)]) for v in m.map if (v.index, v.subindex) in col]
+            if pairs:
+                m.add_callback(self._make_callback(pairs))
+
+    def _make_callback(self, pairs: list[tuple[Any, int]]) -> Any:
+        n = len(self.log.entries)
+
+        def on_pdo(pdo_map: Any) -> None:
+            row: list[int | None] = [None] * n
+            for var, k in pairs:
+                row[k] = int(var.raw)
+            with self._lock:
+                self.log.times.append(float(pdo_map.timestamp) if pdo_map.timestamp else time.time())
+                self.log.values.append(row)
+                self.log.cob_ids.append(int(pdo_map.cob_id))
+
+        return on_pdo
+
+    def wait_for_pdos(self, n: int, timeout: float) -> bool:
+        """Block until ``n`` PDOs were received or ``timeout`` passed."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if len(self.log.times) >= n:
+                return True
+            time.sleep(0.005)
+        return len(self.log.times) >= n
+
+    def sdo_read(self, index: int, subindex: int = 0) -> int:
+        """Read one entry by SDO upload (raw integer).
+
+        Raises
+        ------
+        CanopenError
+            The device aborted the transfer (``code`` = SDO abort code).
+        TransportTimeoutError
+            The device did not answer.
+        """
+        try:
+            _od_var(self.node.object_dictionary, index, subindex)
+            obj = self.node.sdo[index]
+            var = obj if isinstance(obj, canopen.sdo.base.SdoVariable) else obj[subindex]
+            return int(var.raw)
+        except canopen.SdoAbortedError as exc:
+            raise CanopenError(f"SDO read 0x{index:04X}:{subindex} aborted: {exc}", code=exc.code) from exc
+        except canopen.SdoCommunicationError as exc:
+            raise TransportTimeoutError(f"SDO read 0x{index:04X}:{subindex}: {exc}") from exc
+        except KeyError:
+            raise CanopenError(f"SDO read: 0x{index:04X}:{subindex} is not in the EDS", code=0x06020000) from None
+
+    def close(self) -> None:
+        """Detach from the bus."""
+        for listener in self.network.listeners:
+            self._notifier.remove_listener(listener)
+        if self._own_notifier:
+            self._notifier.stop()
