@@ -105,7 +105,9 @@ class LiveSession:
         return self.eds if not isinstance(self.eds, str) else Path(self.eds)
 
     def start(self) -> LiveSession:
-        """Start the transports and servers; build the schedule."""
+        """Start the transports and servers; build the schedule (once; later calls do nothing)."""
+        if self.scheduler is not None:
+            return self
         try:
             self._start()
         except BaseException:
