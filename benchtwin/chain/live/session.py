@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,11 +18,12 @@ import can
 
 from benchtwin.chain.frames import DeviceOutputs, FrameTable
 from benchtwin.chain.live.canopen_node import EdsLike, ThermoNode
-from benchtwin.chain.live.ivt_commands import IvtCommandResponder, IvtIds
+from benchtwin.chain.live.ivt_commands import IvtCommandResponder
 from benchtwin.chain.live.modbus_server import ModbusDeviceServer, RegisterStore
 from benchtwin.chain.live.scheduler import LiveScheduler, PacingReport, Stream
 from benchtwin.chain.transports import Transport, get_transport
 from benchtwin.errors import ConfigError
+from benchtwin.sensors.ivt import IvtDevice
 
 __all__ = ["LiveSession"]
 
@@ -49,7 +50,8 @@ class LiveSession:
     canopen_bus:
         Node name -> bus it lives on (default: ``instrument`` if present, else the first bus).
     ivt:
-        Bus name -> identifiers of the IVT-S on it (their command channels are answered).
+        Bus name -> {shunt name: its :class:`~benchtwin.sensors.ivt.IvtDevice`} (their command channels
+        are answered and their results gated by their state).
     holding:
         Modbus device name -> static holding registers ``{address: value}`` (configuration block).
     bitrates:
@@ -62,7 +64,7 @@ class LiveSession:
 
     def __init__(self, outputs: DeviceOutputs, *, transport: str = "virtual", speedup: float = 1.0,
                  can_port: int = 0, modbus_port: int = 0, eds: EdsLike | Mapping[str, EdsLike] | None = None,
-                 canopen_bus: Mapping[str, str] | None = None, ivt: Mapping[str, Sequence[IvtIds]] | None = None,
+                 canopen_bus: Mapping[str, str] | None = None, ivt: Mapping[str, Mapping[str, IvtDevice]] | None = None,
                  holding: Mapping[str, Mapping[int, int]] | None = None, bitrates: Mapping[str, int] | None = None,
                  channel_map: Mapping[str, str] | None = None, start_s: float | None = None,
                  end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None) -> None:
@@ -76,7 +78,7 @@ class LiveSession:
         self.canopen_bus = {n: (canopen_bus or {}).get(n, default_bus) for n in outputs.canopen}
         for b in self.canopen_bus.values():
             buses.setdefault(b, 500_000)
-        self.ivt = {b: list(s) for b, s in (ivt or {}).items()}
+        self.ivt = {b: dict(d) for b, d in (ivt or {}).items()}
         for b in self.ivt:
             if b not in buses:
                 raise ConfigError(f"IVT-S configured on bus {b!r}, which carries nothing (buses: {', '.join(buses)})")
@@ -169,8 +171,8 @@ class LiveSession:
             out.append(f"canopen:{name}: node {node.image.node_id} on bus {self.canopen_bus[name]}, TPDO COB-IDs "
                        + ", ".join(f"0x{c:03X}" for c in node.cob_ids))
         for bus, resp in self.responders.items():
-            out += [f"ivt:{s.name}: bus {bus}, commands on 0x{s.command_id:03X}, answers on 0x{s.response_id:03X}"
-                    for s in resp.sensors]
+            out += [f"ivt:{name}: bus {bus}, commands on 0x{d.cfg.command_id:03X}, answers on "
+                    f"0x{d.cfg.response_id:03X}" for name, d in resp.devices.items()]
         return out
 
     def wait_for_clients(self, n: int, timeout: float) -> bool:

@@ -15,9 +15,10 @@ import pytest
 from live_synth import MIN_EDS
 
 from benchtwin.chain.live.canopen_node import ThermoAcquisition
-from benchtwin.chain.live.ivt_commands import IvtIds
 from benchtwin.chain.live.session import LiveSession
 from benchtwin.chain.transports import get_transport
+from benchtwin.config.setup import IvtConfig
+from benchtwin.sensors.ivt import IvtDevice
 
 pytestmark = pytest.mark.live
 
@@ -114,8 +115,8 @@ class _Back2Back:
             assert bytes(got.data) == b"\x01\x02\x03"
 
     def test_ivt_command_channel(self, small_outputs):
-        ivt = IvtIds("ivt_battery", 0x411, 0x511, 0x521)
-        with self._session(small_outputs, ivt={"instrument": [ivt]}) as s:
+        ivt = IvtDevice(IvtConfig(result_base_id=0x521, command_id=0x411, response_id=0x511))
+        with self._session(small_outputs, ivt={"instrument": {"battery": ivt}}) as s:
             cl = s.transport.open_client("instrument", can_filters=[{"can_id": 0x500, "can_mask": 0x700}])
             self._wait(s, 1)
 
@@ -128,9 +129,9 @@ class _Back2Back:
                         return bytes(m.data)
                 raise AssertionError("no answer")
 
-            assert command(b"\x20\x01\x00\x14")[0] == 0xFF  # configure in run mode: refused
             assert command(b"\x34\x00\x01\x00")[:2] == b"\xb4\x00"  # stop
             assert command(b"\x20\x01\x00\x14")[:4] == b"\xa0\x01\x00\x14"  # current: triggered
+            assert ivt.modes[0] == 1 and not ivt.running
             assert command(b"\x34\x01\x01\x00")[:2] == b"\xb4\x01"  # run
             assert command(b"\x55")[:2] == b"\xff\x55"  # unknown command
             col = _Collector(cl)
@@ -151,7 +152,9 @@ class _Back2Back:
                     trig = m
             last = small_outputs.can["instrument"].frames
             last = last[last["arbitration_id"] == 0x521][-1]
-            assert trig is not None and bytes(trig.data) == last["data"][:6].tobytes()
+            # same value and status, the shunt's own counter (nothing was sent before: 0)
+            assert trig is not None and bytes(trig.data[2:6]) == last["data"][2:6].tobytes()
+            assert trig.data[0] == 0 and trig.data[1] & 0x0F == 0
 
     def test_canopen_pdo_and_sdo(self, small_outputs):
         image = small_outputs.canopen["thermo"]

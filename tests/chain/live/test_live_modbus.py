@@ -90,6 +90,7 @@ def test_session_updates_the_registers_as_the_run_plays():
         rep = s.run()
         done.set()
         th.join()
+        seen.append(client.read_input_registers(11, count=1, device_id=1).registers[0])
         client.close()
     assert rep.completed and rep.streams["modbus:pressure"].sent == len(t)
     # the poller saw the counter advance monotonically to the last snapshot
