@@ -16,7 +16,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from benchtwin.errors import DataError, MissingChannelError, NoExcitationError
+from benchtwin.errors import (
+    DataError,
+    IdentificationError,
+    InsufficientDataError,
+    MissingChannelError,
+    NoExcitationError,
+)
 from benchtwin.recording import Channel, Flag, Recording
 
 __all__ = [
@@ -25,6 +31,7 @@ __all__ = [
     "Grid",
     "check_spread",
     "gather",
+    "raise_all_failed",
     "runs",
     "segment_mask",
     "segment_names",
@@ -240,3 +247,12 @@ def check_spread(x: np.ndarray, min_spread: float, what: str, name: str, unit: s
             f"{what}: {name} spans only {spread:.4g} {unit} over {x.size} points (from {x.min():.4g} to "
             f"{x.max():.4g}); at least {min_spread:.4g} {unit} is needed to separate the parameters"
         )
+
+
+def raise_all_failed(what: str, errors: dict[str, IdentificationError]) -> None:
+    """Raise when every sub-fit of a method failed: the common error class if they agree, else
+    InsufficientDataError, with every reason in the message."""
+    detail = "; ".join(f"{k}: {v}" for k, v in errors.items()) or "no usable points"
+    classes = {type(e) for e in errors.values()}
+    cls = classes.pop() if len(classes) == 1 else InsufficientDataError
+    raise cls(f"{what}: nothing could be fitted ({detail})")

@@ -23,7 +23,7 @@ import numpy as np
 
 from benchtwin.errors import IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, IdentificationResult, derived, linear_fit
-from benchtwin.identification._signals import check_spread
+from benchtwin.identification._signals import check_spread, raise_all_failed
 from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
@@ -238,6 +238,7 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
     pts = points if points is not None else transmission_points(rec, specs, **kwargs)  # type: ignore[arg-type]
     ratios = np.asarray(specs.gear_ratios, dtype=float)
     out = IdentificationResult()
+    failures: dict[str, IdentificationError] = {}
     present = sorted({int(x) for x in pts.gear[pts.usable]})
     wanted = present if gears is None else [int(x) for x in gears]
     n_dropped = int((~pts.usable).sum())
@@ -273,6 +274,7 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
     out.meta["transmission"] = {"steady_points": int(pts.gear.size), "dropped_points": n_dropped,
                                 "flagged_samples": pts.n_flagged}
     if not out.fits:
-        detail = "; ".join(f"{k}: {v}" for k, v in out.errors.items()) or "no steady point in any gear"
-        raise InsufficientDataError(f"transmission: no gear could be fitted ({detail})")
+        if not failures:
+            raise InsufficientDataError("transmission: no steady point in any gear with the lock-up closed")
+        raise_all_failed("transmission (every gear)", failures)
     return out

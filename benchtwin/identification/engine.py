@@ -1,0 +1,349 @@
+"""Engine: BSFC map over speed x BMEP (eq. 26-28) and Willans lines per speed band.
+
+BSFC of a steady point is ``fuel mass flow / P_u`` with ``P_u = T omega`` (eq. 27), in g/kWh; the
+engine efficiency is ``eta_u = 1 / (BSFC Q_LHV)`` (eq. 28); BMEP = ``2 pi (strokes / 2) T / V_d``.
+BSFC itself rises steeply towards low load, which no smooth surface through sparse points follows
+well; the fuel mean effective pressure ``pmf = mdot Q_LHV / (omega V_d / (2 pi (strokes / 2)))``
+(bar, the fuel energy per cycle and displacement) is nearly a plane in BMEP (the Willans line).
+So the map is fitted on ``pmf(speed, BMEP)`` with a thin-plate-spline radial basis function with a
+linear term (scipy ``RBFInterpolator``) over normalised coordinates, and
+``BSFC = 3.6e9 / Q_LHV * pmf / BMEP``. Its smoothing is chosen by cross-validation unless given.
+Grid nodes outside the convex hull of the data are marked extrapolated and never used for the
+best-efficiency region (minimum BSFC and the area within ``+band`` g/kWh of it). Uncertainty of the
+minimum comes from a bootstrap of the cross-validated prediction errors.
+
+The Willans line of the engine, per speed band: fuel power ``P_f = mdot Q_LHV = P_u / e + W_loss``
+(least squares on ``[P_u, 1]``); ``W_loss`` is on the fuel side, ``e W_loss`` the mechanical loss.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+
+import numpy as np
+from scipy.interpolate import RBFInterpolator
+from scipy.spatial import Delaunay, QhullError
+
+from benchtwin.errors import CollinearError, IdentificationError, InsufficientDataError
+from benchtwin.identification._fit import (
+    FitResult,
+    IdentificationResult,
+    ParameterEstimate,
+    derived,
+    linear_fit,
+    r_squared,
+)
+from benchtwin.identification._signals import check_spread
+from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
+from benchtwin.recording import Recording
+
+__all__ = ["EnginePoints", "bmep_bar", "engine_points", "fit_bsfc_map", "fit_engine_willans", "identify_engine",
+           "speed_bands"]
+
+RPM = 2.0 * math.pi / 60.0
+_SMOOTHINGS = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+
+
+def bmep_bar(torque_nm: np.ndarray, specs: VehicleSpecs) -> np.ndarray:
+    """Brake mean effective pressure in bar: ``2 pi (strokes / 2) T / V_d``."""
+    t = np.asarray(torque_nm, dtype=float)
+    return 2 * np.pi * (specs.engine_strokes / 2) * t / specs.engine_displacement_m3 / 1e5
+
+
+class EnginePoints:
+    """Steady engine points: speed (rpm), torque (Nm), fuel mass flow (g/s), segments."""
+
+    def __init__(self, speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: np.ndarray,
+                 segments: Sequence[str] = (), n_flagged: int = 0) -> None:
+        self.speed_rpm = np.asarray(speed_rpm, dtype=float)
+        self.torque_nm = np.asarray(torque_nm, dtype=float)
+        self.fuel_gps = np.asarray(fuel_gps, dtype=float)
+        self.segments = list(segments) if segments else [""] * self.speed_rpm.size
+        self.n_flagged = n_flagged
+
+
+def engine_points(rec: Recording, *, steady: SteadyWindows | None = None,
+                  kinds: Iterable[str] | None = ("ramp_up", "constant_drive"), rate_hz: float = 10.0,
+                  tolerances: Mapping[str, Tolerance] | None = None, min_torque_nm: float = 2.0,
+                  max_duration_s: float | None = None) -> EnginePoints:
+    """Steady points of the running engine (engine on, positive torque) from a Recording."""
+    if steady is None:
+        steady = find_steady_windows(rec, ["engine_speed_rpm", "engine_torque_nm"],
+                                     states=("engine_on", "k0_closed", "gear_actual"), extra=("fuel_mass_flow_gps",),
+                                     kinds=kinds, rate_hz=rate_hz, tolerances=tolerances,
+                                     max_duration_s=max_duration_s)
+    n = steady.raw_average(rec, "engine_speed_rpm")
+    t = steady.raw_average(rec, "engine_torque_nm")
+    f = steady.raw_average(rec, "fuel_mass_flow_gps")
+    keep = np.isfinite(n) & np.isfinite(t) & np.isfinite(f) & (n > 300) & (t > min_torque_nm) & (f > 0)
+    if "engine_on" in steady.grid:
+        keep &= steady.state("engine_on") > 0.5
+    segs = [w.segment for w, k in zip(steady.windows, keep) if k]
+    return EnginePoints(n[keep], t[keep], f[keep], segs, steady.n_excluded)
+
+
+def _scale(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    return (x - lo) / (hi - lo if hi > lo else 1.0)
+
+
+def _cv_residuals(P: np.ndarray, y: np.ndarray, smoothing: float, folds: int) -> np.ndarray:
+    """k-fold cross-validated prediction errors of the RBF at one smoothing."""
+    idx = np.arange(y.size)
+    err = np.empty(y.size)
+    for k in range(folds):
+        test = idx % folds == k
+        try:
+            f = RBFInterpolator(P[~test], y[~test], kernel="thin_plate_spline", smoothing=smoothing, degree=1)
+            err[test] = f(P[test]) - y[test]
+        except (np.linalg.LinAlgError, ValueError):
+            err[test] = np.inf
+    return err
+
+
+def _cv_smoothing(P: np.ndarray, y: np.ndarray, candidates: Sequence[float], folds: int) -> float:
+    """Smoothing with the least k-fold cross-validated RMSE."""
+    best = (float("inf"), candidates[0])
+    for s in candidates:
+        rmse = float(np.sqrt(np.mean(_cv_residuals(P, y, s, folds) ** 2)))
+        if rmse < best[0] * (1 - 1e-6):
+            best = (rmse, s)
+    return best[1]
+
+
+def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: np.ndarray, *,
+                 speed_grid: np.ndarray | None = None, bmep_grid: np.ndarray | None = None,
+                 smoothing: float | None = None, band_gpkwh: float = 8.0, n_boot: int = 200,
+                 segments: Sequence[str] = (), n_excluded: int = 0, min_points: int = 6, seed: int = 0) -> FitResult:
+    """BSFC map over speed x BMEP from steady points, with the best-efficiency region.
+
+    Parameters
+    ----------
+    specs:
+        Displacement, strokes and fuel LHV.
+    speed_rpm, torque_nm, fuel_gps:
+        Steady points (engine firing, positive torque).
+    speed_grid, bmep_grid:
+        Map axes (rpm, bar); default 25 nodes each over the span of the data.
+    smoothing:
+        RBF smoothing; None chooses it by cross-validation.
+    band_gpkwh:
+        Width of the best-efficiency region above the minimum.
+    n_boot:
+        Bootstrap replicates for the uncertainty of the minimum (cross-validated prediction errors
+        added to the fitted fuel MEP, map refitted); SE and percentile 95 % interval.
+
+    Returns
+    -------
+    FitResult
+        Parameters ``bsfc_min`` (g/kWh), ``speed_at_min`` (rpm), ``bmep_at_min`` (bar), ``eta_max``;
+        data ``speed_rpm``, ``bmep_bar``, ``bsfc`` (points), ``bsfc_fit``, ``map_speed_rpm``,
+        ``map_bmep_bar``, ``map_bsfc`` (bmep x speed), ``map_extrapolated`` (bool, same shape),
+        ``map_best_region`` (bool), ``map_eta``.
+
+    Raises
+    ------
+    InsufficientDataError, NoExcitationError, CollinearError
+    """
+    what = "engine.bsfc"
+    n = np.asarray(speed_rpm, dtype=float)
+    t = np.asarray(torque_nm, dtype=float)
+    f = np.asarray(fuel_gps, dtype=float)
+    ok = np.isfinite(n) & np.isfinite(t) & np.isfinite(f) & (t > 0) & (n > 0) & (f > 0)
+    n_out = int((~ok).sum())
+    n, t, f = n[ok], t[ok], f[ok]
+    if n.size < min_points:
+        raise InsufficientDataError(f"{what}: {n.size} usable steady points; need at least {min_points}")
+    b = bmep_bar(t, specs)
+    check_spread(n, 200.0, what, "engine speed", "rpm")
+    check_spread(b, 2.0, what, "BMEP", "bar")
+    bsfc = f / (t * n * RPM / 1e3) * 3600.0
+    q = 3.6e9 / specs.fuel_lhv_j_per_kg  # g/kWh per unit of 1/efficiency
+    pmf = bsfc * b / q  # fuel mean effective pressure, bar
+    nlo, nhi, blo, bhi = float(n.min()), float(n.max()), float(b.min()), float(b.max())
+    P = np.column_stack([_scale(n, nlo, nhi), _scale(b, blo, bhi)])
+    try:
+        hull = Delaunay(P)
+    except QhullError as exc:
+        raise CollinearError(f"{what}: the points lie on a line in speed x BMEP; no map can be built ({exc})") from exc
+    folds = min(n.size, 10)
+    if smoothing is None:
+        smoothing = _cv_smoothing(P, pmf, _SMOOTHINGS, folds)
+    cv_err = _cv_residuals(P, pmf, smoothing, folds)
+    cv_err = cv_err[np.isfinite(cv_err)]
+    cv_rmse = float(np.sqrt(np.mean(cv_err**2))) if cv_err.size else float("nan")
+    rbf = RBFInterpolator(P, pmf, kernel="thin_plate_spline", smoothing=smoothing, degree=1)
+    pmf_fit = rbf(P)
+    fitted = q * pmf_fit / b
+    r2, adj = r_squared(bsfc, fitted, 3)
+    rmse = float(np.sqrt(np.mean((bsfc - fitted) ** 2)))
+    sg = np.linspace(nlo, nhi, 25) if speed_grid is None else np.asarray(speed_grid, dtype=float)
+    bg = np.linspace(max(blo, 0.0), bhi, 25) if bmep_grid is None else np.asarray(bmep_grid, dtype=float)
+    S, B = np.meshgrid(sg, bg)
+    nodes = np.column_stack([_scale(S.ravel(), nlo, nhi), _scale(B.ravel(), blo, bhi)])
+    extrap = (hull.find_simplex(nodes) < 0).reshape(S.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mapv = np.where(B > 0, q * rbf(nodes).reshape(S.shape) / B, np.nan)
+    # the minimum is searched on a fine grid inside the hull
+    fs, fb = np.meshgrid(np.linspace(0, 1, 121), np.linspace(0, 1, 121))
+    fine = np.column_stack([fs.ravel(), fb.ravel()])
+    fine = fine[(hull.find_simplex(fine) >= 0) & (blo + fine[:, 1] * (bhi - blo) > 0)]
+    fine_b = blo + fine[:, 1] * (bhi - blo)
+
+    def minimum(interp: RBFInterpolator) -> tuple[float, float, float]:
+        v = q * interp(fine) / fine_b
+        k = int(np.argmin(v))
+        return float(v[k]), nlo + fine[k, 0] * (nhi - nlo), float(fine_b[k])
+
+    bmin, nmin, bmin_at = minimum(rbf)
+    rng = np.random.default_rng(seed)
+    # the bootstrap draws the cross-validated prediction errors: with an interpolating map (no
+    # smoothing) the in-sample residuals are zero, while the map between the points is not exact
+    resid = cv_err if cv_err.size else pmf - pmf_fit
+    boots = []
+    if np.any(resid != 0) and n_boot > 0:
+        for _ in range(n_boot):
+            yb = pmf_fit + rng.choice(resid, resid.size, replace=True)
+            boots.append(minimum(RBFInterpolator(P, yb, kernel="thin_plate_spline", smoothing=smoothing, degree=1)))
+    boots_a = np.asarray(boots) if boots else np.zeros((1, 3))
+
+    def est(name: str, value: float, col: np.ndarray, unit: str) -> ParameterEstimate:
+        se = float(np.std(col, ddof=1)) if col.size > 1 else 0.0
+        lo, hi = (float(np.percentile(col, 2.5)), float(np.percentile(col, 97.5))) if col.size > 1 else (value, value)
+        return ParameterEstimate(name, value, se, (min(lo, value), max(hi, value)), r2, int(n.size), unit,
+                                 sorted({s for s in segments if s}))
+
+    params = {
+        "bsfc_min": est("bsfc_min", bmin, boots_a[:, 0], "g/kWh"),
+        "speed_at_min": est("speed_at_min", nmin, boots_a[:, 1], "rpm"),
+        "bmep_at_min": est("bmep_at_min", bmin_at, boots_a[:, 2], "bar"),
+        "eta_max": est("eta_max", q / bmin, q / boots_a[:, 0] if boots else np.zeros(1), "-"),
+    }
+    region = (~extrap) & (mapv <= bmin + band_gpkwh)
+    fit = FitResult(params, r2, adj, rmse, int(n.size), n_excluded + n_out, sorted({s for s in segments if s}))
+    fit.data.update(speed_rpm=n, torque_nm=t, bmep_bar=b, bsfc=bsfc, bsfc_fit=fitted, y=bsfc, y_fit=fitted,
+                    pmf_bar=pmf, pmf_fit_bar=pmf_fit,
+                    map_speed_rpm=sg, map_bmep_bar=bg, map_bsfc=mapv, map_extrapolated=extrap,
+                    map_best_region=region, map_eta=q / mapv, smoothing=np.array([smoothing]),
+                    cv_rmse=np.array([cv_rmse]), band_gpkwh=np.array([band_gpkwh]))
+    if region.any():
+        fit.data["best_region_speed_rpm"] = np.array([S[region].min(), S[region].max()])
+        fit.data["best_region_bmep_bar"] = np.array([B[region].min(), B[region].max()])
+    if n.size < 15:
+        fit.reasons.append(f"only {n.size} points: the map between them is an interpolation, check the figure")
+    return fit
+
+
+def speed_bands(speed_rpm: np.ndarray, *, gap_rpm: float = 150.0) -> list[np.ndarray]:
+    """Group points into speed bands: a new band starts where sorted speeds jump by more than ``gap_rpm``."""
+    n = np.asarray(speed_rpm, dtype=float)
+    order = np.argsort(n)
+    cuts = np.flatnonzero(np.diff(n[order]) > gap_rpm) + 1
+    return [np.sort(g) for g in np.split(order, cuts)]
+
+
+def fit_engine_willans(speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: np.ndarray, *,
+                       lhv_j_per_kg: float = 42.8e6, bands: Sequence[tuple[float, float]] | None = None,
+                       gap_rpm: float = 150.0, min_points: int = 3, segments: Sequence[str] | None = None,
+                       n_excluded: int = 0) -> IdentificationResult:
+    """Willans line per speed band: ``P_fuel = P_u / e + W_loss``.
+
+    Parameters
+    ----------
+    speed_rpm, torque_nm, fuel_gps:
+        Steady points.
+    lhv_j_per_kg:
+        Fuel lower heating value.
+    bands:
+        ``(low, high)`` rpm bands; default: groups separated by more than ``gap_rpm``.
+
+    Returns
+    -------
+    IdentificationResult
+        ``engine.willans_<rpm>rpm`` per band with ``inv_e``, ``W_loss`` (W, fuel side) and derived
+        ``e`` and ``W_loss_mech`` (W); bands that cannot be fitted are in ``errors``.
+    """
+    n = np.asarray(speed_rpm, dtype=float)
+    t = np.asarray(torque_nm, dtype=float)
+    f = np.asarray(fuel_gps, dtype=float)
+    segs = np.asarray(list(segments) if segments is not None else [""] * n.size, dtype=object)
+    if bands is None:
+        groups = speed_bands(n, gap_rpm=gap_rpm)
+    else:
+        groups = [np.flatnonzero((n >= lo) & (n < hi)) for lo, hi in bands]
+    out = IdentificationResult()
+    for g in groups:
+        if g.size == 0:
+            continue
+        label = int(round(float(np.mean(n[g])) / 10.0) * 10)
+        key = f"engine.willans_{label}rpm"
+        p_u = t[g] * n[g] * RPM
+        p_f = f[g] * 1e-3 * lhv_j_per_kg
+        try:
+            if g.size < min_points:
+                raise InsufficientDataError(f"{key}: {g.size} points; need at least {min_points}")
+            check_spread(p_u, 0.2 * float(np.max(np.abs(p_u))), key, "brake power", "W")
+            fit = linear_fit(np.column_stack([p_u, np.ones_like(p_u)]), p_f, ["inv_e", "W_loss"], units=["-", "W"],
+                             segments=sorted({s for s in segs[g] if s}), min_points=min_points,
+                             n_excluded=n_excluded, what=key)
+        except IdentificationError as exc:
+            out.errors[key] = f"{type(exc).__name__}: {exc}"
+            continue
+        derived(fit, "e", lambda x: 1.0 / x[0], unit="-")
+        derived(fit, "W_loss_mech", lambda x: x[1] / x[0], unit="W")
+        fit.data.update(speed_rpm=n[g], p_u_w=p_u, p_fuel_w=p_f, p_fuel_fit_w=fit.data["y_fit"],
+                        band_speed_rpm=np.array([float(np.mean(n[g]))]))
+        if not 0.1 < fit.value("e") < 0.6:
+            fit.flag(f"e = {fit.value('e'):.3f} is not plausible for a combustion engine")
+        out.fits[key] = fit
+    if not out.fits:
+        raise InsufficientDataError("engine Willans: no speed band could be fitted ("
+                                    + "; ".join(f"{k}: {v}" for k, v in out.errors.items()) + ")")
+    return out
+
+
+def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints | None = None,
+                    willans: bool = True, map_kwargs: Mapping[str, object] | None = None,
+                    **kwargs: object) -> IdentificationResult:
+    """BSFC map (``engine.bsfc``) and Willans lines per speed band (``engine.willans_*``) from a Recording.
+
+    Parameters
+    ----------
+    rec:
+        The Recording: ``engine_speed_rpm``, ``engine_torque_nm``, ``fuel_mass_flow_gps``
+        (``engine_on`` used when present).
+    specs:
+        Displacement, strokes, fuel LHV.
+    points:
+        Steady points (else found here; ``kwargs`` go to :func:`engine_points`).
+    willans:
+        Also fit the Willans lines.
+    map_kwargs:
+        Options of :func:`fit_bsfc_map`.
+
+    Raises
+    ------
+    InsufficientDataError
+        When neither the map nor any Willans line can be built.
+    """
+    pts = points if points is not None else engine_points(rec, **kwargs)  # type: ignore[arg-type]
+    out = IdentificationResult()
+    try:
+        out.fits["engine.bsfc"] = fit_bsfc_map(specs, pts.speed_rpm, pts.torque_nm, pts.fuel_gps,
+                                               segments=pts.segments, n_excluded=pts.n_flagged,
+                                               **dict(map_kwargs or {}))  # type: ignore[arg-type]
+    except IdentificationError as exc:
+        out.errors["engine.bsfc"] = f"{type(exc).__name__}: {exc}"
+    if willans:
+        try:
+            w = fit_engine_willans(pts.speed_rpm, pts.torque_nm, pts.fuel_gps, lhv_j_per_kg=specs.fuel_lhv_j_per_kg,
+                                   segments=pts.segments, n_excluded=pts.n_flagged)
+            out.fits.update(w.fits)
+            out.errors.update(w.errors)
+        except IdentificationError as exc:
+            out.errors["engine.willans"] = f"{type(exc).__name__}: {exc}"
+    if not out.fits:
+        raise InsufficientDataError("engine: no fit possible (" + "; ".join(f"{k}: {v}" for k, v in out.errors.items())
+                                    + ")")
+    return out

@@ -1,0 +1,304 @@
+"""Electric motor Willans line (eq. 18-24), motoring and generating, and the efficiency map it implies.
+
+Normalised with the rotor radius ``r`` and volume ``V`` (public specs):
+``p_me = T / (2 V)``, ``p_ma = P_el / V * 2 pi / omega``, ``c_m = r omega``.
+
+Motoring (``T > 0``): ``T omega = e P_el - W_loss``, i.e. eq. 20
+``p_me = e p_ma / (4 pi) - r W_loss / (2 V c_m)``. Generating (``T < 0``):
+``P_el = e_gen T omega + W_loss_gen`` (docs/models.md).
+
+``P_el`` is the motor inverter's DC power, but the IVT-S on the HPCU high-voltage side also sees the
+DC/DC converter: ``P_hpcu = P_el + P_lv / eta_dcdc`` with ``P_lv`` the DC/DC low-voltage output
+measured by its own IVT-S. Since the 12 V loads vary, ``eta_dcdc`` is identified in the same least
+squares: motoring regresses ``p_me`` on ``[p_ma_hpcu, -p_lv, -1/c_m]`` (``p_lv`` normalised like
+``p_ma``) with unknowns ``[C0, C0 / eta_dcdc, C1]``, ``e = 4 pi C0``, ``W_loss = 2 V C1 / r`` (eq. 24);
+generating regresses ``p_ma_hpcu`` on ``[p_me, 1/c_m, p_lv]`` with unknowns
+``[4 pi e_gen, 2 pi r W_loss_gen / V, 1 / eta_dcdc]``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from benchtwin.errors import IdentificationError, InsufficientDataError
+from benchtwin.identification._fit import FitResult, IdentificationResult, derived, linear_fit
+from benchtwin.identification._signals import check_spread, raise_all_failed
+from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
+from benchtwin.recording import Recording
+
+__all__ = ["MotorPoints", "efficiency_map", "fit_willans_generating", "fit_willans_motoring", "identify_motor",
+           "motor_points"]
+
+RPM = 2.0 * math.pi / 60.0
+_LV = ("dcdc_lv_current_a", "dcdc_lv_voltage_v")
+
+
+class MotorPoints:
+    """Steady motor points: torque (Nm), speed (rpm), HPCU HV power and DC/DC LV power (W), segments."""
+
+    def __init__(self, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray, p_lv_w: np.ndarray | None,
+                 segments: list[str], n_flagged: int = 0) -> None:
+        self.torque_nm = np.asarray(torque_nm, dtype=float)
+        self.speed_rpm = np.asarray(speed_rpm, dtype=float)
+        self.p_hpcu_w = np.asarray(p_hpcu_w, dtype=float)
+        self.p_lv_w = None if p_lv_w is None else np.asarray(p_lv_w, dtype=float)
+        self.segments = list(segments)
+        self.n_flagged = n_flagged
+
+
+def motor_points(rec: Recording, *, steady: SteadyWindows | None = None,
+                 kinds: Iterable[str] | None = ("ramp_up", "constant_drive"), rate_hz: float = 10.0,
+                 tolerances: Mapping[str, Tolerance] | None = None,
+                 max_duration_s: float | None = None) -> MotorPoints:
+    """Steady motor points of a Recording (window means over each source's own samples).
+
+    The DC/DC low-voltage power is included when both DC/DC channels are present.
+    """
+    if steady is None:
+        steady = find_steady_windows(rec, ["em_speed_rpm", "em_torque_nm"],
+                                     states=("gear_actual", "k0_closed", "lockup_closed", "hybrid_mode"),
+                                     extra=("hpcu_current_a", "hpcu_voltage_v"), kinds=kinds, rate_hz=rate_hz,
+                                     tolerances=tolerances, max_duration_s=max_duration_s)
+    torque = steady.raw_average(rec, "em_torque_nm")
+    speed = steady.raw_average(rec, "em_speed_rpm")
+    p_hpcu = steady.raw_average(rec, "hpcu_current_a", "hpcu_voltage_v")
+    p_lv = steady.raw_average(rec, *_LV) if all(c in rec for c in _LV) else None
+    return MotorPoints(torque, speed, p_hpcu, p_lv, [w.segment for w in steady.windows], steady.n_excluded)
+
+
+def _norm(specs: VehicleSpecs, torque: np.ndarray, speed_rpm: np.ndarray, power: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    w = speed_rpm * RPM
+    V, r = specs.em_rotor_volume_m3, specs.em_rotor_radius_m
+    return torque / (2 * V), power / V * 2 * np.pi / w, r * w
+
+
+def _check(pts_t: np.ndarray, pts_n: np.ndarray, what: str, min_points: int) -> None:
+    if pts_t.size < min_points:
+        raise InsufficientDataError(f"{what}: {pts_t.size} steady points; need at least {min_points}")
+    check_spread(np.abs(pts_t), 10.0, what, "motor torque", "Nm")
+    check_spread(pts_n, 0.1 * float(np.mean(pts_n)), what, "motor speed", "rpm")
+
+
+def fit_willans_motoring(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray,
+                         p_lv_w: np.ndarray | None = None, *, eta_dcdc: float | None = None, min_points: int = 5,
+                         segments: Iterable[str] = (), n_excluded: int = 0) -> FitResult:
+    """Willans line of the motor in motoring (eq. 20-24), with the DC/DC efficiency when ``p_lv_w`` is given.
+
+    Parameters
+    ----------
+    specs:
+        Rotor radius and volume.
+    torque_nm, speed_rpm:
+        Motor torque (> 0) and speed of the steady points.
+    p_hpcu_w:
+        HPCU high-voltage power (W) of the points.
+    p_lv_w:
+        DC/DC low-voltage output power (W); None when not measured (W_loss then includes the DC/DC draw
+        and the fit is flagged).
+    eta_dcdc:
+        A known DC/DC efficiency; when given it is not identified.
+
+    Returns
+    -------
+    FitResult
+        Parameters ``C0``, (``C0_over_eta_dcdc``), ``C1`` and derived ``e``, ``W_loss`` (W),
+        ``eta_dcdc``; data ``p_me``, ``p_ma`` (motor only), ``c_m``, ``p_me_fit``.
+    """
+    what = "motor.motoring"
+    t = np.asarray(torque_nm, dtype=float)
+    n = np.asarray(speed_rpm, dtype=float)
+    _check(t, n, what, min_points)
+    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, np.asarray(p_hpcu_w, dtype=float))
+    V, r = specs.em_rotor_volume_m3, specs.em_rotor_radius_m
+    reasons = []
+    if p_lv_w is None:
+        p_lv = np.zeros_like(t)
+        reasons.append("DC/DC power not measured: W_loss includes the DC/DC converter's draw")
+    else:
+        p_lv = _norm(specs, t, n, np.asarray(p_lv_w, dtype=float))[1]
+    if p_lv_w is not None and eta_dcdc is None:
+        A = np.column_stack([p_ma_hpcu, -p_lv, -1.0 / c_m])
+        names, units = ["C0", "C0_over_eta_dcdc", "C1"], ["-", "-", "Pa m/s"]
+    else:
+        corr = p_lv / eta_dcdc if eta_dcdc is not None else p_lv * 0.0
+        A = np.column_stack([p_ma_hpcu - corr, -1.0 / c_m])
+        names, units = ["C0", "C1"], ["-", "Pa m/s"]
+    fit = linear_fit(A, p_me, names, units=units, segments=sorted({s for s in segments if s}), min_points=min_points,
+                     n_excluded=n_excluded, what=what)
+    k = len(names) - 1
+    derived(fit, "e", lambda x: 4 * np.pi * x[0], unit="-")
+    derived(fit, "W_loss", lambda x: 2 * V * x[k] / r, unit="W")
+    if len(names) == 3:
+        derived(fit, "eta_dcdc", lambda x: x[0] / x[1], unit="-")
+        eta = fit.value("eta_dcdc")
+    else:
+        eta = eta_dcdc if eta_dcdc is not None else float("inf")
+    for reason in reasons:
+        fit.reasons.append(reason)
+    p_ma_motor = p_ma_hpcu - p_lv / eta
+    fit.data.update(p_me=p_me, p_ma=p_ma_motor, c_m=c_m, p_me_fit=fit.data["y_fit"], torque_nm=t, speed_rpm=n,
+                    p_el_w=p_ma_motor * V * (n * RPM) / (2 * np.pi),
+                    eta_measured=t * n * RPM / (p_ma_motor * V * (n * RPM) / (2 * np.pi)))
+    e = fit.value("e")
+    if not 0.5 < e <= 1.0 or fit.value("W_loss") < 0:
+        fit.flag(f"e = {e:.4f}, W_loss = {fit.value('W_loss'):.0f} W are not physical: check signs and channels")
+    if len(names) == 3 and not 0.5 < eta <= 1.0:
+        fit.flag(f"eta_dcdc = {eta:.3f} is not physical: the 12 V load did not vary enough to separate it")
+    return fit
+
+
+def fit_willans_generating(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray,
+                           p_lv_w: np.ndarray | None = None, *, eta_dcdc: float | None = None, min_points: int = 5,
+                           segments: Iterable[str] = (), n_excluded: int = 0) -> FitResult:
+    """Willans line in generating: ``P_el = e_gen T omega + W_loss_gen`` in the normalised form.
+
+    Parameters are as for :func:`fit_willans_motoring` (torque < 0). Returns parameters ``G0``
+    (``4 pi e_gen``), ``G1`` (``2 pi r W_loss_gen / V``), (``G2`` = ``1 / eta_dcdc``) and derived
+    ``e_gen``, ``W_loss_gen`` (W), ``eta_dcdc``.
+    """
+    what = "motor.generating"
+    t = np.asarray(torque_nm, dtype=float)
+    n = np.asarray(speed_rpm, dtype=float)
+    _check(t, n, what, min_points)
+    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, np.asarray(p_hpcu_w, dtype=float))
+    V, r = specs.em_rotor_volume_m3, specs.em_rotor_radius_m
+    reasons = []
+    if p_lv_w is None:
+        p_lv = np.zeros_like(t)
+        reasons.append("DC/DC power not measured: W_loss_gen includes the DC/DC converter's draw")
+    else:
+        p_lv = _norm(specs, t, n, np.asarray(p_lv_w, dtype=float))[1]
+    if p_lv_w is not None and eta_dcdc is None:
+        A = np.column_stack([p_me, 1.0 / c_m, p_lv])
+        b = p_ma_hpcu
+        names = ["G0", "G1", "G2"]
+    else:
+        A = np.column_stack([p_me, 1.0 / c_m])
+        b = p_ma_hpcu - (p_lv / eta_dcdc if eta_dcdc is not None else 0.0)
+        names = ["G0", "G1"]
+    fit = linear_fit(A, b, names, units=["-", "Pa m/s", "-"][: len(names)], segments=sorted({s for s in segments if s}),
+                     min_points=min_points, n_excluded=n_excluded, what=what)
+    derived(fit, "e_gen", lambda x: x[0] / (4 * np.pi), unit="-")
+    derived(fit, "W_loss_gen", lambda x: x[1] * V / (2 * np.pi * r), unit="W")
+    if len(names) == 3:
+        derived(fit, "eta_dcdc", lambda x: 1.0 / x[2], unit="-")
+        eta = fit.value("eta_dcdc")
+    else:
+        eta = eta_dcdc if eta_dcdc is not None else float("inf")
+    for reason in reasons:
+        fit.reasons.append(reason)
+    p_ma_motor = p_ma_hpcu - p_lv / eta
+    p_el = p_ma_motor * V * (n * RPM) / (2 * np.pi)
+    fit.data.update(p_me=p_me, p_ma=p_ma_motor, c_m=c_m, p_ma_fit=fit.data["y_fit"], torque_nm=t, speed_rpm=n,
+                    p_el_w=p_el, eta_measured=p_el / (t * n * RPM))
+    if not 0.5 < fit.value("e_gen") <= 1.0:
+        fit.flag(f"e_gen = {fit.value('e_gen'):.4f} is not physical: check signs and channels")
+    return fit
+
+
+def efficiency_map(e: float, w_loss: float, torque_nm: np.ndarray, speed_rpm: np.ndarray, *,
+                   n_speed: int = 40, n_torque: int = 40, n_bins: int = 12) -> dict[str, np.ndarray]:
+    """Motoring efficiency ``e T w / (T w + W_loss)`` on a torque x speed grid inside the envelope seen.
+
+    The envelope is the largest torque seen per speed bin (linearly interpolated between bins);
+    nodes above it are NaN.
+
+    Returns
+    -------
+    dict
+        ``map_speed_rpm`` (n_speed,), ``map_torque_nm`` (n_torque,), ``map_eta`` (n_torque, n_speed),
+        ``envelope_speed_rpm``, ``envelope_torque_nm``.
+    """
+    t = np.asarray(torque_nm, dtype=float)
+    n = np.asarray(speed_rpm, dtype=float)
+    edges = np.linspace(n.min(), n.max(), n_bins + 1)
+    env_n, env_t = [], []
+    for a, b in itertools.pairwise(edges):
+        m = (n >= a) & (n <= b)
+        if m.any():
+            env_n.append(float(n[m].mean()))
+            env_t.append(float(t[m].max()))
+    sg = np.linspace(max(n.min(), 1.0), n.max(), n_speed)
+    tg = np.linspace(0.0, t.max(), n_torque + 1)[1:]
+    env = np.interp(sg, env_n, env_t)
+    N, T = np.meshgrid(sg, tg)
+    P = T * N * RPM
+    eta = e * P / (P + w_loss)
+    eta[env[None, :] * (1 + 1e-9) < T] = np.nan
+    return {"map_speed_rpm": sg, "map_torque_nm": tg, "map_eta": eta, "envelope_speed_rpm": np.asarray(env_n),
+            "envelope_torque_nm": np.asarray(env_t)}
+
+
+def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints | None = None,
+                   eta_dcdc: float | None = None, min_torque_nm: float = 5.0, min_points: int = 5,
+                   **kwargs: object) -> IdentificationResult:
+    """Willans lines of the motor (motoring and generating) and the efficiency map, from a Recording.
+
+    Parameters
+    ----------
+    rec:
+        The Recording: ``em_torque_nm``, ``em_speed_rpm``, ``hpcu_current_a``, ``hpcu_voltage_v`` and
+        (for eta_dcdc) ``dcdc_lv_current_a``, ``dcdc_lv_voltage_v``.
+    specs:
+        Rotor radius and volume.
+    points:
+        Steady points (else found here; ``kwargs`` go to :func:`motor_points`).
+    eta_dcdc:
+        A known DC/DC efficiency (else identified).
+    min_torque_nm:
+        Points with ``|T|`` below this are left out (neither motoring nor generating).
+
+    Returns
+    -------
+    IdentificationResult
+        ``motor.motoring`` (e, W_loss, eta_dcdc, eta_peak, the map in ``data``) and
+        ``motor.generating`` (e_gen, W_loss_gen, eta_dcdc); a side that cannot be fitted is in
+        ``errors``.
+
+    Raises
+    ------
+    InsufficientDataError
+        When neither side can be fitted.
+    """
+    pts = points if points is not None else motor_points(rec, **kwargs)  # type: ignore[arg-type]
+    out = IdentificationResult()
+    failures: dict[str, IdentificationError] = {}
+    ok = np.isfinite(pts.torque_nm) & np.isfinite(pts.speed_rpm) & np.isfinite(pts.p_hpcu_w) & (pts.speed_rpm > 50)
+    if pts.p_lv_w is not None:
+        ok &= np.isfinite(pts.p_lv_w)
+    segs = np.asarray(pts.segments, dtype=object)
+    for side, sel, func in (("motoring", ok & (pts.torque_nm > min_torque_nm), fit_willans_motoring),
+                            ("generating", ok & (pts.torque_nm < -min_torque_nm), fit_willans_generating)):
+        key = f"motor.{side}"
+        try:
+            fit = func(specs, pts.torque_nm[sel], pts.speed_rpm[sel], pts.p_hpcu_w[sel],
+                       None if pts.p_lv_w is None else pts.p_lv_w[sel], eta_dcdc=eta_dcdc, min_points=min_points,
+                       segments=list(segs[sel]), n_excluded=pts.n_flagged)
+        except IdentificationError as exc:
+            out.errors[key] = f"{type(exc).__name__}: {exc}"
+            failures[key] = exc
+            continue
+        if side == "motoring":
+            mp = efficiency_map(fit.value("e"), fit.value("W_loss"), fit.data["torque_nm"], fit.data["speed_rpm"])
+            fit.data.update(mp)
+            valid = np.isfinite(mp["map_eta"])
+            P = (mp["map_torque_nm"][:, None] * mp["map_speed_rpm"][None, :] * RPM)[valid]
+            nraw = fit.data["cov"].shape[0]
+
+            def peak(x: np.ndarray, P: np.ndarray = P, nraw: int = nraw,
+                     k: float = 2 * specs.em_rotor_volume_m3 / specs.em_rotor_radius_m) -> float:
+                e = 4 * np.pi * x[0]
+                w = k * x[nraw - 1]
+                return float(np.max(e * P / (P + w)))
+
+            derived(fit, "eta_peak", peak, unit="-")
+        out.fits[key] = fit
+    if not out.fits:
+        raise_all_failed("motor (motoring and generating)", failures)
+    return out
