@@ -1,0 +1,123 @@
+"""``benchtwin identify RECORDING --out DIR``: identify every parameter a Recording supports.
+
+RECORDING is an MF4 file saved by benchtwin (``Recording.save``), or any CSV/MF4 log when
+``--signal-map`` maps its channels to roles. The vehicle specs come from ``--specs`` (a TOML file with
+the VehicleSpecs keys, at top level or in a ``[specs]`` table) or from the signal map's ``[specs]``.
+Writes ``DIR/params.json`` (every fit with every parameter and its statistics, the errors of the
+methods that could not give trustworthy numbers, and what was skipped) and ``DIR/figures/*.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from benchtwin.errors import ConfigError, DataError
+
+__all__ = ["add_subparser", "run"]
+
+
+def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the ``identify`` subcommand."""
+    p = subparsers.add_parser(
+        "identify",
+        help="identify powertrain parameters from a Recording or a real log",
+        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+    )
+    p.add_argument("recording", type=Path, help="Recording (.mf4) or a CSV/MF4 log with --signal-map")
+    p.add_argument("--out", type=Path, required=True, help="output folder (params.json, figures/)")
+    p.add_argument("--signal-map", type=Path, default=None, help="signal map TOML for a user's log")
+    p.add_argument("--specs", type=Path, default=None, help="vehicle specs TOML (VehicleSpecs keys)")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated methods (default: all whose channels are present); "
+                        "e.g. battery_map_free,shifts")
+    p.add_argument("--no-figures", action="store_true", help="write params.json only")
+    p.set_defaults(func=run)
+    return p
+
+
+def _load_specs(path: Path) -> Any:
+    from benchtwin.config._base import validate_data
+    from benchtwin.identification.specs import VehicleSpecs
+
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    if "specs" in data and isinstance(data["specs"], dict):
+        data = data["specs"]
+    return validate_data(VehicleSpecs, data, str(path))
+
+
+def _summary(result: Any) -> list[str]:
+    lines = []
+    for key, fit in result.fits.items():
+        shown = ", ".join(f"{n} {p.value:.5g}{(' ' + p.unit) if p.unit and p.unit != '-' else ''}"
+                          for n, p in list(fit.params.items())[:4])
+        r2 = f"R2 {fit.r2:.4f}" if fit.r2 == fit.r2 else "R2 -"
+        lines.append(f"  {key:<34} {fit.status:<8} n={fit.n_points:<6} {r2:<10} {shown}")
+    for key, msg in result.errors.items():
+        lines.append(f"  {key:<34} error    {msg}")
+    for key, why in result.meta.get("skipped", {}).items():
+        lines.append(f"  {key:<34} skipped  {why}")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the identification and write params.json and the figures."""
+    from benchtwin.identification.run import identify_all
+    from benchtwin.recording import Recording
+
+    options: dict[str, dict[str, Any]] = {}
+    specs = None
+    if args.signal_map is not None:
+        from benchtwin.identification.importers import import_log
+        from benchtwin.identification.signal_map import load_signal_map
+
+        smap = load_signal_map(args.signal_map)
+        rec = import_log(args.recording, smap)
+        specs = smap.specs
+        if smap.battery is not None:
+            b = smap.battery
+            options["battery_map_free"] = {"capacity_ah": b.capacity_ah, "soc_nodes_pct": b.soc_nodes_pct,
+                                           "min_abs_current_a": b.min_abs_current_a,
+                                           "n_cells": 1}
+    else:
+        if args.recording.suffix.lower() not in (".mf4", ".mdf"):
+            raise ConfigError(f"{args.recording}: not an MF4 Recording; give --signal-map to import a "
+                              f"{args.recording.suffix or 'text'} log")
+        rec = Recording.load(args.recording)
+    if args.specs is not None:
+        specs = _load_specs(args.specs)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    result = identify_all(rec, specs, methods=methods, options=options)
+    result.meta["recording"] = str(args.recording)
+    result.meta["signal_map"] = str(args.signal_map) if args.signal_map else None
+    out: Path = args.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"{out}: cannot create the output folder ({exc.strerror})") from None
+    figures: dict[str, Path] = {}
+    if not args.no_figures:
+        from benchtwin.identification.figures import render_figures
+
+        figures = render_figures(result, out / "figures")
+    result.meta["figures"] = sorted(str(p.relative_to(out)) for p in figures.values())
+    params = out / "params.json"
+    params.write_text(json.dumps(result.to_dict(), indent=1, default=str), encoding="utf-8")
+    print(f"identified {len(result.parameters())} parameters in {len(result.fits)} fits "
+          f"({len(result.errors)} errors, {len(result.meta.get('skipped', {}))} methods skipped)")
+    for line in _summary(result):
+        print(line)
+    print(f"wrote {params}" + (f" and {len(figures)} figures in {out / 'figures'}" if figures else ""))
+    if not result.fits:
+        from benchtwin.errors import IdentificationError
+
+        raise IdentificationError(f"nothing could be identified from {args.recording} (see {params})")
+    return 0

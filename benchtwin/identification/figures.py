@@ -1,0 +1,390 @@
+"""PNG figures of an identification run, in the style of the paper's Figures 8-24 (model against data).
+
+Each ``figure_*`` function takes an :class:`~benchtwin.identification._fit.IdentificationResult` and a
+path, draws what the result holds (the arrays the fits keep in ``FitResult.data``) and returns the path
+written, or ``None`` when the result has nothing for that figure. :func:`render_figures` draws them
+all into a folder. Matplotlib is used through its object API on the Agg canvas, so no display and no
+global backend switch are needed.
+
+=========  ==============================================  ===============================
+file       content (paper figure)                          fits used
+=========  ==============================================  ===============================
+fig08      transmission efficiency vs input torque (8)     ``transmission.gear<g>``
+fig10      Willans line p_me vs p_ma, colour c_m (10)      ``motor.*``
+fig11      motor efficiency contours + points (11)         ``motor.*`` with ``map_eta``
+fig13      BSFC contours over speed x BMEP + points (13)   ``engine.bsfc``
+fig16      battery voltage model vs measured, maps (16)    ``battery``, ``battery_map_free``
+fig18      torque ratio vs speed ratio (18)                ``torque_converter.torque_ratio``
+fig19      capacity factor vs speed ratio (19)             ``torque_converter.capacity_factor``
+fig21      shift lines + event points (21)                 ``shifts.*``
+fig22      caliper pressure vs brake torque lines (22)     ``brakes.*`` with pressure/torque
+fig24      brake blending maps (24)                        ``brakes.*`` with blending maps
+=========  ==============================================  ===============================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from benchtwin.identification._fit import FitResult, IdentificationResult
+
+__all__ = ["FIGURES", "render_figures"]
+
+
+def _new(nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.0, 4.8)) -> tuple[Figure, np.ndarray]:
+    fig = Figure(figsize=size, dpi=110, layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False)).ravel()
+    return fig, axes
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png")
+    return path
+
+
+def _fits(result: IdentificationResult, prefix: str) -> dict[str, FitResult]:
+    return {k: f for k, f in result.fits.items() if k == prefix or k.startswith(prefix + ".")
+            or (prefix.endswith(".") and k.startswith(prefix))}
+
+
+def _has(fit: FitResult, *keys: str) -> bool:
+    return all(k in fit.data and np.size(fit.data[k]) > 0 for k in keys)
+
+
+def _status(fit: FitResult) -> str:
+    return "" if fit.status == "ok" else " (flagged)"
+
+
+def figure_transmission(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 8: transmission efficiency vs input torque, data and eq. 14 per gear."""
+    fits = {k: f for k, f in _fits(result, "transmission").items() if _has(f, "c", "eta")}
+    if not fits:
+        return None
+    fig, (ax,) = _new()
+    cmap = matplotlib.colormaps["viridis"]
+    for j, (key, f) in enumerate(sorted(fits.items())):
+        col = cmap(j / max(len(fits) - 1, 1))
+        label = key.removeprefix("transmission.")
+        ax.plot(f.data["c"], f.data["eta"], "o", ms=3, color=col, alpha=0.6)
+        if _has(f, "c_curve", "eta_curve"):
+            ax.plot(f.data["c_curve"], f.data["eta_curve"], "-", color=col,
+                    label=f"{label}: eta_m {f.value('eta_m'):.3f}, C0 {f.value('C0'):.1f} Nm, "
+                          f"R2 {f.r2:.3f}{_status(f)}")
+    ax.set_xlabel("input torque C (Nm)")
+    ax.set_ylabel("efficiency (-)")
+    ax.set_title("Transmission efficiency: data (dots) and eq. 14 (lines)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=6)
+    return _save(fig, path)
+
+
+def figure_motor_willans(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 10: normalised Willans line p_me vs p_ma, coloured by mean rotor speed c_m."""
+    fits = {k: f for k, f in _fits(result, "motor").items() if _has(f, "p_me", "p_ma")}
+    if not fits:
+        return None
+    fig, (ax,) = _new()
+    sc = None
+    for key, f in sorted(fits.items()):
+        sc = ax.scatter(f.data["p_ma"] / 1e5, f.data["p_me"] / 1e5, c=f.data.get("c_m"), s=8, cmap="plasma")
+        model = f.data.get("p_me_fit")
+        if model is not None:
+            order = np.argsort(f.data["p_ma"])
+            ax.plot(f.data["p_ma"][order] / 1e5, model[order] / 1e5, "k.", ms=2,
+                    label=f"{key}: model, R2 {f.r2:.3f}{_status(f)}")
+        elif "p_ma_fit" in f.data:
+            order = np.argsort(f.data["p_me"])
+            ax.plot(f.data["p_ma_fit"][order] / 1e5, f.data["p_me"][order] / 1e5, "k.", ms=2,
+                    label=f"{key}: model, R2 {f.r2:.3f}{_status(f)}")
+    if sc is not None and "c_m" in next(iter(fits.values())).data:
+        fig.colorbar(sc, ax=ax, label="c_m (m/s)")
+    ax.set_xlabel("p_ma (bar)")
+    ax.set_ylabel("p_me (bar)")
+    ax.set_title("Motor Willans line: data (colour) and model (black)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def figure_motor_efficiency(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 11: motor efficiency contours over speed x torque with the measured points."""
+    fits = [f for _, f in sorted(_fits(result, "motor").items())
+            if _has(f, "map_speed_rpm", "map_torque_nm", "map_eta")]
+    if not fits:
+        return None
+    f = fits[0]
+    fig, (ax,) = _new()
+    eta = np.asarray(f.data["map_eta"], dtype=float)
+    levels = [lv for lv in (0.70, 0.80, 0.85, 0.88, 0.90, 0.92, 0.93, 0.94, 0.95, 0.96)
+              if np.nanmin(eta) < lv < np.nanmax(eta)] if np.isfinite(eta).any() else []
+    cs = ax.contour(f.data["map_speed_rpm"], f.data["map_torque_nm"], eta, levels=levels or 8, cmap="viridis")
+    ax.clabel(cs, fontsize=7, fmt="%.2f")
+    if _has(f, "speed_rpm", "torque_nm"):
+        ax.plot(f.data["speed_rpm"], f.data["torque_nm"], "r.", ms=3, label="measured points")
+    if _has(f, "envelope_speed_rpm", "envelope_torque_nm"):
+        ax.plot(f.data["envelope_speed_rpm"], f.data["envelope_torque_nm"], "k--", lw=1, label="envelope seen")
+    ax.set_xlabel("motor speed (rpm)")
+    ax.set_ylabel("motor torque (Nm)")
+    ax.set_title("Motor efficiency map from the Willans line")
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def figure_bsfc(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 13: BSFC contours over engine speed x BMEP with the data points."""
+    f = result.fits.get("engine.bsfc")
+    if f is None or not _has(f, "map_speed_rpm", "map_bmep_bar", "map_bsfc"):
+        return None
+    fig, (ax,) = _new()
+    z = np.asarray(f.data["map_bsfc"], dtype=float)
+    x, y = np.asarray(f.data["map_speed_rpm"]), np.asarray(f.data["map_bmep_bar"])
+    if z.shape != (y.size, x.size) and z.shape == (x.size, y.size):
+        z = z.T
+    zmin = np.nanmin(z)
+    levels = np.unique(np.round(zmin + np.array([2, 8, 15, 25, 40, 60, 90, 130, 200, 300]), 0))
+    cs = ax.contour(x, y, z, levels=levels, cmap="viridis_r")
+    ax.clabel(cs, fontsize=7, fmt="%.0f")
+    if "map_extrapolated" in f.data:
+        ext = np.asarray(f.data["map_extrapolated"], dtype=float)
+        if ext.shape == z.shape and ext.any():
+            ax.contourf(x, y, ext, levels=[0.5, 1.5], colors="none", hatches=["///"])
+    if _has(f, "speed_rpm", "bmep_bar"):
+        ax.scatter(f.data["speed_rpm"], f.data["bmep_bar"], c="r", s=10, label="steady points")
+    ax.set_xlabel("engine speed (rpm)")
+    ax.set_ylabel("BMEP (bar)")
+    ax.set_title("BSFC map (g/kWh); hatched: extrapolated")
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def figure_battery(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 16: battery voltage (literature model, corrected model, measured) and corrected maps."""
+    f = result.fits.get("battery")
+    mf = result.fits.get("battery_map_free")
+    if f is not None and _has(f, "t", "v_meas", "v_model"):
+        fig, axes = _new(2, 3, size=(12.0, 6.5))
+        t = f.data["t"]
+        step = max(1, t.size // 5000)
+        ax = axes[0]
+        ax.plot(t[::step], f.data["v_meas"][::step], "k-", lw=0.8, label="measured")
+        if "v_lit" in f.data:
+            ax.plot(t[::step], f.data["v_lit"][::step], "b-", lw=0.8, label="literature maps")
+        ax.set_title("(b) raw: measured vs literature model")
+        ax2 = axes[1]
+        ax2.plot(t[::step], f.data["v_meas"][::step], "k-", lw=0.8, label="measured")
+        ax2.plot(t[::step], f.data["v_model"][::step], "b-", lw=0.8,
+                 label=f"eq. 30, adj. R2 {f.adj_r2:.4f}{_status(f)}")
+        ax2.set_title("(f) optimised model")
+        for a in axes[:2]:
+            a.set_xlabel("time (s)")
+            a.set_ylabel("pack voltage (V)")
+            a.legend(fontsize=7)
+        soc = f.data["map_soc"]
+        for a, lit, cor, title, unit in (
+            (axes[3], "lit_r_dch", "map_r_dch", "(c) discharge resistance", "mOhm"),
+            (axes[4], "lit_r_ch", "map_r_ch", "(d) charge resistance", "mOhm"),
+            (axes[5], "lit_ocv", "map_ocv", "(e) OCV", "V"),
+        ):
+            k = 1e3 if unit == "mOhm" else 1.0
+            a.plot(soc, f.data[lit] * k, "b--", label="literature")
+            a.plot(soc, f.data[cor] * k, "r-", label="corrected")
+            a.set_title(title + " per cell")
+            a.set_xlabel("displayed SOC (%)")
+            a.set_ylabel(unit)
+            a.legend(fontsize=7)
+        axes[2].scatter(f.data["current"][::step], (f.data["v_meas"] - f.data["v_model"])[::step], s=2)
+        axes[2].set_xlabel("current (A)")
+        axes[2].set_ylabel("residual (V)")
+        axes[2].set_title(f"residuals, RMSE {f.rmse:.3f} V")
+        return _save(fig, path)
+    if mf is not None and _has(mf, "t", "v_meas", "v_model"):
+        fig, axes = _new(1, 3, size=(12.0, 4.0))
+        t = mf.data["t"]
+        step = max(1, t.size // 5000)
+        axes[0].plot(t[::step], mf.data["v_meas"][::step], "k.", ms=1, label="measured")
+        axes[0].plot(t[::step], mf.data["v_model"][::step], "b.", ms=1, label=f"OCV - I R, R2 {mf.r2:.3f}")
+        axes[0].set_xlabel("time (s)")
+        axes[0].set_ylabel("voltage (V)")
+        axes[0].legend(fontsize=7)
+        nodes = mf.data["soc_nodes"]
+        style = "o-" if nodes.size > 1 else "o"
+        axes[1].plot(nodes, mf.data["ocv_nodes"], style)
+        axes[1].set_title("OCV(SOC)")
+        axes[1].set_xlabel("SOC (%)")
+        axes[2].plot(nodes, mf.data["r_dch_nodes"] * 1e3, style, label="discharge")
+        axes[2].plot(nodes, mf.data["r_ch_nodes"] * 1e3, style, label="charge")
+        axes[2].set_title("R(SOC) (mOhm)")
+        axes[2].set_xlabel("SOC (%)")
+        axes[2].legend(fontsize=7)
+        return _save(fig, path)
+    return None
+
+
+def _tc_curve(result: IdentificationResult, name: str) -> FitResult | None:
+    f = result.fits.get(f"torque_converter.{name}")
+    return f if f is not None and _has(f, "sr") else None
+
+
+def figure_torque_ratio(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 18: torque ratio vs speed ratio, model and data."""
+    f = _tc_curve(result, "torque_ratio")
+    if f is None:
+        return None
+    d = f.data
+    fig, (ax,) = _new()
+    ax.plot(d["sr"], d["tr"], ".", color="tab:red", ms=3, label="data")
+    order = np.argsort(d["sr"])
+    ax.plot(d["sr"][order], d["tr_model"][order], "-", color="tab:blue", label=f"model, R2 {f.r2:.3f}")
+    g = float(d["gamma"][0])
+    ax.axvline(g, color="k", ls=":", label=f"coupling point {g:.3f}")
+    ax.set_xlabel("speed ratio SR (-)")
+    ax.set_ylabel("torque ratio TR (-)")
+    ax.set_title("Torque converter: torque ratio")
+    ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def figure_capacity_factor(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 19: capacity factor n_p / sqrt(T_p) vs speed ratio, model and data."""
+    f = _tc_curve(result, "capacity_factor")
+    if f is None:
+        return None
+    d = f.data
+    fc = result.fits.get("torque_converter.capacity_factor_coupling")
+    fig, (ax,) = _new()
+    ax.plot(d["sr"], d["cf"], ".", color="tab:red", ms=3, label="data")
+    order = np.argsort(d["sr"])
+    lab = f"model, R2 {f.r2:.3f} converter" + (f", {fc.r2:.3f} coupling" if fc is not None else "")
+    ax.plot(d["sr"][order], d["cf_model"][order], "-", color="tab:blue", label=lab)
+    finite = d["cf"][np.isfinite(d["cf"])]
+    if finite.size:
+        ax.set_ylim(0, float(np.percentile(finite, 99)) * 1.3)
+    ax.set_xlabel("speed ratio SR (-)")
+    ax.set_ylabel("capacity factor (rpm / sqrt(Nm))")
+    ax.set_title("Torque converter: capacity factor")
+    ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def figure_shifts(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 21: shift lines (speed vs pedal) with the target-gear change events."""
+    fits = {k.removeprefix("shifts."): f for k, f in _fits(result, "shifts").items() if _has(f, "pedal", "speed")}
+    if not fits:
+        return None
+    cmap = matplotlib.colormaps["tab10"]
+    fig, (ax,) = _new(size=(8.0, 5.5))
+    pmax = max(float(np.max(f.data["pedal"])) for f in fits.values())
+    pp = np.linspace(0.0, max(pmax, 1.0), 50)
+    for name, f in sorted(fits.items(), key=lambda kv: (int(kv[0].split("_")[1]), kv[0])):
+        direction, a, b = name.split("_")
+        col = cmap((min(int(a), int(b)) - 1) % 10)
+        ls, mk = ("-", "o") if direction == "up" else ("--", "s")
+        ax.plot(f.data["pedal"], f.data["speed"], mk, color=col, ms=4, mfc="none" if direction == "down" else col)
+        c0, c1 = f.value("c0_kmh"), f.value("c1_kmh_per_pct")
+        if np.isfinite(c0) and np.isfinite(c1):
+            ax.plot(pp, c0 + c1 * pp, ls, color=col, lw=1, label=f"{a}->{b}" + _status(f))
+    ax.set_xlabel("accelerator pedal (%)")
+    ax.set_ylabel("vehicle speed (km/h)")
+    ax.set_title("Shift thresholds: up (solid, dots) and down (dashed, squares)")
+    ax.legend(fontsize=6, ncol=2)
+    ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def figure_brake_gains(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 22: axle brake torque vs caliper pressure with the fitted gain lines."""
+    def xy(f: FitResult) -> tuple[np.ndarray, np.ndarray] | None:
+        if _has(f, "pressure_bar", "torque_nm"):
+            return np.asarray(f.data["pressure_bar"]), np.asarray(f.data["torque_nm"])
+        a = f.data.get("A")
+        if a is not None and np.ndim(a) == 2 and np.shape(a)[1] == 1 and _has(f, "y"):  # torque = gain * pressure
+            return np.asarray(a)[:, 0], np.asarray(f.data["y"])
+        return None
+
+    fits = {k: f for k, f in _fits(result, "brakes").items() if xy(f) is not None}
+    if not fits:
+        return None
+    fig, (ax,) = _new()
+    for key, f in sorted(fits.items()):
+        x, y = xy(f)  # type: ignore[misc]
+        yf = f.data.get("torque_fit_nm", f.data.get("y_fit"))
+        ax.plot(x, y, ".", ms=3, label=f"{key.removeprefix('brakes.')} data")
+        if yf is not None and np.size(yf) == np.size(x):
+            order = np.argsort(x)
+            ax.plot(np.asarray(x)[order], np.asarray(yf)[order], "-", label=f"fit, R2 {f.r2:.3f}{_status(f)}")
+    ax.set_xlabel("caliper pressure (bar)")
+    ax.set_ylabel("brake torque (Nm)")
+    ax.set_title("Brake pressure-to-torque gains")
+    ax.legend(fontsize=7)
+    ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def figure_blending(result: IdentificationResult, path: Path) -> Path | None:
+    """Figure 24: brake blending maps (shares over speed x deceleration)."""
+    maps = []
+    for key, f in sorted(_fits(result, "brakes").items()):
+        for name, z in f.data.items():
+            if not name.endswith("_share") and not name.startswith("map_"):
+                continue
+            z = np.asarray(z, dtype=float)
+            if z.ndim == 2:
+                maps.append((f"{key.removeprefix('brakes.')}: {name}", f, z))
+    if not maps:
+        return None
+    n = len(maps)
+    fig, axes = _new(1, n, size=(4.2 * n, 4.0))
+    for ax, (title, f, z) in zip(axes, maps):
+        x = f.data.get("map_speed_kmh", f.data.get("speed_kmh_grid"))
+        y = f.data.get("map_decel_mps2", f.data.get("decel_mps2_grid"))
+        if x is not None and y is not None and z.shape == (np.size(y), np.size(x)):
+            im = ax.pcolormesh(x, y, z, shading="auto", cmap="viridis", vmin=0, vmax=1)
+            ax.set_xlabel("speed (km/h)")
+            ax.set_ylabel("deceleration (m/s2)")
+        else:
+            im = ax.imshow(z, origin="lower", aspect="auto", cmap="viridis", vmin=0, vmax=1)
+        fig.colorbar(im, ax=ax)
+        ax.set_title(title, fontsize=8)
+    return _save(fig, path)
+
+
+#: file stem -> figure function, in the paper's order
+FIGURES: dict[str, Callable[[IdentificationResult, Path], Path | None]] = {
+    "fig08_transmission_efficiency": figure_transmission,
+    "fig10_motor_willans": figure_motor_willans,
+    "fig11_motor_efficiency_map": figure_motor_efficiency,
+    "fig13_bsfc_map": figure_bsfc,
+    "fig16_battery": figure_battery,
+    "fig18_tc_torque_ratio": figure_torque_ratio,
+    "fig19_tc_capacity_factor": figure_capacity_factor,
+    "fig21_shift_thresholds": figure_shifts,
+    "fig22_brake_gains": figure_brake_gains,
+    "fig24_brake_blending": figure_blending,
+}
+
+
+def render_figures(result: IdentificationResult, out_dir: str | Path) -> dict[str, Path]:
+    """Draw every figure the result has data for into ``out_dir``.
+
+    Returns
+    -------
+    dict
+        File stem -> path written (figures without data are left out).
+    """
+    out_dir = Path(out_dir)
+    written: dict[str, Path] = {}
+    for stem, func in FIGURES.items():
+        p = func(result, out_dir / f"{stem}.png")
+        if p is not None:
+            written[stem] = p
+    return written

@@ -1,0 +1,266 @@
+"""The identification orchestrator: every method whose channels are present, in dependency order.
+
+:func:`identify_all` runs the methods of the paper on one Recording and the public VehicleSpecs:
+
+=================  ===========================================  =================================
+method             needs (roles)                                fits
+=================  ===========================================  =================================
+transmission       vehicle/motor/engine speed and torque,       ``transmission.gear<g>[_coast]``
+                   shaft torque, gear, lock-up, K0
+motor              motor speed/torque, HPCU V/I                 ``motor.*``
+engine             engine speed/torque, fuel flow               ``engine.*``
+road_load          vehicle speed (coastdown)                    ``road_load.*``
+brakes             four caliper pressures, dyno forces          ``brakes.*``
+battery            battery V/I, displayed SOC (eq. 30)          ``battery``
+battery_map_free   battery V/I (OCV/R without maps, R0 steps)   ``battery_map_free``, ``battery_r0``
+torque_converter   speeds, torques, gear, lock-up (uses the     ``torque_converter.*``
+                   transmission result of each gear)
+shifts             target gear, speed, pedal                    ``shifts.up_1_2`` ...
+=================  ===========================================  =================================
+
+A method whose roles are missing is *skipped* (listed in ``meta['skipped']`` with the missing roles);
+a method that runs but cannot give trustworthy numbers records its error message in ``errors``
+instead of stopping the run. The methods of identification part A (transmission, motor, engine,
+road load, brakes) are looked up by module name at run time, so the orchestrator works whether or not
+they are installed.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from benchtwin.errors import BenchtwinError, DataError
+from benchtwin.identification._fit import FitResult, IdentificationResult
+from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.recording import Recording
+
+__all__ = ["METHODS", "Method", "identify_all", "transmission_table"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Method:
+    """One identification method of the orchestrator.
+
+    Attributes
+    ----------
+    name:
+        Method name (also the prefix of its fits).
+    roles:
+        Roles that must all be present.
+    any_roles:
+        Of these, at least one must be present (empty: no such condition).
+    needs_specs:
+        Whether the method needs the VehicleSpecs.
+    run:
+        ``run(rec, specs, result_so_far, options) -> FitResult | dict[str, FitResult] | IdentificationResult``.
+    """
+
+    name: str
+    roles: tuple[str, ...]
+    run: Callable[[Recording, VehicleSpecs | None, IdentificationResult, Mapping[str, Any]], Any]
+    needs_specs: bool = True
+    any_roles: tuple[str, ...] = ()
+
+
+def transmission_table(result: IdentificationResult) -> dict[int, tuple[float, float]]:
+    """Gear -> ``(eta_m, C0)`` from the drive fits ``transmission.gear<g>`` that are not flagged."""
+    out: dict[int, tuple[float, float]] = {}
+    for key, fit in result.fits.items():
+        if not key.startswith("transmission.gear") or key.endswith("_coast") or fit.status != "ok":
+            continue
+        try:
+            gear = int(key.removeprefix("transmission.gear"))
+            out[gear] = (fit.value("eta_m"), fit.value("C0"))
+        except (ValueError, KeyError):
+            continue
+    return out
+
+
+def _part_a(module: str, func: str) -> Callable[..., Any]:
+    def run(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
+        try:
+            mod = importlib.import_module(f"benchtwin.identification.{module}")
+        except ModuleNotFoundError as exc:
+            raise _UnavailableError(f"benchtwin.identification.{module} is not available ({exc})") from None
+        fn = getattr(mod, func, None)
+        if fn is None:
+            raise _UnavailableError(f"benchtwin.identification.{module} has no {func}()")
+        return fn(rec, specs, **dict(opts))
+
+    return run
+
+
+class _UnavailableError(Exception):
+    """A method's module is not installed."""
+
+
+def _battery(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
+    from benchtwin.identification.battery import identify_battery
+
+    return identify_battery(rec, specs, **dict(opts))
+
+
+def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult,
+                      opts: Mapping[str, Any]) -> Any:
+    from benchtwin.errors import IdentificationError
+    from benchtwin.identification.battery import identify_battery_map_free, identify_battery_r0_steps
+
+    o = dict(opts)
+    n_cells = int(o.pop("n_cells", 1))
+    cap = o.pop("capacity_ah", None)
+    nodes = o.pop("soc_nodes_pct", None)
+    if "displayed_soc_pct" not in rec and cap is None:
+        nodes = None
+    out = IdentificationResult()
+    out.fits["battery_map_free"] = identify_battery_map_free(rec, n_cells=n_cells, capacity_ah=cap,
+                                                             soc_nodes_pct=nodes, **o)
+    try:
+        out.fits["battery_r0"] = identify_battery_r0_steps(rec, n_cells=n_cells, capacity_ah=cap,
+                                                           soc_nodes_pct=nodes)
+    except IdentificationError as exc:
+        out.errors["battery_r0"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
+def _torque_converter(rec: Recording, specs: VehicleSpecs | None, res: IdentificationResult,
+                      opts: Mapping[str, Any]) -> Any:
+    from benchtwin.identification.torque_converter import identify_torque_converter
+
+    o = dict(opts)
+    table = o.pop("transmission", None) or transmission_table(res) or None
+    return identify_torque_converter(rec, specs, transmission=table, **o)  # type: ignore[arg-type]
+
+
+def _shifts(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
+    from benchtwin.identification.shifts import identify_shift_thresholds
+
+    o = dict(opts)
+    if specs is not None:
+        o.setdefault("n_gears", len(specs.gear_ratios))
+    return identify_shift_thresholds(rec, **o)
+
+
+_TX = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "engine_torque_nm", "shaft_torque_nm", "gear_actual")
+
+#: every method in run order (transmission before the torque converter, which uses it)
+METHODS: tuple[Method, ...] = (
+    Method("transmission", _TX, _part_a("transmission", "identify_transmission")),
+    Method("motor", ("em_speed_rpm", "em_torque_nm", "hpcu_current_a", "hpcu_voltage_v"),
+           _part_a("motor", "identify_motor")),
+    Method("engine", ("engine_speed_rpm", "engine_torque_nm", "fuel_mass_flow_gps"),
+           _part_a("engine", "identify_engine")),
+    Method("road_load", ("vehicle_speed_kmh",), _part_a("road_load", "identify_road_load"),
+           any_roles=("dyno_speed_kmh", "dyno_force_front_n")),
+    Method("brakes", ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",
+                      "brake_pressure_rr_bar"), _part_a("brakes", "identify_brakes")),
+    Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _battery),
+    Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
+    Method("torque_converter", ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm",
+                                "gear_actual", "lockup_closed"), _torque_converter),
+    Method("shifts", ("gear_target", "vehicle_speed_kmh", "pedal_pct"), _shifts, needs_specs=False),
+)
+
+#: methods run by default; battery_map_free is for logs whose chemistry the literature maps do not fit
+DEFAULT_METHODS: tuple[str, ...] = ("transmission", "motor", "engine", "road_load", "brakes", "battery",
+                                    "torque_converter", "shifts")
+
+
+def _merge(result: IdentificationResult, name: str, out: Any) -> None:
+    if isinstance(out, IdentificationResult):
+        result.fits.update(out.fits)
+        result.errors.update(out.errors)
+        if out.meta:
+            result.meta.setdefault("methods_meta", {})[name] = out.meta
+    elif isinstance(out, FitResult):
+        result.fits[name] = out
+    elif isinstance(out, Mapping):
+        for key, fit in out.items():
+            full = key if key == name or key.startswith(name + ".") else f"{name}.{key}"
+            if isinstance(fit, FitResult):
+                result.fits[full] = fit
+            elif isinstance(fit, IdentificationResult):
+                _merge(result, full, fit)
+            elif isinstance(fit, BaseException):
+                result.errors[full] = f"{type(fit).__name__}: {fit}"
+    else:
+        raise TypeError(f"method {name} returned {type(out).__name__}")
+
+
+def identify_all(
+    recording: Recording,
+    specs: VehicleSpecs | None,
+    *,
+    methods: Iterable[str] | None = None,
+    options: Mapping[str, Mapping[str, Any]] | None = None,
+) -> IdentificationResult:
+    """Run every identification method whose roles are present.
+
+    Parameters
+    ----------
+    recording:
+        The Recording (emulated chain or an imported real log).
+    specs:
+        Public vehicle specs; methods that need them are skipped when ``None``.
+    methods:
+        Names of the methods to run (default :data:`DEFAULT_METHODS`; ``battery_map_free`` must be
+        asked for, or runs instead of ``battery`` when the Recording has no ``displayed_soc_pct``).
+    options:
+        Per-method keyword arguments, e.g. ``{"battery_map_free": {"capacity_ah": 6.0}}``.
+
+    Returns
+    -------
+    IdentificationResult
+        ``fits`` of every method that ran, ``errors`` (fit name -> message) of those that could not
+        give trustworthy numbers, and ``meta``: ``ran``, ``skipped`` (name -> reason), ``seconds``
+        (per method).
+
+    Raises
+    ------
+    DataError
+        An unknown method name.
+    """
+    known = {m.name: m for m in METHODS}
+    wanted = list(methods) if methods is not None else list(DEFAULT_METHODS)
+    unknown = [w for w in wanted if w not in known]
+    if unknown:
+        raise DataError(f"unknown identification method(s) {', '.join(unknown)}; known: {', '.join(known)}")
+    if methods is None and "displayed_soc_pct" not in recording and "battery_voltage_v" in recording:
+        wanted.append("battery_map_free")
+    options = options or {}
+    result = IdentificationResult(meta={"ran": [], "skipped": {}, "seconds": {}})
+    for m in METHODS:
+        if m.name not in wanted:
+            continue
+        missing = [r for r in m.roles if r not in recording]
+        if m.any_roles and not any(r in recording for r in m.any_roles):
+            missing.append(" or ".join(m.any_roles))
+        if missing:
+            result.meta["skipped"][m.name] = f"missing channel(s): {', '.join(missing)}"
+            continue
+        if m.needs_specs and specs is None:
+            result.meta["skipped"][m.name] = "needs the vehicle specs (--specs or a [specs] table)"
+            continue
+        t0 = time.perf_counter()
+        try:
+            out = m.run(recording, specs, result, options.get(m.name, {}))
+            _merge(result, m.name, out)
+            result.meta["ran"].append(m.name)
+        except _UnavailableError as exc:
+            result.meta["skipped"][m.name] = str(exc)
+        except BenchtwinError as exc:
+            result.errors[m.name] = f"{type(exc).__name__}: {exc}"
+            result.meta["ran"].append(m.name)
+        except (ValueError, TypeError, ArithmeticError, IndexError, KeyError) as exc:
+            # a method that breaks on unexpected data must not stop the others; record it
+            log.exception("identification method %s failed", m.name)
+            result.errors[m.name] = f"unexpected {type(exc).__name__}: {exc}"
+            result.meta["ran"].append(m.name)
+        result.meta["seconds"][m.name] = round(time.perf_counter() - t0, 4)
+    return result

@@ -1,0 +1,125 @@
+"""The identify_all orchestrator and `benchtwin identify` (params.json, figures, errors as one line)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from _synth_b import SPECS, TC_TRUTH, TRANSMISSION_TRUTH, battery_recording, shift_recording, tc_recording
+from test_real_data_b import _reference_dir
+
+from benchtwin.cli import main
+from benchtwin.config._base import scenario_path
+from benchtwin.errors import DataError
+from benchtwin.identification.run import identify_all, transmission_table
+from benchtwin.recording import Recording
+
+
+@pytest.fixture(scope="module")
+def combined() -> tuple[Recording, dict]:
+    brec, btruth = battery_recording()
+    srec, struth = shift_recording()
+    rec = Recording(segments=brec.segments + srec.segments)
+    for r in (brec, srec):
+        for ch in r.channels.values():
+            rec.add(ch)
+    return rec, {"battery": btruth, "shifts": struth}
+
+
+def _specs_toml(path) -> None:
+    lines = [f"{k} = {v!r}" if not isinstance(v, list) else f"{k} = {v}" for k, v in SPECS.model_dump().items()]
+    path.write_text("[specs]\n" + "\n".join(lines) + "\n", encoding="utf-8")
+
+
+def test_identify_all_runs_what_is_present_and_skips_the_rest(combined):
+    rec, truth = combined
+    res = identify_all(rec, SPECS)
+    assert "battery" in res.fits and "shifts.up_1_2" in res.fits
+    np.testing.assert_allclose(res.fits["battery"].value("alpha"), truth["battery"]["alpha"], rtol=1e-3)
+    np.testing.assert_allclose(res.fits["shifts.up_3_4"].value("c0_kmh"), truth["shifts"]["up"][3][0], rtol=1e-3)
+    assert "torque_converter" in res.meta["skipped"]
+    assert "missing channel" in res.meta["skipped"]["torque_converter"]
+    assert set(res.meta["ran"]) >= {"battery", "shifts"}
+
+
+def test_identify_all_records_errors_instead_of_crashing():
+    rec, _ = battery_recording()
+    c = rec["battery_current_a"]
+    from benchtwin.recording import Channel
+
+    rec.add(Channel("battery_current_a", "A", c.timestamps, np.zeros(len(c))))
+    res = identify_all(rec, SPECS, methods=["battery"])
+    assert "battery" in res.errors and "NoExcitationError" in res.errors["battery"]
+    assert not res.fits
+
+
+def test_torque_converter_uses_the_transmission_result():
+    rec, truth = tc_recording()
+    from benchtwin.identification._fit import IdentificationResult, linear_fit
+
+    prior = IdentificationResult()
+    for g, (eta, c0) in TRANSMISSION_TRUTH.items():
+        c = np.linspace(20, 300, 20)
+        fit = linear_fit(np.column_stack([np.ones_like(c), -1 / c]), eta * (1 - c0 / c), ["eta_m", "eta_m_C0"])
+        fit.params["C0"] = fit.params["eta_m_C0"].__class__("C0", c0, 0.0, (c0, c0), 1.0, 20, "Nm")
+        prior.fits[f"transmission.gear{g}"] = fit
+    table = transmission_table(prior)
+    assert table[1] == pytest.approx(TRANSMISSION_TRUTH[1])
+    res = identify_all(rec, SPECS, methods=["torque_converter"], options={"torque_converter": {"transmission": table}})
+    np.testing.assert_allclose(res.fits["torque_converter.converter"].value("a3"), truth["a3"], rtol=1e-3)
+    assert res.fits["torque_converter.converter"].status == "ok"
+    assert TC_TRUTH["gamma"] == pytest.approx(res.fits["torque_converter.converter"].value("gamma_coupling"), rel=1e-3)
+
+
+def test_unknown_method_is_an_error(combined):
+    with pytest.raises(DataError, match="unknown identification method"):
+        identify_all(combined[0], SPECS, methods=["gearbox"])
+
+
+def test_cli_writes_params_and_figures(combined, tmp_path, capsys):
+    rec, truth = combined
+    mf4 = rec.save(tmp_path / "campaign.mf4")
+    specs = tmp_path / "specs.toml"
+    _specs_toml(specs)
+    out = tmp_path / "out"
+    assert main(["identify", str(mf4), "--out", str(out), "--specs", str(specs)]) == 0
+    params = json.loads((out / "params.json").read_text(encoding="utf-8"))
+    alpha = params["fits"]["battery"]["params"]["alpha"]
+    assert alpha["value"] == pytest.approx(truth["battery"]["alpha"], rel=1e-3)
+    assert {"std_error", "ci95", "r2", "n_points", "segments", "status"} <= set(alpha)
+    assert params["fits"]["shifts.up_8_9"]["status"] == "ok"
+    assert "torque_converter" in params["meta"]["skipped"]
+    for name in ("figures/fig16_battery.png", "figures/fig21_shift_thresholds.png"):
+        assert name in params["meta"]["figures"]
+        assert (out / name).stat().st_size > 10_000
+    assert "battery" in capsys.readouterr().out
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    csv = tmp_path / "log.csv"
+    csv.write_text("time,v\n0,1\n", encoding="utf-8")
+    assert main(["identify", str(csv), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("benchtwin: error:") and "--signal-map" in err and "Traceback" not in err
+    bad = tmp_path / "bad_specs.toml"
+    bad.write_text("gear_ratios = [1.0, 2.0]\n", encoding="utf-8")
+    rec, _ = battery_recording()
+    mf4 = rec.save(tmp_path / "b.mf4")
+    assert main(["identify", str(mf4), "--out", str(tmp_path / "o2"), "--specs", str(bad)]) == 2
+    assert "gear_ratios" in capsys.readouterr().err
+
+
+def test_cli_on_the_insight_log(tmp_path, capsys):
+    ref = _reference_dir()
+    log = ref / "advisor_insight_hev" / "Hwy2x_Insight_test_data_69soc_hot.txt"
+    if not log.exists():
+        pytest.skip(f"reference data {log} is absent")
+    out = tmp_path / "insight"
+    smap = scenario_path("signal_maps", "insight_hwy.toml")
+    assert main(["identify", str(log), "--signal-map", str(smap), "--out", str(out)]) == 0
+    params = json.loads((out / "params.json").read_text(encoding="utf-8"))
+    fit = params["fits"]["battery_map_free"]["params"]
+    assert fit["ocv_v"]["value"] == pytest.approx(155.7, abs=0.3)
+    assert "battery_r0" in params["fits"]
+    assert (out / "figures" / "fig16_battery.png").exists()
