@@ -8,8 +8,19 @@ key, the value and what is allowed.
 """
 
 from benchtwin.config._base import StrictModel, load_model, scenario_path, validate_data
+from benchtwin.config.campaign import CampaignConfig, load_campaign
+from benchtwin.config.vehicle import VehicleConfig, load_vehicle
 
-__all__ = ["StrictModel", "load_model", "scenario_path", "validate_data"]
+__all__ = [
+    "CampaignConfig",
+    "StrictModel",
+    "VehicleConfig",
+    "load_campaign",
+    "load_model",
+    "load_vehicle",
+    "scenario_path",
+    "validate_data",
+]
 from benchtwin.config.setup import SetupConfig, load_setup
 
 __all__ += ["SetupConfig", "load_setup"]

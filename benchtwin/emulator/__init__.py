@@ -1,0 +1,247 @@
+"""The plant: a P2 diesel PHEV on an AWD chassis dyno, driven by a test campaign.
+
+Public API::
+
+    from benchtwin.config import load_vehicle, load_campaign
+    from benchtwin.emulator import simulate_campaign
+    trace = simulate_campaign(load_vehicle(), load_campaign("wltc.toml"))
+
+The stepping loop (:mod:`benchtwin.emulator.plant`) is compiled with numba; protocols are precomputed
+into per-step command arrays (:mod:`benchtwin.emulator.protocols`); controllers are designed and
+discretised with python-control (:mod:`benchtwin.emulator.params`); thermal states and the 12 V load
+profile are computed outside the loop. Every random draw comes from the campaign seed, split per
+subsystem with :class:`numpy.random.SeedSequence`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchtwin.config.campaign import CampaignConfig
+from benchtwin.config.vehicle import LowVoltageConfig, VehicleConfig
+from benchtwin.emulator.params import (
+    LEDGER_NAMES,
+    NL,
+    NO,
+    O_A,
+    O_BRAKE,
+    O_DSET,
+    O_DSOC,
+    O_EON,
+    O_FFRONT,
+    O_FREAR,
+    O_FRL,
+    O_FUEL,
+    O_GA,
+    O_GT,
+    O_HMODE,
+    O_IB,
+    O_ILV,
+    O_ILVB,
+    O_K0,
+    O_LU,
+    O_OCV,
+    O_PEDAL,
+    O_PEL,
+    O_PF,
+    O_PMC,
+    O_PR,
+    O_Q_BATT,
+    O_Q_ENGINE,
+    O_Q_MOTOR,
+    O_SOC,
+    O_TBF,
+    O_TBR,
+    O_TE,
+    O_TIN,
+    O_TM,
+    O_TOUT,
+    O_TP,
+    O_TT,
+    O_V,
+    O_VB,
+    O_VDYN,
+    O_VLV,
+    O_WE,
+    O_WP,
+    O_WS,
+    O_WT,
+    O_WW,
+    O_X,
+    PlantTables,
+    build_tables,
+)
+from benchtwin.emulator.plant import N_STATE, kinetic_energy, run_plant
+from benchtwin.emulator.protocols import build_protocol
+from benchtwin.emulator.thermal import simulate_thermal
+from benchtwin.errors import SimulationError
+from benchtwin.trace import TRACE_CHANNELS, Trace
+
+__all__ = ["energy_balance", "lv_load_profile", "simulate_campaign"]
+
+#: Trace channel -> loop output column
+_DIRECT: dict[str, int] = {
+    "vehicle_speed_mps": O_V, "vehicle_accel_mps2": O_A, "distance_m": O_X, "dyno_set_speed_mps": O_DSET,
+    "dyno_speed_mps": O_VDYN, "dyno_force_front_n": O_FFRONT, "dyno_force_rear_n": O_FREAR,
+    "road_load_force_n": O_FRL, "pedal_pct": O_PEDAL, "brake_pedal_pct": O_BRAKE, "hybrid_mode": O_HMODE,
+    "engine_speed_radps": O_WE, "engine_torque_nm": O_TE, "engine_on": O_EON, "fuel_mass_flow_kgps": O_FUEL,
+    "k0_closed": O_K0, "em_speed_radps": O_WP, "em_torque_nm": O_TM, "em_elec_power_w": O_PEL,
+    "hpcu_hv_current_a": O_IB, "hpcu_hv_voltage_v": O_VB, "tc_pump_torque_nm": O_TP,
+    "tc_turbine_speed_radps": O_WT, "tc_turbine_torque_nm": O_TT, "lockup_closed": O_LU, "gear_target": O_GT,
+    "gear_actual": O_GA, "trans_input_torque_nm": O_TIN, "shaft_torque_nm": O_TOUT, "shaft_speed_radps": O_WS,
+    "wheel_speed_radps": O_WW, "brake_pressure_fl_pa": O_PF, "brake_pressure_fr_pa": O_PF,
+    "brake_pressure_rl_pa": O_PR, "brake_pressure_rr_pa": O_PR, "master_cylinder_pa": O_PMC,
+    "brake_torque_front_nm": O_TBF, "brake_torque_rear_nm": O_TBR, "battery_current_a": O_IB,
+    "battery_voltage_v": O_VB, "battery_ocv_v": O_OCV, "battery_soc_frac": O_SOC, "displayed_soc_pct": O_DSOC,
+    "dcdc_lv_current_a": O_ILV, "dcdc_lv_voltage_v": O_VLV, "lv_battery_current_a": O_ILVB,
+    "lv_battery_voltage_v": O_VLV,
+}
+
+#: subsystems that draw random numbers, in the order of SeedSequence.spawn
+RANDOM_SUBSYSTEMS: tuple[str, ...] = ("lv_loads",)
+
+
+def lv_load_profile(cfg: LowVoltageConfig, n_steps: int, dt: float, rng: np.random.Generator) -> np.ndarray:
+    """12 V load power per plant step: base load plus a fan and a pump switching on and off at random times.
+
+    The fan runs at a random duty level (30-100 %) each time it switches on.
+
+    Parameters
+    ----------
+    cfg:
+        Low-voltage parameters (loads, mean switching interval).
+    n_steps, dt:
+        Number of plant steps and plant step, s.
+    rng:
+        Generator seeded from the campaign seed (the ``lv_loads`` child).
+
+    Returns
+    -------
+    numpy.ndarray
+        Load power, W.
+    """
+    duration = n_steps * dt
+    load = np.full(n_steps, cfg.base_load_w)
+    for power, duty in ((cfg.fan_load_w, True), (cfg.pump_load_w, False)):
+        n_sw = int(duration / cfg.mean_switch_interval_s * 2) + 4
+        times = np.cumsum(rng.exponential(cfg.mean_switch_interval_s, size=n_sw))
+        levels = rng.uniform(0.3, 1.0, size=n_sw) if duty else np.ones(n_sw)
+        on = (np.arange(n_sw) % 2 == 1).astype(float) * levels
+        idx = np.searchsorted(times, np.arange(n_steps) * dt, side="right")
+        idx = np.minimum(idx, n_sw - 1)
+        load += power * on[idx]
+    return load
+
+
+def _initial_state(tables: PlantTables, vehicle: VehicleConfig, campaign: CampaignConfig) -> np.ndarray:
+    from benchtwin.emulator import plant as pl
+
+    st = np.zeros(N_STATE)
+    b = vehicle.battery
+    st[pl.S_SOC] = b.soc_min_frac + campaign.initial_displayed_soc_pct / 100.0 * (b.soc_max_frac - b.soc_min_frac)
+    st[pl.S_SOCLV] = vehicle.low_voltage.battery_initial_soc_frac
+    st[pl.S_GEAR] = 1
+    st[pl.S_GT] = 1
+    st[pl.S_SEG] = -1
+    st[pl.S_MEFF] = tables.p[1]
+    st[pl.S_ESAVE] = campaign.initial_displayed_soc_pct
+    return st
+
+
+def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progress: bool = False) -> Trace:
+    """Run every test of ``campaign`` on ``vehicle`` and return the truth as a Trace.
+
+    Parameters
+    ----------
+    vehicle:
+        True parameters of the plant.
+    campaign:
+        Tests, plant and output rate, seed, dyno and driver settings.
+    progress:
+        Show a tqdm progress bar over simulated time.
+
+    Returns
+    -------
+    Trace
+        Every channel of :data:`~benchtwin.trace.TRACE_CHANNELS` at the output rate, the segment table
+        (one Segment per test) and meta data (vehicle, seed, rates, energy ledger in J).
+
+    Raises
+    ------
+    SimulationError
+        If the plant leaves its physical domain (non-finite states).
+    """
+    tables = build_tables(vehicle, campaign)
+    dt = 1.0 / campaign.plant_rate_hz
+    proto = build_protocol(campaign)
+    n = proto.n_steps
+    children = np.random.SeedSequence(campaign.seed).spawn(len(RANDOM_SUBSYSTEMS))
+    rngs = {name: np.random.default_rng(child) for name, child in zip(RANDOM_SUBSYSTEMS, children, strict=True)}
+    from benchtwin.emulator.params import C_LVLOAD, L_KE0, L_KE1
+
+    proto.cmd[C_LVLOAD] = lv_load_profile(vehicle.low_voltage, n, dt, rngs["lv_loads"])
+    decim = 1 if campaign.output_rate_hz is None else round(campaign.plant_rate_hz / campaign.output_rate_hz)
+    n_out = (n + decim - 1) // decim
+    out = np.empty((n_out, NO))
+    led = np.zeros(NL)
+    st = _initial_state(tables, vehicle, campaign)
+    led[L_KE0] = kinetic_energy(tables.p, st)
+    args = (tables.p, tables.ratios, tables.eta_m, tables.c0, tables.up_v0, tables.up_s, tables.dn_v0,
+            tables.dn_s, tables.e_fl_w, tables.e_fl_t, tables.bsfc_w, tables.bsfc_b, tables.bsfc_kgpj,
+            tables.m_fl_w, tables.m_fl_t, tables.cell_soc, tables.cell_ocv, tables.cell_rd, tables.cell_rc,
+            tables.tc_a, proto.cmd)
+    if progress:
+        from tqdm import tqdm
+
+        chunk = max(decim, round(120.0 / dt / decim) * decim)
+        with tqdm(total=round(n * dt), unit="s sim", desc=campaign.name, leave=False) as bar:
+            for i0 in range(0, n, chunk):
+                i1 = min(i0 + chunk, n)
+                run_plant(*args, i0, i1, decim, st, out, led)
+                bar.update(round(i1 * dt) - bar.n)
+    else:
+        run_plant(*args, 0, n, decim, st, out, led)
+    led[L_KE1] = kinetic_energy(tables.p, st)
+    if not np.all(np.isfinite(out[:, [O_V, O_WP, O_IB, O_SOC]])):
+        raise SimulationError(f"campaign {campaign.name!r}: the plant left its physical domain (non-finite states)")
+
+    dt_out = dt * decim
+    time_s = np.arange(n_out) * dt_out
+    channels: dict[str, np.ndarray] = {name: out[:, col].copy() for name, col in _DIRECT.items()}
+    channels.update(simulate_thermal(vehicle.thermal, dt_out, out[:, O_Q_ENGINE], out[:, O_Q_MOTOR],
+                                     out[:, O_Q_BATT], campaign.ambient_degc))
+    missing = set(TRACE_CHANNELS) - set(channels)
+    if missing:  # pragma: no cover - guarded by the tests
+        raise SimulationError(f"emulator does not produce {sorted(missing)}")
+    ordered = {name: channels[name] for name in TRACE_CHANNELS}
+    meta = {
+        "vehicle": vehicle.name,
+        "campaign": campaign.name,
+        "seed": campaign.seed,
+        "plant_rate_hz": campaign.plant_rate_hz,
+        "output_rate_hz": campaign.plant_rate_hz / decim,
+        "energy_ledger_j": {name: float(led[k]) for k, name in enumerate(LEDGER_NAMES)},
+    }
+    return Trace(time_s, ordered, proto.segments, meta)
+
+
+def energy_balance(ledger: dict[str, float]) -> dict[str, float]:
+    """Sum the energy ledger of a Trace's meta: inputs, outputs (losses + work + stored) and the residual.
+
+    Parameters
+    ----------
+    ledger:
+        ``trace.meta["energy_ledger_j"]``.
+
+    Returns
+    -------
+    dict
+        ``inputs_j``, ``outputs_j``, ``residual_j`` and ``residual_frac`` (residual over inputs).
+    """
+    inputs = ledger["fuel_chemical"] + ledger["hv_battery_chemical"] + ledger["lv_battery_chemical"]
+    losses = sum(ledger[k] for k in LEDGER_NAMES[3:16])
+    stored = ledger["kinetic_end"] - ledger["kinetic_start"]
+    outputs = losses + stored
+    residual = inputs - outputs
+    scale = max(abs(ledger["fuel_chemical"]) + abs(ledger["hv_battery_chemical"]), 1.0)
+    return {"inputs_j": inputs, "outputs_j": outputs, "residual_j": residual, "residual_frac": residual / scale}

@@ -1,0 +1,186 @@
+"""The campaign file: the tests (Table 4 of the paper), the plant rate, the seed, the dyno and the driver.
+
+Each ``[[tests]]`` entry has a ``kind`` and the settings of that kind. Tests run back to back; each
+starts from the state the previous one left (speed, SOC, gear, temperatures).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from benchtwin.config._base import StrictModel, load_model, scenario_path
+
+__all__ = [
+    "AccelerationTest",
+    "CampaignConfig",
+    "CoastdownTest",
+    "ConstantDriveTest",
+    "CycleTest",
+    "DecelerationTest",
+    "DriverConfig",
+    "DynoConfig",
+    "NeutralBrakingTest",
+    "RampDownTest",
+    "RampUpTest",
+    "TestConfig",
+    "load_campaign",
+]
+
+HybridMode = Literal["hybrid", "electric", "e_save", "charge"]
+Force = Literal["auto", "on", "off"]
+Clutch = Literal["auto", "closed", "open"]
+
+#: hybrid mode name -> the number in the Trace's ``hybrid_mode`` channel
+HYBRID_MODES: dict[str, int] = {"hybrid": 0, "electric": 1, "e_save": 2, "charge": 3}
+
+
+class DynoConfig(StrictModel):
+    """The AWD chassis dyno: rollers, speed loop design, power limits."""
+
+    roller_diameter_m: float = Field(default=1.2192, gt=0)
+    roller_equivalent_mass_kg: float = Field(default=1150.0, gt=0)
+    speed_loop_bandwidth_radps: float = Field(default=6.0, gt=0)
+    speed_loop_damping: float = Field(default=1.0, gt=0)
+    max_force_n: float = Field(default=12000.0, gt=0)
+    max_power_w: float = Field(default=230000.0, gt=0)
+
+
+class DriverConfig(StrictModel):
+    """The robot driver's speed controller (PI on force, with feed-forward) and its preview."""
+
+    bandwidth_radps: float = Field(default=1.5, gt=0)
+    damping: float = Field(default=1.0, gt=0)
+    preview_s: float = Field(default=0.4, ge=0)
+    stop_decel_mps2: float = Field(default=1.5, gt=0)
+
+
+class _TestBase(StrictModel):
+    name: str | None = None
+    mode: HybridMode = "hybrid"
+
+
+class RampUpTest(_TestBase):
+    """Dyno at constant speed, gear held, accelerator (and brake) pedal steps with holds."""
+
+    kind: Literal["ramp_up"]
+    gear: int = Field(ge=1)
+    speed_kmh: float = Field(gt=0, le=200)
+    pedal_steps_pct: list[float] = Field(min_length=1)
+    brake_steps_pct: list[float] = Field(default_factory=list)
+    step_hold_s: float = Field(default=8.0, gt=0)
+    lead_in_s: float = Field(default=15.0, gt=0)
+    engine: Force = "auto"
+    k0: Clutch = "auto"
+    lockup: Clutch = "closed"
+
+
+class ConstantDriveTest(_TestBase):
+    """Driver holds a constant speed (road-load mode) until a displayed SOC is reached or time runs out."""
+
+    kind: Literal["constant_drive"]
+    speed_kmh: float = Field(gt=0, le=200)
+    gear: int = Field(default=0, ge=0, description="0: automatic")
+    approach_s: float = Field(default=30.0, gt=0)
+    max_duration_s: float = Field(gt=0)
+    end_displayed_soc_pct: float | None = Field(default=None, ge=0, le=100)
+
+
+class AccelerationTest(_TestBase):
+    """From standstill at a constant pedal until ``end_speed_kmh`` (or timeout), then the driver stops."""
+
+    kind: Literal["acceleration"]
+    pedal_pct: float = Field(gt=0, le=100)
+    end_speed_kmh: float = Field(default=130.0, gt=0)
+    max_duration_s: float = Field(default=150.0, gt=0)
+
+
+class DecelerationTest(_TestBase):
+    """Driver accelerates to a speed, then follows a constant-deceleration ramp to standstill (road-load mode)."""
+
+    kind: Literal["deceleration"]
+    start_speed_kmh: float = Field(gt=0, le=200)
+    decel_mps2: float = Field(gt=0, le=6)
+    approach_s: float = Field(default=40.0, gt=0)
+
+
+class RampDownTest(_TestBase):
+    """Dyno ramps the speed down slowly while the pedal is held constant (downshift lines)."""
+
+    kind: Literal["ramp_down"]
+    pedal_pct: float = Field(ge=0, le=100)
+    start_speed_kmh: float = Field(default=130.0, gt=0)
+    end_speed_kmh: float = Field(default=0.0, ge=0)
+    rate_kmh_per_s: float = Field(default=1.0, gt=0)
+    lead_in_s: float = Field(default=25.0, gt=0)
+
+
+class NeutralBrakingTest(_TestBase):
+    """Gearbox in neutral, dyno at constant speed, brake pedal steps (brake gains)."""
+
+    kind: Literal["neutral_braking"]
+    speed_kmh: float = Field(gt=0, le=200)
+    brake_steps_pct: list[float] = Field(min_length=1)
+    step_hold_s: float = Field(default=5.0, gt=0)
+    lead_in_s: float = Field(default=15.0, gt=0)
+
+
+class CycleTest(_TestBase):
+    """A driving cycle in road-load mode; the driver follows the speed trace."""
+
+    kind: Literal["cycle"]
+    cycle: str = "wltc_class3b.csv"
+
+
+class CoastdownTest(_TestBase):
+    """Driver reaches ``start_speed_kmh``, then neutral, no pedals, road-load mode, until standstill."""
+
+    kind: Literal["coastdown"]
+    start_speed_kmh: float = Field(default=130.0, gt=0)
+    approach_s: float = Field(default=60.0, gt=0)
+    max_duration_s: float = Field(default=400.0, gt=0)
+
+
+TestConfig = Annotated[
+    RampUpTest | ConstantDriveTest | AccelerationTest | DecelerationTest | RampDownTest | NeutralBrakingTest
+    | CycleTest | CoastdownTest,
+    Field(discriminator="kind"),
+]
+
+
+class CampaignConfig(StrictModel):
+    """A test campaign: tests in order, plant and output rate, seed, initial state, dyno and driver."""
+
+    name: str
+    seed: int = Field(ge=0)
+    plant_rate_hz: float = Field(default=100.0, ge=10.0, le=2000.0)
+    output_rate_hz: float | None = Field(default=None, gt=0)
+    initial_displayed_soc_pct: float = Field(default=90.0, ge=0, le=100)
+    ambient_degc: float = Field(default=23.0, ge=-40, le=60)
+    dyno: DynoConfig = Field(default_factory=DynoConfig)
+    driver: DriverConfig = Field(default_factory=DriverConfig)
+    tests: list[TestConfig] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _rates(self) -> CampaignConfig:
+        if self.output_rate_hz is not None:
+            ratio = self.plant_rate_hz / self.output_rate_hz
+            if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
+                raise ValueError("output_rate_hz must divide plant_rate_hz (e.g. 100 and 1)")
+        return self
+
+
+def load_campaign(path: str | Path) -> CampaignConfig:
+    """Load a campaign file; a bare name like ``quick.toml`` is looked up in the shipped campaigns.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing or invalid; the message names the file, the key and what is allowed.
+    """
+    p = Path(path)
+    if not p.exists() and p.parent == Path("."):
+        p = scenario_path("campaigns", p.name)
+    return load_model(CampaignConfig, p)

@@ -1,0 +1,301 @@
+"""The vehicle file: every true parameter of the emulated P2 PHEV.
+
+A vehicle file has a ``[specs]`` table with exactly the public specification that identification may
+know (:class:`~benchtwin.identification.specs.VehicleSpecs`) and one table per subsystem with the true
+model parameters that identification must recover (or that only the plant needs). Every key carries
+its unit in its name (``f0_n``, ``f1_n_per_kmh``, ``idle_speed_rpm``); a key with the wrong unit suffix
+is an unknown key and the loader suggests the right one.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+from pydantic import Field, field_validator, model_validator
+
+from benchtwin.config._base import StrictModel, load_model, scenario_path
+from benchtwin.identification.specs import VehicleSpecs
+
+__all__ = [
+    "BatteryConfig",
+    "BrakesConfig",
+    "EngineConfig",
+    "HybridConfig",
+    "LowVoltageConfig",
+    "MotorConfig",
+    "RoadLoadConfig",
+    "ShiftScheduleConfig",
+    "ThermalConfig",
+    "TorqueConverterConfig",
+    "TransmissionConfig",
+    "VehicleConfig",
+    "load_vehicle",
+]
+
+
+def _increasing(name: str, values: list[float]) -> list[float]:
+    if any(b <= a for a, b in itertools.pairwise(values)):
+        raise ValueError(f"{name} must increase strictly")
+    return values
+
+
+class RoadLoadConfig(StrictModel):
+    """Road-load coefficients the dyno simulates (Table 3) and the vehicle's own parasitic loss on rollers."""
+
+    f0_n: float = Field(ge=0)
+    f1_n_per_kmh: float = Field(ge=0)
+    f2_n_per_kmh2: float = Field(ge=0)
+    parasitic_f0_n: float = Field(default=0.0, ge=0)
+    parasitic_f1_n_per_kmh: float = Field(default=0.0, ge=0)
+    parasitic_f2_n_per_kmh2: float = Field(default=0.0, ge=0)
+    wheel_equivalent_mass_kg: float = Field(default=60.0, ge=0, description="rotating wheels, rollers' view")
+
+    @model_validator(mode="after")
+    def _parasitic_below_target(self) -> RoadLoadConfig:
+        if self.parasitic_f0_n > self.f0_n:
+            raise ValueError("parasitic_f0_n must not exceed f0_n (the dyno cannot pull the car)")
+        return self
+
+
+class EngineConfig(StrictModel):
+    """Diesel engine: full load, idle, friction, fuel map (BSFC over speed x BMEP), start cost."""
+
+    idle_speed_rpm: float = Field(gt=0)
+    max_speed_rpm: float = Field(gt=0)
+    inertia_kgm2: float = Field(gt=0)
+    full_load_speed_rpm: list[float] = Field(min_length=2)
+    full_load_torque_nm: list[float] = Field(min_length=2)
+    friction_torque_nm: float = Field(ge=0, description="motoring drag at 0 rpm")
+    friction_torque_nm_per_krpm: float = Field(ge=0)
+    start_fuel_g: float = Field(ge=0)
+    spin_rate_radps2: float = Field(default=600.0, gt=0, description="free run-up/spin-down rate with K0 open")
+    bsfc_speed_rpm: list[float] = Field(min_length=2)
+    bsfc_bmep_bar: list[float] = Field(min_length=2)
+    bsfc_g_per_kwh: list[list[float]] = Field(min_length=2)
+
+    @field_validator("full_load_speed_rpm", "bsfc_speed_rpm", "bsfc_bmep_bar")
+    @classmethod
+    def _axis_increasing(cls, v: list[float]) -> list[float]:
+        return _increasing("axis", v)
+
+    @model_validator(mode="after")
+    def _shapes(self) -> EngineConfig:
+        if len(self.full_load_speed_rpm) != len(self.full_load_torque_nm):
+            raise ValueError("full_load_speed_rpm and full_load_torque_nm must have the same length")
+        if len(self.bsfc_g_per_kwh) != len(self.bsfc_speed_rpm) or any(
+            len(row) != len(self.bsfc_bmep_bar) for row in self.bsfc_g_per_kwh
+        ):
+            raise ValueError("bsfc_g_per_kwh must have one row per bsfc_speed_rpm and one column per bsfc_bmep_bar")
+        if any(x <= 0 for row in self.bsfc_g_per_kwh for x in row):
+            raise ValueError("bsfc_g_per_kwh values must be > 0")
+        if self.idle_speed_rpm >= self.max_speed_rpm:
+            raise ValueError("idle_speed_rpm must be below max_speed_rpm")
+        return self
+
+
+class MotorConfig(StrictModel):
+    """PMSM in P2 position: torque limits and the Willans line (eq. 18-25), motoring and generating."""
+
+    max_speed_rpm: float = Field(gt=0)
+    inertia_kgm2: float = Field(gt=0, description="rotor plus torque converter pump")
+    full_load_speed_rpm: list[float] = Field(min_length=2)
+    full_load_torque_nm: list[float] = Field(min_length=2)
+    willans_e: float = Field(gt=0, le=1)
+    willans_w_loss_w: float = Field(ge=0)
+    willans_e_gen: float = Field(gt=0, le=1)
+    willans_w_loss_gen_w: float = Field(ge=0)
+    idle_speed_rpm: float = Field(default=700.0, ge=0, description="pump speed held with K0 open")
+    idle_gain_nm_per_radps: float = Field(default=8.0, ge=0)
+
+    @field_validator("full_load_speed_rpm")
+    @classmethod
+    def _axis_increasing(cls, v: list[float]) -> list[float]:
+        return _increasing("full_load_speed_rpm", v)
+
+    @model_validator(mode="after")
+    def _shapes(self) -> MotorConfig:
+        if len(self.full_load_speed_rpm) != len(self.full_load_torque_nm):
+            raise ValueError("full_load_speed_rpm and full_load_torque_nm must have the same length")
+        return self
+
+
+class TorqueConverterConfig(StrictModel):
+    """Quadratic pump/turbine model (eq. 35-36) with coupling speed ratio and lock-up clutch."""
+
+    a_nm_per_radps2: list[float] = Field(min_length=9, max_length=9, description="a0..a8")
+    coupling_speed_ratio: float = Field(gt=0, lt=1)
+    lockup_min_gear: int = Field(default=2, ge=1)
+    lockup_min_speed_kmh: float = Field(default=15.0, ge=0)
+    lockup_capacity_nm: float = Field(default=300.0, gt=0)
+    lockup_slip_ref_radps: float = Field(default=20.0, gt=0)
+
+
+class TransmissionConfig(StrictModel):
+    """Automatic gearbox: eq. 14 per gear (eta_m, C0) and the shift actuation delay."""
+
+    eta_m: list[float] = Field(min_length=1)
+    c0_nm: list[float] = Field(min_length=1)
+    shift_delay_s: float = Field(gt=0, le=2.0)
+
+    @field_validator("eta_m")
+    @classmethod
+    def _eta_range(cls, v: list[float]) -> list[float]:
+        if any(not 0.5 < x <= 1.0 for x in v):
+            raise ValueError("eta_m values must be in (0.5, 1]")
+        return v
+
+    @field_validator("c0_nm")
+    @classmethod
+    def _c0_positive(cls, v: list[float]) -> list[float]:
+        if any(x < 0 for x in v):
+            raise ValueError("c0_nm values must be >= 0")
+        return v
+
+
+class ShiftScheduleConfig(StrictModel):
+    """Shift lines per gear pair g -> g+1 (km/h as a linear function of pedal %), with hysteresis."""
+
+    up_v0_kmh: list[float] = Field(min_length=1)
+    up_slope_kmh_per_pct: list[float] = Field(min_length=1)
+    down_v0_kmh: list[float] = Field(min_length=1)
+    down_slope_kmh_per_pct: list[float] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _hysteresis(self) -> ShiftScheduleConfig:
+        n = len(self.up_v0_kmh)
+        if not (len(self.up_slope_kmh_per_pct) == len(self.down_v0_kmh) == len(self.down_slope_kmh_per_pct) == n):
+            raise ValueError("the four shift-line lists must have one entry per gear pair")
+        for g in range(n):
+            for pedal in (0.0, 100.0):
+                up = self.up_v0_kmh[g] + self.up_slope_kmh_per_pct[g] * pedal
+                down = self.down_v0_kmh[g] + self.down_slope_kmh_per_pct[g] * pedal
+                if down >= up:
+                    raise ValueError(f"downshift line of pair {g + 1}-{g + 2} must lie below its upshift line")
+        return self
+
+
+class BrakesConfig(StrictModel):
+    """Hydraulic brakes (torque = gain x pressure per axle) and the regenerative blending strategy."""
+
+    gain_front_nm_per_bar: float = Field(gt=0)
+    gain_rear_nm_per_bar: float = Field(gt=0)
+    max_brake_torque_nm: float = Field(gt=0, description="total wheel brake torque at 100 % brake pedal")
+    regen_cutoff_speed_kmh: float = Field(ge=0)
+    front_share_base: float = Field(gt=0, lt=1, description="front share of hydraulic torque at low deceleration")
+    front_share_per_mps2: float = Field(ge=0)
+    front_share_max: float = Field(gt=0, lt=1)
+    coast_regen_torque_nm: float = Field(ge=0, description="motor drag at pedal 0 (coast recuperation)")
+
+
+class BatteryConfig(StrictModel):
+    """HV battery: literature cell maps scaled by alpha, beta (eq. 29-30), coulomb counting, usable window."""
+
+    capacity_ah: float = Field(gt=0)
+    alpha: float = Field(gt=0)
+    beta_discharge: float = Field(gt=0)
+    beta_charge: float = Field(gt=0)
+    soc_min_frac: float = Field(ge=0, lt=1)
+    soc_max_frac: float = Field(gt=0, le=1)
+    max_discharge_power_w: float = Field(gt=0)
+    max_charge_power_w: float = Field(gt=0)
+
+    @model_validator(mode="after")
+    def _window(self) -> BatteryConfig:
+        if self.soc_min_frac >= self.soc_max_frac:
+            raise ValueError("soc_min_frac must be below soc_max_frac")
+        return self
+
+
+class LowVoltageConfig(StrictModel):
+    """DC/DC converter, 12 V battery and the 12 V loads (base load plus random fan/pump duty)."""
+
+    dcdc_efficiency: float = Field(gt=0.5, le=1)
+    dcdc_voltage_v: float = Field(gt=6, lt=20)
+    battery_capacity_ah: float = Field(gt=0)
+    battery_ocv_empty_v: float = Field(gt=0)
+    battery_ocv_full_v: float = Field(gt=0)
+    battery_resistance_ohm: float = Field(gt=0)
+    dcdc_droop_ohm: float = Field(default=0.002, ge=0, description="output voltage drop per ampere")
+    battery_initial_soc_frac: float = Field(gt=0, le=1)
+    base_load_w: float = Field(ge=0)
+    fan_load_w: float = Field(ge=0)
+    pump_load_w: float = Field(ge=0)
+    mean_switch_interval_s: float = Field(gt=0)
+
+
+class HybridConfig(StrictModel):
+    """Hybrid strategy thresholds for the four modes (Hybrid, Electric, E-Save, Charge)."""
+
+    engine_on_power_w: float = Field(gt=0)
+    engine_off_power_w: float = Field(ge=0)
+    engine_on_speed_kmh: float = Field(gt=0)
+    engine_min_on_time_s: float = Field(ge=0)
+    sustain_soc_pct: float = Field(ge=0, le=100)
+    sustain_gain_w_per_pct: float = Field(ge=0)
+    max_sustain_power_w: float = Field(ge=0)
+    electric_kickdown_pedal_pct: float = Field(gt=0, le=100)
+    charge_power_w: float = Field(gt=0)
+    esave_on_power_w: float = Field(gt=0)
+
+
+class ThermalConfig(StrictModel):
+    """Lumped thermal models feeding the thermocouple places of the Trace."""
+
+    engine_heat_capacity_j_per_k: float = Field(gt=0)
+    engine_coolant_flow_kgps: float = Field(gt=0)
+    engine_heat_to_coolant_frac: float = Field(gt=0, le=1)
+    engine_radiator_ua_w_per_k: float = Field(ge=0)
+    engine_thermostat_degc: float
+    battery_heat_capacity_j_per_k: float = Field(gt=0)
+    battery_ua_w_per_k: float = Field(ge=0)
+    battery_coolant_flow_kgps: float = Field(gt=0)
+    edrive_heat_capacity_j_per_k: float = Field(gt=0)
+    edrive_ua_w_per_k: float = Field(ge=0)
+    edrive_coolant_flow_kgps: float = Field(gt=0)
+    hpcu_share_of_motor_loss: float = Field(ge=0, le=1)
+
+
+class VehicleConfig(StrictModel):
+    """Every true parameter of the emulated vehicle (one TOML file)."""
+
+    name: str
+    specs: VehicleSpecs
+    road_load: RoadLoadConfig
+    engine: EngineConfig
+    motor: MotorConfig
+    torque_converter: TorqueConverterConfig
+    transmission: TransmissionConfig
+    shift_schedule: ShiftScheduleConfig
+    brakes: BrakesConfig
+    battery: BatteryConfig
+    low_voltage: LowVoltageConfig
+    hybrid: HybridConfig
+    thermal: ThermalConfig
+
+    @model_validator(mode="after")
+    def _per_gear_lengths(self) -> VehicleConfig:
+        n = len(self.specs.gear_ratios)
+        if len(self.transmission.eta_m) != n or len(self.transmission.c0_nm) != n:
+            raise ValueError(f"transmission.eta_m and transmission.c0_nm need one value per gear ({n})")
+        if len(self.shift_schedule.up_v0_kmh) != n - 1:
+            raise ValueError(f"shift_schedule lists need one value per gear pair ({n - 1})")
+        if self.specs.test_mass_kg <= 0:
+            raise ValueError("specs.test_mass_kg must be > 0")
+        return self
+
+    @property
+    def n_gears(self) -> int:
+        """Number of forward gears."""
+        return len(self.specs.gear_ratios)
+
+
+def load_vehicle(path: str | Path | None = None) -> VehicleConfig:
+    """Load a vehicle file (default: the shipped ``p2_phev_9at.toml``).
+
+    Raises
+    ------
+    ConfigError
+        The file is missing or invalid; the message names the file, the key and what is allowed.
+    """
+    return load_model(VehicleConfig, path if path is not None else scenario_path("vehicles", "p2_phev_9at.toml"))

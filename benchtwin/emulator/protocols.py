@@ -1,0 +1,267 @@
+"""Campaign tests -> per-step command arrays and the segment table.
+
+Each test of the campaign becomes a block of plant steps with the dyno mode and set speed, the driver's
+mode (pedals from the protocol, or following a target speed), pedal and brake positions, gear hold,
+hybrid mode, clutch and engine overrides and an end condition evaluated inside the loop (e.g. stop when
+the displayed SOC reaches 13 %). Every test starts and ends at standstill.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from benchtwin.config._base import scenario_path
+from benchtwin.config.campaign import (
+    HYBRID_MODES,
+    AccelerationTest,
+    CampaignConfig,
+    CoastdownTest,
+    ConstantDriveTest,
+    CycleTest,
+    DecelerationTest,
+    NeutralBrakingTest,
+    RampDownTest,
+    RampUpTest,
+)
+from benchtwin.emulator.params import (
+    C_BRAKE,
+    C_DRV_MODE,
+    C_DYNO_MODE,
+    C_DYNO_SET,
+    C_END_KIND,
+    C_END_VAL,
+    C_ENG,
+    C_GEAR,
+    C_HMODE,
+    C_K0,
+    C_LU,
+    C_LVLOAD,
+    C_PEDAL,
+    C_SEG,
+    C_VTGT,
+    KMH,
+    NC,
+)
+from benchtwin.errors import ConfigError
+from benchtwin.segments import Segment
+
+__all__ = ["Protocol", "build_protocol", "load_cycle"]
+
+SEGMENT_KIND = {
+    "ramp_up": "ramp_up", "constant_drive": "constant_drive", "acceleration": "acceleration",
+    "deceleration": "deceleration", "ramp_down": "deceleration", "neutral_braking": "neutral_braking",
+    "cycle": "cycle", "coastdown": "coastdown",
+}
+_FORCE = {"auto": -1, "on": 1, "off": 0, "closed": 1, "open": 0}
+
+
+@dataclass
+class Protocol:
+    """Per-step commands (rows ``C_*``) and the segment table of a campaign."""
+
+    cmd: np.ndarray
+    segments: list[Segment] = field(default_factory=list)
+
+    @property
+    def n_steps(self) -> int:
+        """Number of plant steps."""
+        return int(self.cmd.shape[1])
+
+
+def load_cycle(name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read a shipped cycle file (FASTSim layout: cycSecs, cycMps, ...) -> (time_s, speed_mps).
+
+    Raises
+    ------
+    ConfigError
+        The cycle is not shipped or not readable.
+    """
+    path = scenario_path("cycles", name)
+    try:
+        with path.open(encoding="utf-8-sig", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        t = np.array([float(r["cycSecs"]) for r in rows])
+        v = np.array([float(r["cycMps"]) for r in rows])
+    except (KeyError, ValueError) as exc:
+        raise ConfigError(f"{path}: not a cycle file with columns cycSecs, cycMps ({exc})") from None
+    return t, v
+
+
+class _Builder:
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+        self.blocks: list[np.ndarray] = []
+        self.n = 0
+
+    def phase(self, duration_s: float, *, seg: int, hmode: int, dyno_mode: int = 0, dyno_set: Any = np.nan,
+              drv_mode: int = 0, pedal: Any = 0.0, brake: Any = 0.0, vtgt: Any = 0.0, gear: int = -1,
+              k0: int = -1, lu: int = -1, eng: int = -1, end_kind: int = 0, end_val: float = 0.0) -> None:
+        n = max(round(duration_s / self.dt), 1)
+        b = np.empty((NC, n))
+        tloc = np.arange(n) * self.dt
+        for row, val in ((C_DYNO_SET, dyno_set), (C_PEDAL, pedal), (C_BRAKE, brake), (C_VTGT, vtgt)):
+            b[row] = val(tloc) if callable(val) else val
+        b[C_DYNO_MODE] = dyno_mode
+        b[C_DRV_MODE] = drv_mode
+        b[C_GEAR] = gear
+        b[C_HMODE] = hmode
+        b[C_K0] = k0
+        b[C_LU] = lu
+        b[C_ENG] = eng
+        b[C_END_KIND] = end_kind
+        b[C_END_VAL] = end_val
+        b[C_SEG] = seg
+        b[C_LVLOAD] = 0.0
+        self.blocks.append(b)
+        self.n += n
+
+    @property
+    def t(self) -> float:
+        return self.n * self.dt
+
+
+def _ramp(v0: float, v1: float, rate: float):
+    """Speed ramp from v0 to v1 (m/s) at ``rate`` (m/s^2), then hold."""
+    def f(t: np.ndarray) -> np.ndarray:
+        if v1 >= v0:
+            return np.minimum(v0 + rate * t, v1)
+        return np.maximum(v0 - rate * t, v1)
+    return f
+
+
+def _steps(values: list[float], hold: float):
+    arr = np.asarray(values, dtype=float)
+
+    def f(t: np.ndarray) -> np.ndarray:
+        idx = np.minimum((t // hold).astype(int), len(arr) - 1)
+        return arr[idx]
+    return f
+
+
+def _dyno_stop(b: _Builder, v: float, seg: int, hm: int) -> None:
+    """Dyno brings the car back to standstill (pedal off), then a short hold."""
+    dur = v / 1.0 + 3.0
+    b.phase(dur, seg=seg, hmode=hm, dyno_mode=1, dyno_set=_ramp(v, 0.0, 1.0), brake=lambda t: np.where(
+        t > dur - 3.0, 20.0, 0.0))
+    b.phase(1.0, seg=seg, hmode=hm, dyno_mode=0, brake=25.0)
+
+
+def _driver_stop(b: _Builder, seg: int, hm: int, v: float, decel: float) -> None:
+    b.phase(v / decel + 4.0, seg=seg, hmode=hm, drv_mode=1, vtgt=_ramp(v, 0.0, decel))
+
+
+def build_protocol(campaign: CampaignConfig, lv_load_w: np.ndarray | None = None) -> Protocol:
+    """Turn the campaign's tests into per-step commands and the segment table.
+
+    Parameters
+    ----------
+    campaign:
+        The validated campaign.
+    lv_load_w:
+        Optional 12 V load profile (W) per step; filled in afterwards by the caller otherwise.
+
+    Returns
+    -------
+    Protocol
+        Commands with one column per plant step and one Segment per test.
+    """
+    dt = 1.0 / campaign.plant_rate_hz
+    b = _Builder(dt)
+    segments: list[Segment] = []
+    names: set[str] = set()
+    stop = campaign.driver.stop_decel_mps2
+    for k, test in enumerate(campaign.tests):
+        t0 = b.t
+        hm = HYBRID_MODES[test.mode]
+        settings: dict[str, Any] = test.model_dump(exclude_none=True)
+        if isinstance(test, RampUpTest):
+            v = test.speed_kmh * KMH
+            lead = test.lead_in_s
+            b.phase(lead, seg=k, hmode=hm, dyno_mode=1, dyno_set=_ramp(0.0, v, max(v / (0.6 * lead), 0.3)))
+            steps = list(test.pedal_steps_pct)
+            hold = test.step_hold_s
+            common = {"seg": k, "hmode": hm, "dyno_mode": 1, "dyno_set": v, "gear": test.gear,
+                      "k0": _FORCE[test.k0], "lu": _FORCE[test.lockup], "eng": _FORCE[test.engine]}
+            b.phase(6.0, **common)  # gear engages, lock-up closes, engine starts
+            settings["steps_start_s"] = b.t
+            b.phase(hold * len(steps), pedal=_steps(steps, hold), **common)
+            if test.brake_steps_pct:
+                b.phase(hold * len(test.brake_steps_pct), brake=_steps(list(test.brake_steps_pct), hold), **common)
+            settings["steps_end_s"] = b.t
+            _dyno_stop(b, v, k, hm)
+        elif isinstance(test, ConstantDriveTest):
+            v = test.speed_kmh * KMH
+            gear = test.gear if test.gear > 0 else -1
+            b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.7 * test.approach_s),
+                                                                                     0.3)))
+            kind, val = (0, 0.0)
+            if test.end_displayed_soc_pct is not None:
+                kind = 2 if test.mode != "charge" else 3
+                val = test.end_displayed_soc_pct
+            settings["hold_start_s"] = b.t
+            b.phase(test.max_duration_s, seg=k, hmode=hm, drv_mode=1, vtgt=v, gear=gear, end_kind=kind, end_val=val)
+            b.phase(v / stop + 5.0, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(v, 0.0, stop), end_kind=4)
+        elif isinstance(test, AccelerationTest):
+            b.phase(3.0, seg=k, hmode=hm, brake=30.0)
+            settings["pedal_start_s"] = b.t
+            b.phase(test.max_duration_s, seg=k, hmode=hm, pedal=test.pedal_pct, end_kind=1,
+                    end_val=test.end_speed_kmh * KMH)
+            b.phase(test.end_speed_kmh * KMH / stop + 5.0, seg=k, hmode=hm, drv_mode=1, end_kind=4)
+        elif isinstance(test, DecelerationTest):
+            v = test.start_speed_kmh * KMH
+            b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.7 * test.approach_s),
+                                                                                     0.3)))
+            settings["decel_start_s"] = b.t
+            _driver_stop(b, k, hm, v, test.decel_mps2)
+        elif isinstance(test, RampDownTest):
+            v0, v1 = test.start_speed_kmh * KMH, test.end_speed_kmh * KMH
+            b.phase(test.lead_in_s, seg=k, hmode=hm, dyno_mode=1,
+                    dyno_set=_ramp(0.0, v0, max(v0 / (0.7 * test.lead_in_s), 0.3)))
+            b.phase(4.0, seg=k, hmode=hm, dyno_mode=1, dyno_set=v0, pedal=test.pedal_pct)
+            settings["ramp_start_s"] = b.t
+            rate = test.rate_kmh_per_s * KMH
+            b.phase((v0 - v1) / rate, seg=k, hmode=hm, dyno_mode=1, dyno_set=_ramp(v0, v1, rate), pedal=test.pedal_pct)
+            if v1 > 0:
+                _dyno_stop(b, v1, k, hm)
+            else:
+                b.phase(2.0, seg=k, hmode=hm, brake=25.0)
+        elif isinstance(test, NeutralBrakingTest):
+            v = test.speed_kmh * KMH
+            b.phase(test.lead_in_s, seg=k, hmode=hm, dyno_mode=1,
+                    dyno_set=_ramp(0.0, v, max(v / (0.6 * test.lead_in_s), 0.3)))
+            b.phase(2.0, seg=k, hmode=hm, dyno_mode=1, dyno_set=v, gear=0)
+            settings["steps_start_s"] = b.t
+            hold = test.step_hold_s
+            steps = [*test.brake_steps_pct, 0.0]
+            b.phase(hold * len(steps), seg=k, hmode=hm, dyno_mode=1, dyno_set=v, gear=0, brake=_steps(steps, hold))
+            settings["steps_end_s"] = b.t
+            _dyno_stop(b, v, k, hm)
+        elif isinstance(test, CycleTest):
+            tc, vc = load_cycle(test.cycle)
+            settings["cycle_distance_m"] = float(np.sum(0.5 * (vc[1:] + vc[:-1]) * np.diff(tc)))
+            dur = float(tc[-1] - tc[0]) + dt
+            b.phase(dur, seg=k, hmode=hm, drv_mode=1, vtgt=lambda t, tc=tc, vc=vc: np.interp(t, tc - tc[0], vc))
+        elif isinstance(test, CoastdownTest):
+            v = (test.start_speed_kmh + 5.0) * KMH
+            b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.75 * test.approach_s),
+                                                                                     0.3)))
+            settings["coast_start_s"] = b.t
+            b.phase(test.max_duration_s, seg=k, hmode=hm, gear=0, eng=0, k0=0)
+            b.phase(2.0, seg=k, hmode=hm, brake=25.0)
+        else:  # pragma: no cover - the union is closed
+            raise ConfigError(f"unknown test kind {test!r}")
+        name = test.name or f"{test.kind}_{k:02d}"
+        if name in names:
+            raise ConfigError(f"campaign {campaign.name!r}: test name {name!r} is used twice")
+        names.add(name)
+        settings["mode"] = test.mode
+        settings["protocol"] = test.kind
+        segments.append(Segment(start_s=t0, end_s=b.t, kind=SEGMENT_KIND[test.kind], name=name, settings=settings))
+    cmd = np.ascontiguousarray(np.concatenate(b.blocks, axis=1))
+    if lv_load_w is not None:
+        cmd[C_LVLOAD] = lv_load_w
+    return Protocol(cmd=cmd, segments=segments)
