@@ -15,8 +15,8 @@ reg     content
 0..4    raw ADC counts of channels 0..4, uint16, 0 = 0 V, 65535 = 10 V (input range 0-10 V, 16 bit)
 5..9    pressure of channels 0..4 in 0.01 bar (uint16), the module's own scaling
         ``p = counts * 10 V / 65535 * full_scale_bar / full_scale_v``; 65535 = overload
-10      status: bit n set = channel n at the top of the ADC range (clipped), bit 8+n = at zero
-        (clipped low, e.g. a negative offset or a broken wire)
+10      status: bit n set = channel n at the top of the ADC range (clipped), bit 8+n = below zero
+        (clipped low: a negative offset or a broken wire)
 11      update counter, +1 per module update, wraps at 65536
 12, 13  module uptime in ms, uint32 big-word first (high word in 12): the module's own clock
 ======  ===========================================================================================
@@ -82,7 +82,7 @@ def volts_to_counts(volts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """
     c = np.rint(np.asarray(volts, dtype=np.float64) / ADC_FULL_SCALE_V * _ADC_MAX)
     high = c >= _ADC_MAX
-    low = c <= 0
+    low = c < 0
     return np.clip(c, 0, _ADC_MAX).astype(np.uint16), high, low
 
 

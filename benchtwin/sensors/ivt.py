@@ -61,8 +61,9 @@ MODE_OFF, MODE_TRIGGERED, MODE_CYCLIC = 0, 1, 2
 STATUS_OCS, STATUS_OUT_OF_RANGE, STATUS_MEAS_ERROR, STATUS_SYS_ERROR = 0x1, 0x2, 0x4, 0x8
 #: delay between a trigger command and the triggered results
 TRIGGER_RESPONSE_S = 0.0002
-#: spacing of the results of one cycle on the bus (they are sent back to back)
-RESULT_SPACING_S = 0.00015
+#: spacing of the timestamps of the results of one cycle (0: stamped with the measurement time; the
+#: frames follow each other in mux order)
+RESULT_SPACING_S = 0.0
 
 
 def pack_results(mux: np.ndarray, counter: np.ndarray, status: np.ndarray, value: np.ndarray) -> np.ndarray:

@@ -99,7 +99,7 @@ def test_register_map_adc() -> None:
     counts, high, low = volts_to_counts(np.array([-0.1, 0.0, 5.0, 10.0, 11.0]))
     assert counts.tolist() == [0, 0, 32768, 65535, 65535]
     assert high.tolist() == [False, False, False, True, True]
-    assert low.tolist() == [True, True, False, False, False]
+    assert low.tolist() == [True, False, False, False, False]
     assert counts_to_volts(np.array([65535]))[0] == pytest.approx(10.0)
     assert INPUT_COUNT == 14
 

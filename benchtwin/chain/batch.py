@@ -1,0 +1,173 @@
+"""Batch delivery: sensors' outputs -> what the bench's loggers record -> raw log files -> Recording.
+
+:func:`deliver` turns :class:`~benchtwin.chain.frames.DeviceOutputs` into what an acquisition
+receives (the thermo module's TPDO frames merged into their bus, the Modbus module polled at the
+configured rate with the configured faults). :func:`write_logs` writes the raw logs of a run
+(``<bus>.mf4`` bus logs, ``<device>.polls.npz`` poll logs, ``<bus>.dbc`` and the EDS to decode
+them, the segment table) and :func:`read_logs` reads them back. :func:`run_batch` is the whole
+batch path in one call: encode -> deliver -> (write and read the logs) -> acquire.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchtwin.chain.acquisition import AcquisitionInput, acquire
+from benchtwin.chain.buslog import read_mf4, read_poll_log, write_blf, write_mf4, write_poll_csv, write_poll_log
+from benchtwin.chain.canopen_pdo import EDS_PATH, pdo_layout
+from benchtwin.chain.dbc import write_bus_dbcs
+from benchtwin.chain.frames import FRAME_DTYPE, DeviceOutputs, FrameTable
+from benchtwin.config.setup import SetupConfig
+from benchtwin.errors import DataError
+from benchtwin.recording import Recording
+from benchtwin.segments import load_segments, save_segments
+from benchtwin.sensors import encode
+from benchtwin.sensors.imperfections import device_rng
+from benchtwin.sensors.pressure import poll_snapshots
+from benchtwin.trace import Trace
+
+__all__ = ["deliver", "read_logs", "run_batch", "write_logs"]
+
+
+def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
+            span_s: tuple[float, float] | None = None) -> AcquisitionInput:
+    """What the bench's acquisition receives from the devices' outputs (batch).
+
+    Parameters
+    ----------
+    outputs:
+        The sensors' outputs.
+    setup:
+        The bench.
+    seed:
+        Campaign seed (poll faults draw from the ``modbus_poll`` stream).
+    span_s:
+        Acquisition span for polling; defaults to the span of the register snapshots.
+    """
+    can = {bus: FrameTable(bus, t.frames, t.bitrate) for bus, t in outputs.can.items()}
+    if setup.thermo is not None and "thermo" in outputs.canopen:
+        bus = setup.thermo.bus
+        pdo = pdo_layout(setup.thermo.node_id).pack(outputs.canopen["thermo"])
+        old = can.get(bus, FrameTable(bus, np.zeros(0, FRAME_DTYPE), setup.bitrate(bus)))
+        can[bus] = FrameTable.concat(bus, [old.frames, pdo], old.bitrate)
+    polls = {}
+    if setup.pressure is not None and setup.pressure.device in outputs.modbus:
+        snap = outputs.modbus[setup.pressure.device]
+        if span_s is None:
+            span_s = (float(snap.times[0]), float(snap.times[-1])) if len(snap.times) else (0.0, 0.0)
+        polls[snap.device] = poll_snapshots(snap, setup.pressure, device_rng(seed, "modbus_poll"), *span_s)
+    return AcquisitionInput(can=can, polls=polls)
+
+
+def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Path, *, blf: bool = False,
+               poll_csv: bool = False) -> dict[str, Path]:
+    """Write the raw logs of a run into ``out_dir``; return name -> path.
+
+    Files: ``<bus>.mf4`` (MF4 bus logging, one per bus), ``<bus>.blf`` (if ``blf``),
+    ``<device>.polls.npz`` (and ``.csv`` if ``poll_csv``), ``<bus>.dbc`` and ``thermo_module.eds``
+    (to decode them with cantools/canopen), ``setup.json`` (the setup used) and ``segments.json``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths: dict[str, Path] = {}
+    for ch, (bus, table) in enumerate(sorted(received.can.items()), start=1):
+        paths[f"{bus}.mf4"] = write_mf4(table, out / f"{bus}.mf4", channel=ch)
+        if blf:
+            paths[f"{bus}.blf"] = write_blf(table, out / f"{bus}.blf", channel=ch)
+    for dev, plog in received.polls.items():
+        paths[f"{dev}.polls.npz"] = write_poll_log(plog, out / f"{dev}.polls.npz")
+        if poll_csv:
+            paths[f"{dev}.polls.csv"] = write_poll_csv(plog, out / f"{dev}.polls.csv")
+    for bus, p in write_bus_dbcs(setup, out).items():
+        paths[f"{bus}.dbc"] = p
+    if setup.thermo is not None:
+        paths["thermo_module.eds"] = Path(shutil.copyfile(EDS_PATH, out / "thermo_module.eds"))
+    paths["setup.json"] = out / "setup.json"
+    paths["setup.json"].write_text(setup.model_dump_json(indent=1), encoding="utf-8")
+    paths["segments.json"] = save_segments(received.segments, out / "segments.json")
+    if received.meta:
+        paths["meta.json"] = out / "meta.json"
+        paths["meta.json"].write_text(json.dumps(received.meta, indent=1, default=str), encoding="utf-8")
+    return paths
+
+
+def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[AcquisitionInput, SetupConfig]:
+    """Read the raw logs written by :func:`write_logs` (or a logger with the same names).
+
+    Parameters
+    ----------
+    directory:
+        Folder with ``<bus>.mf4`` and ``<device>.polls.npz`` files.
+    setup:
+        The bench; defaults to the ``setup.json`` in the folder.
+
+    Raises
+    ------
+    DataError
+        If the folder holds no bus log or poll log, or no setup is given or found.
+    """
+    d = Path(directory)
+    if not d.is_dir():
+        raise DataError(f"{d}: not a directory of raw logs")
+    if setup is None:
+        sp = d / "setup.json"
+        if not sp.exists():
+            raise DataError(f"{d}: no setup.json; pass the setup file used for the run")
+        from benchtwin.config._base import validate_data
+
+        setup = validate_data(SetupConfig, json.loads(sp.read_text(encoding="utf-8")), str(sp))
+    received = AcquisitionInput()
+    for p in sorted(d.glob("*.mf4")):
+        bus = p.stem
+        bitrate = setup.buses[bus].bitrate if bus in setup.buses else 500_000
+        received.can[bus] = read_mf4(p, bus, bitrate)
+    for p in sorted(d.glob("*.polls.npz")):
+        plog = read_poll_log(p)
+        received.polls[plog.device] = plog
+    if not received.can and not received.polls:
+        raise DataError(f"{d}: no bus logs (*.mf4) or poll logs (*.polls.npz)")
+    seg = d / "segments.json"
+    if seg.exists():
+        received.segments = load_segments(seg)
+    meta = d / "meta.json"
+    if meta.exists():
+        received.meta = json.loads(meta.read_text(encoding="utf-8"))
+    return received, setup
+
+
+def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,
+              blf: bool = False, meta: dict[str, Any] | None = None) -> Recording:
+    """The whole batch chain: encode the trace, deliver, write and re-read the raw logs, acquire.
+
+    Parameters
+    ----------
+    trace:
+        The truth.
+    setup:
+        The bench.
+    seed:
+        Campaign seed.
+    out_dir:
+        Where to write the raw logs and ``recording.mf4``; with None nothing is written and the
+        decoded input is the in-memory delivery (same content, no file round trip).
+    blf:
+        Also export BLF files.
+    meta:
+        Extra metadata for the Recording.
+    """
+    outputs = encode(trace, setup, seed)
+    received = deliver(outputs, setup, seed=seed, span_s=(float(trace.time_s[0]), float(trace.time_s[-1])))
+    received.segments = list(trace.segments)
+    received.meta = {"trace": dict(trace.meta), "seed": seed, **(meta or {})}
+    if out_dir is not None:
+        write_logs(received, setup, out_dir, blf=blf)
+        received, _ = read_logs(out_dir, setup)
+    rec = acquire(received, setup, seed=seed)
+    if out_dir is not None:
+        rec.save(Path(out_dir) / "recording.mf4")
+    return rec

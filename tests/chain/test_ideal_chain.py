@@ -1,0 +1,102 @@
+"""With every imperfection off, every Recording channel equals the Trace within its sensor's resolution."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchtwin.chain.batch import run_batch
+from benchtwin.chain.dbc import load_dbc
+from benchtwin.chain.modbus_map import ADC_FULL_SCALE_V, CHANNELS
+from benchtwin.config import load_setup
+from benchtwin.config.setup import IVT_PLACES
+from benchtwin.recording import Recording
+from benchtwin.roles import ROLES
+from benchtwin.sensors.imperfections import hold_sample
+from benchtwin.sensors.synthetic import synthetic_trace
+from benchtwin.sensors.telemetry import k_tot
+from benchtwin.sensors.vehicle import SIGNAL_MAP
+from benchtwin.trace import Trace
+
+SETUP = load_setup("ideal")
+
+
+@pytest.fixture(scope="module")
+def trace() -> Trace:
+    return synthetic_trace(60.0, 100.0, seed=3)
+
+
+@pytest.fixture(scope="module")
+def recording(trace: Trace, tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    # through the files: MF4 bus logs and the poll log are written and read back
+    return run_batch(trace, SETUP, seed=11, out_dir=tmp_path_factory.mktemp("ideal"))
+
+
+def truth_and_tolerance(trace: Trace) -> dict[str, tuple[str, float, bool, float]]:
+    """role -> (trace channel, factor to role unit, hold, tolerance in role unit)."""
+    out: dict[str, tuple[str, float, bool, float]] = {}
+    for stem, sources in SIGNAL_MAP.items():
+        db = load_dbc(stem)
+        for msg in db.messages:
+            for sig in msg.signals:
+                src = sources[sig.name]
+                if src.role is not None:
+                    out[src.role] = (src.trace, src.factor, src.hold, 0.5 * sig.scale * (1 + 1e-9) + 1e-9)
+    for place, cfg in SETUP.ivt.items():
+        ch_i, ch_u, role_i, role_u = IVT_PLACES[place]
+        out[role_i] = (ch_i, 1.0, False, cfg.current_range_a / 2**cfg.adc_bits + 0.0005 + 1e-9)
+        out[role_u] = (ch_u, 1.0, False, cfg.voltage_range_v / 2**cfg.adc_bits + 0.0005 + 1e-9)
+    tel = SETUP.telemetry
+    out["shaft_torque_nm"] = ("shaft_torque_nm", 1.0, False, 0.5 * k_tot(tel.shaft, tel.k_tel) * 20 / 4096 + 1e-9)
+    lsb_bar = ADC_FULL_SCALE_V / 65535 * SETUP.pressure.full_scale_bar / SETUP.pressure.full_scale_v
+    for trace_name, role in CHANNELS:
+        out[role] = (trace_name, 1e-5, False, 0.5 * lsb_bar + 1e-9)
+    for place in SETUP.thermo.places:
+        # 0.1 degC output step, 0.5 uV input converter (~0.013 degC at 39 uV/degC)
+        out[place] = (place, 1.0, False, 0.05 + 0.0065 + 1e-6)
+    return out
+
+
+def test_every_role_is_recorded(recording: Recording) -> None:
+    missing = sorted(set(ROLES) - set(recording.channels))
+    assert missing == []
+    for role, (unit, _) in ROLES.items():
+        assert recording[role].unit == unit, role
+
+
+def test_ideal_chain_equals_trace_within_resolution(trace: Trace, recording: Recording) -> None:
+    checked = 0
+    for role, (name, factor, hold, tol) in truth_and_tolerance(trace).items():
+        ch = recording[role]
+        assert len(ch) > 50, role
+        x = trace[name] * factor
+        truth = hold_sample(trace.time_s, x, ch.timestamps) if hold else np.interp(ch.timestamps, trace.time_s, x)
+        finite = np.isfinite(truth)
+        np.testing.assert_array_equal(np.isfinite(ch.values), finite, err_msg=role)
+        err = np.abs(ch.values[finite] - truth[finite])
+        assert err.max() <= tol, f"{role}: max error {err.max():.6g} > resolution/2 {tol:.6g}"
+        # nothing flagged on an ideal chain (NaN set speed = road-load mode is not a flag)
+        assert not np.any(ch.flags), role
+        checked += 1
+    assert checked >= 40
+
+
+def test_ideal_ivt_power_and_charge(trace: Trace, recording: Recording) -> None:
+    p = recording["battery_power_w"]
+    i = np.interp(p.timestamps, trace.time_s, trace["battery_current_a"])
+    u = np.interp(p.timestamps, trace.time_s, trace["battery_voltage_v"])
+    tol = np.abs(u) * 1000 / 2**16 + np.abs(i) * 600 / 2**16 + 0.5 + 0.01
+    assert np.all(np.abs(p.values - i * u) <= tol)
+    q = recording["ivt_battery_charge_as"]
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (trace["battery_current_a"][1:] + trace["battery_current_a"][:-1])
+                                           * np.diff(trace.time_s))])
+    assert np.all(np.abs(q.values - np.interp(q.timestamps, trace.time_s, cum)) < 1.0 + 1e-9)
+
+
+def test_ideal_chain_meta(recording: Recording, trace: Trace) -> None:
+    m = recording.meta
+    assert m["protocol_errors"] == {} and m["unknown_ids"] == {}
+    assert m["modbus"]["brake_pressure"]["timeouts"] == 0
+    assert abs(m["clock_offsets_s"]["vehicle_can->dyno"]) < 0.002
+    assert [s.name for s in recording.segments] == [s.name for s in trace.segments]
+    assert 0 < m["bus_load"]["instrument"] < 0.5
