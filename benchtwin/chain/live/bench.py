@@ -1,0 +1,106 @@
+"""A bench setup file turned into a live session (device side) and a live recorder (acquisition side).
+
+The setup says which buses exist (and their bit rates), which IVT-S sit on which bus with which
+identifiers, where the pressure module serves Modbus (unit id, port, poll rate) and where the thermo
+module lives (bus, node id); the shipped wire formats say the rest (the thermo module's EDS, the
+Modbus register map). Both ``benchtwin serve`` and ``benchtwin record`` start from here, so the two
+sides of a live run agree by construction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from benchtwin.chain.frames import DeviceOutputs
+from benchtwin.chain.live.recorder import LiveCapture, LiveRecorder, ModbusPollSpec, open_acquisition_bus
+from benchtwin.chain.live.session import LiveSession
+from benchtwin.config.setup import SetupConfig
+from benchtwin.segments import Segment
+
+__all__ = ["capture_to_input", "recorder_from_setup", "session_from_setup"]
+
+
+def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport: str = "virtual",
+                       speedup: float = 1.0, can_port: int = 0, modbus_port: int | None = None,
+                       channel_map: Mapping[str, str] | None = None, start_s: float | None = None,
+                       end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None) -> LiveSession:
+    """A :class:`LiveSession` serving ``outputs`` as the bench of ``setup`` describes.
+
+    Parameters
+    ----------
+    modbus_port:
+        Port of the pressure module; default: the setup's (``pressure.port``); 0 picks a free one.
+    """
+    from benchtwin.chain.canopen_pdo import EDS_PATH
+    from benchtwin.chain.modbus_map import holding_defaults
+    from benchtwin.sensors.ivt import IvtDevice
+
+    ivt: dict[str, dict[str, IvtDevice]] = {}
+    for place, cfg in setup.ivt.items():
+        ivt.setdefault(cfg.bus, {})[f"ivt_{place}"] = IvtDevice(cfg)
+    holding = {}
+    port = 0
+    if setup.pressure is not None:
+        holding[setup.pressure.device] = holding_defaults(setup.pressure.full_scale_bar, setup.pressure.full_scale_v)
+        port = setup.pressure.port
+    if modbus_port is not None:
+        port = modbus_port
+    canopen_bus = {"thermo": setup.thermo.bus} if setup.thermo is not None else {}
+    return LiveSession(outputs, transport=transport, speedup=speedup, can_port=can_port, modbus_port=port,
+                       eds=EDS_PATH, canopen_bus=canopen_bus, ivt=ivt, holding=holding,
+                       bitrates={b: c.bitrate for b, c in setup.buses.items()}, channel_map=channel_map,
+                       start_s=start_s, end_s=end_s, scheduler_options=scheduler_options)
+
+
+def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport: str = "socketcand",
+                        host: str = "127.0.0.1", port: int = 29536, modbus_host: str | None = None,
+                        modbus_port: int | None = None, speedup: float = 1.0, buses: list[str] | None = None,
+                        channel_map: Mapping[str, str] | None = None, modbus: bool = True,
+                        canopen: bool = True) -> LiveRecorder:
+    """A :class:`LiveRecorder` connected to every bus, the pressure module and the thermo module of ``setup``.
+
+    Raises
+    ------
+    TransportError
+        A bus cannot be reached (nothing is left open).
+    """
+    from benchtwin.chain.canopen_pdo import EDS_PATH
+    from benchtwin.chain.modbus_map import INPUT_COUNT
+
+    names = list(buses) if buses is not None else list(setup.buses)
+    opened = {}
+    try:
+        for b in names:
+            opened[b] = open_acquisition_bus(transport, b, host=host, port=port,
+                                             channel=(channel_map or {}).get(b))
+    except BaseException:
+        for bus in opened.values():
+            bus.shutdown()
+        raise
+    polls = []
+    if modbus and setup.pressure is not None:
+        p = setup.pressure
+        polls.append(ModbusPollSpec(p.device, modbus_host or host, modbus_port if modbus_port is not None else p.port,
+                                    p.unit_id, 4, 0, INPUT_COUNT, p.poll_hz))
+    nodes = {}
+    if canopen and setup.thermo is not None and setup.thermo.bus in opened:
+        nodes["thermo"] = (setup.thermo.node_id, EDS_PATH, setup.thermo.bus)
+    return LiveRecorder(opened, spool_dir, modbus=polls, canopen=nodes, speedup=speedup)
+
+
+def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None,
+                     meta: Mapping[str, Any] | None = None) -> Any:
+    """The decoder's input (:class:`benchtwin.chain.acquisition.AcquisitionInput`) from a live capture.
+
+    The PDO frames are already in the thermo module's bus's frame table (they were recorded raw), so
+    live and batch decode them the same way; the RemoteNode's own log goes into the metadata counts.
+    """
+    from benchtwin.chain.acquisition import AcquisitionInput
+
+    m = {"acquisition": "live", "live_start_unix_s": capture.start_wall, "live_speedup": capture.speedup,
+         "live_stats": capture.stats}
+    m.update(meta or {})
+    return AcquisitionInput(can=dict(capture.can), polls=dict(capture.polls), events=list(capture.events),
+                            segments=list(segments or []), meta=m)

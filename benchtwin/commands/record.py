@@ -1,0 +1,103 @@
+"""``benchtwin record``: the live acquisition of a served (or real) bench, decoded into a Recording.
+
+Connects to every CAN bus of the setup (python-can over socketcand, or socketcan interfaces),
+polls the pressure module over Modbus TCP at the setup's rate, receives the thermo module's PDOs
+with a canopen RemoteNode. Raw frames and polls are flushed to ``<out>.spool/`` while recording, so
+nothing received is lost if the run ends badly. On stop (``--duration``, the stream going idle,
+Ctrl-C, or every bus connection dropped) everything received is decoded by the same decoder as
+batch mode and saved as MF4; the raw bus logs are also written as MF4 bus logs next to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from benchtwin.errors import ConfigError
+
+__all__ = ["add_subparser", "run"]
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register ``record``."""
+    p = subparsers.add_parser("record", help="record a live bench into a Recording (MF4)", description=__doc__,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--setup", required=True, help="bench setup file or shipped name (paper, ideal)")
+    p.add_argument("--transport", default="socketcand", choices=["socketcand", "socketcan"])
+    p.add_argument("--host", default="127.0.0.1", help="socketcand endpoint host (loopback)")
+    p.add_argument("--port", type=int, default=29536, help="socketcand endpoint port")
+    p.add_argument("--channel-map", default="", help="socketcan: bus=iface,... (default: the bus names)")
+    p.add_argument("--modbus-host", default=None, help="pressure module host (default: --host)")
+    p.add_argument("--modbus-port", type=int, default=None, help="pressure module port (default: the setup's)")
+    p.add_argument("--no-modbus", action="store_true", help="do not poll the pressure module")
+    p.add_argument("--buses", default=None, help="comma-separated buses to record (default: all of the setup)")
+    p.add_argument("--speedup", type=float, default=1.0, help="the server's speed-up (acquisition clock scale)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many acquisition seconds")
+    p.add_argument("--idle", type=float, default=2.0, help="stop when no frame came for this many wall seconds")
+    p.add_argument("--segments", default=None, help="segment table (JSON, from benchtwin serve --segments-out)")
+    p.add_argument("--out", required=True, help="Recording to write (.mf4)")
+    p.add_argument("--spool", default=None, help="incremental raw logs (default: <out>.spool/)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``benchtwin record``."""
+    from benchtwin.chain.acquisition import acquire
+    from benchtwin.chain.buslog import write_mf4, write_poll_log
+    from benchtwin.chain.live.bench import capture_to_input, recorder_from_setup
+    from benchtwin.config.setup import load_setup
+    from benchtwin.segments import load_segments
+
+    if not args.speedup > 0:
+        raise ConfigError(f"--speedup must be > 0, got {args.speedup}")
+    out = Path(args.out)
+    if out.suffix.lower() != ".mf4":
+        raise ConfigError(f"--out {out}: the Recording is written as MF4; use a .mf4 name")
+    setup = load_setup(args.setup)
+    segments = load_segments(args.segments) if args.segments else []
+    cmap = {}
+    for part in filter(None, (s.strip() for s in args.channel_map.split(","))):
+        bus, sep, iface = part.partition("=")
+        if not sep:
+            raise ConfigError(f"--channel-map: {part!r} is not bus=interface")
+        cmap[bus] = iface
+    buses = [b.strip() for b in args.buses.split(",")] if args.buses else None
+    if buses:
+        unknown = [b for b in buses if b not in setup.buses]
+        if unknown:
+            raise ConfigError(f"--buses: {', '.join(unknown)} not in the setup ({', '.join(setup.buses)})")
+    spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
+    rec = recorder_from_setup(setup, spool, transport=args.transport, host=args.host, port=args.port,
+                              modbus_host=args.modbus_host, modbus_port=args.modbus_port, speedup=args.speedup,
+                              buses=buses, channel_map=cmap, modbus=not args.no_modbus)
+    rec.start()
+    print(f"recording {', '.join(rec.buses)}"
+          + (f" + modbus {', '.join(p.spec.device for p in rec.pollers)}" if rec.pollers else "")
+          + (f" + canopen {', '.join(rec.canopen_spec)}" if rec.canopen_spec else "")
+          + f"; raw spool in {spool}", flush=True)
+    reason = rec.wait(duration_s=args.duration, idle_s=args.idle)
+    capture = rec.stop(reason)
+    print(f"stopped ({reason}): " + ", ".join(f"{b} {len(t)} frames" for b, t in capture.can.items())
+          + "".join(f", {d} {len(pl)} polls" for d, pl in capture.polls.items())
+          + "".join(f", {n} {len(lg.times)} PDOs" for n, lg in capture.pdos.items()), flush=True)
+    drops = [e for e in capture.events if e.kind == "drop"]
+    for e in drops:
+        print(f"benchtwin: warning: {e.source} dropped at t = {e.time_s:.3f} s ({e.detail}); "
+              "samples after it are flagged", file=sys.stderr, flush=True)
+    raw_dir = out.with_name(out.stem + "_raw")
+    raw_dir.mkdir(parents=True, exist_ok=True)
+    for bus, table in capture.can.items():
+        if len(table):
+            write_mf4(table, raw_dir / f"{bus}.mf4")
+    for dev, plog in capture.polls.items():
+        write_poll_log(plog, raw_dir / f"{dev}.polls.npz")
+    recording = acquire(capture_to_input(capture, segments, {"transport": args.transport, "stop_reason": reason}),
+                        setup)
+    recording.save(out)
+    (raw_dir / "capture.json").write_text(json.dumps(
+        {"stats": capture.stats, "events": recording.meta.get("transport_events", [])}, indent=1, default=float))
+    print(f"wrote {out} ({len(recording.channels)} channels) and raw logs in {raw_dir}", flush=True)
+    return 0

@@ -1,0 +1,144 @@
+"""``benchtwin serve``: simulate (or load) a run, encode it with the bench's sensors, serve it live.
+
+The CAN buses go on the chosen transport (``socketcand``: our endpoint on 127.0.0.1 that any
+socketcand client reaches from another process; ``socketcan``: kernel interfaces such as vcan0;
+``virtual``: in-process only), the pressure module on a Modbus TCP server, the thermo module as a
+CANopen node, each IVT-S answers its command channel. The endpoints are printed first; at the end
+the pacing statistics and the bus load per bus.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from benchtwin.errors import ConfigError
+
+__all__ = ["add_subparser", "run"]
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register ``serve``."""
+    p = subparsers.add_parser("serve", help="serve a run live on CAN transports, Modbus TCP and CANopen",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    src = p.add_argument_group("what to play (one of)")
+    src.add_argument("--campaign", help="campaign file (simulated with --vehicle)")
+    src.add_argument("--vehicle", help="vehicle file for --campaign (default: the shipped vehicle)")
+    src.add_argument("--trace", help="a saved Trace directory (benchtwin simulate --out)")
+    src.add_argument("--synthetic", type=float, metavar="SECONDS", help="a synthetic trace of this length")
+    p.add_argument("--setup", required=True, help="bench setup file or shipped name (paper, ideal)")
+    p.add_argument("--transport", default="socketcand", choices=["virtual", "socketcand", "socketcan"])
+    p.add_argument("--speedup", type=float, default=1.0, help="plant seconds per wall second (default 1)")
+    p.add_argument("--port", type=int, default=29536, help="socketcand endpoint port (0: a free one)")
+    p.add_argument("--modbus-port", type=int, default=None, help="Modbus TCP port (default: the setup's)")
+    p.add_argument("--channel-map", default="", help="socketcan: bus=iface,... (default vcan0, vcan1, ...)")
+    p.add_argument("--start", type=float, default=None, help="plant time to start at, s")
+    p.add_argument("--end", type=float, default=None, help="plant time to stop at, s")
+    p.add_argument("--seed", type=int, default=None, help="sensor seed (default: the campaign's, else 0)")
+    p.add_argument("--wait-clients", type=int, default=0, metavar="N",
+                   help="socketcand: wait for N clients in raw mode before playing")
+    p.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for --wait-clients")
+    p.add_argument("--linger", type=float, default=0.0, help="keep serving this many seconds after the end")
+    p.add_argument("--report", help="write the pacing report as JSON here")
+    p.add_argument("--segments-out", help="write the run's segment table (JSON) here for benchtwin record")
+    p.set_defaults(func=run)
+
+
+def _load_trace(args: argparse.Namespace) -> tuple[Any, int]:
+    chosen = [x for x in (args.campaign, args.trace, args.synthetic) if x is not None]
+    if len(chosen) != 1:
+        raise ConfigError("serve: give exactly one of --campaign, --trace, --synthetic")
+    seed = 0
+    if args.trace is not None:
+        from benchtwin.trace import Trace
+
+        return Trace.load(args.trace), seed
+    if args.synthetic is not None:
+        from benchtwin.sensors.synthetic import synthetic_trace
+
+        if not args.synthetic > 0:
+            raise ConfigError("serve: --synthetic needs a positive duration")
+        return synthetic_trace(float(args.synthetic)), seed
+    from benchtwin.config.campaign import load_campaign
+    from benchtwin.config.vehicle import load_vehicle
+    from benchtwin.emulator import simulate_campaign
+
+    campaign = load_campaign(args.campaign)
+    vehicle = load_vehicle(args.vehicle)
+    seed = int(getattr(campaign, "seed", 0) or 0)
+    print(f"simulating {args.campaign} ...", flush=True)
+    return simulate_campaign(vehicle, campaign), seed
+
+
+def _channel_map(text: str) -> dict[str, str]:
+    out = {}
+    for part in filter(None, (s.strip() for s in text.split(","))):
+        bus, sep, iface = part.partition("=")
+        if not sep or not bus or not iface:
+            raise ConfigError(f"--channel-map: {part!r} is not bus=interface")
+        out[bus] = iface
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``benchtwin serve``."""
+    from benchtwin.chain.live.bench import session_from_setup
+    from benchtwin.config.setup import load_setup
+    from benchtwin.sensors import encode
+
+    if not args.speedup > 0:
+        raise ConfigError(f"--speedup must be > 0, got {args.speedup}")
+    setup = load_setup(args.setup)
+    trace, seed = _load_trace(args)
+    if args.seed is not None:
+        seed = args.seed
+    t0 = time.perf_counter()
+    outputs = encode(trace, setup, seed=seed)
+    print(f"encoded {outputs.n_frames()} CAN frames on {len(outputs.can)} buses, "
+          f"{sum(len(s.times) for s in outputs.modbus.values())} Modbus updates, "
+          f"{sum(len(i.times) for i in outputs.canopen.values())} CANopen updates "
+          f"in {time.perf_counter() - t0:.1f} s", flush=True)
+    if args.segments_out:
+        from benchtwin.segments import save_segments
+
+        save_segments(list(trace.segments), args.segments_out)
+    session = session_from_setup(outputs, setup, transport=args.transport, speedup=args.speedup,
+                                 can_port=args.port, modbus_port=args.modbus_port,
+                                 channel_map=_channel_map(args.channel_map), start_s=args.start, end_s=args.end)
+    previous = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, lambda *_: session.stop())
+    try:
+        session.start()
+        print("endpoints:", flush=True)
+        for line in session.endpoints():
+            print(f"  {line}", flush=True)
+        if args.transport == "virtual":
+            print("  (virtual transport: only acquisitions in this process can connect)", flush=True)
+        if args.wait_clients and not session.wait_for_clients(args.wait_clients, args.wait_timeout):
+            print(f"benchtwin: warning: fewer than {args.wait_clients} clients after {args.wait_timeout} s; "
+                  "playing anyway", file=sys.stderr, flush=True)
+        sch = session.scheduler
+        print(f"playing {sch.start_s:.3f} .. {sch.end_s:.3f} s of plant time at speed-up {args.speedup:g} "
+              f"({sch.n_deliveries} deliveries)", flush=True)
+        report = session.run(progress=lambda t: print(f"  t = {t:.1f} s", flush=True))
+        if args.linger > 0:
+            time.sleep(args.linger)
+        stats = session.stats()
+    finally:
+        session.close()
+        signal.signal(signal.SIGTERM, previous)
+    print(report.format(), flush=True)
+    print("bus load per bus (emulated bus, nominal bit rate): " + ", ".join(
+        f"{s.name[4:]} {100 * s.bus_load:.1f} %" for s in report.streams.values() if s.bus_load is not None),
+        flush=True)
+    if stats.get("transport"):
+        print(f"transport: {stats['transport']}", flush=True)
+    if args.report:
+        Path(args.report).write_text(json.dumps({"pacing": report.to_dict(), "stats": stats}, indent=1,
+                                                default=float))
+    return 0 if report.lost == 0 else 1
