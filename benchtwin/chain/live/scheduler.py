@@ -186,6 +186,8 @@ class LiveScheduler:
         self.spin_s = float(spin_s)
         self._stop = threading.Event()
         self.interrupted = False
+        #: Unix time of plant time ``start_s`` while :meth:`run` plays (NaN before)
+        self.epoch_unix = float("nan")
         firsts = [s.times[0] for s in self.streams if len(s.times)]
         lasts = [s.times[-1] for s in self.streams if len(s.times)]
         self.start_s = float(start_s) if start_s is not None else (float(min(firsts)) if firsts else 0.0)
@@ -235,6 +237,12 @@ class LiveScheduler:
         self._event_group[order] = inv[group_of_sorted] if len(order) else group_of_sorted
         self._event_offset = offset
 
+    def to_unix(self, t_plant: np.ndarray) -> np.ndarray:
+        """Unix times at which plant times ``t_plant`` are due in the current run."""
+        if not np.isfinite(self.speedup):
+            return np.full(np.shape(t_plant), time.time())
+        return self.epoch_unix + (np.asarray(t_plant, dtype=np.float64) - self.start_s) / self.speedup
+
     @property
     def n_deliveries(self) -> int:
         """Number of delivery calls the plan makes."""
@@ -267,6 +275,7 @@ class LiveScheduler:
         sleep = time.sleep
         completed = False
         wall0 = clock()
+        self.epoch_unix = time.time() + (wall0 - clock())
         next_progress = wall0 + progress_every_s
         self.interrupted = False
         try:

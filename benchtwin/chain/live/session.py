@@ -155,7 +155,9 @@ class LiveSession:
             if gate is not None:
                 part = gate.gate(part)
             if len(part):
-                tr.send_frames(bus, part)
+                # stamped with the time each frame is due on the emulated bus (as a hardware-timestamping
+                # interface would), not with when this thread got to it: pacing jitter stays in the report
+                tr.send_frames(bus, part, self.scheduler.to_unix(part["timestamp"]))
             return i1 - i0
 
         return Stream(f"can:{bus}", frames["timestamp"], deliver, kind="can", frames=frames, bitrate=table.bitrate)

@@ -10,6 +10,7 @@ bookkeeping of buses and the bulk path that turns rows of a frame table into CAN
 from __future__ import annotations
 
 import logging
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Mapping
 from typing import Any, ClassVar
@@ -25,7 +26,7 @@ __all__ = ["Transport", "frames_to_messages", "message_to_frame", "messages_to_f
 log = logging.getLogger(__name__)
 
 
-def frames_to_messages(frames: np.ndarray, timestamp: float | None = None) -> list[can.Message]:
+def frames_to_messages(frames: np.ndarray, timestamp: float | np.ndarray | None = None) -> list[can.Message]:
     """Rows of :data:`FRAME_DTYPE` as python-can messages.
 
     Parameters
@@ -33,13 +34,19 @@ def frames_to_messages(frames: np.ndarray, timestamp: float | None = None) -> li
     frames:
         Structured array of :data:`FRAME_DTYPE`.
     timestamp:
-        Timestamp to give every message (e.g. the wall-clock send time); default: the rows' own.
+        Timestamp of every message (one value, or one per row, e.g. the wall-clock times the frames
+        are due on the bus); default: the rows' own.
     """
     ids = frames["arbitration_id"].tolist()
     ext = frames["is_extended"].tolist()
     dlc = frames["dlc"].tolist()
     data = frames["data"].tobytes()
-    ts = [timestamp] * len(ids) if timestamp is not None else frames["timestamp"].tolist()
+    if timestamp is None:
+        ts = frames["timestamp"].tolist()
+    elif np.ndim(timestamp):
+        ts = np.asarray(timestamp, dtype=np.float64).tolist()
+    else:
+        ts = [float(timestamp)] * len(ids)
     return [
         can.Message(timestamp=ts[i], arbitration_id=ids[i], is_extended_id=ext[i], dlc=dlc[i],
                     data=data[8 * i: 8 * i + dlc[i]], check=False)
@@ -188,15 +195,17 @@ class Transport(ABC):
         self._clients.append(client)
         return client
 
-    def send_frames(self, bus: str, frames: np.ndarray, timestamp: float | None = None) -> int:
+    def send_frames(self, bus: str, frames: np.ndarray, timestamp: float | np.ndarray | None = None) -> int:
         """Put rows of :data:`FRAME_DTYPE` on ``bus`` in order; return how many were sent.
 
-        The base converts rows to messages and sends them one by one; network backends override
-        this with a bulk path.
+        ``timestamp`` (Unix seconds, one or one per row) is the time the frames are on the emulated
+        bus, which backends that can stamp frames (virtual, socketcand) hand to the acquisition as a
+        hardware-timestamping interface would; ``None`` stamps them now. The base converts rows to
+        messages and sends them one by one; network backends override this with a bulk path.
         """
         dev = self.device_bus(bus)
         sent = 0
-        for msg in frames_to_messages(frames, timestamp):
+        for msg in frames_to_messages(frames, time.time() if timestamp is None else timestamp):
             try:
                 dev.send(msg)
             except can.CanError as exc:

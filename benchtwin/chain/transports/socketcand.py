@@ -52,13 +52,18 @@ def _ts_text(t: float) -> str:
     return f"{sec}.{round((t - sec) * 1e6) % 1_000_000:06d}"
 
 
-def format_frames(frames: np.ndarray, timestamp: float) -> bytes:
+def format_frames(frames: np.ndarray, timestamp: float | np.ndarray) -> bytes:
     """Rows of :data:`~benchtwin.chain.frames.FRAME_DTYPE` as socketcand ``< frame ... >`` messages.
+
+    ``timestamp`` (Unix seconds) is one value for all rows or one per row.
 
     Standard identifiers are written with three hex digits and extended ones with eight (that is
     how clients tell them apart); the data bytes follow as one hex string, as socketcand does.
     """
-    ts = _ts_text(timestamp)
+    if np.ndim(timestamp):
+        tss = [_ts_text(t) for t in np.asarray(timestamp, dtype=np.float64).tolist()]
+    else:
+        tss = [_ts_text(float(timestamp))] * len(frames)
     ids = frames["arbitration_id"].tolist()
     ext = frames["is_extended"].tolist()
     dlc = frames["dlc"].tolist()
@@ -67,7 +72,7 @@ def format_frames(frames: np.ndarray, timestamp: float) -> bytes:
     for i in range(len(ids)):
         idt = f"{ids[i] & 0x1FFFFFFF:08X}" if ext[i] else f"{ids[i] & 0x7FF:03X}"
         n = min(dlc[i], 8)
-        parts.append(f"< frame {idt} {ts} {data[8 * i:8 * i + n].hex().upper()} >")
+        parts.append(f"< frame {idt} {tss[i]} {data[8 * i:8 * i + n].hex().upper()} >")
     return "".join(parts).encode("ascii")
 
 
@@ -453,7 +458,7 @@ class SocketcandDeviceBus(can.BusABC):
         """Broadcast ``msg`` to the bus's clients (timestamp: now)."""
         self._server.broadcast(self.channel, format_message(msg, time.time()))
 
-    def send_frames(self, frames: np.ndarray, timestamp: float | None = None) -> None:
+    def send_frames(self, frames: np.ndarray, timestamp: float | np.ndarray | None = None) -> None:
         """Broadcast rows of a frame table in one write per client."""
         self._server.broadcast(self.channel, format_frames(frames, time.time() if timestamp is None else timestamp))
 
@@ -497,7 +502,7 @@ class SocketcandTransport(Transport):
                 f"(python -m can.logger -i socketcand -c {bus} --host {self.host} --port {self.port})"
                 for bus in self.bitrates]
 
-    def send_frames(self, bus: str, frames: np.ndarray, timestamp: float | None = None) -> int:
+    def send_frames(self, bus: str, frames: np.ndarray, timestamp: float | np.ndarray | None = None) -> int:
         dev = self.device_bus(bus)
         dev.send_frames(frames, timestamp)  # type: ignore[attr-defined]
         return len(frames)

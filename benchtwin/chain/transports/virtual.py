@@ -4,13 +4,29 @@ from __future__ import annotations
 
 import itertools
 import os
+import time
 from typing import Any, ClassVar
 
 import can
+from can.interfaces.virtual import VirtualBus
 
 from benchtwin.chain.transports.base import Transport
 
-__all__ = ["VirtualTransport"]
+__all__ = ["VirtualDeviceBus", "VirtualTransport"]
+
+
+class VirtualDeviceBus(VirtualBus):
+    """The device side of a virtual channel: keeps the timestamps it is given (the time a frame is due
+    on the emulated bus); a message without one (timestamp 0, e.g. from canopen) is stamped now."""
+
+    def __init__(self, channel: str, **kwargs: Any) -> None:
+        super().__init__(channel=channel, receive_own_messages=False, preserve_timestamps=True, **kwargs)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Send ``msg`` to the other buses of the channel."""
+        if not msg.timestamp:
+            msg.timestamp = time.time()
+        super().send(msg, timeout)
 
 _instances = itertools.count()
 
@@ -35,7 +51,7 @@ class VirtualTransport(Transport):
         return self.channel_map.get(bus, f"{self._prefix}-{bus}")
 
     def _open_device_bus(self, bus: str) -> can.BusABC:
-        return can.Bus(interface="virtual", channel=self.channel(bus), receive_own_messages=False)
+        return VirtualDeviceBus(self.channel(bus))
 
     def client_kwargs(self, bus: str) -> dict[str, Any]:
         return {"interface": "virtual", "channel": self.channel(bus)}
