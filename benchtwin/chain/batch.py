@@ -122,10 +122,16 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
 
         setup = validate_data(SetupConfig, json.loads(sp.read_text(encoding="utf-8")), str(sp))
     received = AcquisitionInput()
+    skipped = []
     for p in sorted(d.glob("*.mf4")):
         bus = p.stem
         bitrate = setup.buses[bus].bitrate if bus in setup.buses else 500_000
-        received.can[bus] = read_mf4(p, bus, bitrate)
+        try:
+            received.can[bus] = read_mf4(p, bus, bitrate)
+        except DataError as exc:
+            if bus in setup.buses:
+                raise
+            skipped.append(f"{p.name}: {exc}")  # e.g. a Recording saved next to the logs
     for p in sorted(d.glob("*.polls.npz")):
         plog = read_poll_log(p)
         received.polls[plog.device] = plog
@@ -137,6 +143,8 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
     meta = d / "meta.json"
     if meta.exists():
         received.meta = json.loads(meta.read_text(encoding="utf-8"))
+    if skipped:
+        received.meta["skipped_files"] = skipped
     return received, setup
 
 

@@ -84,6 +84,8 @@ def _discrete_filter(bandwidth_hz: float, order: int, damping: float, dt: float)
     sysd = control.c2d(sys, dt, method="zoh")
     num = np.atleast_1d(np.squeeze(sysd.num[0][0])).astype(np.float64)
     den = np.atleast_1d(np.squeeze(sysd.den[0][0])).astype(np.float64)
+    # polynomials in z -> in z^-1 for lfilter: right-align the numerator (keeps the ZOH delay)
+    num = np.concatenate([np.zeros(den.size - num.size), num])
     return num / den[0], den / den[0]
 
 

@@ -1,0 +1,83 @@
+"""``benchtwin acquire``: decode raw bench logs (batch) into a Recording MF4.
+
+Two ways in:
+
+* ``benchtwin acquire LOGDIR [--setup FILE] --out REC.mf4`` decodes the raw logs in LOGDIR
+  (``<bus>.mf4`` MF4 bus logs, ``<device>.polls.npz`` Modbus poll logs, ``segments.json``); the
+  setup defaults to ``LOGDIR/setup.json`` written with the logs.
+* ``benchtwin acquire --trace TRACEDIR --setup FILE --logs LOGDIR --out REC.mf4 [--seed N] [--blf]``
+  runs the whole batch chain on a saved Trace: the sensors encode it, the raw logs are written to
+  LOGDIR (and BLF copies with ``--blf``), read back and decoded.
+
+A setup may be a file or a shipped name (``paper``, ``ideal``). The summary lists the channels,
+the flagged samples, protocol errors, Modbus timeouts and the clock offsets detected.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from benchtwin.errors import ConfigError, DataError
+
+__all__ = ["add_subparser", "run"]
+
+
+def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the ``acquire`` subcommand."""
+    p = subparsers.add_parser("acquire", help="decode raw bench logs (or a Trace through the sensors) into a "
+                                              "Recording MF4", description=__doc__.split("\n\n", 1)[1])
+    p.add_argument("logdir", nargs="?", type=Path, default=None, help="folder of raw logs to decode")
+    p.add_argument("--setup", default=None, help="setup TOML or shipped name (default: LOGDIR/setup.json)")
+    p.add_argument("--trace", type=Path, default=None, help="encode this saved Trace first (folder of trace.mf4)")
+    p.add_argument("--logs", type=Path, default=None, help="with --trace: where to write the raw logs")
+    p.add_argument("--seed", type=int, default=None, help="with --trace: campaign seed (default: the trace's)")
+    p.add_argument("--blf", action="store_true", help="with --trace: also export BLF bus logs")
+    p.add_argument("--out", type=Path, required=True, help="Recording MF4 to write")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Decode (or encode and decode) and write the Recording; return the exit status."""
+    from benchtwin.chain.acquisition import acquire
+    from benchtwin.chain.batch import read_logs, run_batch
+    from benchtwin.config.setup import load_setup
+    from benchtwin.trace import Trace
+
+    setup = load_setup(args.setup) if args.setup else None
+    t0 = time.perf_counter()
+    if args.trace is not None:
+        if args.logdir is not None:
+            raise ConfigError("give either LOGDIR (decode logs) or --trace (encode a trace), not both")
+        if setup is None:
+            raise ConfigError("--trace needs --setup (the bench to put on the trace)")
+        trace = Trace.load(args.trace)
+        seed = args.seed if args.seed is not None else int(trace.meta.get("seed", 0) or 0)
+        logs = args.logs if args.logs is not None else args.out.with_suffix("")
+        rec = run_batch(trace, setup, seed, logs, blf=args.blf)
+        print(f"encoded {trace.duration_s:.0f} s of trace with setup {setup.name!r}, raw logs in {logs}")
+    else:
+        if args.logdir is None:
+            raise ConfigError("give a LOGDIR of raw logs, or --trace TRACEDIR")
+        received, setup = read_logs(args.logdir, setup)
+        rec = acquire(received, setup)
+    wall = time.perf_counter() - t0
+    try:
+        path = rec.save(args.out)
+    except OSError as exc:
+        raise DataError(f"{args.out}: cannot write the recording ({exc.strerror or exc})") from None
+    n_frames = sum(rec.meta.get("frames", {}).values())
+    n_samples = sum(len(c) for c in rec.channels.values())
+    print(f"decoded {n_frames} frames and {sum(v['polls'] for v in rec.meta.get('modbus', {}).values())} polls "
+          f"into {len(rec.channels)} channels ({n_samples} samples) in {wall:.1f} s")
+    for key in ("protocol_errors", "unknown_ids", "modbus", "clock_offsets_s"):
+        if rec.meta.get(key):
+            print(f"  {key}: {rec.meta[key]}")
+    flagged = rec.meta.get("flagged_samples", {})
+    if flagged:
+        print(f"  flagged samples in {len(flagged)} channels: " + ", ".join(
+            f"{k} {sum(v.values())}" for k, v in sorted(flagged.items())[:12]) + (" ..." if len(flagged) > 12 else ""))
+    print(f"wrote {path}")
+    return 0
