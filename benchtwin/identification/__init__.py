@@ -6,6 +6,9 @@ points, segments). Identification never reads the Trace or the vehicle file; wha
 about the car beforehand is its public :class:`~benchtwin.identification.specs.VehicleSpecs`.
 """
 
+# benchtwin.config (vehicle.py) imports identification.specs, and specs imports config._base: load the config
+# package first so that importing identification first does not meet a partially initialised module
+import benchtwin.config  # noqa: F401  (import order, see above)
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate
 from benchtwin.identification.specs import VehicleSpecs
 

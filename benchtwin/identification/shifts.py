@@ -6,7 +6,14 @@ The model (docs/models.md): for each pair ``(g, g+1)`` the gearbox asks for an u
 the actual gear follows after the actuation delay, so events are taken where ``gear_target``
 changes (never ``gear_actual``, whose speed would be late by the delay times the acceleration).
 
-At each event the vehicle speed and pedal of the first sample with the new target are recorded;
+Only events inside segments where the automatic schedule chooses the gear (accelerations,
+decelerations, ramp-downs, cycles) are used when the Recording has a segment table: in ramp-up and
+constant-drive tests the gear is held by the test, so their target-gear changes are no thresholds.
+The event time on a periodically sampled target-gear channel is the midpoint between the last sample
+with the old gear and the first with the new one (the change happened somewhere in between; the
+midpoint is unbiased); on an event-driven channel it is the sample's own time.
+
+At each event the vehicle speed and pedal at the event time are recorded;
 per pair and direction, ``v = c0 + c1 pedal`` is fitted by least squares. A pair with too few
 events or too little pedal spread gets a *flagged* result (no confident line): with events at one
 pedal position only, the speed is reported as ``c0`` and the slope as NaN.
@@ -23,8 +30,29 @@ from benchtwin.recording import Recording
 __all__ = ["find_shift_events", "identify_shift_thresholds"]
 
 
-def find_shift_events(rec: Recording) -> dict[str, np.ndarray]:
+#: segment kinds in which the gearbox's own schedule chooses the gear
+SCHEDULE_SEGMENT_KINDS: tuple[str, ...] = ("acceleration", "deceleration", "ramp_down", "cycle")
+
+
+def _is_periodic(ts: np.ndarray) -> bool:
+    if ts.size < 10:
+        return False
+    dt = np.diff(ts)
+    med = float(np.median(dt))
+    return med > 0 and float(np.mean(np.abs(dt - med) <= 0.1 * med)) > 0.8
+
+
+def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None = SCHEDULE_SEGMENT_KINDS
+                      ) -> dict[str, np.ndarray]:
     """Target-gear change events.
+
+    Parameters
+    ----------
+    rec:
+        The Recording.
+    segment_kinds:
+        When the Recording has segments of these kinds, only events inside them are returned;
+        ``None`` or a Recording without such segments: every event.
 
     Returns
     -------
@@ -46,6 +74,15 @@ def find_shift_events(rec: Recording) -> dict[str, np.ndarray]:
     ts, g = gch.timestamps[ok], np.rint(gch.values[ok]).astype(int)
     k = np.flatnonzero(np.diff(g) != 0) + 1
     t_ev = ts[k]
+    if _is_periodic(ts):
+        t_ev = 0.5 * (ts[k] + ts[k - 1])
+    if segment_kinds and rec.segments:
+        segs = [sg for sg in rec.segments if sg.kind in segment_kinds]
+        if segs:
+            inside = np.zeros(t_ev.shape, dtype=bool)
+            for sg in segs:
+                inside |= sg.contains(t_ev)
+            k, t_ev = k[inside], t_ev[inside]
     sp, pd = rec["vehicle_speed_kmh"], rec["pedal_pct"]
     v = sp.at(t_ev)
     p = pd.at(t_ev)
@@ -77,6 +114,7 @@ def identify_shift_thresholds(
     n_gears: int | None = None,
     min_events: int = 3,
     min_pedal_spread_pct: float = 10.0,
+    segment_kinds: tuple[str, ...] | None = SCHEDULE_SEGMENT_KINDS,
 ) -> dict[str, FitResult]:
     """Fit the shift lines of every gear pair and direction.
 
@@ -91,6 +129,8 @@ def identify_shift_thresholds(
         Fewer events than this: flagged.
     min_pedal_spread_pct:
         Pedal range (max - min) of a pair's events below this: flagged (slope not identifiable).
+    segment_kinds:
+        See :func:`find_shift_events`.
 
     Returns
     -------
@@ -100,7 +140,7 @@ def identify_shift_thresholds(
         skip a gear (3 -> 5) or involve neutral are not used; events whose speed or pedal is flagged
         are counted in the pair's ``n_excluded``.
     """
-    ev = find_shift_events(rec)
+    ev = find_shift_events(rec, segment_kinds=segment_kinds)
     seen = int(max(ev["from_gear"].max(initial=0), ev["to_gear"].max(initial=0)))
     n_gears = n_gears or seen
     adjacent = (np.abs(ev["to_gear"] - ev["from_gear"]) == 1) & (np.minimum(ev["from_gear"], ev["to_gear"]) >= 1)
