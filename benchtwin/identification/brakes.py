@@ -1,0 +1,283 @@
+"""Brakes: pressure-to-torque gains per axle, the static distribution k_f / k_r (eq. 41), blending maps.
+
+Gains: braking in neutral at constant dyno speed, the rollers carry the brake forces, so the axle
+brake torque is ``-roller force x wheel radius`` (roller forces are positive when the vehicle
+pushes). Per axle, least squares of that torque on ``[p, 1]`` with ``p`` the mean caliper pressure
+of the axle: the slope is the gain ``m`` (Nm/bar), the intercept the tyre rolling loss on the
+rollers. ``k_f = m_f / (m_f + m_r)``, ``k_r = 1 - k_f`` with delta-method uncertainty.
+
+Blending (Figure 24): during braking in gear (WLTC, decelerations), the hydraulic torques are
+``m_f p_f`` and ``m_r p_r``; the powertrain (regenerative) torque at the rear wheels is the rear
+roller torque minus the rear hydraulic torque (rear-wheel drive), the identified rolling loss
+removed from both roller torques. The shares of the total braking torque (regenerative, hydraulic,
+front) are binned over speed x deceleration; all wheels turn at one speed, so torque shares equal
+power shares.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+from scipy import stats
+
+from benchtwin.errors import IdentificationError, InsufficientDataError, MissingChannelError
+from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate, linear_fit
+from benchtwin.identification._signals import check_spread, gather, raise_all_failed, segment_mask, smooth_derivative
+from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification.steady import Tolerance, find_steady_windows
+from benchtwin.recording import Recording
+
+__all__ = ["brake_gains_from", "fit_brake_gain", "identify_brake_blending", "identify_brake_gains"]
+
+_FRONT = ("brake_pressure_fl_bar", "brake_pressure_fr_bar")
+_REAR = ("brake_pressure_rl_bar", "brake_pressure_rr_bar")
+
+
+def _axle_channels(rec: Recording, names: Sequence[str], axle: str) -> list[str]:
+    present = [n for n in names if n in rec]
+    if not present:
+        raise MissingChannelError(f"brakes: no {axle} caliper pressure recorded (need one of {', '.join(names)})")
+    return present
+
+
+def fit_brake_gain(p_bar: np.ndarray, torque_nm: np.ndarray, axle: str, *, segments: Sequence[str] = (),
+                   n_excluded: int = 0, min_points: int = 4, intercept: bool = True) -> FitResult:
+    """Least squares ``T = m p + c`` for one axle (``c`` omitted with ``intercept=False``).
+
+    Raises
+    ------
+    InsufficientDataError, NoExcitationError, CollinearError
+    """
+    p = np.asarray(p_bar, dtype=float)
+    t = np.asarray(torque_nm, dtype=float)
+    what = f"brakes.{axle}"
+    if p.size < min_points:
+        raise InsufficientDataError(f"{what}: {p.size} steady braking points; need at least {min_points}")
+    check_spread(p, 5.0, what, f"{axle} brake pressure", "bar")
+    tag = axle[0]
+    if intercept:
+        fit = linear_fit(np.column_stack([p, np.ones_like(p)]), t, [f"m_{tag}", f"c_{tag}"], units=["Nm/bar", "Nm"],
+                         segments=segments, min_points=min_points, n_excluded=n_excluded, what=what)
+    else:
+        fit = linear_fit(p[:, None], t, [f"m_{tag}"], units=["Nm/bar"], segments=segments, min_points=min_points,
+                         n_excluded=n_excluded, what=what)
+    pc = np.linspace(0.0, float(p.max()), 100)
+    fit.data.update(p_bar=p, torque_nm=t, torque_fit_nm=fit.data["y_fit"], p_curve_bar=pc,
+                    torque_curve_nm=fit.value(f"m_{tag}") * pc + (fit.value(f"c_{tag}") if intercept else 0.0))
+    if fit.value(f"m_{tag}") <= 0:
+        fit.flag(f"{axle} gain is not positive: check the sign of the roller force")
+    return fit
+
+
+def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable[str] | None = ("neutral_braking",),
+                         rate_hz: float = 10.0, intercept: bool = True, min_points: int = 4,
+                         tolerances: dict[str, Tolerance] | None = None) -> IdentificationResult:
+    """Front and rear pressure-to-torque gains and the distribution k_f, k_r from neutral braking.
+
+    Parameters
+    ----------
+    rec:
+        The Recording: caliper pressures (at least one per axle), ``dyno_force_front_n``,
+        ``dyno_force_rear_n``, ``dyno_speed_kmh`` (``gear_actual`` used when present: neutral only).
+    specs:
+        ``wheel_radius_m``.
+    kinds:
+        Segment kinds searched when the table has them.
+    intercept:
+        Fit the rolling-loss intercept.
+
+    Returns
+    -------
+    IdentificationResult
+        ``brakes.front`` (``m_f``, ``c_f``), ``brakes.rear`` (``m_r``, ``c_r``) and
+        ``brakes.distribution`` (``k_f``, ``k_r``).
+    """
+    front = _axle_channels(rec, _FRONT, "front")
+    rear = _axle_channels(rec, _REAR, "rear")
+    forces = ["dyno_force_front_n", "dyno_force_rear_n"]
+    tol = {"dyno_speed_kmh": Tolerance(0.5, 0.0, 0.5)}
+    tol.update(tolerances or {})
+    sw = find_steady_windows(rec, [*front, *rear, *forces, "dyno_speed_kmh"], states=("gear_actual",), kinds=kinds,
+                             rate_hz=rate_hz, tolerances=tol)
+    keep = sw.means("dyno_speed_kmh") > 5.0
+    if "gear_actual" in sw.grid:
+        keep &= np.nan_to_num(sw.state("gear_actual"), nan=-1) == 0
+    sw = sw.select(keep)
+    r = specs.wheel_radius_m
+    p_f = np.mean([sw.raw_average(rec, c) for c in front], axis=0) if len(sw) else np.array([])
+    p_r = np.mean([sw.raw_average(rec, c) for c in rear], axis=0) if len(sw) else np.array([])
+    t_f = -sw.raw_average(rec, "dyno_force_front_n") * r if len(sw) else np.array([])
+    t_r = -sw.raw_average(rec, "dyno_force_rear_n") * r if len(sw) else np.array([])
+    out = IdentificationResult()
+    failures: dict[str, IdentificationError] = {}
+    segs = sw.segments()
+    for axle, p, t in (("front", p_f, t_f), ("rear", p_r, t_r)):
+        ok = np.isfinite(p) & np.isfinite(t)
+        try:
+            out.fits[f"brakes.{axle}"] = fit_brake_gain(p[ok], t[ok], axle, segments=segs,
+                                                        n_excluded=sw.n_excluded + int((~ok).sum()),
+                                                        min_points=min_points, intercept=intercept)
+        except IdentificationError as exc:
+            out.errors[f"brakes.{axle}"] = f"{type(exc).__name__}: {exc}"
+            failures[f"brakes.{axle}"] = exc
+    if not out.fits:
+        raise_all_failed("brakes (front and rear gains)", failures)
+    if "brakes.front" in out.fits and "brakes.rear" in out.fits:
+        out.fits["brakes.distribution"] = _distribution(out.fits["brakes.front"], out.fits["brakes.rear"])
+    return out
+
+
+def _distribution(ff: FitResult, fr: FitResult) -> FitResult:
+    mf, mr = ff["m_f"], fr["m_r"]
+    s = mf.value + mr.value
+    kf = mf.value / s
+    # delta method, independent fits: dk/dm_f = m_r / s^2, dk/dm_r = -m_f / s^2
+    se = math.sqrt((mr.value / s**2 * mf.std_error) ** 2 + (mf.value / s**2 * mr.std_error) ** 2)
+    dof = max(min(mf.n_points, mr.n_points) - 2, 1)
+    tq = float(stats.t.ppf(0.975, dof))
+    n = mf.n_points + mr.n_points
+    r2 = min(ff.r2, fr.r2)
+    segs = sorted(set(ff.segments) | set(fr.segments))
+    params = {
+        "k_f": ParameterEstimate("k_f", kf, se, (kf - tq * se, kf + tq * se), r2, n, "-", segs),
+        "k_r": ParameterEstimate("k_r", 1 - kf, se, (1 - kf - tq * se, 1 - kf + tq * se), r2, n, "-", segs),
+    }
+    fit = FitResult(params, r2, float("nan"), float("nan"), n, ff.n_excluded + fr.n_excluded, segs)
+    if ff.status != "ok" or fr.status != "ok":
+        fit.flag("a gain fit is flagged: " + "; ".join(ff.reasons + fr.reasons))
+    return fit
+
+
+def brake_gains_from(gains: IdentificationResult | Sequence[float]) -> tuple[float, float, float, float]:
+    """``(m_f, m_r, c_f, c_r)`` from an :func:`identify_brake_gains` result or a 2- or 4-sequence."""
+    if isinstance(gains, IdentificationResult):
+        try:
+            ff, fr = gains.fits["brakes.front"], gains.fits["brakes.rear"]
+        except KeyError as exc:
+            raise InsufficientDataError(f"brake blending needs both axle gains; missing {exc}") from None
+        return (ff.value("m_f"), fr.value("m_r"), ff.params["c_f"].value if "c_f" in ff.params else 0.0,
+                fr.params["c_r"].value if "c_r" in fr.params else 0.0)
+    g = [float(x) for x in gains]
+    if len(g) == 2:
+        return g[0], g[1], 0.0, 0.0
+    if len(g) == 4:
+        return g[0], g[1], g[2], g[3]
+    raise IdentificationError("gains must be (m_f, m_r) or (m_f, m_r, c_f, c_r)")
+
+
+def _binned_mean(x: np.ndarray, y: np.ndarray, z: np.ndarray, xe: np.ndarray, ye: np.ndarray, min_count: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    cnt, _, _ = np.histogram2d(x, y, bins=[xe, ye])
+    tot, _, _ = np.histogram2d(x, y, bins=[xe, ye], weights=z)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(cnt >= min_count, tot / np.maximum(cnt, 1), np.nan)
+    return mean.T, cnt.T  # rows: deceleration bins, columns: speed bins
+
+
+def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: IdentificationResult | Sequence[float], *,
+                            kinds: Iterable[str] | None = ("deceleration", "cycle"), rate_hz: float = 10.0,
+                            speed_edges_kmh: Sequence[float] | None = None,
+                            decel_edges_mps2: Sequence[float] | None = None, min_count: int = 5,
+                            min_torque_nm: float = 50.0, min_decel_mps2: float = 0.1, smooth_s: float = 1.0,
+                            speed_channel: str | None = None) -> FitResult:
+    """Brake-blending maps over speed x deceleration (Figure 24).
+
+    Parameters
+    ----------
+    rec:
+        The Recording: caliper pressures, roller forces, a speed channel.
+    specs:
+        ``wheel_radius_m``.
+    gains:
+        The result of :func:`identify_brake_gains` (or ``(m_f, m_r[, c_f, c_r])``).
+    kinds:
+        Segment kinds searched when the table has them.
+    speed_edges_kmh, decel_edges_mps2:
+        Bin edges (defaults: 10 km/h and 0.25 m/s^2 steps).
+    min_count:
+        Fewest grid samples for a bin to get a value.
+    min_torque_nm, min_decel_mps2:
+        A sample is "braking" when the total braking torque and the deceleration exceed these.
+
+    Returns
+    -------
+    FitResult
+        Parameters ``regen_share_mean``, ``hydraulic_share_mean``, ``front_share_mean`` (means over
+        braking samples, SE from their spread) and ``regen_torque_p95_nm``; data: per-sample
+        ``v_kmh``, ``decel_mps2``, ``torque_total_nm``, ``torque_regen_nm``, ``torque_front_nm``,
+        ``torque_rear_hyd_nm``, ``regen_share``, ``hydraulic_share``, ``front_share`` and the maps
+        ``map_speed_edges_kmh``, ``map_decel_edges_mps2``, ``map_regen_share``, ``map_hydraulic_share``,
+        ``map_front_share``, ``map_count`` (rows: deceleration, columns: speed).
+    """
+    m_f, m_r, c_f, c_r = brake_gains_from(gains)
+    front = _axle_channels(rec, _FRONT, "front")
+    rear = _axle_channels(rec, _REAR, "rear")
+    vch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
+    g = gather(rec, [vch, *front, *rear, "dyno_force_front_n", "dyno_force_rear_n"], rate_hz, what="brake blending")
+    use = ~g.bad
+    seg = segment_mask(rec, g.t, kinds)
+    if seg is not None:
+        use &= seg
+    r = specs.wheel_radius_m
+    v = g[vch]
+    decel = -smooth_derivative(v / 3.6, g.dt, smooth_s, valid=use)
+    p_f = np.mean([g[c] for c in front], axis=0)
+    p_r = np.mean([g[c] for c in rear], axis=0)
+    t_hf = m_f * p_f
+    t_hr = m_r * p_r
+    t_rear = -g["dyno_force_rear_n"] * r - c_r
+    t_regen = t_rear - t_hr
+    t_tot = t_hf + t_rear
+    brk = use & np.isfinite(decel) & (t_tot > min_torque_nm) & (decel > min_decel_mps2)
+    n_brk = int(brk.sum())
+    if n_brk < max(min_count, 10):
+        raise InsufficientDataError(
+            f"brake blending: {n_brk} braking samples (total braking torque > {min_torque_nm} Nm and deceleration > "
+            f"{min_decel_mps2} m/s^2); need at least {max(min_count, 10)}")
+    vb, db, tt = v[brk], decel[brk], t_tot[brk]
+    regen_share = t_regen[brk] / tt
+    hyd_share = (t_hf[brk] + t_hr[brk]) / tt
+    front_share = t_hf[brk] / tt
+    se = np.asarray(speed_edges_kmh, dtype=float) if speed_edges_kmh is not None else \
+        np.arange(0.0, max(10.0, float(np.ceil(vb.max() / 10) * 10)) + 1e-9, 10.0)
+    de = np.asarray(decel_edges_mps2, dtype=float) if decel_edges_mps2 is not None else \
+        np.arange(0.0, max(0.25, float(np.ceil(db.max() / 0.25) * 0.25)) + 1e-9, 0.25)
+    maps = {}
+    for name, z in (("regen", regen_share), ("hydraulic", hyd_share), ("front", front_share)):
+        maps[f"map_{name}_share"], cnt = _binned_mean(vb, db, z, se, de, min_count)
+    segs = sorted({s.name for s in rec.segments if s.kind in set(kinds or ()) and np.any(s.contains(g.t[brk]))})
+
+    def mean_est(name: str, z: np.ndarray, unit: str = "-") -> ParameterEstimate:
+        # consecutive samples are correlated: the SE counts one independent sample per smoothing window
+        n_eff = max(int(z.size / max(smooth_s * rate_hz, 1.0)), 2)
+        mu, sd = float(np.mean(z)), float(np.std(z, ddof=1))
+        s = sd / math.sqrt(n_eff)
+        tq = float(stats.t.ppf(0.975, n_eff - 1))
+        return ParameterEstimate(name, mu, s, (mu - tq * s, mu + tq * s), float("nan"), int(z.size), unit, segs)
+
+    p95 = float(np.percentile(t_regen[brk], 95))
+    params = {
+        "regen_share_mean": mean_est("regen_share_mean", regen_share),
+        "hydraulic_share_mean": mean_est("hydraulic_share_mean", hyd_share),
+        "front_share_mean": mean_est("front_share_mean", front_share),
+        "regen_torque_p95_nm": ParameterEstimate("regen_torque_p95_nm", p95, float("nan"), (p95, p95), float("nan"),
+                                                 n_brk, "Nm", segs),
+    }
+    fit = FitResult(params, float("nan"), float("nan"), float("nan"), n_brk,
+                    int((g.flagged & (seg if seg is not None else True)).sum()), segs)
+    fit.data.update(v_kmh=vb, decel_mps2=db, torque_total_nm=tt, torque_regen_nm=t_regen[brk],
+                    torque_front_nm=t_hf[brk], torque_rear_hyd_nm=t_hr[brk], regen_share=regen_share,
+                    hydraulic_share=hyd_share, front_share=front_share, map_speed_edges_kmh=se,
+                    map_decel_edges_mps2=de, map_count=cnt, **maps)
+    # the front axle has no powertrain: its roller torque must match the front hydraulic torque
+    front_resid = (-g["dyno_force_front_n"] * r - c_f - t_hf)[brk]
+    fit.data["front_check_residual_nm"] = front_resid
+    rel = float(np.median(np.abs(front_resid)) / max(float(np.median(np.abs(t_hf[brk]))), 1.0))
+    if rel > 0.05:
+        fit.reasons.append(f"front roller torque and front gain x pressure differ by {rel:.0%} (median): "
+                           "the gains may not hold for this test")
+    if np.nanmin(regen_share) < -0.05:
+        fit.reasons.append("some samples show negative regenerative share: powertrain drag or a gain error")
+    return fit
