@@ -499,7 +499,7 @@ class SocketcandTransport(Transport):
 
     def endpoints(self) -> list[str]:
         return [f"{bus}: socketcand tcp://{self.host}:{self.port} channel {bus} "
-                f"(python -m can.logger -i socketcand -c {bus} --host {self.host} --port {self.port})"
+                f"(python -m can.logger -i socketcand -c {bus} --bus-kwargs host={self.host} port={self.port})"
                 for bus in self.bitrates]
 
     def send_frames(self, bus: str, frames: np.ndarray, timestamp: float | np.ndarray | None = None) -> int:
