@@ -127,8 +127,8 @@ class TorqueConverterConfig(StrictModel):
     coupling_speed_ratio: float = Field(gt=0, lt=1)
     lockup_min_gear: int = Field(default=2, ge=1)
     lockup_min_speed_kmh: float = Field(default=15.0, ge=0)
-    lockup_capacity_nm: float = Field(default=300.0, gt=0)
-    lockup_slip_ref_radps: float = Field(default=20.0, gt=0)
+    lockup_capacity_nm: float = Field(default=900.0, gt=0)
+    lockup_engage_time_s: float = Field(default=0.6, gt=0, description="capacity ramp while engaging")
 
 
 class TransmissionConfig(StrictModel):

@@ -20,6 +20,9 @@ import numpy as np
 from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.vehicle import LowVoltageConfig, VehicleConfig
 from benchtwin.emulator.params import (
+    C_LVLOAD,
+    L_KE0,
+    L_KE1,
     LEDGER_NAMES,
     NL,
     NO,
@@ -71,10 +74,11 @@ from benchtwin.emulator.params import (
     PlantTables,
     build_tables,
 )
-from benchtwin.emulator.plant import N_STATE, kinetic_energy, run_plant
+from benchtwin.emulator.plant import N_STATE, S_STEP, S_T, kinetic_energy, run_plant
 from benchtwin.emulator.protocols import build_protocol
 from benchtwin.emulator.thermal import simulate_thermal
 from benchtwin.errors import SimulationError
+from benchtwin.segments import Segment
 from benchtwin.trace import TRACE_CHANNELS, Trace
 
 __all__ = ["energy_balance", "lv_load_profile", "simulate_campaign"]
@@ -96,6 +100,9 @@ _DIRECT: dict[str, int] = {
     "dcdc_lv_current_a": O_ILV, "dcdc_lv_voltage_v": O_VLV, "lv_battery_current_a": O_ILVB,
     "lv_battery_voltage_v": O_VLV,
 }
+
+#: settings keys ending in ``_s`` that are durations, not times on the test's clock
+_DURATION_KEYS = frozenset({"step_hold_s", "lead_in_s", "approach_s", "max_duration_s"})
 
 #: subsystems that draw random numbers, in the order of SeedSequence.spawn
 RANDOM_SUBSYSTEMS: tuple[str, ...] = ("lv_loads",)
@@ -174,33 +181,44 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     tables = build_tables(vehicle, campaign)
     dt = 1.0 / campaign.plant_rate_hz
     proto = build_protocol(campaign)
-    n = proto.n_steps
+    n_max = proto.n_steps
     children = np.random.SeedSequence(campaign.seed).spawn(len(RANDOM_SUBSYSTEMS))
     rngs = {name: np.random.default_rng(child) for name, child in zip(RANDOM_SUBSYSTEMS, children, strict=True)}
-    from benchtwin.emulator.params import C_LVLOAD, L_KE0, L_KE1
-
-    proto.cmd[C_LVLOAD] = lv_load_profile(vehicle.low_voltage, n, dt, rngs["lv_loads"])
+    lv_load = lv_load_profile(vehicle.low_voltage, n_max, dt, rngs["lv_loads"])
     decim = 1 if campaign.output_rate_hz is None else round(campaign.plant_rate_hz / campaign.output_rate_hz)
-    n_out = (n + decim - 1) // decim
-    out = np.empty((n_out, NO))
+    out = np.empty(((n_max + decim - 1) // decim + 1, NO))
     led = np.zeros(NL)
     st = _initial_state(tables, vehicle, campaign)
     led[L_KE0] = kinetic_energy(tables.p, st)
     args = (tables.p, tables.ratios, tables.eta_m, tables.c0, tables.up_v0, tables.up_s, tables.dn_v0,
             tables.dn_s, tables.e_fl_w, tables.e_fl_t, tables.bsfc_w, tables.bsfc_b, tables.bsfc_kgpj,
             tables.m_fl_w, tables.m_fl_t, tables.cell_soc, tables.cell_ocv, tables.cell_rd, tables.cell_rc,
-            tables.tc_a, proto.cmd)
+            tables.tc_a)
+    bar = None
     if progress:
         from tqdm import tqdm
 
-        chunk = max(decim, round(120.0 / dt / decim) * decim)
-        with tqdm(total=round(n * dt), unit="s sim", desc=campaign.name, leave=False) as bar:
-            for i0 in range(0, n, chunk):
-                i1 = min(i0 + chunk, n)
-                run_plant(*args, i0, i1, decim, st, out, led)
-                bar.update(round(i1 * dt) - bar.n)
-    else:
-        run_plant(*args, 0, n, decim, st, out, led)
+        bar = tqdm(total=round(n_max * dt), unit="s sim", desc=campaign.name, leave=False)
+    rows = 0
+    segments: list[Segment] = []
+    try:
+        for block, seg in zip(proto.blocks, proto.segments, strict=True):
+            k0 = int(st[S_STEP])
+            block[C_LVLOAD] = lv_load[k0:k0 + block.shape[1]]
+            t_start = st[S_T]
+            written, steps = run_plant(*args, block, decim, st, out, rows, led)
+            rows += written
+            settings = {k: (float(v + t_start) if k.endswith("_s") and k not in _DURATION_KEYS else v)
+                        for k, v in seg.settings.items()}
+            segments.append(Segment(float(t_start), float(t_start + steps * dt), seg.kind, seg.name, settings))
+            if bar is not None:
+                bar.total = bar.n + round((n_max - int(st[S_STEP])) * dt)
+                bar.update(round(steps * dt))
+    finally:
+        if bar is not None:
+            bar.close()
+    out = out[:rows]
+    n_out = rows
     led[L_KE1] = kinetic_energy(tables.p, st)
     if not np.all(np.isfinite(out[:, [O_V, O_WP, O_IB, O_SOC]])):
         raise SimulationError(f"campaign {campaign.name!r}: the plant left its physical domain (non-finite states)")
@@ -222,7 +240,7 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
         "output_rate_hz": campaign.plant_rate_hz / decim,
         "energy_ledger_j": {name: float(led[k]) for k, name in enumerate(LEDGER_NAMES)},
     }
-    return Trace(time_s, ordered, proto.segments, meta)
+    return Trace(time_s, ordered, segments, meta)
 
 
 def energy_balance(ledger: dict[str, float]) -> dict[str, float]:

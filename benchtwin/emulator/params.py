@@ -294,7 +294,7 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     p[P_LU_GEAR] = tc.lockup_min_gear
     p[P_LU_V] = tc.lockup_min_speed_kmh * KMH
     p[P_LU_CAP] = tc.lockup_capacity_nm
-    p[P_LU_SLIP] = tc.lockup_slip_ref_radps
+    p[P_LU_SLIP] = tc.lockup_engage_time_s
     p[P_SHIFT_DELAY] = tr.shift_delay_s
     p[P_B_GF], p[P_B_GR] = br.gain_front_nm_per_bar, br.gain_rear_nm_per_bar
     p[P_B_TMAX] = br.max_brake_torque_nm

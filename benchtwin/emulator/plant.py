@@ -178,7 +178,8 @@ __all__ = ["N_STATE", "run_plant", "tc_torques", "willans_power"]
 #: state vector layout (carried between calls so a campaign may be run in pieces)
 S_V, S_X, S_WP, S_WE, S_EON, S_K0, S_LU, S_GEAR, S_GT, S_SHT, S_SOC, S_SOCLV = range(12)
 S_DRV_U, S_DRV_E, S_DYN_U, S_DYN_E, S_LATCH, S_LATCH_T, S_LATCH_V, S_SEG, S_EON_T, S_ESAVE, S_MEFF, S_T = range(12, 24)
-N_STATE = 24
+S_STEP, S_LUT = 24, 25
+N_STATE = 26
 
 
 @njit(cache=True)
@@ -234,11 +235,16 @@ def _ke(p: np.ndarray, st: np.ndarray) -> float:
 
 @njit(cache=True)
 def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bsfc_w, bsfc_b, bsfc_tab,
-              m_fl_w, m_fl_t, c_soc, c_ocv, c_rd, c_rc, tc_a, cmd, i0, i1, decim, st, out, led):
-    """Advance the plant over steps ``i0 <= i < i1`` of ``cmd`` (rows C_*), writing every ``decim``-th step.
+              m_fl_w, m_fl_t, c_soc, c_ocv, c_rd, c_rc, tc_a, cmd, decim, st, out, row0, led):
+    """Advance the plant over the steps of one test's commands ``cmd`` (rows C_*).
 
-    ``st`` (the state), ``out`` (rows ``i // decim``) and ``led`` (the energy ledger, J) are updated in place.
-    Returns the number of output rows written.
+    Every ``decim``-th plant step (counted over the whole campaign in ``st``) is written to ``out`` from row
+    ``row0`` on. The test ends early once its end condition has fired and the car has stopped. ``st`` (the
+    state) and ``led`` (the energy ledger, J) are updated in place.
+
+    Returns
+    -------
+    (rows written, steps run)
     """
     dt = p[P_DT]
     n = cmd.shape[1]
@@ -283,10 +289,12 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
     esave = st[S_ESAVE]
     meff = st[S_MEFF]
     t = st[S_T]
-    iout = (i0 + decim - 1) // decim
-    iout0 = iout
+    kstep = int(st[S_STEP])
+    lut = st[S_LUT]
+    iout = row0
+    nrun = n
 
-    for i in range(i0, i1):
+    for i in range(n):
         dmode = int(cmd[C_DYNO_MODE, i])
         seg = cmd[C_SEG, i]
         hm = int(cmd[C_HMODE, i])
@@ -465,6 +473,7 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
             lu_req = gear >= p[P_LU_GEAR] and not shifting and v >= p[P_LU_V]
         if gear_changed or not lu_req:
             lu = False
+            lut = 0.0
 
         # ---- torque split ----
         sus = 0.0
@@ -550,8 +559,22 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
         else:
             f_ext = -f_rl
 
-        # ---- driveline and vehicle ----
+        # ---- lock-up engagement: capacity ramps up; it sticks once the torque to hold is within capacity ----
         tsrc = te + tm
+        cap_now = 0.0
+        if lu_req and not lu and gear > 0:
+            lut += dt
+            cap_now = p[P_LU_CAP] * min(lut / p[P_LU_SLIP], 1.0)
+            tp0, _tt0, _d0 = tc_torques(tc_a, gamma, wp, wt)
+            tneed = tsrc - tp0 - jp * (wt - wp) / dt
+            if abs(tneed) <= cap_now:
+                led[L_LOCKUP] += 0.5 * jp * (wp * wp - wt * wt)
+                wp = wt
+                if k0:
+                    we = wp
+                lu = True
+
+        # ---- driveline and vehicle ----
         tp = 0.0
         tt = 0.0
         tlu = 0.0
@@ -587,11 +610,8 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
             if gear > 0:
                 tp, tt, dtp = tc_torques(tc_a, gamma, wp, wt)
                 dlu = 0.0
-                if lu_req:
-                    slip = wp - wt
-                    tlu = p[P_LU_CAP] * min(max(slip / p[P_LU_SLIP], -1.0), 1.0)
-                    if abs(slip) < p[P_LU_SLIP]:
-                        dlu = p[P_LU_CAP] / p[P_LU_SLIP]
+                if cap_now > 0.0:
+                    tlu = cap_now if wp > wt else -cap_now
                 tin = tt + tlu
                 eta = eta_m[gear]
                 cc = c0[gear]
@@ -706,7 +726,7 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
             led[L_DYNO] -= f_dyn * v_mid * dt
 
         # ---- outputs (state at the start of the step, actions over the step) ----
-        if i % decim == 0:
+        if kstep % decim == 0:
             o = out[iout]
             o[O_V] = v
             o[O_A] = a
@@ -762,16 +782,13 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
         wp = wp_new
         if k0:
             we = wp
-        if lu_req and not lu and gear > 0 and abs(wp - kg * v) < 1.0:
-            wlock = kg * v
-            led[L_LOCKUP] += 0.5 * jp * (wp * wp - wlock * wlock)
-            wp = wlock
-            if k0:
-                we = wp
-            lu = True
         soc -= ib * dt / p[P_CAP_AS]
         soclv -= ilvb * dt / p[P_LV_CAP_AS]
         t += dt
+        kstep += 1
+        if latch and v <= 0.0 and t - latch_t > latch_v / p[P_DRV_STOP] + 3.0:
+            nrun = i + 1
+            break
 
     st[S_V] = v
     st[S_X] = x
@@ -797,7 +814,9 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
     st[S_ESAVE] = esave
     st[S_MEFF] = meff
     st[S_T] = t
-    return iout - iout0
+    st[S_STEP] = kstep
+    st[S_LUT] = lut
+    return iout - row0, nrun
 
 
 @njit(cache=True)

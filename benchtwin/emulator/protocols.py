@@ -39,7 +39,6 @@ from benchtwin.emulator.params import (
     C_HMODE,
     C_K0,
     C_LU,
-    C_LVLOAD,
     C_PEDAL,
     C_SEG,
     C_VTGT,
@@ -61,15 +60,20 @@ _FORCE = {"auto": -1, "on": 1, "off": 0, "closed": 1, "open": 0}
 
 @dataclass
 class Protocol:
-    """Per-step commands (rows ``C_*``) and the segment table of a campaign."""
+    """Per-step commands (rows ``C_*``), one block per test, and the segment of each test.
 
-    cmd: np.ndarray
+    Segment times (and the ``*_s`` phase times in its settings) are relative to the test's start; a test
+    may end before its block does (end condition reached and the car stopped), so the emulator fixes the
+    absolute times while it runs.
+    """
+
+    blocks: list[np.ndarray] = field(default_factory=list)
     segments: list[Segment] = field(default_factory=list)
 
     @property
     def n_steps(self) -> int:
-        """Number of plant steps."""
-        return int(self.cmd.shape[1])
+        """Number of plant steps if every test runs its full block."""
+        return int(sum(b.shape[1] for b in self.blocks))
 
 
 def load_cycle(name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -115,7 +119,7 @@ class _Builder:
         b[C_END_KIND] = end_kind
         b[C_END_VAL] = end_val
         b[C_SEG] = seg
-        b[C_LVLOAD] = 0.0
+        b[NC - 1] = 0.0  # 12 V load row, filled in by the emulator
         self.blocks.append(b)
         self.n += n
 
@@ -154,28 +158,27 @@ def _driver_stop(b: _Builder, seg: int, hm: int, v: float, decel: float) -> None
     b.phase(v / decel + 4.0, seg=seg, hmode=hm, drv_mode=1, vtgt=_ramp(v, 0.0, decel))
 
 
-def build_protocol(campaign: CampaignConfig, lv_load_w: np.ndarray | None = None) -> Protocol:
+def build_protocol(campaign: CampaignConfig) -> Protocol:
     """Turn the campaign's tests into per-step commands and the segment table.
 
     Parameters
     ----------
     campaign:
         The validated campaign.
-    lv_load_w:
-        Optional 12 V load profile (W) per step; filled in afterwards by the caller otherwise.
 
     Returns
     -------
     Protocol
-        Commands with one column per plant step and one Segment per test.
+        One command block per test (the 12 V load row is filled in by the emulator) and one Segment per test.
     """
     dt = 1.0 / campaign.plant_rate_hz
-    b = _Builder(dt)
     segments: list[Segment] = []
+    blocks: list[np.ndarray] = []
     names: set[str] = set()
     stop = campaign.driver.stop_decel_mps2
     for k, test in enumerate(campaign.tests):
-        t0 = b.t
+        b = _Builder(dt)
+        t0 = 0.0
         hm = HYBRID_MODES[test.mode]
         settings: dict[str, Any] = test.model_dump(exclude_none=True)
         if isinstance(test, RampUpTest):
@@ -261,7 +264,5 @@ def build_protocol(campaign: CampaignConfig, lv_load_w: np.ndarray | None = None
         settings["mode"] = test.mode
         settings["protocol"] = test.kind
         segments.append(Segment(start_s=t0, end_s=b.t, kind=SEGMENT_KIND[test.kind], name=name, settings=settings))
-    cmd = np.ascontiguousarray(np.concatenate(b.blocks, axis=1))
-    if lv_load_w is not None:
-        cmd[C_LVLOAD] = lv_load_w
-    return Protocol(cmd=cmd, segments=segments)
+        blocks.append(np.ascontiguousarray(np.concatenate(b.blocks, axis=1)))
+    return Protocol(blocks=blocks, segments=segments)
