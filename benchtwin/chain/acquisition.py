@@ -31,7 +31,14 @@ import numpy as np
 from benchtwin.chain.canopen_pdo import AI_OVERLOAD_NEG, AI_OVERLOAD_POS, pdo_layout
 from benchtwin.chain.codec import MessageCodec
 from benchtwin.chain.frames import POLL_OK, POLL_TIMEOUT, FrameTable, PollLog, TransportEvent
-from benchtwin.chain.modbus_map import CHANNELS, REG_RAW, REG_STATUS, REG_UPTIME_HI, REG_UPTIME_LO
+from benchtwin.chain.modbus_map import (
+    CHANNELS,
+    REG_RAW,
+    REG_STATUS,
+    REG_UPTIME_HI,
+    REG_UPTIME_LO,
+    volts_to_counts,
+)
 from benchtwin.config.setup import IVT_PLACES, SetupConfig
 from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.roles import unit_of_role
@@ -77,13 +84,24 @@ class AcquisitionInput:
 
 
 def _counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
-    """LOST_FRAME / DUPLICATE / OUT_OF_ORDER from a cyclic counter (per sample, arrival order)."""
+    """LOST_FRAME / DUPLICATE / OUT_OF_ORDER from a cyclic counter (per sample, arrival order).
+
+    A repeated counter is a duplicate; the other samples are then judged without the duplicates.
+    """
     n = counter.shape[0]
     flags = np.zeros(n, dtype=np.uint16)
     if n < 2:
         return flags
+    c_all = counter.astype(np.int64)
+    dup = np.zeros(n, bool)
+    dup[1:] = c_all[1:] == c_all[:-1]
+    if dup.any():
+        keep = np.flatnonzero(~dup)
+        flags[keep] = _counter_flags(c_all[keep], bits)
+        flags[dup] |= _F["DUPLICATE"]
+        return flags
     m = 1 << bits
-    c = counter.astype(np.int64)
+    c = c_all
     d1 = np.zeros(n, dtype=np.int64)
     d1[1:] = (c[1:] - c[:-1]) % m
     dup = np.zeros(n, bool)
@@ -379,6 +397,9 @@ def _decode_polls(log_: PollLog, setup: SetupConfig, sink: _Sink, drops: np.ndar
         v = np.where(has, v, np.nan)
         f = flags.copy()
         f[((status >> k) & 1).astype(bool) | ((status >> (8 + k)) & 1).astype(bool)] |= _F["SATURATED"]
+        if cfg is not None:  # at the transducer's output limit
+            v_max = pressure_from_counts(volts_to_counts(np.array([cfg.output_max_v]))[0], cfg)[0]
+            f[v >= v_max - 1e-9] |= _F["SATURATED"]
         sink.add(role, unit_of_role(role), t, v, f, log_.device)
     if ok.any():
         sink.counts.setdefault("clock_offsets_s", {})["pressure->acquisition"] = float(

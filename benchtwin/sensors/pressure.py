@@ -2,7 +2,8 @@
 :mod:`benchtwin.chain.modbus_map`), and the acquisition's polling of it in batch mode.
 
 Transducer: 0..full_scale_bar -> 0..full_scale_v (SPA100: 0-100 bar -> 0-5 V), linear, with the
-configured errors (in bar). Module: 16-bit converter over 0-10 V, registers updated at
+configured errors (in bar); its output saturates at ``output_max_v`` (the acquisition flags readings
+there as SATURATED). Module: 16-bit converter over 0-10 V, registers updated at
 ``update_hz`` on the module's clock (uptime in registers 12-13). Acquisition: polls input registers
 0..13 at ``poll_hz`` on its own (plant) clock; each answer holds the last update before the request
 reached the module; configured timeouts and exception responses give a :class:`PollLog` status.
@@ -44,7 +45,7 @@ def encode_pressure(trace: Trace, cfg: PressureConfig, rng: np.random.Generator)
     status = np.zeros(n, dtype=np.int64)
     for k, (trace_name, _role) in enumerate(CHANNELS):
         bar = measure(trace.time_s, trace[trace_name] / PA_PER_BAR, t, cfg.errors, rng, latency_s=cfg.link.latency_s)
-        volts = bar / cfg.full_scale_bar * cfg.full_scale_v
+        volts = np.minimum(bar / cfg.full_scale_bar * cfg.full_scale_v, cfg.output_max_v)  # transducer saturation
         counts, high, low = volts_to_counts(volts)
         regs[:, REG_RAW + k] = counts
         scaled = np.rint(counts_to_volts(counts) * cfg.full_scale_bar / cfg.full_scale_v * 100.0)

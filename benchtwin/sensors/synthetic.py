@@ -78,7 +78,7 @@ def synthetic_trace(duration_s: float = 60.0, rate_hz: float = 100.0, seed: int 
     c["gear_target"] = steps([1, 2, 3, 4, 5, 6, 7, 8, 9, 0], 3.0)
     c["gear_actual"] = np.roll(c["gear_target"], int(0.5 * rate_hz))
     c["trans_input_torque_nm"] = c["tc_turbine_torque_nm"]
-    c["shaft_torque_nm"] = wave(300.0, 3000.0 if excursion else 1700.0)
+    c["shaft_torque_nm"] = wave(300.0, 5500.0 if excursion else 1700.0)
     c["shaft_speed_radps"] = v / 0.35 * 2.65
     c["wheel_speed_radps"] = v / 0.35
     for corner, gain in (("fl", 1.0), ("fr", 1.0), ("rl", 0.6), ("rr", 0.6)):

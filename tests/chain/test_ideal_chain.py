@@ -8,9 +8,9 @@ import pytest
 from benchtwin.chain.batch import run_batch
 from benchtwin.chain.dbc import load_dbc
 from benchtwin.chain.modbus_map import ADC_FULL_SCALE_V, CHANNELS
-from benchtwin.config import load_setup
+from benchtwin.config import load_setup, scenario_path
 from benchtwin.config.setup import IVT_PLACES
-from benchtwin.recording import Recording
+from benchtwin.recording import Flag, Recording
 from benchtwin.roles import ROLES
 from benchtwin.sensors.imperfections import hold_sample
 from benchtwin.sensors.synthetic import synthetic_trace
@@ -100,3 +100,43 @@ def test_ideal_chain_meta(recording: Recording, trace: Trace) -> None:
     assert abs(m["clock_offsets_s"]["vehicle_can->dyno"]) < 0.002
     assert [s.name for s in recording.segments] == [s.name for s in trace.segments]
     assert 0 < m["bus_load"]["instrument"] < 0.5
+
+
+# ---------------------------------------------------------------- on the emulator's quick campaign
+# every channel equals the Trace within resolution, except samples flagged SATURATED, which read the
+# range limit while the truth is beyond it
+
+
+@pytest.fixture(scope="module")
+def quick_trace() -> Trace:
+    emulator = pytest.importorskip("benchtwin.emulator")
+    from benchtwin.config.campaign import load_campaign
+    from benchtwin.config.vehicle import load_vehicle
+
+    simulate_campaign = emulator.simulate_campaign
+
+    return simulate_campaign(load_vehicle(scenario_path("vehicles", "p2_phev_9at.toml")),
+                                      load_campaign(scenario_path("campaigns", "quick.toml")))
+
+
+@pytest.fixture(scope="module")
+def quick_recording(quick_trace: Trace) -> Recording:
+    return run_batch(quick_trace, SETUP, seed=7)
+
+
+def test_quick_campaign_ideal_chain(quick_trace: Trace, quick_recording: Recording) -> None:
+    assert load_setup("ideal") == SETUP
+    for role, (name, factor, hold, tol) in truth_and_tolerance(quick_trace).items():
+        ch = quick_recording[role]
+        x = quick_trace[name] * factor
+        truth = hold_sample(quick_trace.time_s, x, ch.timestamps) if hold else np.interp(
+            ch.timestamps, quick_trace.time_s, x)
+        sat = (ch.flags & int(Flag.SATURATED)) != 0
+        ok = np.isfinite(truth) & ~sat
+        err = np.abs(ch.values[ok] - truth[ok])
+        assert err.max() <= tol, f"{role}: {err.max():.6g} > {tol:.6g}"
+        if sat.any():  # saturated samples read the range limit while the truth is beyond it
+            assert np.all(np.abs(truth[sat]) >= np.abs(ch.values[sat]) - tol), role
+    assert quick_recording.meta["protocol_errors"] == {}
+    assert [s.name for s in quick_recording.segments] == [s.name for s in quick_trace.segments]
+    assert np.any(quick_recording["brake_pressure_fl_bar"].flags & Flag.SATURATED)  # 120 bar on a 100 bar sensor

@@ -1,0 +1,299 @@
+"""Raw logs (MF4 bus logging, BLF, poll logs) round trips, and the acquisition under bad input and faults."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import can
+import cantools
+import numpy as np
+import pytest
+from asammdf import MDF
+
+from benchtwin.chain.acquisition import AcquisitionInput, acquire, detect_lag
+from benchtwin.chain.batch import deliver, read_logs, run_batch, write_logs
+from benchtwin.chain.buslog import (
+    DEFAULT_START,
+    read_blf,
+    read_mf4,
+    read_poll_log,
+    write_blf,
+    write_mf4,
+    write_poll_csv,
+    write_poll_log,
+)
+from benchtwin.chain.frames import FRAME_DTYPE, POLL_TIMEOUT, FrameTable, PollLog, TransportEvent
+from benchtwin.cli import main
+from benchtwin.config import load_setup
+from benchtwin.errors import DataError
+from benchtwin.recording import Flag, Recording
+from benchtwin.sensors import encode
+from benchtwin.sensors.synthetic import synthetic_trace
+from benchtwin.trace import Trace
+
+IDEAL = load_setup("ideal")
+PAPER = load_setup("paper")
+
+
+@pytest.fixture(scope="module")
+def trace() -> Trace:
+    return synthetic_trace(40.0, 100.0, seed=5)
+
+
+@pytest.fixture(scope="module")
+def received(trace: Trace) -> AcquisitionInput:
+    r = deliver(encode(trace, IDEAL, 3), IDEAL, seed=3)
+    r.segments = list(trace.segments)
+    return r
+
+
+@pytest.fixture(scope="module")
+def logdir(received: AcquisitionInput, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("logs")
+    write_logs(received, IDEAL, d, blf=True, poll_csv=True)
+    return d
+
+
+# ---------------------------------------------------------------- files
+
+
+def test_mf4_bus_log_read_by_python_can(received: AcquisitionInput, logdir: Path) -> None:
+    ref = received.can["vehicle"].frames
+    msgs = list(can.MF4Reader(str(logdir / "vehicle.mf4")))
+    assert len(msgs) == len(ref)
+    start = DEFAULT_START.timestamp()
+    for k in (0, 1, len(ref) // 2, len(ref) - 1):
+        m = msgs[k]
+        assert m.arbitration_id == ref["arbitration_id"][k]
+        assert bytes(m.data) == ref["data"][k, :ref["dlc"][k]].tobytes()
+        assert m.timestamp - start == pytest.approx(ref["timestamp"][k], abs=1e-6)
+    assert np.array_equal(read_mf4(logdir / "vehicle.mf4").frames, ref)
+
+
+def test_mf4_bus_log_decoded_by_asammdf_with_our_dbc(received: AcquisitionInput, logdir: Path) -> None:
+    rec = acquire(received, IDEAL)
+    with MDF(logdir / "dyno.mf4") as mdf:
+        ext = mdf.extract_bus_logging({"CAN": [(str(logdir / "dyno.dbc"), 0)]})
+        names = [n for n in ext.channels_db if n.endswith("RollerSpeed")]
+        assert names
+        sig = ext.get(names[0])
+    np.testing.assert_allclose(sig.samples, rec["dyno_speed_kmh"].values, atol=1e-9)
+    np.testing.assert_allclose(sig.timestamps, rec["dyno_speed_kmh"].timestamps, atol=1e-6)
+
+
+def test_blf_round_trip_with_python_can(received: AcquisitionInput, logdir: Path) -> None:
+    ref = received.can["instrument"].frames
+    back = read_blf(logdir / "instrument.blf")
+    assert len(back) == len(ref)
+    np.testing.assert_array_equal(back.frames["arbitration_id"], ref["arbitration_id"])
+    np.testing.assert_array_equal(back.frames["data"], ref["data"])
+    np.testing.assert_allclose(back.frames["timestamp"], ref["timestamp"], atol=2e-5)
+    first = next(iter(can.BLFReader(str(logdir / "instrument.blf"))))
+    assert first.arbitration_id == ref["arbitration_id"][0]
+
+
+def test_cantools_decodes_logged_frames(received: AcquisitionInput, logdir: Path) -> None:
+    db = cantools.database.load_file(str(logdir / "vehicle.dbc"))
+    rec = acquire(received, IDEAL)
+    fr = received.can["vehicle"].frames
+    sel = np.flatnonzero(fr["arbitration_id"] == 0x0A0)[:20]
+    speeds = [db.decode_message(0x0A0, fr["data"][k, :8].tobytes())["EngSpeed"] for k in sel]
+    np.testing.assert_allclose(speeds, rec["engine_speed_rpm"].values[:20], atol=1e-9)
+    ivt = cantools.database.load_file(str(logdir / "instrument.dbc"))
+    k = int(np.flatnonzero(fr["arbitration_id"] == 0x521)[0]) if (fr["arbitration_id"] == 0x521).any() else None
+    inst = received.can["instrument"].frames
+    k = int(np.flatnonzero(inst["arbitration_id"] == 0x531)[3])
+    dec = ivt.decode_message(0x531, inst["data"][k, :6].tobytes())
+    assert dec["IVT_Hpcu_I"] / 1000.0 == pytest.approx(rec["hpcu_current_a"].values[3])
+
+
+def test_poll_log_files(received: AcquisitionInput, logdir: Path) -> None:
+    ref = received.polls["brake_pressure"]
+    back = read_poll_log(logdir / "brake_pressure.polls.npz")
+    np.testing.assert_array_equal(back.values, ref.values)
+    np.testing.assert_array_equal(back.status, ref.status)
+    assert (logdir / "brake_pressure.polls.csv").read_text().splitlines()[0].startswith("time_s,unit_id")
+    with pytest.raises(DataError):
+        read_poll_log(logdir / "vehicle.dbc")
+
+
+def test_logs_to_recording_equals_in_memory(received: AcquisitionInput, logdir: Path, tmp_path: Path) -> None:
+    again, setup = read_logs(logdir)
+    assert setup == IDEAL
+    a, b = acquire(received, IDEAL), acquire(again, setup)
+    assert set(a.channels) == set(b.channels)
+    for name in a.channels:
+        np.testing.assert_array_equal(a[name].values, b[name].values)
+    out = tmp_path / "rec.mf4"
+    assert main(["acquire", str(logdir), "--out", str(out)]) == 0
+    loaded = Recording.load(out)
+    assert loaded["shaft_torque_nm"].unit == "Nm" and len(loaded.segments) == 2
+    np.testing.assert_allclose(loaded["battery_current_a"].values, a["battery_current_a"].values)
+
+
+def test_cli_errors_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["acquire", str(tmp_path / "missing"), "--out", str(tmp_path / "r.mf4")]) == 2
+    (tmp_path / "empty").mkdir()
+    assert main(["acquire", str(tmp_path / "empty"), "--setup", "ideal", "--out", str(tmp_path / "r.mf4")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("benchtwin: error:") == 2 and "Traceback" not in err
+
+
+# ---------------------------------------------------------------- bad input
+
+
+def _frame(t: float, cid: int, data: bytes, dlc: int | None = None) -> np.ndarray:
+    f = np.zeros(1, dtype=FRAME_DTYPE)
+    f["timestamp"], f["arbitration_id"] = t, cid
+    f["dlc"] = len(data) if dlc is None else dlc
+    f["data"][0, :len(data)] = np.frombuffer(data, np.uint8)
+    return f
+
+
+def test_bad_frames_are_flagged_and_nothing_good_is_lost(received: AcquisitionInput) -> None:
+    clean = acquire(received, IDEAL)
+    inst = received.can["instrument"].frames
+    veh = received.can["vehicle"].frames
+    bad_inst = [
+        _frame(10.0005, 0x521, bytes.fromhex("0000ffffcfc7"), dlc=4),  # wrong DLC
+        _frame(12.0005, 0x521, bytes.fromhex("0700ffffcfc7")),  # bad mux byte on the current result
+        _frame(13.0, 0x7AB, b"\x01\x02"),  # unknown id
+        _frame(13.5, 0x7AB, b"\x01\x02"),
+        _frame(14.0, 0x511, bytes([0xFF, 0x99, 0, 0, 0, 0, 0, 0])),  # unknown-command answer
+    ]
+    bad_veh = [_frame(20.0001, 0x0B0, b"\x00\x00", dlc=2)]
+    polls = received.polls["brake_pressure"]
+    status = polls.status.copy()
+    status[100:110] = POLL_TIMEOUT
+    status[200] = 4
+    status[201] = 6
+    values = polls.values.copy()
+    values[status != 0] = 0
+    dirty = AcquisitionInput(
+        can={"instrument": FrameTable.concat("instrument", [inst, *bad_inst]),
+             "vehicle": FrameTable.concat("vehicle", [veh, *bad_veh]),
+             "dyno": received.can["dyno"]},
+        polls={"brake_pressure": PollLog(polls.device, polls.unit_id, 4, 0, polls.times, values, status)},
+        segments=received.segments)
+    rec = acquire(dirty, IDEAL)
+    m = rec.meta
+    assert m["unknown_ids"]["instrument"] == {"0x7AB": 2}
+    assert m["protocol_errors"]["instrument:0x521"] == 2
+    assert m["protocol_errors"]["vehicle:0xB0"] == 1
+    assert "instrument:0x511 unknown-command answers" in m["protocol_errors"]
+    assert m["modbus"]["brake_pressure"] == {"polls": len(polls), "timeouts": 10, "exceptions": {4: 1, 6: 1}}
+    # every good sample is still there, unchanged
+    for name, ch in clean.channels.items():
+        got = rec[name]
+        assert len(got) == len(ch), name
+        ok = (got.flags & (Flag.TIMEOUT | Flag.PROTOCOL_ERROR)) == 0
+        if ch.source == "brake_pressure":  # failed polls hold the last good value
+            np.testing.assert_array_equal(got.values[ok], ch.values[ok], err_msg=name)
+        else:
+            np.testing.assert_array_equal(got.values, ch.values, err_msg=name)
+    cur = rec["battery_current_a"]
+    k10 = np.searchsorted(cur.timestamps, 10.0005)
+    k12 = np.searchsorted(cur.timestamps, 12.0005)
+    assert cur.flags[k10] & Flag.PROTOCOL_ERROR and cur.flags[k12] & Flag.PROTOCOL_ERROR
+    assert np.count_nonzero(cur.flags) == 2
+    assert rec["em_torque_nm"].flags[np.searchsorted(rec["em_torque_nm"].timestamps, 20.0001)] & Flag.PROTOCOL_ERROR
+    p = rec["brake_pressure_fl_bar"]
+    assert np.all(p.flags[100:110] & Flag.TIMEOUT) and p.flags[200] & Flag.PROTOCOL_ERROR
+    assert np.all(p.values[100:110] == p.values[99])  # held from the last good poll
+    assert np.all(np.diff(p.timestamps) >= 0)
+
+
+def test_transport_drop_mid_run(received: AcquisitionInput) -> None:
+    inst = received.can["instrument"].frames
+    keep = (inst["timestamp"] < 15.0) | (inst["timestamp"] >= 17.0)
+    polls = received.polls["brake_pressure"]
+    pk = (polls.times < 15.0) | (polls.times >= 17.0)
+    data = AcquisitionInput(
+        can={"instrument": FrameTable("instrument", inst[keep]), "vehicle": received.can["vehicle"]},
+        polls={"brake_pressure": PollLog(polls.device, 1, 4, 0, polls.times[pk], polls.values[pk], polls.status[pk])},
+        events=[TransportEvent(15.0, "instrument", "drop", 17.0, "socket closed"),
+                TransportEvent(15.0, "brake_pressure", "drop", 17.0, "connection reset")])
+    rec = acquire(data, IDEAL)
+    cur = rec["battery_current_a"]
+    assert len(cur) == np.count_nonzero(inst[keep]["arbitration_id"] == 0x521)
+    k = np.searchsorted(cur.timestamps, 17.0)
+    assert cur.flags[k] & Flag.TRANSPORT_DROP and cur.flags[k] & Flag.LOST_FRAME
+    assert np.count_nonzero(cur.flags & Flag.LOST_FRAME) == 1  # the counter gap and the drop are one event
+    tq = rec["shaft_torque_nm"]
+    assert tq.flags[np.searchsorted(tq.timestamps, 17.0)] & Flag.TRANSPORT_DROP
+    th = rec["engine_coolant_in_degc"]
+    assert th.flags[np.searchsorted(th.timestamps, 17.0)] & Flag.LOST_FRAME
+    assert rec["brake_pressure_fl_bar"].flags[np.searchsorted(rec["brake_pressure_fl_bar"].timestamps, 17.0)] \
+        & Flag.TRANSPORT_DROP
+    assert rec.meta["transport_events"][0]["detail"] == "socket closed"
+    assert "dyno_speed_kmh" not in rec  # a bus that delivered nothing gives no channel, and no crash
+
+
+def test_garbage_bus_does_not_stop_the_others(received: AcquisitionInput) -> None:
+    junk = np.zeros(50, dtype=FRAME_DTYPE)
+    junk["timestamp"] = np.arange(50) * 0.01
+    junk["arbitration_id"] = 0x1FFFFFFF
+    junk["is_extended"] = True
+    data = AcquisitionInput(can={"vehicle": received.can["vehicle"], "instrument": FrameTable("instrument", junk)})
+    rec = acquire(data, IDEAL)
+    assert rec.meta["unknown_ids"]["instrument"] == {"0x1FFFFFFF": 50}
+    assert len(rec["vehicle_speed_kmh"]) > 0
+
+
+# ---------------------------------------------------------------- faults of the paper setup
+
+
+def test_paper_setup_faults_are_flagged_and_clocks_detected() -> None:
+    trace = synthetic_trace(120.0, 100.0, seed=8, excursion=True)
+    rec = run_batch(trace, PAPER, seed=4)
+    m = rec.meta
+    assert m["clock_offsets_s"]["vehicle_can->dyno"] == pytest.approx(0.120, abs=0.003)
+    tq = rec["shaft_torque_nm"]
+    sat = (tq.flags & Flag.SATURATED) != 0
+    assert sat.any()
+    truth = np.interp(tq.timestamps[sat], trace.time_s, trace["shaft_torque_nm"])
+    assert np.all(np.abs(truth) > 0.95 * 4374)
+    cur = rec["battery_current_a"]
+    assert np.any(cur.flags & Flag.OUT_OF_RANGE)
+    assert np.any(cur.flags & Flag.LOST_FRAME)
+    assert m["modbus"]["brake_pressure"]["polls"] > 11000
+    # noise of the paper setup is visible but small
+    err = cur.values[cur.good] - np.interp(cur.timestamps[cur.good], trace.time_s, trace["battery_current_a"])
+    assert 0.0 < np.std(err) < 2.0
+
+
+def test_paper_reorder_and_duplicate_flags() -> None:
+    setup = load_setup("ideal").model_copy(deep=True)
+    setup.ivt["battery"].link.duplicate_prob = 0.01
+    setup.ivt["battery"].link.reorder_prob = 0.01
+    trace = synthetic_trace(60.0, 100.0, seed=2)
+    rec = run_batch(trace, setup, seed=9)
+    cur = rec["battery_current_a"]
+    assert np.any(cur.flags & Flag.DUPLICATE) and np.any(cur.flags & Flag.OUT_OF_ORDER)
+    assert not np.any(cur.flags & Flag.LOST_FRAME)  # reorders and duplicates are not losses
+
+
+def test_detect_lag_recovers_a_known_shift() -> None:
+    t = np.arange(0, 200, 0.01)
+    x = np.sin(0.3 * t) + 0.5 * np.sin(1.7 * t + 1) + 0.2 * np.sin(5.1 * t)
+    lag = detect_lag(t, x, t + 0.237, x)
+    assert lag == pytest.approx(0.237, abs=0.002)
+    assert detect_lag(t, x, t, np.random.default_rng(0).normal(size=t.size)) is None
+
+
+def test_write_and_read_single_logs(tmp_path: Path) -> None:
+    f = np.zeros(3, dtype=FRAME_DTYPE)
+    f["timestamp"] = [0.0, 0.001, 0.002]
+    f["arbitration_id"] = [0x100, 0x18FF0001, 0x7FF]
+    f["is_extended"] = [False, True, False]
+    f["dlc"] = [8, 3, 0]
+    f["data"][0] = np.arange(8)
+    f["data"][1, :3] = [9, 9, 9]
+    t = FrameTable("x", f)
+    assert np.array_equal(read_mf4(write_mf4(t, tmp_path / "x.mf4")).frames, f)
+    assert np.array_equal(read_blf(write_blf(t, tmp_path / "x.blf")).frames["data"], f["data"])
+    log = PollLog("p", 1, 4, 0, [0.0], np.ones((1, 14)), [0])
+    write_poll_csv(log, tmp_path / "p.csv")
+    assert read_poll_log(write_poll_log(log, tmp_path / "p.npz")).values.sum() == 14
+    with pytest.raises(DataError):
+        read_mf4(tmp_path / "nope.mf4")
