@@ -31,6 +31,7 @@ __all__ = [
     "Grid",
     "check_spread",
     "gather",
+    "native_rate",
     "raise_all_failed",
     "runs",
     "segment_mask",
@@ -256,3 +257,11 @@ def raise_all_failed(what: str, errors: dict[str, IdentificationError]) -> None:
     classes = {type(e) for e in errors.values()}
     cls = classes.pop() if len(classes) == 1 else InsufficientDataError
     raise cls(f"{what}: nothing could be fitted ({detail})")
+
+
+def native_rate(ch: Channel, *, max_hz: float = 200.0) -> float:
+    """A channel's own sample rate (median spacing), capped at ``max_hz``; 10 Hz when undefined."""
+    if len(ch) < 2:
+        return 10.0
+    d = float(np.median(np.diff(ch.timestamps)))
+    return min(1.0 / d, max_hz) if d > 0 else 10.0

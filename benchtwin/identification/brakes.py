@@ -29,7 +29,7 @@ from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.identification.steady import Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
-__all__ = ["brake_gains_from", "fit_brake_gain", "identify_brake_blending", "identify_brake_gains"]
+__all__ = ["brake_gains_from", "fit_brake_gain", "identify_brake_blending", "identify_brake_gains", "identify_brakes"]
 
 _FRONT = ("brake_pressure_fl_bar", "brake_pressure_fr_bar")
 _REAR = ("brake_pressure_rl_bar", "brake_pressure_rr_bar")
@@ -281,3 +281,26 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     if np.nanmin(regen_share) < -0.05:
         fit.reasons.append("some samples show negative regenerative share: powertrain drag or a gain error")
     return fit
+
+
+def identify_brakes(rec: Recording, specs: VehicleSpecs, *, gains_kwargs: dict[str, object] | None = None,
+                    blending_kwargs: dict[str, object] | None = None) -> IdentificationResult:
+    """Brake gains, distribution and (when the Recording has braking in gear) the blending maps.
+
+    Returns
+    -------
+    IdentificationResult
+        ``brakes.front``, ``brakes.rear``, ``brakes.distribution`` and ``brakes.blending``; the
+        blending maps' failure (e.g. no deceleration test) is in ``errors``.
+
+    Raises
+    ------
+    IdentificationError
+        When neither gain can be identified.
+    """
+    out = identify_brake_gains(rec, specs, **dict(gains_kwargs or {}))  # type: ignore[arg-type]
+    try:
+        out.fits["brakes.blending"] = identify_brake_blending(rec, specs, out, **dict(blending_kwargs or {}))  # type: ignore[arg-type]
+    except IdentificationError as exc:
+        out.errors["brakes.blending"] = f"{type(exc).__name__}: {exc}"
+    return out

@@ -191,21 +191,25 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     fine = fine[(hull.find_simplex(fine) >= 0) & (blo + fine[:, 1] * (bhi - blo) > 0)]
     fine_b = blo + fine[:, 1] * (bhi - blo)
 
-    def minimum(interp: RBFInterpolator) -> tuple[float, float, float]:
-        v = q * interp(fine) / fine_b
-        k = int(np.argmin(v))
-        return float(v[k]), nlo + fine[k, 0] * (nhi - nlo), float(fine_b[k])
+    # the map is linear in the data for a fixed smoothing: one fit with the identity as data gives the
+    # operator from fuel MEP values at the points to the fine grid, so bootstrap refits are products
+    op = RBFInterpolator(P, np.eye(n.size), kernel="thin_plate_spline", smoothing=smoothing, degree=1)(fine)
 
-    bmin, nmin, bmin_at = minimum(rbf)
+    def minima(y: np.ndarray) -> np.ndarray:
+        v = q * (op @ y) / fine_b[:, None]
+        k = np.argmin(v, axis=0)
+        cols = np.arange(v.shape[1])
+        return np.column_stack([v[k, cols], nlo + fine[k, 0] * (nhi - nlo), fine_b[k]])
+
+    bmin, nmin, bmin_at = (float(x) for x in minima(pmf[:, None])[0])
     rng = np.random.default_rng(seed)
     # the bootstrap draws the cross-validated prediction errors: with an interpolating map (no
     # smoothing) the in-sample residuals are zero, while the map between the points is not exact
     resid = cv_err if cv_err.size else pmf - pmf_fit
-    boots = []
+    boots: list[np.ndarray] = []
     if np.any(resid != 0) and n_boot > 0:
-        for _ in range(n_boot):
-            yb = pmf_fit + rng.choice(resid, resid.size, replace=True)
-            boots.append(minimum(RBFInterpolator(P, yb, kernel="thin_plate_spline", smoothing=smoothing, degree=1)))
+        yb = pmf_fit[:, None] + rng.choice(resid, (resid.size, n_boot), replace=True)
+        boots = list(minima(yb))
     boots_a = np.asarray(boots) if boots else np.zeros((1, 3))
 
     def est(name: str, value: float, col: np.ndarray, unit: str) -> ParameterEstimate:

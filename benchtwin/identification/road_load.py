@@ -22,7 +22,15 @@ import numpy as np
 
 from benchtwin.errors import DataError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, linear_fit
-from benchtwin.identification._signals import check_spread, gather, runs, segment_mask, segment_names, smooth_derivative
+from benchtwin.identification._signals import (
+    check_spread,
+    gather,
+    native_rate,
+    runs,
+    segment_mask,
+    segment_names,
+    smooth_derivative,
+)
 from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.recording import Recording
 
@@ -30,7 +38,7 @@ __all__ = ["coastdown_runs", "fit_road_load", "identify_road_load"]
 
 
 def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: Iterable[str] | None = ("coastdown",),
-                   rate_hz: float = 10.0, v_min: float = 15.0, v_max: float | None = None, smooth_s: float = 3.0,
+                   rate_hz: float | None = None, v_min: float = 15.0, v_max: float | None = None, smooth_s: float = 3.0,
                    min_run_s: float = 20.0, min_drop_kmh: float = 20.0
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int, str]:
     """The coastdown runs of a Recording.
@@ -42,6 +50,8 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
         the runs as index ranges, flagged grid samples excluded, and the speed channel used.
     """
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
+    if rate_hz is None:
+        rate_hz = native_rate(rec[ch])
     g = gather(rec, [ch], rate_hz, optional=("gear_actual", "pedal_pct", "brake_pedal_pct"), what="road load")
     v = g[ch]
     cand = ~g.bad & (v > v_min)
@@ -94,8 +104,8 @@ def fit_road_load(v_kmh: np.ndarray, force_n: np.ndarray, *, segments: Sequence[
 
 def identify_road_load(rec: Recording, specs: VehicleSpecs, *, method: str = "regression",
                        speed_channel: str | None = None, kinds: Iterable[str] | None = ("coastdown",),
-                       rate_hz: float = 10.0, v_min: float = 15.0, v_max: float | None = None,
-                       smooth_s: float = 3.0, interval_kmh: float = 4.0, step_kmh: float = 4.0) -> FitResult:
+                       rate_hz: float | None = None, v_min: float = 15.0, v_max: float | None = None,
+                       smooth_s: float = 4.0, interval_kmh: float = 4.0, step_kmh: float = 4.0) -> FitResult:
     """F0, F1, F2 from the coastdown(s) of a Recording.
 
     Parameters
@@ -113,6 +123,9 @@ def identify_road_load(rec: Recording, specs: VehicleSpecs, *, method: str = "re
         Segment kinds searched when the table has them.
     v_min, v_max:
         Speed range used, km/h.
+    rate_hz:
+        Grid rate; default the speed channel's own rate (every sample counts: the speed's
+        resolution, e.g. 0.01 km/h, is the main noise of the derivative).
     smooth_s:
         Savitzky-Golay window of the derivative.
     interval_kmh, step_kmh:
@@ -130,6 +143,9 @@ def identify_road_load(rec: Recording, specs: VehicleSpecs, *, method: str = "re
     """
     if method not in ("regression", "intervals"):
         raise DataError(f"road load: method must be 'regression' or 'intervals', got {method!r}")
+    ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
+    if rate_hz is None:
+        rate_hz = native_rate(rec[ch]) if ch in rec else 10.0
     t, v, dvdt, rr, n_flagged, ch = coastdown_runs(rec, speed_channel=speed_channel, kinds=kinds, rate_hz=rate_hz,
                                                    v_min=v_min, v_max=v_max, smooth_s=smooth_s)
     if not rr:
