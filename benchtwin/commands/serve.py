@@ -109,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         save_segments(list(trace.segments), args.segments_out)
     session = session_from_setup(outputs, setup, transport=args.transport, speedup=args.speedup,
                                  can_port=args.port, modbus_port=args.modbus_port,
-                                 channel_map=_channel_map(args.channel_map), start_s=args.start, end_s=args.end)
+                                 channel_map=_channel_map(args.channel_map), start_s=args.start, end_s=args.end,
+                                 seed=seed)
     previous = signal.getsignal(signal.SIGTERM)
     signal.signal(signal.SIGTERM, lambda *_: session.stop())
     try:

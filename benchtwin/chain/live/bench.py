@@ -25,8 +25,12 @@ __all__ = ["capture_to_input", "recorder_from_setup", "session_from_setup"]
 def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport: str = "virtual",
                        speedup: float = 1.0, can_port: int = 0, modbus_port: int | None = None,
                        channel_map: Mapping[str, str] | None = None, start_s: float | None = None,
-                       end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None) -> LiveSession:
+                       end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None,
+                       seed: int | None = 0) -> LiveSession:
     """A :class:`LiveSession` serving ``outputs`` as the bench of ``setup`` describes.
+
+    The pressure module answers with the setup's poll faults (exception and no-answer probabilities)
+    drawn from ``seed``.
 
     Parameters
     ----------
@@ -41,15 +45,19 @@ def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport:
     for place, cfg in setup.ivt.items():
         ivt.setdefault(cfg.bus, {})[f"ivt_{place}"] = IvtDevice(cfg)
     holding = {}
+    faults: dict[str, dict[str, Any]] = {}
     port = 0
     if setup.pressure is not None:
-        holding[setup.pressure.device] = holding_defaults(setup.pressure.full_scale_bar, setup.pressure.full_scale_v)
-        port = setup.pressure.port
+        p = setup.pressure
+        holding[p.device] = holding_defaults(p.full_scale_bar, p.full_scale_v)
+        faults[p.device] = {"exception_prob": p.exception_prob, "exception_code": p.exception_code,
+                            "timeout_prob": p.timeout_prob, "seed": seed}
+        port = p.port
     if modbus_port is not None:
         port = modbus_port
     canopen_bus = {"thermo": setup.thermo.bus} if setup.thermo is not None else {}
     return LiveSession(outputs, transport=transport, speedup=speedup, can_port=can_port, modbus_port=port,
-                       eds=EDS_PATH, canopen_bus=canopen_bus, ivt=ivt, holding=holding,
+                       eds=EDS_PATH, canopen_bus=canopen_bus, ivt=ivt, holding=holding, modbus_faults=faults,
                        bitrates={b: c.bitrate for b, c in setup.buses.items()}, channel_map=channel_map,
                        start_s=start_s, end_s=end_s, scheduler_options=scheduler_options)
 

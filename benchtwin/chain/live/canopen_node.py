@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,8 +35,21 @@ log = logging.getLogger(__name__)
 EdsLike = str | Path | canopen.ObjectDictionary
 
 
+class _StampedNetwork(canopen.Network):
+    """A canopen network whose frames carry :attr:`stamp` (the time they are due on the bus) when set."""
+
+    stamp: float | None = None
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        msg = can.Message(is_extended_id=can_id > 0x7FF, arbitration_id=can_id, data=data, is_remote_frame=remote,
+                          timestamp=self.stamp if self.stamp is not None else time.time())
+        with self.send_lock:
+            self.bus.send(msg)
+        self.check()
+
+
 def _attach(bus: can.BusABC, notifier: can.Notifier | None) -> tuple[canopen.Network, can.Notifier, bool]:
-    network = canopen.Network(bus)
+    network = _StampedNetwork(bus)
     own = notifier is None
     if notifier is None:
         notifier = can.Notifier(bus, [], timeout=0.2)
@@ -113,27 +126,40 @@ class ThermoNode:
         """COB-IDs of the TPDOs that carry process-image values."""
         return [m.cob_id for m, _ in self._tpdos]
 
-    def update(self, row: int) -> int:
-        """Take process-image row ``row``: SDO store and TPDOs; transmit the TPDOs; return how many."""
+    def update(self, row: int, stamp: float | None = None) -> int:
+        """Take process-image row ``row``: SDO store and TPDOs; transmit the TPDOs; return how many.
+
+        ``stamp`` (Unix seconds) is the time the PDOs are due on the bus (default: now).
+        """
         values = self.image.values[row].tolist()
         for var, v in zip(self._vars, values):
             self.node.set_data(var.index, var.subindex, var.encode_raw(int(v)))
         sent = 0
-        for m, pairs in self._tpdos:
-            for pv, k in pairs:
-                pv.raw = int(values[k])
-            m.transmit()
-            sent += 1
+        self.network.stamp = stamp
+        try:
+            for m, pairs in self._tpdos:
+                for pv, k in pairs:
+                    pv.raw = int(values[k])
+                m.transmit()
+                sent += 1
+        finally:
+            self.network.stamp = None
         self.pdos_sent += sent
         self.updates += 1
         return sent
 
-    def stream(self, name: str | None = None) -> Stream:
-        """A scheduler stream applying each process-image row at its time."""
+    def stream(self, name: str | None = None, clock: Callable[[np.ndarray], np.ndarray] | None = None) -> Stream:
+        """A scheduler stream applying each process-image row at its time.
+
+        ``clock`` maps plant times to the Unix times they are due (the scheduler's ``to_unix``), used
+        to stamp the PDOs; without it they are stamped when sent.
+        """
+        times = self.image.times
 
         def deliver(i0: int, i1: int) -> int:
-            for r in range(i0, i1):
-                self.update(r)
+            stamps = clock(times[i0:i1]).tolist() if clock is not None else [None] * (i1 - i0)
+            for r, st in zip(range(i0, i1), stamps):
+                self.update(r, st)
             return i1 - i0
 
         return Stream(name or f"canopen:{self.image.node}", self.image.times, deliver, kind="canopen")

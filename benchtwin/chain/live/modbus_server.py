@@ -30,6 +30,9 @@ __all__ = ["ModbusDeviceServer", "RegisterStore", "free_port"]
 
 log = logging.getLogger(__name__)
 
+#: Modbus exception codes a server can answer (pymodbus ExcCodes: 1-8, 10, 11)
+_EXCEPTION_CODES = frozenset({1, 2, 3, 4, 5, 6, 7, 8, 10, 11})
+
 
 def free_port(host: str = "127.0.0.1") -> int:
     """A TCP port that is free on ``host`` right now."""
@@ -56,10 +59,18 @@ class RegisterStore:
     holding:
         Static holding registers ``{address: value}`` besides an ``input`` map (a configuration
         block, read-only here); their addresses must form one contiguous range.
+    exception_prob, exception_code:
+        Probability that a read of the live map answers Modbus exception ``exception_code``
+        (a busy module: 6), as the setup file's poll faults.
+    timeout_prob, no_answer_s:
+        Probability that a read is answered only after ``no_answer_s`` (the poller times out first).
+    seed:
+        Seed of the fault draws.
     """
 
     def __init__(self, device: str, unit_id: int, first_register: int, n_registers: int, kind: str = "input",
-                 holding: Mapping[int, int] | None = None) -> None:
+                 holding: Mapping[int, int] | None = None, *, exception_prob: float = 0.0, exception_code: int = 6,
+                 timeout_prob: float = 0.0, no_answer_s: float = 1.0, seed: int | None = 0) -> None:
         if kind not in ("input", "holding"):
             raise ConfigError(f"modbus device {device!r}: register kind must be 'input' or 'holding', got {kind!r}")
         if first_register < 0 or n_registers <= 0 or first_register + n_registers > 65536:
@@ -72,6 +83,13 @@ class RegisterStore:
             if kind == "holding" or addrs != list(range(addrs[0], addrs[0] + len(addrs))) or addrs[-1] > 65535:
                 raise ConfigError(f"modbus device {device!r}: static holding registers must be one contiguous range "
                                   "0..65535 beside an input map")
+        if not (0 <= exception_prob < 1 and 0 <= timeout_prob < 1 and exception_code in _EXCEPTION_CODES):
+            raise ConfigError(f"modbus device {device!r}: fault probabilities must be in [0, 1) and the "
+                              f"exception code one of {sorted(_EXCEPTION_CODES)}, got {exception_code}")
+        self.exception_prob, self.exception_code = float(exception_prob), int(exception_code)
+        self.timeout_prob, self.no_answer_s = float(timeout_prob), float(no_answer_s)
+        self._rng = np.random.default_rng(seed)
+        self.faults = {"exceptions": 0, "no_answer": 0}
         self.device, self.unit_id, self.kind = device, int(unit_id), kind
         self.first_register, self.n_registers = int(first_register), int(n_registers)
         self._values = [0] * self.n_registers
@@ -80,9 +98,24 @@ class RegisterStore:
         self.reads = 0
 
     @classmethod
-    def for_snapshots(cls, snap: RegisterSnapshots, holding: Mapping[int, int] | None = None) -> RegisterStore:
-        """A store shaped like ``snap`` (plus static ``holding`` registers)."""
-        return cls(snap.device, snap.unit_id, snap.first_register, snap.registers.shape[1], snap.kind, holding)
+    def for_snapshots(cls, snap: RegisterSnapshots, holding: Mapping[int, int] | None = None,
+                      **faults: Any) -> RegisterStore:
+        """A store shaped like ``snap`` (plus static ``holding`` registers and poll ``faults``)."""
+        return cls(snap.device, snap.unit_id, snap.first_register, snap.registers.shape[1], snap.kind, holding,
+                   **faults)
+
+    def draw_fault(self) -> str | None:
+        """``"exception"``, ``"no_answer"`` or ``None`` for one request (from the fault probabilities)."""
+        if not (self.exception_prob or self.timeout_prob):
+            return None
+        u = float(self._rng.random())
+        if u < self.exception_prob:
+            self.faults["exceptions"] += 1
+            return "exception"
+        if u < self.exception_prob + self.timeout_prob:
+            self.faults["no_answer"] += 1
+            return "no_answer"
+        return None
 
     def write(self, row: np.ndarray | Iterable[int]) -> None:
         """Replace all register values (uint16 each)."""
@@ -147,6 +180,7 @@ class ModbusDeviceServer:
         return self.host, self.port
 
     def _device(self, store: RegisterStore) -> Any:
+        from pymodbus.constants import ExcCodes
         from pymodbus.simulator import DataType, SimData, SimDevice
 
         first, n = store.first_register, store.n_registers
@@ -156,6 +190,11 @@ class ModbusDeviceServer:
             live = 4 if store.kind == "input" else 3
             if set_values is not None or func_code != live:
                 return None  # writes are refused (read-only) before this; the static block is as built
+            fault = store.draw_fault()
+            if fault == "exception":
+                return ExcCodes(store.exception_code)
+            if fault == "no_answer":
+                await asyncio.sleep(store.no_answer_s)
             current_registers[address - start_address: address - start_address + count] = \
                 store.read()[address - first: address - first + count]
             return None

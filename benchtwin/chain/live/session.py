@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 
 from benchtwin.chain.frames import DeviceOutputs, FrameTable
 from benchtwin.chain.live.canopen_node import EdsLike, ThermoNode
@@ -54,6 +56,9 @@ class LiveSession:
         are answered and their results gated by their state).
     holding:
         Modbus device name -> static holding registers ``{address: value}`` (configuration block).
+    modbus_faults:
+        Modbus device name -> keyword arguments of :class:`RegisterStore` for poll faults
+        (``exception_prob``, ``exception_code``, ``timeout_prob``, ``no_answer_s``, ``seed``).
     bitrates:
         Bus name -> bit rate for buses that carry no frames in ``outputs`` (e.g. a CANopen-only bus).
     start_s, end_s:
@@ -65,7 +70,9 @@ class LiveSession:
     def __init__(self, outputs: DeviceOutputs, *, transport: str = "virtual", speedup: float = 1.0,
                  can_port: int = 0, modbus_port: int = 0, eds: EdsLike | Mapping[str, EdsLike] | None = None,
                  canopen_bus: Mapping[str, str] | None = None, ivt: Mapping[str, Mapping[str, IvtDevice]] | None = None,
-                 holding: Mapping[str, Mapping[int, int]] | None = None, bitrates: Mapping[str, int] | None = None,
+                 holding: Mapping[str, Mapping[int, int]] | None = None,
+                 modbus_faults: Mapping[str, Mapping[str, Any]] | None = None,
+                 bitrates: Mapping[str, int] | None = None,
                  channel_map: Mapping[str, str] | None = None, start_s: float | None = None,
                  end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None) -> None:
         self.outputs = outputs
@@ -86,6 +93,7 @@ class LiveSession:
             raise ConfigError("the run has CANopen nodes but no EDS was given")
         self.eds = eds
         self.holding = {k: dict(v) for k, v in (holding or {}).items()}
+        self.modbus_faults = {k: dict(v) for k, v in (modbus_faults or {}).items()}
         self.transport: Transport | None = (get_transport(transport)(buses, port=can_port, channel_map=channel_map)
                                             if buses else None)
         self.modbus: ModbusDeviceServer | None = None
@@ -134,17 +142,23 @@ class LiveSession:
                 bus = self.canopen_bus[name]
                 node = ThermoNode(image, self._eds_for(name), tr.device_bus(bus), notifier=self._notifiers[bus])
                 self.nodes[name] = node
-                streams.append(node.stream(f"canopen:{name}"))
+                streams.append(node.stream(f"canopen:{name}", clock=self._to_unix))
             for bus, table in self.outputs.can.items():
                 streams.append(self._can_stream(tr, bus, table))
         if self.outputs.modbus:
             for name, snap in self.outputs.modbus.items():
-                store = RegisterStore.for_snapshots(snap, holding=self.holding.get(name))
+                store = RegisterStore.for_snapshots(snap, holding=self.holding.get(name),
+                                                    **self.modbus_faults.get(name, {}))
                 self.stores[name] = store
                 streams.append(store.stream(snap, f"modbus:{name}"))
             self.modbus = ModbusDeviceServer(self.stores.values(), port=self.modbus_port).start()
         self.scheduler = LiveScheduler(streams, speedup=self.speedup, start_s=self.start_s, end_s=self.end_s,
                                        **self.scheduler_options)
+
+    def _to_unix(self, t_plant: np.ndarray) -> np.ndarray:
+        if self.scheduler is None:
+            return np.full(np.shape(t_plant), time.time())
+        return self.scheduler.to_unix(t_plant)
 
     def _can_stream(self, tr: Transport, bus: str, table: FrameTable) -> Stream:
         frames = table.frames
@@ -204,6 +218,7 @@ class LiveSession:
         if self.transport is not None:
             out["transport"] = {"name": self.transport.name, **self.transport.stats()}
         out["modbus_reads"] = {n: s.reads for n, s in self.stores.items()}
+        out["modbus_faults"] = {n: dict(s.faults) for n, s in self.stores.items()}
         out["ivt_commands"] = {b: dict(r.counters) for b, r in self.responders.items()}
         out["pdos_sent"] = {n: node.pdos_sent for n, node in self.nodes.items()}
         return out

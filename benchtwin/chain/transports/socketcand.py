@@ -455,8 +455,8 @@ class SocketcandDeviceBus(can.BusABC):
         self.channel = channel
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        """Broadcast ``msg`` to the bus's clients (timestamp: now)."""
-        self._server.broadcast(self.channel, format_message(msg, time.time()))
+        """Broadcast ``msg`` to the bus's clients (timestamp: the message's, or now if it has none)."""
+        self._server.broadcast(self.channel, format_message(msg, msg.timestamp or time.time()))
 
     def send_frames(self, frames: np.ndarray, timestamp: float | np.ndarray | None = None) -> None:
         """Broadcast rows of a frame table in one write per client."""

