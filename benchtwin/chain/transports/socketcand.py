@@ -364,6 +364,8 @@ class SocketcandServer:
                     self._malformed(c, bytes(c.inbuf))
                 c.inbuf.clear()
                 return
+            if start and c.inbuf[:start].strip():
+                self._malformed(c, bytes(c.inbuf[:start]))  # text outside < >
             end = c.inbuf.find(b">", start)
             if end < 0:
                 if start:
@@ -397,8 +399,10 @@ class SocketcandServer:
         elif word == "open":
             name = body[4:].strip()
             if c.state != "greeted":
+                self._malformed(c, body)
                 self._reply(c, "< error bus already open >")
             elif name not in self.inbound:
+                self._malformed(c, body)
                 self._reply(c, f"< error no such bus {name}; buses: {','.join(self.channels)} >")
             else:
                 c.channel = name
@@ -406,6 +410,7 @@ class SocketcandServer:
                 self._reply(c, "< ok >")
         elif word == "rawmode":
             if c.state != "open":
+                self._malformed(c, body)
                 self._reply(c, "< error open a bus first >")
                 return
             c.armed_at = time.monotonic() + self.arm_delay_s
@@ -420,6 +425,7 @@ class SocketcandServer:
             # in raw mode an error text would be parsed as an error frame by some clients: count it only
             self._malformed(c, body)
         else:
+            self._malformed(c, body)
             self._reply(c, f"< error unsupported command {word} >")
 
     def _close_client(self, c: _Client, unregister: bool = True) -> None:
