@@ -72,8 +72,9 @@ def fit_brake_gain(p_bar: np.ndarray, torque_nm: np.ndarray, axle: str, *, segme
 
 
 def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable[str] | None = ("neutral_braking",),
-                         rate_hz: float = 10.0, intercept: bool = True, min_points: int = 4,
-                         tolerances: dict[str, Tolerance] | None = None) -> IdentificationResult:
+                         rate_hz: float = 20.0, intercept: bool = True, min_points: int = 4,
+                         tolerances: dict[str, Tolerance] | None = None, window_s: float = 1.0,
+                         min_duration_s: float = 1.5, trim_s: float = 0.25) -> IdentificationResult:
     """Front and rear pressure-to-torque gains and the distribution k_f, k_r from neutral braking.
 
     Parameters
@@ -87,6 +88,8 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
         Segment kinds searched when the table has them.
     intercept:
         Fit the rolling-loss intercept.
+    window_s, min_duration_s, trim_s:
+        Steady-state detection (pressure steps are often held only a few seconds).
 
     Returns
     -------
@@ -100,7 +103,8 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
     tol = {"dyno_speed_kmh": Tolerance(0.5, 0.0, 0.5)}
     tol.update(tolerances or {})
     sw = find_steady_windows(rec, [*front, *rear, *forces, "dyno_speed_kmh"], states=("gear_actual",), kinds=kinds,
-                             rate_hz=rate_hz, tolerances=tol)
+                             rate_hz=rate_hz, tolerances=tol, window_s=window_s, min_duration_s=min_duration_s,
+                             trim_s=trim_s)
     keep = sw.means("dyno_speed_kmh") > 5.0
     if "gear_actual" in sw.grid:
         keep &= np.nan_to_num(sw.state("gear_actual"), nan=-1) == 0
@@ -181,7 +185,7 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
                             speed_edges_kmh: Sequence[float] | None = None,
                             decel_edges_mps2: Sequence[float] | None = None, min_count: int = 5,
                             min_torque_nm: float = 50.0, min_decel_mps2: float = 0.1, smooth_s: float = 1.0,
-                            speed_channel: str | None = None) -> FitResult:
+                            max_rate_per_s: float | None = 0.5, speed_channel: str | None = None) -> FitResult:
     """Brake-blending maps over speed x deceleration (Figure 24).
 
     Parameters
@@ -200,13 +204,18 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
         Fewest grid samples for a bin to get a value.
     min_torque_nm, min_decel_mps2:
         A sample is "braking" when the total braking torque and the deceleration exceed these.
+    max_rate_per_s:
+        Leave out samples where the total or the hydraulic braking torque changes faster than this
+        fraction of the total per second (brake onsets and releases, the hand-over at the cut-off
+        speed): there the pressure, roller and speed sources, each with its own latency and filter,
+        disagree. None keeps every braking sample.
 
     Returns
     -------
     FitResult
         Parameters ``regen_share_mean``, ``hydraulic_share_mean``, ``front_share_mean`` (means over
         braking samples, SE from their spread) and ``regen_torque_p95_nm``; data: per-sample
-        ``v_kmh``, ``decel_mps2``, ``torque_total_nm``, ``torque_regen_nm``, ``torque_front_nm``,
+        ``time_s``, ``v_kmh``, ``decel_mps2``, ``torque_total_nm``, ``torque_regen_nm``, ``torque_front_nm``,
         ``torque_rear_hyd_nm``, ``regen_share``, ``hydraulic_share``, ``front_share`` and the maps
         ``map_speed_edges_kmh``, ``map_decel_edges_mps2``, ``map_regen_share``, ``map_hydraulic_share``,
         ``map_front_share``, ``map_count`` (rows: deceleration, columns: speed).
@@ -231,6 +240,14 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     t_regen = t_rear - t_hr
     t_tot = t_hf + t_rear
     brk = use & np.isfinite(decel) & (t_tot > min_torque_nm) & (decel > min_decel_mps2)
+    n_transient = 0
+    if max_rate_per_s is not None:
+        rate = smooth_derivative(t_tot, g.dt, smooth_s, valid=use, polyorder=2)
+        rate_h = smooth_derivative(t_hf + t_hr, g.dt, smooth_s, valid=use, polyorder=2)
+        fast = brk & ~((np.abs(rate) <= max_rate_per_s * np.abs(t_tot))
+                       & (np.abs(rate_h) <= max_rate_per_s * np.abs(t_tot)))
+        n_transient = int(fast.sum())
+        brk &= ~fast
     n_brk = int(brk.sum())
     if n_brk < max(min_count, 10):
         raise InsufficientDataError(
@@ -267,17 +284,19 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     }
     fit = FitResult(params, float("nan"), float("nan"), float("nan"), n_brk,
                     int((g.flagged & (seg if seg is not None else True)).sum()), segs)
-    fit.data.update(v_kmh=vb, decel_mps2=db, torque_total_nm=tt, torque_regen_nm=t_regen[brk],
+    fit.data.update(time_s=g.t[brk], v_kmh=vb, decel_mps2=db, torque_total_nm=tt, torque_regen_nm=t_regen[brk],
                     torque_front_nm=t_hf[brk], torque_rear_hyd_nm=t_hr[brk], regen_share=regen_share,
                     hydraulic_share=hyd_share, front_share=front_share, map_speed_edges_kmh=se,
                     map_decel_edges_mps2=de, map_count=cnt, **maps)
     # the front axle has no powertrain: its roller torque must match the front hydraulic torque
     front_resid = (-g["dyno_force_front_n"] * r - c_f - t_hf)[brk]
     fit.data["front_check_residual_nm"] = front_resid
-    rel = float(np.median(np.abs(front_resid)) / max(float(np.median(np.abs(t_hf[brk]))), 1.0))
+    rel = float(np.median(np.abs(front_resid)) / max(float(np.median(tt)), 1.0))
     if rel > 0.05:
-        fit.reasons.append(f"front roller torque and front gain x pressure differ by {rel:.0%} (median): "
-                           "the gains may not hold for this test")
+        fit.reasons.append(f"front roller torque and front gain x pressure differ by {rel:.0%} of the total braking "
+                           "torque (median): the gains may not hold for this test")
+    if n_transient:
+        fit.reasons.append(f"{n_transient} braking samples left out as transients (onsets, releases)")
     if np.nanmin(regen_share) < -0.05:
         fit.reasons.append("some samples show negative regenerative share: powertrain drag or a gain error")
     return fit

@@ -239,17 +239,32 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     return fit
 
 
-def speed_bands(speed_rpm: np.ndarray, *, gap_rpm: float = 150.0) -> list[np.ndarray]:
-    """Group points into speed bands: a new band starts where sorted speeds jump by more than ``gap_rpm``."""
+def speed_bands(speed_rpm: np.ndarray, *, gap_rpm: float = 150.0, width_rpm: float | None = None
+                ) -> list[np.ndarray]:
+    """Group points into speed bands (index arrays).
+
+    A new band starts where the sorted speeds jump by more than ``gap_rpm`` (engine-bench data at a
+    few set speeds); a band that spans more than ``width_rpm`` (points spread over the whole speed
+    range, as from a vehicle campaign) is cut into bands of that width.
+    """
     n = np.asarray(speed_rpm, dtype=float)
     order = np.argsort(n)
     cuts = np.flatnonzero(np.diff(n[order]) > gap_rpm) + 1
-    return [np.sort(g) for g in np.split(order, cuts)]
+    out = []
+    for g in np.split(order, cuts):
+        if width_rpm is None or g.size == 0 or n[g].max() - n[g].min() <= width_rpm:
+            out.append(np.sort(g))
+            continue
+        lo = n[g].min()
+        k = np.floor((n[g] - lo) / width_rpm).astype(int)
+        out.extend(np.sort(g[k == j]) for j in np.unique(k))
+    return out
 
 
 def fit_engine_willans(speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: np.ndarray, *,
                        lhv_j_per_kg: float = 42.8e6, bands: Sequence[tuple[float, float]] | None = None,
-                       gap_rpm: float = 150.0, min_points: int = 3, segments: Sequence[str] | None = None,
+                       gap_rpm: float = 150.0, width_rpm: float | None = 500.0, min_points: int = 3,
+                       segments: Sequence[str] | None = None,
                        n_excluded: int = 0) -> IdentificationResult:
     """Willans line per speed band: ``P_fuel = P_u / e + W_loss``.
 
@@ -260,7 +275,7 @@ def fit_engine_willans(speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: n
     lhv_j_per_kg:
         Fuel lower heating value.
     bands:
-        ``(low, high)`` rpm bands; default: groups separated by more than ``gap_rpm``.
+        ``(low, high)`` rpm bands; default: :func:`speed_bands` with ``gap_rpm`` and ``width_rpm``.
 
     Returns
     -------
@@ -273,7 +288,7 @@ def fit_engine_willans(speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: n
     f = np.asarray(fuel_gps, dtype=float)
     segs = np.asarray(list(segments) if segments is not None else [""] * n.size, dtype=object)
     if bands is None:
-        groups = speed_bands(n, gap_rpm=gap_rpm)
+        groups = speed_bands(n, gap_rpm=gap_rpm, width_rpm=width_rpm)
     else:
         groups = [np.flatnonzero((n >= lo) & (n < hi)) for lo, hi in bands]
     out = IdentificationResult()
