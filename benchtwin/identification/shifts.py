@@ -42,8 +42,8 @@ def _is_periodic(ts: np.ndarray) -> bool:
     return med > 0 and float(np.mean(np.abs(dt - med) <= 0.1 * med)) > 0.8
 
 
-def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None = SCHEDULE_SEGMENT_KINDS
-                      ) -> dict[str, np.ndarray]:
+def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None = SCHEDULE_SEGMENT_KINDS,
+                      lookback_s: float = 0.5, pedal_tol_pct: float = 1.0) -> dict[str, np.ndarray]:
     """Target-gear change events.
 
     Parameters
@@ -53,13 +53,19 @@ def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None =
     segment_kinds:
         When the Recording has segments of these kinds, only events inside them are returned;
         ``None`` or a Recording without such segments: every event.
+    lookback_s, pedal_tol_pct:
+        An event is a *speed crossing* when the pedal moved by at most ``pedal_tol_pct`` over the
+        ``lookback_s`` before it and the speed moved in the shift's direction (rising for an
+        upshift, falling for a downshift). A shift caused by a pedal step (kick-down, tip-out) puts
+        the point off the line, so only speed crossings are used for the lines.
 
     Returns
     -------
     dict
         ``t`` (s), ``from_gear``, ``to_gear``, ``speed_kmh`` and ``pedal_pct`` at each change of
         ``gear_target`` (speed and pedal interpolated at the change's timestamp on their own clocks),
-        and ``good`` (False where speed or pedal is flagged bad or missing there).
+        ``good`` (False where speed or pedal is flagged bad or missing there) and ``crossing``
+        (True for speed crossings, see above).
 
     Raises
     ------
@@ -90,7 +96,14 @@ def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None =
 
     good = np.isfinite(v) & np.isfinite(p) & ((sp.flags_at(t_ev) & int(Flag.bad())) == 0) \
         & ((pd.flags_at(t_ev) & int(Flag.bad())) == 0)
-    return {"t": t_ev, "from_gear": g[k - 1], "to_gear": g[k], "speed_kmh": v, "pedal_pct": p, "good": good}
+    v_before = sp.at(t_ev - lookback_s)
+    p_before = pd.at(t_ev - lookback_s)
+    up = g[k] > g[k - 1]
+    dv = v - v_before
+    steady_pedal = np.abs(p - p_before) <= pedal_tol_pct
+    crossing = np.where(up, dv > 0, dv < 0) & steady_pedal & np.isfinite(dv)
+    return {"t": t_ev, "from_gear": g[k - 1], "to_gear": g[k], "speed_kmh": v, "pedal_pct": p, "good": good,
+            "crossing": crossing}
 
 
 def _flagged(name: str, v: np.ndarray, p: np.ndarray, reason: str, segs: list[str]) -> FitResult:
@@ -137,8 +150,8 @@ def identify_shift_thresholds(
     dict
         ``up_1_2``, ``down_2_1``, ... -> :class:`FitResult` with ``c0_kmh`` and ``c1_kmh_per_pct``
         (``v = c0 + c1 pedal``); ``data`` holds ``pedal`` and ``speed`` of the events. Events that
-        skip a gear (3 -> 5) or involve neutral are not used; events whose speed or pedal is flagged
-        are counted in the pair's ``n_excluded``.
+        skip a gear (3 -> 5) or involve neutral are not used; events whose speed or pedal is flagged,
+        and events that are no speed crossing (pedal steps), are counted in the pair's ``n_excluded``.
     """
     ev = find_shift_events(rec, segment_kinds=segment_kinds)
     seen = int(max(ev["from_gear"].max(initial=0), ev["to_gear"].max(initial=0)))
@@ -149,8 +162,8 @@ def identify_shift_thresholds(
         for direction, a, b in (("up", g, g + 1), ("down", g + 1, g)):
             name = f"{direction}_{a}_{b}"
             m = adjacent & (ev["from_gear"] == a) & (ev["to_gear"] == b)
-            n_bad = int((m & ~ev["good"]).sum())
-            m &= ev["good"]
+            n_bad = int((m & ~(ev["good"] & ev["crossing"])).sum())
+            m &= ev["good"] & ev["crossing"]
             v, p = ev["speed_kmh"][m], ev["pedal_pct"][m]
             segs = sorted({s.name for s in rec.segments if np.any(s.contains(ev["t"][m]))}) if rec.segments else []
             spread = float(p.max() - p.min()) if p.size else 0.0

@@ -73,6 +73,20 @@ def coupling_point(a_conv: np.ndarray, *, lo: float = 0.0, hi: float = 1.2) -> f
     return float(real[0]) if real.size else float("nan")
 
 
+def _zero_torque_sr(x: np.ndarray) -> float:
+    """SR in (0.5, 1.5) where the coupling torque ``a6 + a7 SR + a8 SR^2`` vanishes (closest to 1)."""
+    roots = np.roots([x[2], x[1], x[0]]) if abs(x[2]) > 1e-30 else np.array([-x[0] / x[1]])
+    real = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-9 and 0.5 < r.real < 1.5]
+    return float(min(real, key=lambda r: abs(r - 1.0))) if real else float("nan")
+
+
+def _robust_z(r: np.ndarray, floor: float) -> np.ndarray:
+    """``|r - median|`` in units of 1.4826 x MAD, the scale floored at ``floor`` (exact data: no outliers)."""
+    med = float(np.median(r))
+    mad = 1.4826 * float(np.median(np.abs(r - med)))
+    return np.abs(r - med) / max(mad, floor)
+
+
 def _gamma_from_data(sr: np.ndarray, tr: np.ndarray, tr_tol: float, bin_width: float = 0.02,
                      min_bin: int = 3) -> float:
     """First SR bin whose median TR is within ``tr_tol`` of 1 (or below) and stays so in the next bins."""
@@ -100,6 +114,8 @@ def fit_torque_converter(
     min_points: int = 10,
     segments: list[str] | None = None,
     n_excluded: int = 0,
+    dw_p: np.ndarray | None = None,
+    outlier_sigma: float | None = 5.0,
 ) -> dict[str, FitResult]:
     """Fit a0..a8 and the coupling point to pump/turbine speed and torque points.
 
@@ -115,6 +131,16 @@ def fit_torque_converter(
         Tolerance on "TR reaches 1" for the first estimate of ``gamma``.
     min_points:
         Minimum points per mode.
+    dw_p:
+        Pump acceleration (rad/s^2). When given, ``t_p`` is the torque *applied* to the pump shaft
+        (the motor torque) and the pump-side inertia ``J_pump_kgm2`` (motor rotor + pump) is
+        identified in the same least squares: ``t_p = a0 w_p^2 + a1 w_p w_t + a2 w_t^2 + J dw_p/dt``.
+        The torque-ratio and capacity-factor curves then use the inertia-corrected pump torque.
+    outlier_sigma:
+        After a first fit, points whose pump or turbine residual exceeds this many robust standard
+        deviations (1.4826 x median absolute deviation) are left out and the fit repeated once
+        (transients the quasi-steady filter let through: lock-up engagement, torque steps); the
+        count is in ``n_excluded`` and the reasons. ``None``: no rejection.
 
     Returns
     -------
@@ -131,10 +157,15 @@ def fit_torque_converter(
         Too few converter-mode points.
     """
     w_p, w_t, t_p, t_t = (np.asarray(x, dtype=float) for x in (w_p, w_t, t_p, t_t))
+    acc = None if dw_p is None else np.asarray(dw_p, dtype=float)
     ok = np.isfinite(w_p) & np.isfinite(w_t) & np.isfinite(t_p) & np.isfinite(t_t) & (w_p > 0) & (t_p > 0)
     ok &= (w_t >= 0) & (w_t <= 1.05 * w_p)
+    if acc is not None:
+        ok &= np.isfinite(acc)
     n_excluded += int((~ok).sum())
     w_p, w_t, t_p, t_t = w_p[ok], w_t[ok], t_p[ok], t_t[ok]
+    if acc is not None:
+        acc = acc[ok]
     segments = list(segments or [])
     if w_p.size < 2 * min_points:
         raise InsufficientDataError(f"torque converter: {w_p.size} usable points, need {2 * min_points}")
@@ -147,16 +178,46 @@ def fit_torque_converter(
         reasons.append("the torque ratio never reaches 1 in the data: no coupling-mode points")
     q = np.column_stack([w_p**2, w_p * w_t, w_t**2])
 
+    names6 = [f"a{k}" for k in range(6)] + (["J_pump_kgm2"] if acc is not None else [])
+    units6 = ["Nm*s^2/rad^2"] * 6 + (["kg*m^2"] if acc is not None else [])
+
+    inlier = np.ones(sr.shape, dtype=bool)
+
+    def robust(A: np.ndarray, b: np.ndarray, n: int, names: list[str], units: list[str], what: str,
+               n_min: int, idx: np.ndarray, stacked: bool) -> FitResult:
+        """Fit, drop rows beyond ``outlier_sigma`` robust sigma (pump and turbine rows together), refit."""
+        fit = linear_fit(A, b, names, units=units, segments=segments, min_points=n_min, n_excluded=n_excluded,
+                         what=what)
+        if outlier_sigma is None:
+            return fit
+        res = b - fit.data["y_fit"]
+        floor = 1e-6 * float(np.sqrt(np.mean(b**2)))
+        keep = _robust_z(res[:n], floor) <= outlier_sigma
+        if stacked:
+            keep &= _robust_z(res[n:], floor) <= outlier_sigma
+        n_out = int((~keep).sum())
+        if n_out == 0 or keep.sum() < min_points:
+            return fit
+        kk = np.r_[keep, keep] if stacked else keep
+        fit = linear_fit(A[kk], b[kk], names, units=units, segments=segments, min_points=n_min,
+                         n_excluded=n_excluded + n_out, what=what)
+        fit.reasons.append(f"{n_out} points beyond {outlier_sigma:g} robust sigma left out (transients)")
+        inlier[idx[~keep]] = False
+        return fit
+
     def conv_fit(mask: np.ndarray) -> FitResult:
         n = int(mask.sum())
         if n < min_points:
             raise InsufficientDataError(f"torque converter: {n} converter-mode points (SR < {g0:.3f}), "
                                         f"need {min_points}")
+        inlier[:] = True
         z = np.zeros((n, 3))
-        A = np.vstack([np.hstack([q[mask], z]), np.hstack([z, q[mask]])])
+        top = [q[mask], z] + ([acc[mask, None]] if acc is not None else [])
+        bot = [z, q[mask]] + ([np.zeros((n, 1))] if acc is not None else [])
+        A = np.vstack([np.hstack(top), np.hstack(bot)])
         b = np.r_[t_p[mask], t_t[mask]]
-        return linear_fit(A, b, [f"a{k}" for k in range(6)], units=["Nm*s^2/rad^2"] * 6, segments=segments,
-                          min_points=2 * min_points, n_excluded=n_excluded, what="torque converter (eq. 37-38)")
+        return robust(A, b, n, names6, units6, "torque converter (eq. 37-38)", 2 * min_points,
+                      np.flatnonzero(mask), True)
 
     conv = conv_fit(sr < g0)
     g = g0
@@ -166,7 +227,7 @@ def fit_torque_converter(
             g = g1
             conv = conv_fit(sr < g)
     derived(conv, "gamma_coupling",
-            lambda x: coupling_point(x, lo=0.3, hi=1.0) if gamma is None else float(gamma))
+            lambda x: coupling_point(x[:6], lo=0.3, hi=1.0) if gamma is None else float(gamma))
     if gamma is not None or not np.isfinite(conv.value("gamma_coupling")):
         conv.params["gamma_coupling"].value = g
     conv.params["gamma_coupling"].unit = ""
@@ -174,40 +235,64 @@ def fit_torque_converter(
     out: dict[str, FitResult] = {"converter": conv}
     a = np.full(9, np.nan)
     a[:6] = [conv.value(f"a{k}") for k in range(6)]
+    j_pump = conv.value("J_pump_kgm2") if acc is not None else 0.0
     if int(cm.sum()) >= min_points:
-        coup = linear_fit(q[cm], t_p[cm], ["a6", "a7", "a8"], units=["Nm*s^2/rad^2"] * 3, segments=segments,
-                          min_points=min_points, what="torque converter coupling (eq. 39)")
+        # the pump inertia comes from the converter fit (the coupling range alone separates it poorly)
+        t_p_c = t_p[cm] - (j_pump * acc[cm] if acc is not None else 0.0)
+        coup = robust(q[cm], t_p_c, int(cm.sum()), ["a6", "a7", "a8"], ["Nm*s^2/rad^2"] * 3,
+                      "torque converter coupling (eq. 39)", min_points, np.flatnonzero(cm), False)
         a[6:] = [coup.value(f"a{k}") for k in (6, 7, 8)]
+        # over the narrow coupling range a6..a8 are strongly correlated; these two are well determined:
+        gg = float(conv.value("gamma_coupling"))
+        derived(coup, "k_at_gamma", lambda x: x[0] + x[1] * gg + x[2] * gg**2, unit="Nm*s^2/rad^2")
+        derived(coup, "sr_zero_torque", lambda x: _zero_torque_sr(x), unit="")
         out["coupling"] = coup
     else:
         reasons.append(f"{int(cm.sum())} coupling-mode points (SR >= {g:.3f}): a6..a8 not identified")
     for r in reasons:
         conv.flag(r)
-    # curves
+    # curves (with the pump torque corrected for the pump-side inertia when it was identified)
+    if acc is not None:
+        t_p = t_p - j_pump * acc
+        tr = t_t / t_p
     conv_m = ~cm
     den = a[0] + a[1] * sr + a[2] * sr**2
     tr_model = np.where(cm, 1.0, (a[3] + a[4] * sr + a[5] * sr**2) / den)
-    tr_r2, _ = r_squared(tr, tr_model)
+    tr_r2, _ = r_squared(tr[inlier], tr_model[inlier])
     tp_coef = np.where(cm, a[6] + a[7] * sr + a[8] * sr**2, den)
-    cf = w_p * RPM_PER_RADS / np.sqrt(t_p)
+    with np.errstate(invalid="ignore"):
+        cf = w_p * RPM_PER_RADS / np.sqrt(t_p)
     with np.errstate(invalid="ignore", divide="ignore"):
         cf_model = RPM_PER_RADS / np.sqrt(tp_coef)
-    n = sr.size
     curve_data = {"sr": sr, "tr": tr, "tr_model": tr_model, "cf": cf, "cf_model": cf_model,
                   "coupling": cm.astype(float), "w_p": w_p, "w_t": w_t, "t_p": t_p, "t_t": t_t,
-                  "a": a, "gamma": np.array([g])}
-    out["torque_ratio"] = FitResult({}, tr_r2, float("nan"), float(np.sqrt(np.mean((tr - tr_model) ** 2))), n,
+                  "a": a, "gamma": np.array([g]), "inlier": inlier.astype(float)}
+    out["torque_ratio"] = FitResult({}, tr_r2, float("nan"),
+                                    float(np.sqrt(np.mean((tr[inlier] - tr_model[inlier]) ** 2))), int(inlier.sum()),
                                     segments=segments, data=curve_data)
-    cf_r2, _ = r_squared(cf[conv_m], cf_model[conv_m])
+    cv = conv_m & inlier & np.isfinite(cf) & np.isfinite(cf_model)
+    cf_r2, _ = r_squared(cf[cv], cf_model[cv])
     out["capacity_factor"] = FitResult({}, cf_r2, float("nan"),
-                                       float(np.sqrt(np.mean((cf[conv_m] - cf_model[conv_m]) ** 2))),
-                                       int(conv_m.sum()), segments=segments, data=curve_data)
+                                       float(np.sqrt(np.mean((cf[cv] - cf_model[cv]) ** 2))),
+                                       int(cv.sum()), segments=segments, data=curve_data)
     if "coupling" in out:
-        fin = cm & np.isfinite(cf_model)
+        fin = cm & inlier & np.isfinite(cf_model) & np.isfinite(cf)
         cf_r2c, _ = r_squared(cf[fin], cf_model[fin])
         out["capacity_factor_coupling"] = FitResult(
             {}, cf_r2c, float("nan"), float(np.sqrt(np.mean((cf[fin] - cf_model[fin]) ** 2))) if fin.any()
             else float("nan"), int(fin.sum()), segments=segments, data=curve_data)
+    return out
+
+
+def _central_derivative(x: np.ndarray, t: np.ndarray, window_s: float) -> np.ndarray:
+    """Central difference ``(x[k+h] - x[k-h]) / (t[k+h] - t[k-h])`` over about ``window_s``."""
+    if x.size < 3:
+        return np.zeros_like(x)
+    dt = float(np.median(np.diff(t)))
+    h = max(1, round(0.5 * window_s / dt)) if dt > 0 else 1
+    h = min(h, (x.size - 1) // 2) or 1
+    out = np.gradient(x, t)
+    out[h:-h] = (x[2 * h:] - x[:-2 * h]) / (t[2 * h:] - t[:-2 * h])
     return out
 
 
@@ -225,12 +310,14 @@ def identify_torque_converter(
     *,
     transmission: Mapping[int, tuple[float, float]] | None = None,
     rate_hz: float = 10.0,
-    max_pump_accel_rpm_s: float = 150.0,
+    max_pump_accel_rpm_s: float = 400.0,
     min_pump_speed_rpm: float = 300.0,
-    min_pump_torque_nm: float = 5.0,
+    min_pump_torque_nm: float = 20.0,
     shift_hold_s: float = 1.0,
     gamma: float | None = None,
     min_points: int = 10,
+    pump_inertia: bool = True,
+    derivative_window_s: float = 0.4,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
@@ -246,9 +333,18 @@ def identify_torque_converter(
         Gear -> ``(eta_m, C0)`` from the transmission identification. Without it, eta = 1 and
         C0 = 0 and the result is flagged (turbine torque underestimated by the gearbox losses).
     max_pump_accel_rpm_s:
-        Quasi-steady limit on ``|d n_p / dt|``: inertia torques stay small.
+        Quasi-steady limit on ``|d n_p / dt|``: inertia torques stay small (and are identified, see
+        ``pump_inertia``).
+    min_pump_torque_nm:
+        Points below this pump torque are left out: there the torque ratio is mostly sensor noise.
     shift_hold_s:
         Samples within this time of a gear change (target or actual) are left out.
+    pump_inertia:
+        Identify the pump-side inertia with the pump coefficients (see :func:`fit_torque_converter`):
+        the motor torque also accelerates the rotor and the pump, which biases ``a0..a2`` in the
+        slow-but-not-static take-offs of a real test unless it is accounted for.
+    derivative_window_s:
+        Span of the central difference for the pump acceleration.
 
     Returns
     -------
@@ -282,7 +378,7 @@ def identify_torque_converter(
     else:
         reasons.append("no K0 or engine state in the recording: pump torque taken as motor torque everywhere")
     n_p = d["em_speed_rpm"]
-    dn = np.gradient(n_p, t)
+    dn = _central_derivative(n_p, t, derivative_window_s)
     use &= np.abs(dn) <= max_pump_accel_rpm_s
     use &= (n_p >= min_pump_speed_rpm) & (d["em_torque_nm"] >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
     segs = sorted({s.name for s in rec.segments if np.any(s.contains(t[use]))}) if rec.segments else []
@@ -302,7 +398,8 @@ def identify_torque_converter(
     use &= np.isfinite(t_t)
     n_total = int(t.size)
     res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], d["em_torque_nm"][use], t_t[use], gamma=gamma,
-                               min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()))
+                               min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()),
+                               dw_p=dn[use] / RPM_PER_RADS if pump_inertia else None)
     for r in reasons:
         res["converter"].flag(r)
         if "coupling" in res:

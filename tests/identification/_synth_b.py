@@ -86,13 +86,16 @@ def tc_truth_vector() -> np.ndarray:
 
 
 def tc_recording(*, duration_s: float = 600.0, rate_hz: float = 10.0, gear: int = 1, noise_nm: float = 0.0,
-                 seed: int = 1, transmission: dict[int, tuple[float, float]] | None = None
-                 ) -> tuple[Recording, dict[str, float]]:
-    """Slow, quasi-steady electric take-offs with the lock-up open, K0 open, in one gear."""
+                 seed: int = 1, transmission: dict[int, tuple[float, float]] | None = None,
+                 pump_inertia_kgm2: float = 0.0) -> tuple[Recording, dict[str, float]]:
+    """Slow, quasi-steady electric take-offs with the lock-up open, K0 open, in one gear.
+
+    With ``pump_inertia_kgm2`` the motor torque also accelerates the rotor and pump: T_em = T_p + J dw_p/dt.
+    """
     transmission = transmission or TRANSMISSION_TRUTH
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s, 1.0 / rate_hz)
-    w_p = 160.0 + 90.0 * np.sin(2 * np.pi * t / 300.0)  # rad/s, |dw/dt| <= 1.9 rad/s^2 (18 rpm/s)
+    w_p = 160.0 + 90.0 * np.sin(2 * np.pi * t / 300.0) + 8.0 * np.sin(2 * np.pi * t / 7.0)  # |dw/dt| <= 9 rad/s^2
     sr = 0.5 + 0.49 * np.sin(2 * np.pi * t / 97.0)
     w_t = sr * w_p
     tp, tt = tc_torques(tc_truth_vector(), TC_TRUTH["gamma"], w_p, w_t)
@@ -103,7 +106,9 @@ def tc_recording(*, duration_s: float = 600.0, rate_hz: float = 10.0, gear: int 
     rec = Recording(segments=[Segment(0.0, float(duration_s), "acceleration", f"tc_takeoff_g{gear}", {})])
     can = "vehicle_can"
     rec.add(Channel("em_speed_rpm", "rpm", t, w_p * 60 / (2 * np.pi), source=can))
-    rec.add(Channel("em_torque_nm", "Nm", t, tp + noise_nm * rng.standard_normal(t.size), source=can))
+    dw = 2 * np.pi / 300.0 * 90.0 * np.cos(2 * np.pi * t / 300.0) + 2 * np.pi / 7.0 * 8.0 * np.cos(2 * np.pi * t / 7.0)
+    t_em = tp + pump_inertia_kgm2 * dw
+    rec.add(Channel("em_torque_nm", "Nm", t, t_em + noise_nm * rng.standard_normal(t.size), source=can))
     rec.add(Channel("vehicle_speed_kmh", "km/h", t, v_kmh, source=can))
     rec.add(Channel("shaft_torque_nm", "Nm", t, t_out + noise_nm * ig * rng.standard_normal(t.size),
                     source="telemetry"))

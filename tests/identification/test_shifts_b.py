@@ -59,7 +59,7 @@ def test_missing_pairs_are_reported_flagged(ideal):
 def test_skipped_gears_are_not_used():
     t = np.arange(0.0, 10.0, 0.1)
     rec = Recording()
-    rec.add(Channel("vehicle_speed_kmh", "km/h", t, 10 * t))
+    rec.add(Channel("vehicle_speed_kmh", "km/h", t, 100 - 10 * t))  # slowing down: 5 -> 4 is a speed crossing
     rec.add(Channel("pedal_pct", "%", t, np.full(t.size, 50.0)))
     rec.add(Channel("gear_target", "", [0.0, 2.0, 5.0], [3.0, 5.0, 4.0]))
     ev = find_shift_events(rec)
@@ -73,3 +73,17 @@ def test_missing_target_gear():
     rec.add(Channel("vehicle_speed_kmh", "km/h", [0, 1], [0, 1]))
     with pytest.raises(MissingChannelError, match="gear_target"):
         identify_shift_thresholds(rec)
+
+
+def test_pedal_step_shifts_are_not_speed_crossings():
+    # cruising at 60 km/h in 3rd with pedal 80 %, the driver lifts to 10 %: the upshift comes from the
+    # pedal step, far above the line at 10 %; it must not enter the fit
+    t = np.arange(0.0, 20.0, 0.1)
+    rec = Recording()
+    rec.add(Channel("vehicle_speed_kmh", "km/h", t, np.full(t.size, 60.0)))
+    rec.add(Channel("pedal_pct", "%", t, np.where(t < 10.0, 80.0, 10.0)))
+    rec.add(Channel("gear_target", "", [0.0, 10.05], [3.0, 4.0]))
+    ev = find_shift_events(rec)
+    assert ev["crossing"].tolist() == [False]
+    res = identify_shift_thresholds(rec)
+    assert res["up_3_4"].n_points == 0 and res["up_3_4"].n_excluded == 1

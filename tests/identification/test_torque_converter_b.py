@@ -104,3 +104,24 @@ def test_no_coupling_points_flags_fit():
     assert "coupling" not in res
     assert res["converter"].status == "flagged"
     np.testing.assert_allclose([res["converter"].value(f"a{k}") for k in range(6)], a[:6], rtol=1e-6)
+
+
+def test_pump_inertia_identified_with_the_pump_coefficients():
+    rec, _ = tc_recording(pump_inertia_kgm2=0.18)
+    res = identify_torque_converter(rec, SPECS, transmission=TRANSMISSION_TRUTH)
+    conv = res["converter"]
+    # the central difference over 0.4 s of a 7 s sine underestimates dw/dt by about 0.5 %
+    np.testing.assert_allclose(conv.value("J_pump_kgm2"), 0.18, rtol=0.01)
+    np.testing.assert_allclose([conv.value(f"a{k}") for k in range(6)], tc_truth_vector()[:6], rtol=2e-3)
+    without = identify_torque_converter(rec, SPECS, transmission=TRANSMISSION_TRUTH, pump_inertia=False,
+                                        max_pump_accel_rpm_s=1e4)
+    assert without["torque_ratio"].r2 < res["torque_ratio"].r2
+
+
+def test_coupling_derived_quantities(ideal):
+    _, truth, res = ideal
+    coup = res["coupling"]
+    g = truth["gamma"]
+    np.testing.assert_allclose(coup.value("k_at_gamma"), truth["a6"] + truth["a7"] * g + truth["a8"] * g**2,
+                               rtol=1e-3)
+    np.testing.assert_allclose(coup.value("sr_zero_torque"), 1.0, rtol=1e-3)
