@@ -141,7 +141,7 @@ def coulomb_soc(t_s: np.ndarray, current_a: np.ndarray, capacity_ah: float, *, s
     return soc_at_max_charge_pct + (q - q.max()) / capacity_ah * 100.0
 
 
-def _native_rate(rec: Recording, name: str, cap_hz: float = 50.0) -> float:
+def _native_rate(rec: Recording, name: str, cap_hz: float = 10.0) -> float:
     ts = rec[name].timestamps
     if ts.size < 3:
         raise InsufficientDataError(f"channel {name!r} has {ts.size} samples")
@@ -177,9 +177,14 @@ def _in_gaps(rec: Recording, names: list[str], t: np.ndarray, factor: float = 3.
         if ts.size < 3:
             continue
         dt = np.diff(ts)
-        big = np.flatnonzero(dt > factor * np.median(dt))
-        for k in big:
-            out |= (t > ts[k]) & (t < ts[k + 1])
+        big = dt > factor * np.median(dt)
+        if not big.any():
+            continue
+        idx = np.searchsorted(ts, t, side="right") - 1  # sample at or before each grid point
+        inside = (idx >= 0) & (idx < dt.size)
+        gap = np.zeros(t.shape, dtype=bool)
+        gap[inside] = big[idx[inside]] & (t[inside] > ts[idx[inside]])
+        out |= gap
     return out
 
 
@@ -243,7 +248,8 @@ def identify_battery(
     maps:
         Literature cell maps (default: the shipped NMC maps).
     rate_hz:
-        Common time base for the channels; default the voltage channel's own rate (<= 50 Hz).
+        Common time base for the channels; default the voltage channel's own rate, at most 10 Hz
+        (the model is static: a higher rate adds correlated points, not information).
     segment_kinds:
         Segment kinds holding depletion and charge tests; all samples are used when the Recording
         has no such segment.

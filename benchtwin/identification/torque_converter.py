@@ -330,8 +330,9 @@ def identify_torque_converter(
     specs:
         Gear ratios, final drive, wheel radius.
     transmission:
-        Gear -> ``(eta_m, C0)`` from the transmission identification. Without it, eta = 1 and
-        C0 = 0 and the result is flagged (turbine torque underestimated by the gearbox losses).
+        Gear -> ``(eta_m, C0)`` from the transmission identification. A gear without a model uses
+        the nearest gear's (flagged with the reason). Without any, eta = 1 and C0 = 0 and the result
+        is flagged (turbine torque underestimated by the gearbox losses).
     max_pump_accel_rpm_s:
         Quasi-steady limit on ``|d n_p / dt|``: inertia torques stay small (and are identified, see
         ``pump_inertia``).
@@ -386,11 +387,15 @@ def identify_torque_converter(
     ig = np.asarray(specs.gear_ratios)[g - 1]
     w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
     if transmission:
-        eta = np.array([transmission.get(int(k), (np.nan, np.nan))[0] for k in g])
-        c0 = np.array([transmission.get(int(k), (np.nan, np.nan))[1] for k in g])
-        lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in transmission})
-        if lacking:
-            reasons.append(f"no transmission model for gear(s) {lacking}: their points are left out")
+        table = {int(k): (float(e), float(c)) for k, (e, c) in transmission.items()}
+        lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in table})
+        for k in lacking:  # nearest identified gear (ties: the lower one)
+            near = min(table, key=lambda j: (abs(j - k), j))
+            reasons.append(f"gear {k} has no transmission model: eta_m and C0 of gear {near} used")
+        full = {k: table[k] if k in table else table[min(table, key=lambda j: (abs(j - k), j))]
+                for k in range(1, len(specs.gear_ratios) + 1)}
+        eta = np.array([full[int(k)][0] for k in g])
+        c0 = np.array([full[int(k)][1] for k in g])
     else:
         eta, c0 = np.ones_like(ig), np.zeros_like(ig)
         reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
