@@ -43,9 +43,9 @@ from benchtwin.config.setup import IVT_PLACES, SetupConfig
 from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.roles import unit_of_role
 from benchtwin.segments import Segment
-from benchtwin.sensors.ivt import STATUS_MEAS_ERROR, STATUS_OUT_OF_RANGE, STATUS_SYS_ERROR, unpack_result
+from benchtwin.sensors.ivt import STATUS_MEAS_ERROR, STATUS_OUT_OF_RANGE, STATUS_SYS_ERROR, unpack_result_words
 from benchtwin.sensors.pressure import pressure_from_counts
-from benchtwin.sensors.telemetry import torque_from_code, unpack_ad_frames
+from benchtwin.sensors.telemetry import torque_from_code, unpack_ad_words
 from benchtwin.sensors.vehicle import SIGNAL_MAP, message_codecs
 
 __all__ = ["AcquisitionInput", "acquire", "detect_lag"]
@@ -92,9 +92,13 @@ def _counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
     flags = np.zeros(n, dtype=np.uint16)
     if n < 2:
         return flags
+    c8 = counter.astype(np.uint8)
+    step = (c8[1:] - c8[:-1]) & np.uint8((1 << bits) - 1)
+    if np.all(step == 1):  # the usual case: nothing lost, doubled or reordered
+        return flags
     c_all = counter.astype(np.int64)
     dup = np.zeros(n, bool)
-    dup[1:] = c_all[1:] == c_all[:-1]
+    dup[1:] = step == 0
     if dup.any():
         keep = np.flatnonzero(~dup)
         flags[keep] = _counter_flags(c_all[keep], bits)
@@ -207,16 +211,16 @@ def _handlers(setup: SetupConfig, bus: str) -> dict[int, _Handler]:
 
 def _group(frames: np.ndarray, handlers: dict[int, _Handler]) -> tuple[dict[int, np.ndarray], dict[int, int]]:
     """Indices of the frames of each known id (time order) and counts of unknown ids."""
-    ids = frames["arbitration_id"]
-    lut = np.zeros(0x800, dtype=np.int32)
+    ids = np.ascontiguousarray(frames["arbitration_id"])
     keys = sorted(handlers)
+    lut = np.zeros(0x801, dtype=np.uint8 if len(keys) < 255 else np.uint16)  # 0: unknown
     for k, cid in enumerate(keys):
         lut[cid] = k + 1
-    std = (~frames["is_extended"]) & (ids < 0x800)
-    code = np.zeros(ids.shape[0], dtype=np.int32)
-    code[std] = lut[ids[std]]
-    dtype = np.uint8 if len(keys) < 255 else np.uint16
-    order = np.argsort(code.astype(dtype), kind="stable")
+    code = lut[np.minimum(ids, 0x800)]
+    ext = frames["is_extended"]
+    if ext.any():
+        code[ext] = 0
+    order = np.argsort(code, kind="stable")  # radix sort on a small integer key
     counts = np.bincount(code, minlength=len(keys) + 1)
     bounds = np.concatenate([[0], np.cumsum(counts)])
     groups = {cid: order[bounds[k + 1]:bounds[k + 2]] for k, cid in enumerate(keys) if counts[k + 1]}
@@ -225,10 +229,10 @@ def _group(frames: np.ndarray, handlers: dict[int, _Handler]) -> tuple[dict[int,
     return groups, {int(i): int(c) for i, c in zip(u_ids, u_counts)}
 
 
-def _good_and_proto(frames: np.ndarray, idx: np.ndarray, length: int, extra_bad: np.ndarray | None = None
+def _good_and_proto(dlc: np.ndarray, idx: np.ndarray, length: int, extra_bad: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray, int]:
     """Split a stream into good frames and the PROTOCOL_ERROR flag of the good frame after each bad one."""
-    bad = frames["dlc"][idx] != length if length else np.zeros(idx.shape[0], bool)
+    bad = dlc[idx] != length if length else np.zeros(idx.shape[0], bool)
     if extra_bad is not None:
         bad = bad | extra_bad
     good = idx[~bad]
@@ -248,21 +252,25 @@ def _decode_bus(table: FrameTable, setup: SetupConfig, sink: _Sink, drops: np.nd
     sink.counts["frames"][table.bus] = len(table)
     if unknown:
         sink.counts["unknown_ids"][table.bus] = {f"0x{k:X}": v for k, v in unknown.items()}
-    # collect per device, then build channels
+    # contiguous columns once; every stream then gathers 8-byte words, not structured records
+    ts = np.ascontiguousarray(frames["timestamp"])
+    dlc = np.ascontiguousarray(frames["dlc"])
+    words = np.ascontiguousarray(frames["data"]).view("<u8")[:, 0]
     ivt: dict[str, dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     dbc_parts: dict[str, list] = {}
     for cid, idx in groups.items():
         h = handlers[cid]
         if h.kind == "ivt":
             place, k = h.info
-            mux_bad = frames["data"][idx, 0] != k
-            good, proto, nbad = _good_and_proto(frames, idx, 6, mux_bad)
+            w_all = words[idx]
+            mux_bad = (w_all & np.uint64(0xFF)) != k
+            good, proto, nbad = _good_and_proto(dlc, idx, 6, mux_bad)
             sink.protocol_error(f"{table.bus}:0x{cid:X}", nbad)
-            _, counter, status, value = unpack_result(frames["data"][good])
+            _, counter, status, value = unpack_result_words(w_all[~mux_bad & (dlc[idx] == 6)] if nbad else w_all)
             flags = proto | _counter_flags(counter, 4)
             flags[(status & STATUS_OUT_OF_RANGE) != 0] |= _F["OUT_OF_RANGE"] | _F["SATURATED"]
             flags[(status & (STATUS_MEAS_ERROR | STATUS_SYS_ERROR)) != 0] |= _F["STATUS_ERROR"]
-            t = frames["timestamp"][good]
+            t = ts[good]
             _mark_after(flags, t, drops, _F["TRANSPORT_DROP"] | _F["LOST_FRAME"])
             ivt.setdefault(place, {})[k] = (t, value, flags)
         elif h.kind in ("ivt_cmd", "ivt_resp"):
@@ -270,27 +278,27 @@ def _decode_bus(table: FrameTable, setup: SetupConfig, sink: _Sink, drops: np.nd
             d = sink.counts.setdefault(key, {})
             d[h.name] = d.get(h.name, 0) + int(idx.shape[0])
             if h.kind == "ivt_resp":
-                unk = int(np.sum(frames["data"][idx, 0] == 0xFF))
+                unk = int(np.sum((words[idx] & np.uint64(0xFF)) == 0xFF))
                 if unk:
                     sink.protocol_error(f"{table.bus}:0x{cid:X} unknown-command answers", unk)
         elif h.kind == "ad":
-            good, proto, nbad = _good_and_proto(frames, idx, h.length)
+            good, proto, nbad = _good_and_proto(dlc, idx, h.length)
             sink.protocol_error(f"{table.bus}:0x{cid:X}", nbad)
-            code, counter, clip = unpack_ad_frames(frames["data"][good])
+            code, counter, clip = unpack_ad_words(words[good])
             flags = proto | _counter_flags(counter, 4)
             flags[clip != 0] |= _F["SATURATED"]
-            t = frames["timestamp"][good]
+            t = ts[good]
             _mark_after(flags, t, drops, _F["TRANSPORT_DROP"] | _F["LOST_FRAME"])
             sink.add("shaft_torque_nm", unit_of_role("shaft_torque_nm"), t, torque_from_code(code, h.info), flags,
                      "telemetry")
         elif h.kind == "pdo":
             layout, tp = h.info
-            good, proto, nbad = _good_and_proto(frames, idx, h.length)
+            good, proto, nbad = _good_and_proto(dlc, idx, h.length)
             sink.protocol_error(f"{table.bus}:0x{cid:X}", nbad)
-            t = frames["timestamp"][good]
+            t = ts[good]
             base = proto | _timing_flags(t, h.period_s)
             _mark_after(base, t, drops, _F["TRANSPORT_DROP"] | _F["LOST_FRAME"])
-            vals = layout.unpack(tp, frames["data"][good])
+            vals = layout.unpack_words(tp, words[good])
             th = setup.thermo
             for (index, sub), raw in vals.items():
                 if index == 0x9130:
@@ -309,14 +317,14 @@ def _decode_bus(table: FrameTable, setup: SetupConfig, sink: _Sink, drops: np.nd
                 sink.add(name, "degC", t, v, flags, source)
         elif h.kind == "dbc":
             stem, codec = h.info
-            good, proto, nbad = _good_and_proto(frames, idx, h.length)
+            good, proto, nbad = _good_and_proto(dlc, idx, h.length)
             sink.protocol_error(f"{table.bus}:0x{cid:X}", nbad)
-            dbc_parts.setdefault(h.name, []).append((stem, codec, good, proto, h.period_s))
+            dbc_parts.setdefault(h.name, []).append((stem, codec, ts[good], words[good], proto, h.period_s))
     for place, results in ivt.items():
         _ivt_channels(place, results, sink)
     for device, parts in dbc_parts.items():
-        for stem, codec, good, proto, period in parts:
-            _dbc_channels(stem, codec, frames, good, proto, period, drops, device, sink)
+        for stem, codec, t, w, proto, period in parts:
+            _dbc_channels(stem, codec, t, w, proto, period, drops, device, sink)
 
 
 def _ivt_channels(place: str, results: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]], sink: _Sink) -> None:
@@ -331,11 +339,10 @@ def _ivt_channels(place: str, results: dict[int, tuple[np.ndarray, np.ndarray, n
         sink.add(name, unit_of_role(name) or unit, t, value * scale, flags, f"ivt_{place}")
 
 
-def _dbc_channels(stem: str, codec: MessageCodec, frames: np.ndarray, good: np.ndarray, proto: np.ndarray,
+def _dbc_channels(stem: str, codec: MessageCodec, t: np.ndarray, words: np.ndarray, proto: np.ndarray,
                   period: float, drops: np.ndarray, device: str, sink: _Sink) -> None:
     sources = SIGNAL_MAP[stem]
-    raw = codec.unpack(frames["data"][good])
-    t = frames["timestamp"][good]
+    raw = codec.unpack_words(words)
     counters = [n for n in codec.signals if sources[n].trace is None]
     base = proto.copy()
     if counters:
@@ -478,6 +485,24 @@ def _clock_offsets(rec: Recording) -> dict[str, float]:
 # ---------------------------------------------------------------------------------------------- entry
 
 
+def _bus_load(table: FrameTable) -> float:
+    """FrameTable.bus_load (same bit counts: worst-case stuffing) from a histogram of (DLC, IDE)."""
+    f = table.frames
+    if len(f) < 2:
+        return 0.0
+    span = float(f["timestamp"][-1] - f["timestamp"][0])
+    if span <= 0:
+        return float("nan")
+    key = np.minimum(f["dlc"], 15).astype(np.int64) * 2 + f["is_extended"].astype(np.int64)
+    hist = np.bincount(key, minlength=32)
+    dlc = np.arange(32) // 2
+    ext = np.arange(32) % 2 == 1
+    base = np.where(ext, 67.0, 47.0) + 8.0 * dlc
+    stuffed = np.where(ext, 54.0, 34.0) + 8.0 * dlc
+    bits = float(np.sum(hist * (base + np.floor((stuffed - 1.0) / 4.0))))
+    return bits / (table.bitrate * span)
+
+
 def acquire(data: AcquisitionInput | Any, setup: SetupConfig, *, segments: list[Segment] | None = None,
             meta: dict[str, Any] | None = None, seed: int | None = 0, align: bool = True) -> Recording:
     """Decode everything received into a :class:`~benchtwin.recording.Recording`.
@@ -541,6 +566,6 @@ def acquire(data: AcquisitionInput | Any, setup: SetupConfig, *, segments: list[
     m.update(sink.counts)
     m["transport_events"] = [{"time_s": e.time_s, "source": e.source, "kind": e.kind, "end_s": e.end_s,
                               "detail": e.detail} for e in data.events]
-    m["bus_load"] = {bus: t.bus_load() for bus, t in data.can.items()}
+    m["bus_load"] = {bus: _bus_load(t) for bus, t in data.can.items()}
     rec.meta = m
     return rec

@@ -22,6 +22,7 @@ from benchtwin.chain.buslog import read_mf4, read_poll_log, write_blf, write_mf4
 from benchtwin.chain.canopen_pdo import EDS_PATH, pdo_layout
 from benchtwin.chain.dbc import write_bus_dbcs
 from benchtwin.chain.frames import FRAME_DTYPE, DeviceOutputs, FrameTable
+from benchtwin.chain.merge import insert_frames
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Recording
@@ -54,7 +55,7 @@ def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
         bus = setup.thermo.bus
         pdo = pdo_layout(setup.thermo.node_id).pack(outputs.canopen["thermo"])
         old = can.get(bus, FrameTable(bus, np.zeros(0, FRAME_DTYPE), setup.bitrate(bus)))
-        can[bus] = FrameTable.concat(bus, [old.frames, pdo], old.bitrate)
+        can[bus] = FrameTable(bus, insert_frames(old.frames, pdo), old.bitrate)
     polls = {}
     if setup.pressure is not None and setup.pressure.device in outputs.modbus:
         snap = outputs.modbus[setup.pressure.device]

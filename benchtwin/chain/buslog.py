@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from benchtwin.chain.frames import FRAME_DTYPE, FrameTable, PollLog
+from benchtwin.chain.merge import merge_frames
 from benchtwin.errors import DataError
 
 __all__ = [
@@ -131,9 +132,8 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
             parts.append(fr)
     if not parts:
         raise DataError(f"{path}: no CAN_DataFrame group (not a CAN bus log)")
-    table = FrameTable.concat(bus or path.stem, parts, bitrate)
     del start
-    return table
+    return FrameTable(bus or path.stem, merge_frames(parts), bitrate)
 
 
 def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:

@@ -130,6 +130,17 @@ class PdoLayout:
             out[e] = v.astype(np.float64 if dt.startswith("f") else np.int64)
         return out
 
+    def unpack_words(self, tp: TpdoLayout, words_le: np.ndarray) -> dict[tuple[int, int], np.ndarray]:
+        """:meth:`unpack` from the data as little-endian 64-bit words."""
+        w = np.asarray(words_le, dtype=np.uint64)
+        out: dict[tuple[int, int], np.ndarray] = {}
+        for e, dt, off in zip(tp.entries, tp.dtypes, tp.offsets):
+            size = np.dtype(dt).itemsize
+            u = (w >> np.uint64(8 * off)) & np.uint64((1 << (8 * size)) - 1)
+            v = u.astype("u" + str(size)).view(dt)
+            out[e] = v.astype(np.float64 if dt.startswith("f") else np.int64)
+        return out
+
     def scale(self, entry: tuple[int, int]) -> float:
         """Engineering value per count of an analogue input entry (10^-decimals)."""
         index, sub = entry

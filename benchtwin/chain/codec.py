@@ -158,12 +158,14 @@ class MessageCodec:
 
     def unpack(self, data: np.ndarray, names: list[str] | None = None) -> dict[str, np.ndarray]:
         """Unpack ``(n, 8)`` data bytes into raw int64 columns (all signals, or ``names``)."""
-        data = np.ascontiguousarray(data, dtype=np.uint8)
+        return self.unpack_words(bytes_to_u64(data, True), names)
+
+    def unpack_words(self, words_le: np.ndarray, names: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Like :meth:`unpack`, from the data as little-endian 64-bit words (``bytes_to_u64(data, True)``)."""
         want = names if names is not None else list(self.signals)
-        need_le = any(self.signals[n].little_endian for n in want)
         need_be = any(not self.signals[n].little_endian for n in want)
-        le = bytes_to_u64(data, True) if need_le else None
-        be = bytes_to_u64(data, False) if need_be else None
+        le = np.asarray(words_le, dtype=np.uint64)
+        be = le.byteswap() if need_be else None
         out: dict[str, np.ndarray] = {}
         for name in want:
             sig = self.signals[name]

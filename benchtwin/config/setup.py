@@ -154,7 +154,7 @@ class PressureConfig(StrictModel):
     full_scale_bar: float = Field(100.0, gt=0, description="SPA100 range 0..full_scale_bar")
     full_scale_v: float = Field(5.0, gt=0, description="SPA100 output at full scale")
     output_max_v: float = Field(5.25, gt=0, description="transducer output saturates here (105 % FS)")
-    update_hz: float = Field(500.0, gt=0, description="module register update rate")
+    update_hz: float = Field(200.0, gt=0, description="module register update rate")
     poll_hz: float = Field(100.0, gt=0, description="acquisition poll rate")
     poll_latency_s: float = Field(0.002, ge=0, description="request-to-answer time of a poll")
     timeout_prob: float = Field(0.0, ge=0, lt=1, description="probability a poll times out")

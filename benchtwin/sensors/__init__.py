@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE, DeviceOutputs, FrameTable
+from benchtwin.chain.frames import DeviceOutputs, FrameTable
+from benchtwin.chain.merge import merge_frames
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.sensors.imperfections import device_rng
@@ -72,5 +73,5 @@ def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0) -> DeviceOutp
     if setup.pressure is not None:
         out.modbus[setup.pressure.device] = encode_pressure(trace, setup.pressure, device_rng(seed, "pressure"))
     for bus, parts in per_bus.items():
-        out.can[bus] = FrameTable.concat(bus, parts or [np.zeros(0, FRAME_DTYPE)], setup.bitrate(bus))
+        out.can[bus] = FrameTable(bus, merge_frames(parts), setup.bitrate(bus))
     return out

@@ -183,21 +183,25 @@ def frame_faults(frames: np.ndarray, stream: np.ndarray, link: LinkErrors, rng: 
     """
     if (link.drop_prob == 0 and link.duplicate_prob == 0 and link.reorder_prob == 0) or len(frames) == 0:
         return frames
+    from benchtwin.chain.merge import insert_frames
+
     out = frames.copy()
+    n = len(out)
     if link.reorder_prob > 0:
-        order = np.lexsort((out["timestamp"], stream))
-        s_sorted = stream[order]
-        swap = (rng.random(len(out)) < link.reorder_prob)[:-1] & (s_sorted[:-1] == s_sorted[1:])
+        # frames of one stream in time order (stable sort on a small integer key is a radix sort)
+        _, key = np.unique(stream, return_inverse=True)
+        order = np.argsort(key.astype(np.uint16 if key.max() < 65536 else np.int64), kind="stable")
+        s_sorted = key[order]
+        swap = (rng.random(n) < link.reorder_prob)[:-1] & (s_sorted[:-1] == s_sorted[1:])
         swap[1:] &= ~swap[:-1]  # no chains
         i = order[:-1][swap]
         j = order[1:][swap]
         di, dj = out["data"][i].copy(), out["data"][j].copy()
         out["data"][i], out["data"][j] = dj, di
-    keep = rng.random(len(out)) >= link.drop_prob if link.drop_prob > 0 else np.ones(len(out), bool)
-    parts = [out[keep]]
+    keep = rng.random(n) >= link.drop_prob if link.drop_prob > 0 else np.ones(n, bool)
+    res = out[keep] if not keep.all() else out
     if link.duplicate_prob > 0:
-        dup = out[keep & (rng.random(len(out)) < link.duplicate_prob)].copy()
+        dup = out[keep & (rng.random(n) < link.duplicate_prob)].copy()
         dup["timestamp"] += 50e-6
-        parts.append(dup)
-    res = np.concatenate(parts)
-    return res[np.argsort(res["timestamp"], kind="stable")]
+        res = insert_frames(res, dup)
+    return res

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchtwin.chain.frames import FRAME_DTYPE
+from benchtwin.chain.merge import merge_frames
 from benchtwin.config.setup import IVT_PLACES, IvtConfig
 from benchtwin.errors import FrameError
 from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
@@ -49,6 +50,7 @@ __all__ = [
     "ivt_samples",
     "pack_results",
     "unpack_result",
+    "unpack_result_words",
 ]
 
 RESULT_NAMES: tuple[str, ...] = ("I", "U1", "U2", "U3", "T", "W", "As", "Wh")
@@ -86,6 +88,16 @@ def unpack_result(data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     status = (data[:, 1] >> 4).astype(np.int64)
     value = np.ascontiguousarray(data[:, 2:6]).view(">i4")[:, 0].astype(np.int64)
     return mux, counter, status, value
+
+
+def unpack_result_words(words_le: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`unpack_result` from the data as little-endian 64-bit words (no byte-array copies)."""
+    w = np.asarray(words_le, dtype=np.uint64)
+    mux = (w & np.uint64(0xFF)).astype(np.int64)
+    counter = ((w >> np.uint64(8)) & np.uint64(0xF)).astype(np.int64)
+    status = ((w >> np.uint64(12)) & np.uint64(0xF)).astype(np.int64)
+    value = ((w.byteswap() >> np.uint64(16)) & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.int32)
+    return mux, counter, status, value.astype(np.int64)
 
 
 @dataclass
@@ -191,15 +203,15 @@ def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generato
     s = ivt_samples(trace, place, cfg, rng, t_dev)
     n = s.t_device.shape[0]
     counter = np.arange(n, dtype=np.int64) & 0xF
-    for k in enabled:
-        fr = np.zeros(n, dtype=FRAME_DTYPE)
-        fr["timestamp"] = s.t_device + RESULT_SPACING_S * k
-        fr["arbitration_id"] = cfg.result_base_id + k
-        fr["dlc"] = 6
-        fr["data"] = pack_results(k, counter, s.status[k], s.values[k])
-        parts.append(fr)
-    frames = np.concatenate(parts) if parts else np.zeros(0, FRAME_DTYPE)
-    frames = frames[np.argsort(frames["timestamp"], kind="stable")]
+    # the results of one measurement follow each other in mux order: build them interleaved
+    res = np.zeros((n, len(enabled)), dtype=FRAME_DTYPE)
+    for j, k in enumerate(enabled):
+        res["timestamp"][:, j] = s.t_device + RESULT_SPACING_S * k
+        res["arbitration_id"][:, j] = cfg.result_base_id + k
+        res["dlc"][:, j] = 6
+        res["data"][:, j] = pack_results(k, counter, s.status[k], s.values[k])
+    parts.insert(0, res.reshape(-1))
+    frames = merge_frames(parts)
     return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
 
 

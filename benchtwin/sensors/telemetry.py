@@ -37,6 +37,7 @@ __all__ = [
     "table2",
     "torque_from_code",
     "unpack_ad_frames",
+    "unpack_ad_words",
 ]
 
 AD_BITS = 12
@@ -106,6 +107,14 @@ def unpack_ad_frames(data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """Inverse of :func:`pack_ad_frames`: signed code, counter, clip (int64)."""
     d = np.asarray(data, dtype=np.int64)
     word = d[:, 0] | (d[:, 1] << 8) | (d[:, 2] << 16)
+    code = word & 0xFFF
+    code = np.where(code > _CODE_MAX, code - 4096, code)
+    return code, (word >> 12) & 0xF, (word >> 16) & 1
+
+
+def unpack_ad_words(words_le: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`unpack_ad_frames` from the data as little-endian 64-bit words."""
+    word = (np.asarray(words_le, dtype=np.uint64) & np.uint64(0xFFFFFF)).astype(np.int64)
     code = word & 0xFFF
     code = np.where(code > _CODE_MAX, code - 4096, code)
     return code, (word >> 12) & 0xF, (word >> 16) & 1

@@ -16,6 +16,7 @@ import numpy as np
 from benchtwin.chain.codec import MessageCodec
 from benchtwin.chain.dbc import load_dbc
 from benchtwin.chain.frames import FRAME_DTYPE
+from benchtwin.chain.merge import merge_frames
 from benchtwin.config.setup import ChannelErrors, DynoConfig, VehicleCanConfig
 from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
 from benchtwin.trace import Trace
@@ -114,6 +115,5 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
         fr["dlc"] = codec.length
         fr["data"] = codec.pack(raw, n)
         parts.append(fr)
-    frames = np.concatenate(parts) if parts else np.zeros(0, FRAME_DTYPE)
-    frames = frames[np.argsort(frames["timestamp"], kind="stable")]
+    frames = merge_frames(parts)
     return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
