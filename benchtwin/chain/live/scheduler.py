@@ -16,6 +16,7 @@ sent and lost, and for CAN streams the nominal bus load on the emulated bus.
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -170,10 +171,14 @@ class LiveScheduler:
         Items of one stream due within this much wall time go out in one delivery.
     spin_s:
         Busy-wait this long before a deadline instead of sleeping (sleep overshoots by ~0.1 ms).
+    switch_interval_s:
+        Python's thread switch interval while playing (``sys.setswitchinterval``; default 5 ms would let
+        a server thread holding the GIL delay a deadline by up to that much); restored afterwards.
     """
 
     def __init__(self, streams: Sequence[Stream], *, speedup: float = 1.0, start_s: float | None = None,
-                 end_s: float | None = None, batch_window_s: float = 0.00025, spin_s: float = 0.0015) -> None:
+                 end_s: float | None = None, batch_window_s: float = 0.00025, spin_s: float = 0.0015,
+                 switch_interval_s: float | None = 0.0002) -> None:
         if not speedup > 0:
             raise ConfigError(f"speed-up must be > 0, got {speedup}")
         if batch_window_s <= 0:
@@ -184,6 +189,7 @@ class LiveScheduler:
         self.speedup = float(speedup)
         self.batch_window_s = float(batch_window_s)
         self.spin_s = float(spin_s)
+        self.switch_interval_s = switch_interval_s
         self._stop = threading.Event()
         self.interrupted = False
         #: Unix time of plant time ``start_s`` while :meth:`run` plays (NaN before)
@@ -278,6 +284,9 @@ class LiveScheduler:
         self.epoch_unix = time.time() + (wall0 - clock())
         next_progress = wall0 + progress_every_s
         self.interrupted = False
+        previous_switch = sys.getswitchinterval()
+        if self.switch_interval_s:
+            sys.setswitchinterval(self.switch_interval_s)
         try:
             for g in range(n):
                 if self._stop.is_set():
@@ -304,6 +313,8 @@ class LiveScheduler:
                 completed = True
         except KeyboardInterrupt:
             self.interrupted = True  # Ctrl-C: report what was played
+        finally:
+            sys.setswitchinterval(previous_switch)
         wall = clock() - wall0
         if n == 0:
             completed = True
