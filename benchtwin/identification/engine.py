@@ -115,6 +115,7 @@ def _cv_smoothing(P: np.ndarray, y: np.ndarray, candidates: Sequence[float], fol
 def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: np.ndarray, *,
                  speed_grid: np.ndarray | None = None, bmep_grid: np.ndarray | None = None,
                  smoothing: float | None = None, band_gpkwh: float = 8.0, n_boot: int = 200,
+                 min_search_bmep_bar: float = 2.0,
                  segments: Sequence[str] = (), n_excluded: int = 0, min_points: int = 6, seed: int = 0) -> FitResult:
     """BSFC map over speed x BMEP from steady points, with the best-efficiency region.
 
@@ -130,6 +131,9 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
         RBF smoothing; None chooses it by cross-validation.
     band_gpkwh:
         Width of the best-efficiency region above the minimum.
+    min_search_bmep_bar:
+        The minimum is searched at BMEP at or above this (near zero load ``BSFC = pmf / BMEP`` turns
+        every small error of the fuel MEP into a huge one, and the best point is never there).
     n_boot:
         Bootstrap replicates for the uncertainty of the minimum (cross-validated prediction errors
         added to the fitted fuel MEP, map refitted); SE and percentile 95 % interval.
@@ -188,7 +192,9 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     # the minimum is searched on a fine grid inside the hull
     fs, fb = np.meshgrid(np.linspace(0, 1, 121), np.linspace(0, 1, 121))
     fine = np.column_stack([fs.ravel(), fb.ravel()])
-    fine = fine[(hull.find_simplex(fine) >= 0) & (blo + fine[:, 1] * (bhi - blo) > 0)]
+    fine = fine[(hull.find_simplex(fine) >= 0) & (blo + fine[:, 1] * (bhi - blo) >= max(min_search_bmep_bar, 1e-6))]
+    if fine.shape[0] == 0:
+        raise InsufficientDataError(f"{what}: no point of the data's hull at BMEP >= {min_search_bmep_bar} bar")
     fine_b = blo + fine[:, 1] * (bhi - blo)
 
     # the map is linear in the data for a fixed smoothing: one fit with the identity as data gives the
@@ -197,6 +203,7 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
 
     def minima(y: np.ndarray) -> np.ndarray:
         v = q * (op @ y) / fine_b[:, None]
+        v[~(v > 0)] = np.inf  # a non-positive fuel MEP is no minimum
         k = np.argmin(v, axis=0)
         cols = np.arange(v.shape[1])
         return np.column_stack([v[k, cols], nlo + fine[k, 0] * (nhi - nlo), fine_b[k]])
@@ -206,6 +213,10 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     # the bootstrap draws the cross-validated prediction errors: with an interpolating map (no
     # smoothing) the in-sample residuals are zero, while the map between the points is not exact
     resid = cv_err if cv_err.size else pmf - pmf_fit
+    # heavy tails (points at the hull's edge are extrapolated in cross-validation): clip at 3 robust sigma
+    mad = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+    if mad > 0:
+        resid = np.clip(resid, -3 * mad, 3 * mad)
     boots: list[np.ndarray] = []
     if np.any(resid != 0) and n_boot > 0:
         yb = pmf_fit[:, None] + rng.choice(resid, (resid.size, n_boot), replace=True)

@@ -133,3 +133,20 @@ def test_engine_off_recording_gives_a_clear_error(truth) -> None:
     t, sig, segs = ramp_up_plant(truth, settings=[(5, 85.0)], levels=[-30.0, 20.0, 30.0])  # electric only
     with pytest.raises(InsufficientDataError):
         identify_engine(to_recording(t, sig, segments=segs), SPECS)
+
+
+def test_noisy_bsfc_map_minimum_within_its_interval(ramp_rec_noisy, truth) -> None:
+    """With CAN noise on torque, speed and fuel flow the map's minimum stays within 1 % of the truth's and
+    the bootstrap interval (cross-validated errors) covers it."""
+    fit = identify_engine(ramp_rec_noisy, SPECS, willans=False).fits["engine.bsfc"]
+    from scipy.spatial import Delaunay
+
+    hull = Delaunay(np.column_stack([fit.data["speed_rpm"], fit.data["bmep_bar"]]))
+    fs, fb = np.meshgrid(np.linspace(fit.data["speed_rpm"].min(), fit.data["speed_rpm"].max(), 200),
+                         np.linspace(fit.data["bmep_bar"].min(), fit.data["bmep_bar"].max(), 200))
+    ins = hull.find_simplex(np.column_stack([fs.ravel(), fb.ravel()])) >= 0
+    true_min = truth.bsfc(fs.ravel()[ins], fb.ravel()[ins]).min()
+    p = fit["bsfc_min"]
+    assert abs(p.value - true_min) < 0.01 * true_min
+    assert p.ci95[0] - 0.5 <= true_min <= p.ci95[1] + 0.5
+    assert fit.r2 > 0.99
