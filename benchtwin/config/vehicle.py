@@ -137,6 +137,8 @@ class TransmissionConfig(StrictModel):
     eta_m: list[float] = Field(min_length=1)
     c0_nm: list[float] = Field(min_length=1)
     shift_delay_s: float = Field(gt=0, le=2.0)
+    shift_inertia_phase_s: float = Field(default=0.3, gt=0, le=2.0,
+                                         description="turbine speed transition with the converter open")
 
     @field_validator("eta_m")
     @classmethod
@@ -237,6 +239,7 @@ class HybridConfig(StrictModel):
     electric_kickdown_pedal_pct: float = Field(gt=0, le=100)
     charge_power_w: float = Field(gt=0)
     esave_on_power_w: float = Field(gt=0)
+    max_wheel_force_n: float = Field(gt=0, description="traction/gearbox torque limiter on the driver demand")
 
 
 class ThermalConfig(StrictModel):

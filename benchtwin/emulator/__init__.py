@@ -23,6 +23,7 @@ from benchtwin.emulator.params import (
     C_LVLOAD,
     L_KE0,
     L_KE1,
+    LEDGER_INPUTS,
     LEDGER_NAMES,
     NL,
     NO,
@@ -256,8 +257,8 @@ def energy_balance(ledger: dict[str, float]) -> dict[str, float]:
     dict
         ``inputs_j``, ``outputs_j``, ``residual_j`` and ``residual_frac`` (residual over inputs).
     """
-    inputs = ledger["fuel_chemical"] + ledger["hv_battery_chemical"] + ledger["lv_battery_chemical"]
-    losses = sum(ledger[k] for k in LEDGER_NAMES[3:16])
+    inputs = sum(ledger[k] for k in LEDGER_INPUTS)
+    losses = sum(v for k, v in ledger.items() if k not in LEDGER_INPUTS and not k.startswith("kinetic_"))
     stored = ledger["kinetic_end"] - ledger["kinetic_start"]
     outputs = losses + stored
     residual = inputs - outputs

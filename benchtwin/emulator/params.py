@@ -99,7 +99,9 @@ P_DYN_B1 = 74
 P_DYN_FMAX = 75
 P_DYN_PMAX = 76
 P_DRV_FBMAX = 77
-NP = 78
+P_H_FMAX = 78
+P_SHIFT_INERTIA = 79
+NP = 80
 
 # ---- command rows (one value per plant step) ----
 C_DYNO_MODE = 0  # 0 road-load, 1 speed-controlled
@@ -186,14 +188,17 @@ L_ROAD = 14
 L_DYNO = 15
 L_KE0 = 16  # stored kinetic energy at start
 L_KE1 = 17  # at end
-NL = 18
+L_SHIFT = 18  # gearshift clutches synchronising the pump side
+NL = 19
 
 LEDGER_NAMES: tuple[str, ...] = (
     "fuel_chemical", "hv_battery_chemical", "lv_battery_chemical", "engine_loss", "motor_loss",
     "hv_battery_resistive", "lv_battery_resistive", "torque_converter_slip", "lockup_slip", "k0_slip",
     "transmission_loss", "brakes", "dcdc_loss", "lv_loads", "road_load_work", "dyno_absorbed",
-    "kinetic_start", "kinetic_end",
+    "kinetic_start", "kinetic_end", "shift_clutch_slip",
 )
+#: ledger entries that feed energy in; the stored kinetic energy is ``kinetic_end - kinetic_start``
+LEDGER_INPUTS: tuple[str, ...] = ("fuel_chemical", "hv_battery_chemical", "lv_battery_chemical")
 
 
 @dataclass
@@ -296,6 +301,7 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     p[P_LU_CAP] = tc.lockup_capacity_nm
     p[P_LU_SLIP] = tc.lockup_engage_time_s
     p[P_SHIFT_DELAY] = tr.shift_delay_s
+    p[P_SHIFT_INERTIA] = tr.shift_inertia_phase_s
     p[P_B_GF], p[P_B_GR] = br.gain_front_nm_per_bar, br.gain_rear_nm_per_bar
     p[P_B_TMAX] = br.max_brake_torque_nm
     p[P_B_VCUT] = br.regen_cutoff_speed_kmh * KMH
@@ -317,6 +323,7 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     p[P_H_KICK] = hy.electric_kickdown_pedal_pct
     p[P_H_CHG] = hy.charge_power_w
     p[P_H_ESAVE] = hy.esave_on_power_w
+    p[P_H_FMAX] = hy.max_wheel_force_n
     drv, dyn = campaign.driver, campaign.dyno
     p[P_DRV_B0], p[P_DRV_B1] = _pi_coefficients(s.test_mass_kg, drv.bandwidth_radps, drv.damping, dt)
     p[P_DRV_NPRE] = round(drv.preview_s / dt)

@@ -47,6 +47,7 @@ from benchtwin.emulator.params import (
     L_LV_R,
     L_MOTOR,
     L_ROAD,
+    L_SHIFT,
     L_TC,
     L_TRANS,
     NL,
@@ -130,6 +131,7 @@ from benchtwin.emulator.params import (
     P_F2,
     P_H_CHG,
     P_H_ESAVE,
+    P_H_FMAX,
     P_H_KICK,
     P_H_POFF,
     P_H_PON,
@@ -163,6 +165,7 @@ from benchtwin.emulator.params import (
     P_PF2,
     P_RW,
     P_SHIFT_DELAY,
+    P_SHIFT_INERTIA,
     P_SOC_MAX,
     P_SOC_MIN,
     P_TC_GAMMA,
@@ -178,8 +181,8 @@ __all__ = ["N_STATE", "run_plant", "tc_torques", "willans_power"]
 #: state vector layout (carried between calls so a campaign may be run in pieces)
 S_V, S_X, S_WP, S_WE, S_EON, S_K0, S_LU, S_GEAR, S_GT, S_SHT, S_SOC, S_SOCLV = range(12)
 S_DRV_U, S_DRV_E, S_DYN_U, S_DYN_E, S_LATCH, S_LATCH_T, S_LATCH_V, S_SEG, S_EON_T, S_ESAVE, S_MEFF, S_T = range(12, 24)
-S_STEP, S_LUT = 24, 25
-N_STATE = 26
+S_STEP, S_LUT, S_RAMP, S_KOLD = 24, 25, 26, 27
+N_STATE = 28
 
 
 @njit(cache=True)
@@ -291,10 +294,14 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
     t = st[S_T]
     kstep = int(st[S_STEP])
     lut = st[S_LUT]
+    ramp = st[S_RAMP]
+    kold = st[S_KOLD]
+    t_inertia = p[P_SHIFT_INERTIA]
     iout = row0
     nrun = n
 
     for i in range(n):
+        t = kstep * dt
         dmode = int(cmd[C_DYNO_MODE, i])
         seg = cmd[C_SEG, i]
         hm = int(cmd[C_HMODE, i])
@@ -334,9 +341,16 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
                 aref = -p[P_DRV_STOP] if vt_pre > 0.0 else 0.0
             else:
                 vt = cmd[C_VTGT, i]
-                j = min(i + npre, n - 1)
-                j1 = max(j - nhalf, 0)
-                j2 = min(j + nhalf, n - 1)
+                # preview only within the part of the protocol where the driver follows a target
+                j = i
+                while j < min(i + npre, n - 1) and cmd[C_DRV_MODE, j + 1] == 1:
+                    j += 1
+                j1 = j
+                while j1 > max(j - nhalf, 0) and cmd[C_DRV_MODE, j1 - 1] == 1:
+                    j1 -= 1
+                j2 = j
+                while j2 < min(j + nhalf, n - 1) and cmd[C_DRV_MODE, j2 + 1] == 1:
+                    j2 += 1
                 vt_pre = cmd[C_VTGT, j]
                 aref = (cmd[C_VTGT, j2] - cmd[C_VTGT, j1]) / ((j2 - j1) * dt) if j2 > j1 else 0.0
             ff = mass * aref + (p[P_F0] + p[P_F1] * vt_pre + p[P_F2] * vt_pre * vt_pre) * min(vt_pre / vramp, 1.0)
@@ -375,10 +389,10 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
                 gtgt += 1
             elif gtgt > 1 and v <= dn_v0[gtgt - 2] + dn_s[gtgt - 2] * pedal:
                 gtgt -= 1
-        gear_changed = False
         if gear != gtgt:
             sht += dt
             if sht >= p[P_SHIFT_DELAY] - 1e-9:
+                g_old = gear
                 if gtgt == 0 or gear == 0:
                     gear = gtgt
                 elif gtgt > gear:
@@ -386,12 +400,29 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
                 else:
                     gear -= 1
                 sht = 0.0
-                gear_changed = True
+                if not lu and g_old > 0 and gear > 0:
+                    # inertia phase through the open converter: the turbine speed moves to the new ratio
+                    ramp = t_inertia
+                    kold = ratios[g_old] * ifd / rw
+                if lu and g_old > 0 and gear > 0:
+                    # clutch-to-clutch shift with the lock-up closed: the on-coming clutch brings the pump side
+                    # to the new synchronous speed, exchanging momentum with the vehicle (inelastic, J lost)
+                    jps = jm + (je if k0 else 0.0)
+                    kn = ratios[gear] * ifd / rw
+                    ke_before = 0.5 * meff * v * v + 0.5 * jps * wp * wp
+                    v = (meff * v + kn * jps * wp) / (meff + jps * kn * kn)
+                    wp = kn * v
+                    if k0:
+                        we = wp
+                    led[L_SHIFT] += ke_before - (0.5 * meff * v * v + 0.5 * jps * wp * wp)
         else:
             sht = 0.0
-        shifting = gear != gtgt
         kg = ratios[gear] * ifd / rw if gear > 0 else 0.0
-        wt = kg * v if gear > 0 else wp
+        if gear == 0 or lu:
+            ramp = 0.0
+        kge = kg + (kold - kg) * (ramp / t_inertia) if ramp > 0.0 else kg
+        rge = kge * rw / ifd
+        wt = kge * v if gear > 0 else wp
 
         # ---- machine limits ----
         wq = max(wp, 1.0)
@@ -403,7 +434,16 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
         ef = int(cmd[C_ENG, i])
         t_avail = tm_max if (hm == 1 and ef != 1) else tm_max + te_max
         t_dem = pedal * 0.01 * t_avail
-        lu_ok = lu and gear > 0 and not shifting
+        if gear > 0:
+            # traction / gearbox input torque limiter: wheel force at most P_H_FMAX through the converter's
+            # present torque ratio (launches in low gears)
+            tr_now = 1.0
+            if not lu and wp > 1.0:
+                tpn, ttn, _dn = tc_torques(tc_a, gamma, wp, wt)
+                if tpn > 1e-3:
+                    tr_now = max(ttn / tpn, 1.0)
+            t_dem = min(t_dem, p[P_H_FMAX] * rw / (ratios[gear] * ifd * eta_m[gear] * tr_now) + c0[gear])
+        lu_ok = lu and gear > 0
         if pedal <= 0.0 and lu_ok and v > p[P_B_VCUT]:
             t_dem = -p[P_COAST_T]
         p_dem = t_dem * wp
@@ -466,12 +506,12 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
         # ---- lock-up clutch command ----
         luf = int(cmd[C_LU, i])
         if luf == 1:
-            lu_req = gear > 0 and not shifting and vk >= 5.0
+            lu_req = gear > 0 and vk >= 5.0
         elif luf == 0:
             lu_req = False
         else:
-            lu_req = gear >= p[P_LU_GEAR] and not shifting and v >= p[P_LU_V]
-        if gear_changed or not lu_req:
+            lu_req = gear >= p[P_LU_GEAR] and v >= p[P_LU_V]
+        if not lu_req:
             lu = False
             lut = 0.0
 
@@ -518,6 +558,11 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
                 if wp < widle_e:
                     te = min(te + kidle * (widle_e - wp), te_max)
                     d_idle = kidle
+            elif gear == 0 and not (k0 and eon):
+                # neutral: the motor holds the pump at idle (or lets it run down at standstill)
+                wtarget = widle_m if (pedal > 0.0 or v > 0.3) else 0.0
+                tm = min(max(tm + kidle * (wtarget - wp), -min(tm_gen, 30.0)), tm_max)
+                d_idle = kidle
             elif (pedal > 0.0 or v > 0.3) and wp < widle_m:  # the motor stops at standstill, pedal released
                 tm = min(tm + kidle * (widle_m - wp), tm_max)
                 d_idle = kidle
@@ -542,9 +587,9 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
         fuel_flow += fuel_start / dt
 
         # ---- dyno forces ----
-        ramp = min(v / vramp, 1.0)
-        f_rl = (p[P_F0] + p[P_F1] * v + p[P_F2] * v * v) * ramp
-        f_par = (p[P_PF0] + p[P_PF1] * v + p[P_PF2] * v * v) * ramp
+        rlf = min(v / vramp, 1.0)
+        f_rl = (p[P_F0] + p[P_F1] * v + p[P_F2] * v * v) * rlf
+        f_par = (p[P_PF0] + p[P_PF1] * v + p[P_PF2] * v * v) * rlf
         f_dyn = 0.0
         vset = np.nan
         if dmode == 1:
@@ -562,7 +607,7 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
         # ---- lock-up engagement: capacity ramps up; it sticks once the torque to hold is within capacity ----
         tsrc = te + tm
         cap_now = 0.0
-        if lu_req and not lu and gear > 0:
+        if lu_req and not lu and gear > 0 and ramp <= 0.0:
             lut += dt
             cap_now = p[P_LU_CAP] * min(lut / p[P_LU_SLIP], 1.0)
             tp0, _tt0, _d0 = tc_torques(tc_a, gamma, wp, wt)
@@ -616,9 +661,9 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
                 eta = eta_m[gear]
                 cc = c0[gear]
                 if tin >= cc:
-                    tout = ratios[gear] * eta * (tin - cc)
+                    tout = rge * eta * (tin - cc)
                 elif tin <= eta * cc:
-                    tout = ratios[gear] * (tin / eta - cc)
+                    tout = rge * (tin / eta - cc)
                 else:
                     tout = 0.0
                 num = tsrc - tp - tlu
@@ -652,7 +697,7 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
         else:
             wp_new = max(wp + dw, 0.0)
         w_mid = 0.5 * (wp + wp_new)
-        wt_mid = kg * v_mid if gear > 0 else w_mid
+        wt_mid = kge * v_mid if gear > 0 else w_mid
         ws_mid = ifd * v_mid / rw
 
         # ---- motor electrical power (Willans) and HV battery (eq. 29-30) ----
@@ -784,7 +829,9 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
             we = wp
         soc -= ib * dt / p[P_CAP_AS]
         soclv -= ilvb * dt / p[P_LV_CAP_AS]
-        t += dt
+        t = (kstep + 1) * dt
+        if ramp > 0.0:
+            ramp = max(ramp - dt, 0.0)
         kstep += 1
         if latch and v <= 0.0 and t - latch_t > latch_v / p[P_DRV_STOP] + 3.0:
             nrun = i + 1
@@ -816,6 +863,8 @@ def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bs
     st[S_T] = t
     st[S_STEP] = kstep
     st[S_LUT] = lut
+    st[S_RAMP] = ramp
+    st[S_KOLD] = kold
     return iout - row0, nrun
 
 
