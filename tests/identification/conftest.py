@@ -341,3 +341,23 @@ def mercedes_points() -> dict[str, np.ndarray]:
         pytest.skip(f"reference data not present: {MERCEDES}")
     data = np.loadtxt(MERCEDES, skiprows=1)
     return {"speed_rpm": data[:, 0], "torque_nm": data[:, 1], "fuel_gps": data[:, 2]}
+
+
+@pytest.fixture(scope="session")
+def quick_ideal():
+    """The quick campaign of the emulator through the ideal batch chain: (vehicle config, Recording).
+
+    This is the real path (plant -> sensors -> wire formats -> acquisition) with every imperfection off;
+    what remains is each wire's resolution (e.g. 2.1 Nm on the shaft torque at K_TEL 500, 0.01 km/h speeds).
+    """
+    from benchtwin.chain.batch import run_batch
+    from benchtwin.config._base import scenario_path
+    from benchtwin.config.campaign import load_campaign
+    from benchtwin.config.setup import load_setup
+    from benchtwin.config.vehicle import load_vehicle
+    from benchtwin.emulator import simulate_campaign
+
+    vehicle = load_vehicle()
+    trace = simulate_campaign(vehicle, load_campaign(scenario_path("campaigns", "quick.toml")))
+    rec = run_batch(trace, load_setup(scenario_path("setups", "ideal.toml")), seed=1)
+    return vehicle, rec

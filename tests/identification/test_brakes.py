@@ -95,3 +95,20 @@ def test_blending_maps_follow_the_true_split(blend_plant, brake_plant, truth) ->
     assert 0 < fit.value("regen_share_mean") < 1 and fit["regen_share_mean"].std_error > 0
     with pytest.raises(InsufficientDataError):
         identify_brake_blending(to_recording(*brake_plant[:2]), SPECS, gains, kinds=None)
+
+
+def test_emulated_neutral_braking_and_blending_through_the_ideal_chain(quick_ideal) -> None:
+    """The emulator's neutral-braking test: gains within 0.1 % and k_f = 66 % (eq. 41); the blending maps come
+    from its deceleration tests."""
+    from benchtwin.identification.brakes import identify_brakes
+
+    vehicle, rec = quick_ideal
+    res = identify_brakes(rec, vehicle.specs)
+    b = vehicle.brakes
+    np.testing.assert_allclose(res.fits["brakes.front"].value("m_f"), b.gain_front_nm_per_bar, rtol=1e-3)
+    np.testing.assert_allclose(res.fits["brakes.rear"].value("m_r"), b.gain_rear_nm_per_bar, rtol=1e-3)
+    k_f = b.gain_front_nm_per_bar / (b.gain_front_nm_per_bar + b.gain_rear_nm_per_bar)
+    np.testing.assert_allclose(res.fits["brakes.distribution"].value("k_f"), k_f, rtol=1e-3)
+    blend = res.fits["brakes.blending"]
+    assert blend.n_points > 50 and 0.0 < blend.value("regen_share_mean") < 1.0
+    assert np.nanmax(blend.data["map_regen_share"][:, 0]) < 0.1  # below 10 km/h: hydraulic only

@@ -112,3 +112,14 @@ def test_other_vehicle(truth) -> None:
     np.testing.assert_allclose(res.fits["motor.motoring"].value("e"), 0.91, rtol=1e-4)
     np.testing.assert_allclose(res.fits["motor.motoring"].value("W_loss"), 2600.0, rtol=1e-3)
     np.testing.assert_allclose(res.fits["motor.generating"].value("e_gen"), 0.9, rtol=1e-4)
+
+
+def test_emulated_regen_steps_through_the_ideal_chain(quick_ideal) -> None:
+    """The quick campaign's electric ramp-up has regenerative steps: e_gen and W_loss_gen within 0.1 % and 1 %
+    of the vehicle file; its few motoring steps are reported as too few instead of fitted."""
+    vehicle, rec = quick_ideal
+    res = identify_motor(rec, vehicle.specs)
+    gen = res.fits["motor.generating"]
+    np.testing.assert_allclose(gen.value("e_gen"), vehicle.motor.willans_e_gen, rtol=1e-3)
+    np.testing.assert_allclose(gen.value("W_loss_gen"), vehicle.motor.willans_w_loss_gen_w, rtol=0.01)
+    assert "InsufficientDataError" in res.errors.get("motor.motoring", "InsufficientDataError")

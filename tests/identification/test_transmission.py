@@ -109,3 +109,15 @@ def test_recovers_a_different_vehicle() -> None:
     for g in (4, 6):
         np.testing.assert_allclose(res.fits[f"transmission.gear{g}"].value("eta_m"), other.eta_m[g], rtol=1e-4)
         np.testing.assert_allclose(res.fits[f"transmission.gear{g}"].value("C0"), other.c0[g], rtol=1e-3)
+
+
+def test_emulated_ramp_up_through_the_ideal_chain(quick_ideal) -> None:
+    """The emulator's 5th-gear hybrid ramp-up through the ideal chain: eta_m within 0.5 % and C0 within 10 %.
+    The shaft torque's 2.1 Nm resolution (K_TEL 500, 12 bit) is not averaged out on constant holds; at the
+    lowest step (about 20 Nm input) it is a 4 % error of the efficiency, which is what limits C0 here."""
+    vehicle, rec = quick_ideal
+    res = identify_transmission(rec, vehicle.specs)
+    fit = res.fits["transmission.gear5"]
+    np.testing.assert_allclose(fit.value("eta_m"), vehicle.transmission.eta_m[4], rtol=5e-3)
+    np.testing.assert_allclose(fit.value("C0"), vehicle.transmission.c0_nm[4], rtol=0.1)
+    assert fit.segments == ["ramp_up_g5_85kmh_hybrid"]
