@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -511,8 +512,9 @@ def acquire(data: AcquisitionInput | Any, setup: SetupConfig, *, segments: list[
     ----------
     data:
         An :class:`AcquisitionInput` (frame tables incl. PDO frames, poll logs, transport events),
-        or the sensors' :class:`~benchtwin.chain.frames.DeviceOutputs` (delivered first with
-        :func:`benchtwin.chain.batch.deliver`).
+        the sensors' :class:`~benchtwin.chain.frames.DeviceOutputs` (delivered first with
+        :func:`benchtwin.chain.batch.deliver`), or a folder of raw logs (read with
+        :func:`benchtwin.chain.batch.read_logs`).
     setup:
         The bench (buses, ids, scalings).
     segments:
@@ -524,7 +526,11 @@ def acquire(data: AcquisitionInput | Any, setup: SetupConfig, *, segments: list[
     align:
         Detect clock offsets between sources.
     """
-    if not isinstance(data, AcquisitionInput):
+    if isinstance(data, (str, Path)):
+        from benchtwin.chain.batch import read_logs
+
+        data, _ = read_logs(data, setup)
+    elif not isinstance(data, AcquisitionInput):
         from benchtwin.chain.batch import deliver
 
         data = deliver(data, setup, seed=seed)

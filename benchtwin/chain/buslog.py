@@ -107,7 +107,7 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
     if not path.exists():
         raise DataError(f"{path}: no such bus log")
     try:
-        mdf = MDF(path)
+        mdf = MDF(path, process_bus_logging=False)  # we decode the frames ourselves
     except Exception as exc:  # asammdf raises many kinds for a bad file
         raise DataError(f"{path}: not a readable MF4 file ({exc})") from exc
     parts = []

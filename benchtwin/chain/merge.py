@@ -1,12 +1,13 @@
 """Fast merging of time-sorted frame arrays (FRAME_DTYPE) without per-field structured copies.
 
 numpy gathers structured arrays with a sub-array field slowly; these helpers move whole records
-through a ``void`` view, skip the sort when the data are already in time order, and insert a few
-frames into a long sorted table with a binary search instead of re-sorting it.
+through a ``void`` view, merge already-sorted runs in one pass (a small numba k-way merge) instead of
+sorting everything again, and insert a few frames into a long sorted table with a binary search.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from benchtwin.chain.frames import FRAME_DTYPE
@@ -25,27 +26,47 @@ def _is_sorted(t: np.ndarray) -> bool:
     return bool(t.size < 2 or np.all(t[1:] >= t[:-1]))
 
 
+@numba.njit(cache=True, nogil=True)
+def _kway_order(ts: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:  # pragma: no cover - numba
+    """Order of a k-way merge of the sorted runs ``ts[starts[p]:ends[p]]`` (ties: lower run first)."""
+    k = starts.size
+    pos = starts.copy()
+    out = np.empty(ts.size, np.int64)
+    for j in range(ts.size):
+        best = -1
+        bt = 0.0
+        for p in range(k):
+            if pos[p] < ends[p]:
+                t = ts[pos[p]]
+                if best < 0 or t < bt:
+                    best = p
+                    bt = t
+        out[j] = pos[best]
+        pos[best] += 1
+    return out
+
+
 def merge_frames(parts: list[np.ndarray]) -> np.ndarray:
-    """Concatenate frame arrays and sort them by timestamp (stable: equal times keep part order)."""
-    parts = [p for p in parts if len(p)]
+    """Concatenate frame arrays and sort them by timestamp (stable: equal times keep part order).
+
+    Each part is put in time order first (a no-op for the sensors' outputs, which already are);
+    the runs are then merged in one pass (numba k-way merge) and the records gathered once.
+    """
+    parts = [np.ascontiguousarray(p) for p in parts if len(p)]
     if not parts:
         return np.zeros(0, FRAME_DTYPE)
+    parts = [p if _is_sorted(p["timestamp"]) else take_frames(p, np.argsort(p["timestamp"], kind="stable"))
+             for p in parts]
     if len(parts) == 1:
-        out = np.ascontiguousarray(parts[0])
-    else:
-        # few long parts and many short ones: insert the short ones, sort only when it pays
-        parts.sort(key=len, reverse=True)
-        big = np.concatenate([p for p in parts if len(p) * 50 >= len(parts[0])])
-        small = [p for p in parts if len(p) * 50 < len(parts[0])]
-        out = big
-        if not _is_sorted(out["timestamp"]):
-            out = take_frames(out, np.argsort(out["timestamp"], kind="stable"))
-        for p in small:
-            out = insert_frames(out, p)
-        return out
-    if _is_sorted(out["timestamp"]):
-        return out
-    return take_frames(out, np.argsort(out["timestamp"], kind="stable"))
+        return parts[0]
+    allf = np.concatenate(parts)
+    lens = np.array([len(p) for p in parts], dtype=np.int64)
+    ends = np.cumsum(lens)
+    starts = ends - lens
+    ts = np.ascontiguousarray(allf["timestamp"])
+    if _is_sorted(ts):
+        return allf
+    return take_frames(allf, _kway_order(ts, starts, ends))
 
 
 def insert_frames(frames: np.ndarray, extra: np.ndarray) -> np.ndarray:

@@ -114,3 +114,38 @@ def test_poll_log_validation_and_concat() -> None:
         PollLog("p", 1, 5, 0, [0.0], np.zeros((1, 2)), [0])
     with pytest.raises(DataError):
         PollLog("p", 1, 4, 0, [0.0, 1.0], np.zeros((1, 2)), [0])
+
+
+def test_bus_load_matches_frame_table() -> None:
+    from benchtwin.chain.acquisition import _bus_load
+    from benchtwin.chain.frames import FRAME_DTYPE, FrameTable
+
+    rng = np.random.default_rng(0)
+    f = np.zeros(5000, dtype=FRAME_DTYPE)
+    f["timestamp"] = np.sort(rng.uniform(0, 2.0, 5000))
+    f["dlc"] = rng.integers(0, 9, 5000)
+    f["is_extended"] = rng.random(5000) < 0.3
+    t = FrameTable("x", f, 500_000)
+    assert _bus_load(t) == pytest.approx(t.bus_load(), rel=1e-12)
+
+
+def test_merge_frames_equals_stable_sort() -> None:
+    from benchtwin.chain.frames import FRAME_DTYPE
+    from benchtwin.chain.merge import insert_frames, merge_frames
+
+    rng = np.random.default_rng(1)
+    parts = []
+    for k, period in enumerate((0.02, 0.02, 0.002, 0.1)):
+        t = np.round(np.arange(0, 20, period) + rng.uniform(0, period), 3)
+        f = np.zeros(t.size, dtype=FRAME_DTYPE)
+        f["timestamp"], f["arbitration_id"] = t, k
+        parts.append(f)
+    parts.append(parts[0][::-1].copy())  # an unsorted part
+    allf = np.concatenate(parts)
+    ref = allf[np.argsort(allf["timestamp"], kind="stable")]
+    got = merge_frames(parts)
+    np.testing.assert_array_equal(got["timestamp"], ref["timestamp"])
+    assert np.all(np.diff(got["timestamp"]) >= 0) and len(got) == len(ref)
+    ins = insert_frames(parts[2], parts[3])
+    ref2 = np.concatenate([parts[2], parts[3]])
+    np.testing.assert_array_equal(ins, ref2[np.argsort(ref2["timestamp"], kind="stable")])
