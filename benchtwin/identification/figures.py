@@ -304,8 +304,9 @@ def figure_shifts(result: IdentificationResult, path: Path) -> Path | None:
 def figure_brake_gains(result: IdentificationResult, path: Path) -> Path | None:
     """Figure 22: axle brake torque vs caliper pressure with the fitted gain lines."""
     def xy(f: FitResult) -> tuple[np.ndarray, np.ndarray] | None:
-        if _has(f, "pressure_bar", "torque_nm"):
-            return np.asarray(f.data["pressure_bar"]), np.asarray(f.data["torque_nm"])
+        for pk in ("p_bar", "pressure_bar"):
+            if _has(f, pk, "torque_nm"):
+                return np.asarray(f.data[pk]), np.asarray(f.data["torque_nm"])
         a = f.data.get("A")
         if a is not None and np.ndim(a) == 2 and np.shape(a)[1] == 1 and _has(f, "y"):  # torque = gain * pressure
             return np.asarray(a)[:, 0], np.asarray(f.data["y"])
@@ -319,7 +320,11 @@ def figure_brake_gains(result: IdentificationResult, path: Path) -> Path | None:
         x, y = xy(f)  # type: ignore[misc]
         yf = f.data.get("torque_fit_nm", f.data.get("y_fit"))
         ax.plot(x, y, ".", ms=3, label=f"{key.removeprefix('brakes.')} data")
-        if yf is not None and np.size(yf) == np.size(x):
+        if _has(f, "p_curve_bar", "torque_curve_nm"):
+            gain = next((p for n, p in f.params.items() if n.startswith("m_")), None)
+            lab = f"fit{'' if gain is None else f' {gain.value:.1f} Nm/bar'}, R2 {f.r2:.3f}{_status(f)}"
+            ax.plot(f.data["p_curve_bar"], f.data["torque_curve_nm"], "-", label=lab)
+        elif yf is not None and np.size(yf) == np.size(x):
             order = np.argsort(x)
             ax.plot(np.asarray(x)[order], np.asarray(yf)[order], "-", label=f"fit, R2 {f.r2:.3f}{_status(f)}")
     ax.set_xlabel("caliper pressure (bar)")
@@ -335,19 +340,20 @@ def figure_blending(result: IdentificationResult, path: Path) -> Path | None:
     maps = []
     for key, f in sorted(_fits(result, "brakes").items()):
         for name, z in f.data.items():
-            if not name.endswith("_share") and not name.startswith("map_"):
+            if not name.endswith("_share"):
                 continue
             z = np.asarray(z, dtype=float)
             if z.ndim == 2:
-                maps.append((f"{key.removeprefix('brakes.')}: {name}", f, z))
+                maps.append((f"{key.removeprefix('brakes.')}: {name.removeprefix('map_')}", f, z))
     if not maps:
         return None
     n = len(maps)
     fig, axes = _new(1, n, size=(4.2 * n, 4.0))
     for ax, (title, f, z) in zip(axes, maps):
-        x = f.data.get("map_speed_kmh", f.data.get("speed_kmh_grid"))
-        y = f.data.get("map_decel_mps2", f.data.get("decel_mps2_grid"))
-        if x is not None and y is not None and z.shape == (np.size(y), np.size(x)):
+        x = f.data.get("map_speed_edges_kmh", f.data.get("map_speed_kmh"))
+        y = f.data.get("map_decel_edges_mps2", f.data.get("map_decel_mps2"))
+        if x is not None and y is not None and (z.shape == (np.size(y), np.size(x))
+                                                or z.shape == (np.size(y) - 1, np.size(x) - 1)):
             im = ax.pcolormesh(x, y, z, shading="auto", cmap="viridis", vmin=0, vmax=1)
             ax.set_xlabel("speed (km/h)")
             ax.set_ylabel("deceleration (m/s2)")

@@ -54,13 +54,17 @@ def _bsfc_fit() -> FitResult:
 
 def _brake_fits() -> dict[str, FitResult]:
     p = np.linspace(1, 60, 50)
-    front = linear_fit(p[:, None], 95.0 * p, ["m_f"])
+    front = linear_fit(p[:, None], 95.0 * p, ["m_front"])
+    front.data.update(p_bar=p, torque_nm=95.0 * p, p_curve_bar=p, torque_curve_nm=95.0 * p)
+    rear = linear_fit(p[:, None], 48.0 * p, ["m_rear"])  # only the least-squares arrays: the figure copes
     sg, dg = np.linspace(0, 120, 13), np.linspace(0.5, 6, 12)
     S, D = np.meshgrid(sg, dg)
     blend = FitResult({}, float("nan"), float("nan"), float("nan"), 100)
-    blend.data.update(map_speed_kmh=sg, map_decel_mps2=dg, regen_share=np.clip(1.5 - D / 4, 0, 1) * (S > 10),
-                      front_share=np.clip(0.5 + D / 12, 0, 1))
-    return {"brakes.front": front, "brakes.blending": blend}
+    # H4's blending fit: bin edges and per-bin mean shares (rows: deceleration, columns: speed)
+    blend.data.update(map_speed_edges_kmh=np.r_[sg, 130.0], map_decel_edges_mps2=np.r_[dg, 6.5],
+                      map_regen_share=np.clip(1.5 - D / 4, 0, 1) * (S > 10),
+                      map_front_share=np.clip(0.5 + D / 12, 0, 1))
+    return {"brakes.front": front, "brakes.rear": rear, "brakes.blending": blend}
 
 
 @pytest.fixture(scope="module")
