@@ -28,7 +28,7 @@ from benchtwin.errors import DataError
 from benchtwin.recording import Recording
 from benchtwin.segments import load_segments, save_segments
 from benchtwin.sensors import encode
-from benchtwin.sensors.imperfections import device_rng
+from benchtwin.sensors.imperfections import device_rng, frame_faults
 from benchtwin.sensors.pressure import poll_snapshots
 from benchtwin.trace import Trace
 
@@ -54,6 +54,8 @@ def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
     if setup.thermo is not None and "thermo" in outputs.canopen:
         bus = setup.thermo.bus
         pdo = pdo_layout(setup.thermo.node_id).pack(outputs.canopen["thermo"])
+        pdo = frame_faults(pdo, pdo["arbitration_id"].astype(np.int64), setup.thermo.link,
+                           device_rng(seed, "thermo_pdo"))
         old = can.get(bus, FrameTable(bus, np.zeros(0, FRAME_DTYPE), setup.bitrate(bus)))
         can[bus] = FrameTable(bus, insert_frames(old.frames, pdo), old.bitrate)
     polls = {}

@@ -12,9 +12,14 @@ import numpy as np
 
 from benchtwin.chain.frames import FRAME_DTYPE
 
-__all__ = ["insert_frames", "merge_frames", "take_frames"]
+__all__ = ["insert_frames", "merge_frames", "take_frames", "void_view"]
 
 _VOID = np.dtype((np.void, FRAME_DTYPE.itemsize))
+
+
+def void_view(frames: np.ndarray) -> np.ndarray:
+    """The frames as one opaque record each (for whole-record copies)."""
+    return np.ascontiguousarray(frames).view(_VOID)
 
 
 def take_frames(frames: np.ndarray, index: np.ndarray) -> np.ndarray:

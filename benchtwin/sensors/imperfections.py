@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from benchtwin.chain.frames import FRAME_DTYPE
 from benchtwin.config.setup import ChannelErrors, LinkErrors
 from benchtwin.errors import DataError
 
@@ -183,11 +184,12 @@ def frame_faults(frames: np.ndarray, stream: np.ndarray, link: LinkErrors, rng: 
     """
     if (link.drop_prob == 0 and link.duplicate_prob == 0 and link.reorder_prob == 0) or len(frames) == 0:
         return frames
-    from benchtwin.chain.merge import insert_frames
+    from benchtwin.chain.merge import insert_frames, void_view
 
-    out = frames.copy()
-    n = len(out)
+    n = len(frames)
+    out = frames
     if link.reorder_prob > 0:
+        out = frames.copy()
         # frames of one stream in time order (stable sort on a small integer key is a radix sort)
         _, key = np.unique(stream, return_inverse=True)
         order = np.argsort(key.astype(np.uint16 if key.max() < 65536 else np.int64), kind="stable")
@@ -198,10 +200,13 @@ def frame_faults(frames: np.ndarray, stream: np.ndarray, link: LinkErrors, rng: 
         j = order[1:][swap]
         di, dj = out["data"][i].copy(), out["data"][j].copy()
         out["data"][i], out["data"][j] = dj, di
-    keep = rng.random(n) >= link.drop_prob if link.drop_prob > 0 else np.ones(n, bool)
-    res = out[keep] if not keep.all() else out
+    dropped = np.flatnonzero(rng.random(n) < link.drop_prob) if link.drop_prob > 0 else np.zeros(0, np.int64)
     if link.duplicate_prob > 0:
-        dup = out[keep & (rng.random(n) < link.duplicate_prob)].copy()
+        dup_idx = np.flatnonzero(rng.random(n) < link.duplicate_prob)
+        dup_idx = np.setdiff1d(dup_idx, dropped, assume_unique=True)
+        dup = out[dup_idx].copy()
         dup["timestamp"] += 50e-6
+    res = np.delete(void_view(out), dropped).view(FRAME_DTYPE) if dropped.size else out
+    if link.duplicate_prob > 0:
         res = insert_frames(res, dup)
     return res

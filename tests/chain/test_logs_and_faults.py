@@ -297,3 +297,17 @@ def test_write_and_read_single_logs(tmp_path: Path) -> None:
     assert read_poll_log(write_poll_log(log, tmp_path / "p.npz")).values.sum() == 14
     with pytest.raises(DataError):
         read_mf4(tmp_path / "nope.mf4")
+
+
+def test_pdo_gaps_and_telemetry_drops_are_lost_frames() -> None:
+    setup = load_setup("ideal").model_copy(deep=True)
+    setup.thermo.link.drop_prob = 0.05
+    setup.telemetry.link.drop_prob = 0.01
+    trace = synthetic_trace(30.0, 100.0, seed=4)
+    rec = run_batch(trace, setup, seed=2)
+    th = rec["engine_coolant_in_degc"]
+    gaps = np.diff(th.timestamps) > 0.15
+    assert gaps.any()
+    np.testing.assert_array_equal((th.flags[1:] & Flag.LOST_FRAME) != 0, gaps)
+    tq = rec["shaft_torque_nm"]
+    assert np.count_nonzero(tq.flags & Flag.LOST_FRAME) == pytest.approx(0.01 * 30 * 500, rel=0.4)
