@@ -125,15 +125,16 @@ def test_cli_on_the_insight_log(tmp_path, capsys):
     assert (out / "figures" / "fig16_battery.png").exists()
 
 
-@pytest.fixture(scope="module")
-def quick_chain():
-    """The quick campaign through the emulator and the batch chain with the ideal setup."""
+@pytest.fixture(scope="module", params=["p2_phev_9at.toml", "p2_phev_alt.toml"])
+def quick_chain(request):
+    """The quick campaign through the emulator and the batch chain with the ideal setup, on two vehicles
+    (the second with other values, so nothing is tuned to one vehicle)."""
     from benchtwin.chain.batch import run_batch
     from benchtwin.config import load_campaign, load_vehicle
     from benchtwin.config.setup import load_setup
     from benchtwin.emulator import simulate_campaign
 
-    vehicle = load_vehicle(scenario_path("vehicles", "p2_phev_9at.toml"))
+    vehicle = load_vehicle(scenario_path("vehicles", request.param))
     trace = simulate_campaign(vehicle, load_campaign(scenario_path("campaigns", "quick.toml")))
     rec = run_batch(trace, load_setup(scenario_path("setups", "ideal.toml")))
     return rec, vehicle
