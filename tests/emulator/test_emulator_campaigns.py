@@ -114,3 +114,31 @@ def test_paper_campaign_excites_every_gear_pair_at_three_pedals(paper_trace, veh
     acc = tr.segment("acceleration_electric_pedal35")
     slip = (acc["lockup_closed"] == 0) & (acc["vehicle_speed_mps"] > 1) & (acc["gear_actual"] == 1)
     assert slip.sum() > 100 and np.all(acc["k0_closed"][slip] == 0)
+
+
+@pytest.fixture(scope="module")
+def wltc_by_mode(vehicle) -> dict:
+    out = {}
+    for mode in ("hybrid", "electric", "e_save", "charge"):
+        camp = _campaign([{"kind": "cycle", "mode": mode}], initial_displayed_soc_pct=50.0)
+        out[mode] = simulate_campaign(vehicle, camp)
+    return out
+
+
+def test_the_four_hybrid_modes_behave_as_the_paper_describes(wltc_by_mode) -> None:
+    soc = {m: (tr["displayed_soc_pct"][0], tr["displayed_soc_pct"][-1]) for m, tr in wltc_by_mode.items()}
+    eon = {m: float(np.mean(tr["engine_on"])) for m, tr in wltc_by_mode.items()}
+    for m, tr in wltc_by_mode.items():
+        np.testing.assert_array_equal(tr["hybrid_mode"], {"hybrid": 0, "electric": 1, "e_save": 2, "charge": 3}[m])
+    # Electric: the engine never runs below the kick-down point; the battery alone drives the cycle
+    assert eon["electric"] == 0.0 and np.all(wltc_by_mode["electric"]["fuel_mass_flow_kgps"] == 0)
+    assert soc["electric"][1] < soc["electric"][0] - 20
+    # Hybrid: electric driving with the engine for high power (it does start on the extra-high phase)
+    assert 0.0 < eon["hybrid"] < 0.3 and soc["hybrid"][1] < soc["hybrid"][0]
+    # E-Save: the SOC is held
+    assert abs(soc["e_save"][1] - soc["e_save"][0]) < 3.0 and eon["e_save"] > eon["hybrid"]
+    # Charge: the engine charges the battery, the motor never propels the car while the engine runs
+    ch = wltc_by_mode["charge"]
+    assert soc["charge"][1] > soc["charge"][0] + 10
+    both = (ch["engine_on"] > 0.5) & (ch["k0_closed"] > 0.5)
+    assert both.mean() > 0.5 and np.all(ch["em_torque_nm"][both] <= 1e-9)
