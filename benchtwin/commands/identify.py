@@ -85,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
         if smap.battery is not None:
             b = smap.battery
             options["battery_map_free"] = {"capacity_ah": b.capacity_ah, "soc_nodes_pct": b.soc_nodes_pct,
-                                           "min_abs_current_a": b.min_abs_current_a,
-                                           "n_cells": 1}
+                                           "min_abs_current_a": b.min_abs_current_a, "min_rest_s": b.min_rest_s}
     else:
         if args.recording.suffix.lower() not in (".mf4", ".mdf"):
             raise ConfigError(f"{args.recording}: not an MF4 Recording; give --signal-map to import a "

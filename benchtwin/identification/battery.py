@@ -422,6 +422,10 @@ def identify_battery_map_free(
     out = {key: np.full(nodes.size, np.nan) for key in ("ocv", "r_dch", "r_ch")}
     for (key, k), nm in zip(keys, names):
         out[key][k] = fit.value(nm)
+    neg = [nm for (key, _k), nm in zip(keys, names) if key != "ocv" and not fit.value(nm) > 0]
+    if neg:
+        fit.flag(f"non-positive resistance at {', '.join(neg)}: the static V = OCV - I R model does not describe "
+                 "these data there (polarisation, relaxation, too few samples)")
     fit.data.update({"soc_nodes": nodes, "ocv_nodes": out["ocv"], "r_dch_nodes": out["r_dch"],
                      "r_ch_nodes": out["r_ch"], "t": t, "v_meas": v * n_cells,
                      "v_model": fit.data["y_fit"] * n_cells, "current": i, "soc": s})

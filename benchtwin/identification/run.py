@@ -12,7 +12,8 @@ engine             engine speed/torque, fuel flow               ``engine.*``
 road_load          vehicle speed (coastdown)                    ``road_load.*``
 brakes             four caliper pressures, dyno forces          ``brakes.*``
 battery            battery V/I, displayed SOC (eq. 30)          ``battery``
-battery_map_free   battery V/I (OCV/R without maps, R0 steps)   ``battery_map_free``, ``battery_r0``
+battery_map_free   battery V/I (OCV/R without maps, R0 steps,   ``battery_map_free``, ``battery_r0``,
+                   OCV at the end of long rests)                ``battery_ocv_rest``
 torque_converter   speeds, torques, gear, lock-up (uses the     ``torque_converter.*``
                    transmission result of each gear)
 shifts             target gear, speed, pedal                    ``shifts.up_1_2`` ...
@@ -110,12 +111,17 @@ def _battery(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationRes
 def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult,
                       opts: Mapping[str, Any]) -> Any:
     from benchtwin.errors import IdentificationError
-    from benchtwin.identification.battery import identify_battery_map_free, identify_battery_r0_steps
+    from benchtwin.identification.battery import (
+        identify_battery_map_free,
+        identify_battery_ocv_rest,
+        identify_battery_r0_steps,
+    )
 
     o = dict(opts)
     n_cells = int(o.pop("n_cells", 1))
     cap = o.pop("capacity_ah", None)
     nodes = o.pop("soc_nodes_pct", None)
+    min_rest_s = float(o.pop("min_rest_s", 600.0))
     if "displayed_soc_pct" not in rec and cap is None:
         nodes = None
     out = IdentificationResult()
@@ -126,6 +132,12 @@ def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: Identifi
                                                            soc_nodes_pct=nodes)
     except IdentificationError as exc:
         out.errors["battery_r0"] = f"{type(exc).__name__}: {exc}"
+    if "displayed_soc_pct" in rec or cap is not None:
+        try:
+            out.fits["battery_ocv_rest"] = identify_battery_ocv_rest(rec, n_cells=n_cells, capacity_ah=cap,
+                                                                     min_rest_s=min_rest_s)
+        except IdentificationError as exc:
+            out.errors["battery_ocv_rest"] = f"{type(exc).__name__}: {exc}"
     return out
 
 

@@ -21,8 +21,11 @@ A signal map is a TOML file::
     n_cells_series = 120
     ...
 
-    [battery]                        # optional hints for the map-free battery mode
-    capacity_ah = 6.0
+    [battery]                        # optional hints for the map-free battery mode (pack values)
+    capacity_ah = 6.0                # coulomb counting when the log has no SOC signal
+    soc_nodes_pct = [20, 50, 80]     # OCV/R nodes (default one node: constant OCV and R)
+    min_abs_current_a = 2.0          # leave out near-zero-current samples (relaxation, not OCV)
+    min_rest_s = 600                 # rests at least this long give OCV points
 
 Units are converted through a small explicit table (:data:`UNITS`): each unit names its quantity
 and its factor and offset to a base unit; a role's unit and the user's unit must be of one quantity.
@@ -156,9 +159,9 @@ class BatteryHints(StrictModel):
     """Optional battery facts for the map-free battery mode."""
 
     capacity_ah: float | None = Field(default=None, gt=0)
-    n_cells_series: int | None = Field(default=None, gt=0)
     soc_nodes_pct: list[float] | None = None
     min_abs_current_a: float = Field(default=0.0, ge=0)
+    min_rest_s: float = Field(default=600.0, gt=0)
 
 
 class SignalMap(StrictModel):

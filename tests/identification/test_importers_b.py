@@ -116,6 +116,28 @@ def test_shipped_signal_maps_load():
         assert smap.battery is not None and smap.battery.capacity_ah
 
 
+def test_template_map_imports_an_mf4_log_with_specs(tmp_path):
+    from asammdf import MDF, Signal
+
+    smap = load_signal_map(scenario_path("signal_maps", "example_vehicle_mf4.toml"))
+    assert smap.specs is not None and len(smap.specs.gear_ratios) == 9
+    t = np.arange(0.0, 2.0, 0.02)
+    mdf = MDF(version="4.10")
+    sigs = []
+    for cm in smap.channels.values():
+        sigs.append(Signal(np.full(t.size, 1000.0), t, name=cm.column, unit=cm.unit or ""))
+    mdf.append(sigs)
+    path = tmp_path / "drive.mf4"
+    mdf.save(path, overwrite=True)
+    mdf.close()
+    rec = import_log(path, smap)
+    assert set(rec.channels) == set(smap.channels)
+    np.testing.assert_allclose(rec["battery_current_a"].values, 1.0)  # mA -> A
+    np.testing.assert_allclose(rec["fuel_mass_flow_gps"].values, 1000.0 / 3.6)  # kg/h -> g/s
+    np.testing.assert_allclose(rec["dyno_force_front_n"].values, 1e6)  # kN -> N
+    np.testing.assert_allclose(rec["em_speed_rpm"].values, 1000.0 * 60 / (2 * np.pi))
+
+
 def test_read_csv_table_drops_text_columns(tmp_path):
     p = tmp_path / "x.csv"
     p.write_text("a,b,c\n1,x,3\n2,y,4\n", encoding="utf-8")
