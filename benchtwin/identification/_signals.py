@@ -89,19 +89,48 @@ class Grid:
         return 1.0 / self.rate_hz
 
 
-def _sample(ch: Channel, t: np.ndarray, hold: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Values of ``ch`` at ``t`` and a mask of grid samples touched by a flagged source sample."""
-    v = ch.at(t, hold=hold)
+class _IndexCache:
+    """Fractional sample indices of grid times per time base (channels of one source share it)."""
+
+    def __init__(self, t: np.ndarray) -> None:
+        self.t = t
+        self._cache: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def fidx(self, ts: np.ndarray) -> np.ndarray:
+        for ts0, f in self._cache:
+            if ts0 is ts or (ts0.shape == ts.shape and ts0[0] == ts[0] and ts0[-1] == ts[-1]
+                             and np.array_equal(ts0, ts)):
+                return f
+        # np.interp walks sorted queries in one pass (a binary search per query costs more on long logs)
+        f = np.interp(self.t, ts, np.arange(ts.size, dtype=float))
+        self._cache.append((ts, f))
+        return f
+
+
+def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Values of ``ch`` at ``t`` (linear, or zero-order hold; NaN outside its span) and a mask of grid
+    samples touched by a flagged or non-finite source sample."""
     n = len(ch)
-    raw_bad = ((ch.flags & _BAD) != 0) | ~np.isfinite(ch.values)
-    idx = np.searchsorted(ch.timestamps, t, side="right") - 1
+    ts, vs = ch.timestamps, ch.values
+    raw_bad = ((ch.flags & _BAD) != 0) | ~np.isfinite(vs)
+    fidx = cache.fidx(ts) if cache is not None else np.interp(t, ts, np.arange(n, dtype=float))
+    idx = np.floor(fidx).astype(np.int64)
+    idx[t < ts[0]] = -1
     i0 = np.clip(idx, 0, n - 1)
+    i1 = np.clip(idx + 1, 0, n - 1)
+    if hold:
+        v = vs[i0].astype(float)
+    else:
+        frac = fidx - np.clip(idx, 0, None)
+        v = vs[i0] + frac * (vs[i1] - vs[i0])
+    outside = (idx < 0) | (t > ts[-1])
+    v[outside] = np.nan
     flagged = raw_bad[i0].copy()
     if not hold:
         # a linearly interpolated value depends on the sample after as well
-        i1 = np.clip(idx + 1, 0, n - 1)
-        flagged |= raw_bad[i1] & (ch.timestamps[i1] > t)
-    flagged &= (idx >= 0) & (t <= ch.timestamps[-1])
+        flagged |= raw_bad[i1] & (ts[i1] > t)
+    flagged &= ~outside
     return v, flagged
 
 
@@ -155,15 +184,16 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
     values: dict[str, np.ndarray] = {}
     bad = np.zeros(t.shape, dtype=bool)
     flagged = np.zeros(t.shape, dtype=bool)
+    cache = _IndexCache(t)
     for c in chans:
-        v, fl = _sample(c, t, c.name in held)
+        v, fl = _sample(c, t, c.name in held, cache)
         values[c.name] = v
         flagged |= fl
         bad |= fl | ~np.isfinite(v)
     present = set()
     for n in optional:
         if n in rec and len(rec[n]) and n not in values:
-            v, fl = _sample(rec[n], t, n in held)
+            v, fl = _sample(rec[n], t, n in held, cache)
             v[fl] = np.nan
             values[n] = v
             present.add(n)

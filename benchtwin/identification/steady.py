@@ -18,7 +18,6 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from benchtwin.errors import DataError
 from benchtwin.identification._signals import BAD_FLAGS, Grid, gather, runs, segment_mask
@@ -225,19 +224,33 @@ def detect_steady(dt: float, signals: Mapping[str, np.ndarray], tolerances: Mapp
     kk = float(k @ k)
     for name, x in signals.items():
         x = np.asarray(x, dtype=float)
-        usable &= np.isfinite(x)
+        fin = np.isfinite(x)
+        usable &= fin
         tol = tolerances[name]
-        xs = sliding_window_view(np.where(np.isfinite(x), x, 0.0), w)
-        mean = xs.mean(axis=1)
-        std = xs.std(axis=1)
-        slope = (xs @ k) / kk / dt
-        ok &= std <= tol.std_abs + tol.std_rel * np.abs(mean)
-        ok &= np.abs(slope) <= tol.slope_abs + tol.slope_rel * np.abs(mean)
+        # window sums from cumulative sums (shifted by the median for accuracy)
+        ref = float(np.median(x[fin])) if fin.any() else 0.0
+        xc = np.where(fin, x - ref, 0.0)
+        i = np.arange(n, dtype=float)
+        c1 = np.concatenate(([0.0], np.cumsum(xc)))
+        c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
+        ci = np.concatenate(([0.0], np.cumsum(i * xc)))
+        s1 = c1[w:] - c1[:-w]
+        s2 = c2[w:] - c2[:-w]
+        si = ci[w:] - ci[:-w]
+        mean_c = s1 / w
+        std = np.sqrt(np.clip(s2 / w - mean_c**2, 0.0, None))
+        mean = mean_c + ref
+        # least-squares slope: sum((i - centre) x) / sum(k^2), centre = j + (w - 1) / 2
+        centre = np.arange(n - w + 1, dtype=float) + (w - 1) / 2.0
+        slope = (si - centre * s1) / kk / dt
+        ok &= std <= tol.std_abs + tol.std_rel * np.abs(mean) + 1e-12 * max(abs(ref), 1.0)
+        ok &= np.abs(slope) <= tol.slope_abs + tol.slope_rel * np.abs(mean) + 1e-9 * max(abs(ref), 1.0)
     for x in (states or {}).values():
         x = np.asarray(x, dtype=float)
         usable &= np.isfinite(x)
-        xs = sliding_window_view(np.where(np.isfinite(x), x, -1e300), w)
-        ok &= xs.max(axis=1) == xs.min(axis=1)
+        # constant over a window: no change between consecutive samples inside it
+        change = np.concatenate(([0], np.cumsum(np.diff(np.where(np.isfinite(x), x, -1e300)) != 0)))
+        ok &= change[w - 1:] - change[: n - w + 1] == 0
     # every sample of the window usable: a window sum of the unusable count must be zero
     bad_count = np.convolve((~usable).astype(np.int32), np.ones(w, dtype=np.int32), mode="valid")
     ok &= bad_count == 0
@@ -324,15 +337,27 @@ def find_steady_windows(rec: Recording, channels: Sequence[str], *, states: Iter
                           window_s=window_s, min_duration_s=min_duration_s, max_duration_s=max_duration_s,
                           trim_s=trim_s)
     mids = [grid.t[(a + b - 1) // 2] for a, b in spans]
+    a_idx = np.array([a for a, _ in spans], dtype=int)
+    b_idx = np.array([b for _, b in spans], dtype=int)
+    stats_: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name, x in grid.values.items():
+        # window means and standard deviations from cumulative sums over the finite samples
+        fin = np.isfinite(x)
+        xc = np.where(fin, x, 0.0)
+        ref = float(np.nanmedian(x)) if fin.any() else 0.0  # shift for numerical accuracy of the variance
+        xc = np.where(fin, xc - ref, 0.0)
+        c1 = np.concatenate(([0.0], np.cumsum(xc)))
+        c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
+        cn = np.concatenate(([0], np.cumsum(fin)))
+        cnt = cn[b_idx] - cn[a_idx]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = (c1[b_idx] - c1[a_idx]) / cnt
+            var = np.clip((c2[b_idx] - c2[a_idx]) / cnt - m * m, 0.0, None)
+        stats_[name] = (np.where(cnt > 0, m + ref, np.nan), np.where(cnt > 0, np.sqrt(var), np.nan))
     windows = []
-    for (a, b), tm in zip(spans, mids):
-        means = {}
-        stds = {}
-        for name, x in grid.values.items():
-            xx = x[a:b]
-            if np.isfinite(xx).any():
-                means[name] = float(np.nanmean(xx))
-                stds[name] = float(np.nanstd(xx))
+    for k, ((a, b), tm) in enumerate(zip(spans, mids)):
+        means = {name: float(v[0][k]) for name, v in stats_.items() if np.isfinite(v[0][k])}
+        stds = {name: float(v[1][k]) for name, v in stats_.items() if np.isfinite(v[0][k])}
         states_v = {s: float(grid[s][a]) for s in st}
         segname = next((s.name for s in rec.segments if s.start_s <= tm < s.end_s), "")
         windows.append(SteadyWindow(float(grid.t[a]), float(grid.t[b - 1] + grid.dt), a, b, means, stds, states_v,
