@@ -216,11 +216,18 @@ def figure_battery(result: IdentificationResult, path: Path) -> Path | None:
         axes[0].legend(fontsize=7)
         nodes = mf.data["soc_nodes"]
         style = "o-" if nodes.size > 1 else "o"
-        axes[1].plot(nodes, mf.data["ocv_nodes"], style)
+        axes[1].plot(nodes, mf.data["ocv_nodes"], style, label="OCV - I R fit")
+        rest = result.fits.get("battery_ocv_rest")
+        if rest is not None and _has(rest, "soc", "ocv"):
+            axes[1].plot(rest.data["soc"], rest.data["ocv"], "rx", label="end of long rests")
+        axes[1].legend(fontsize=7)
         axes[1].set_title("OCV(SOC)")
         axes[1].set_xlabel("SOC (%)")
-        axes[2].plot(nodes, mf.data["r_dch_nodes"] * 1e3, style, label="discharge")
-        axes[2].plot(nodes, mf.data["r_ch_nodes"] * 1e3, style, label="charge")
+        axes[2].plot(nodes, mf.data["r_dch_nodes"] * 1e3, style, label="discharge (fit)")
+        axes[2].plot(nodes, mf.data["r_ch_nodes"] * 1e3, style, label="charge (fit)")
+        r0 = result.fits.get("battery_r0")
+        if r0 is not None and _has(r0, "soc_nodes", "r0_nodes"):
+            axes[2].plot(r0.data["soc_nodes"], r0.data["r0_nodes"] * 1e3, "k^", label="R0 (current steps)")
         axes[2].set_title("R(SOC) (mOhm)")
         axes[2].set_xlabel("SOC (%)")
         axes[2].legend(fontsize=7)
