@@ -39,8 +39,6 @@ from benchtwin.emulator.params import (
     L_HV_CHEM,
     L_HV_R,
     L_K0,
-    L_KE0,
-    L_KE1,
     L_LOCKUP,
     L_LV_CHEM,
     L_LV_LOADS,
@@ -50,7 +48,6 @@ from benchtwin.emulator.params import (
     L_SHIFT,
     L_TC,
     L_TRANS,
-    NL,
     O_A,
     O_BRAKE,
     O_DSET,
@@ -176,7 +173,7 @@ from benchtwin.emulator.params import (
     P_W_LOSSG,
 )
 
-__all__ = ["N_STATE", "run_plant", "tc_torques", "willans_power"]
+__all__ = ["N_STATE", "kinetic_energy", "run_plant", "tc_torques", "willans_power"]
 
 #: state vector layout (carried between calls so a campaign may be run in pieces)
 S_V, S_X, S_WP, S_WE, S_EON, S_K0, S_LU, S_GEAR, S_GT, S_SHT, S_SOC, S_SOCLV = range(12)
@@ -237,17 +234,48 @@ def _ke(p: np.ndarray, st: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def run_plant(p, ratios, eta_m, c0, up_v0, up_s, dn_v0, dn_s, e_fl_w, e_fl_t, bsfc_w, bsfc_b, bsfc_tab,
-              m_fl_w, m_fl_t, c_soc, c_ocv, c_rd, c_rc, tc_a, cmd, decim, st, out, row0, led):
-    """Advance the plant over the steps of one test's commands ``cmd`` (rows C_*).
+def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarray, up_v0: np.ndarray,
+              up_s: np.ndarray, dn_v0: np.ndarray, dn_s: np.ndarray, e_fl_w: np.ndarray, e_fl_t: np.ndarray,
+              bsfc_w: np.ndarray, bsfc_b: np.ndarray, bsfc_tab: np.ndarray, m_fl_w: np.ndarray, m_fl_t: np.ndarray,
+              c_soc: np.ndarray, c_ocv: np.ndarray, c_rd: np.ndarray, c_rc: np.ndarray, tc_a: np.ndarray,
+              cmd: np.ndarray, decim: int, st: np.ndarray, out: np.ndarray, row0: int,
+              led: np.ndarray) -> tuple[int, int]:
+    """Advance the plant over the steps of one test's commands.
 
-    Every ``decim``-th plant step (counted over the whole campaign in ``st``) is written to ``out`` from row
-    ``row0`` on. The test ends early once its end condition has fired and the car has stopped. ``st`` (the
-    state) and ``led`` (the energy ledger, J) are updated in place.
+    Parameters
+    ----------
+    p:
+        Scalar parameters, indexed by the ``P_*`` constants of :mod:`benchtwin.emulator.params`.
+    ratios, eta_m, c0:
+        Per gear (index 0 = neutral): ratio, eq. 14 eta_m and C0 (Nm).
+    up_v0, up_s, dn_v0, dn_s:
+        Shift lines per gear pair (m/s, m/s per pedal %).
+    e_fl_w, e_fl_t, m_fl_w, m_fl_t:
+        Engine and motor full-load curves (rad/s, Nm).
+    bsfc_w, bsfc_b, bsfc_tab:
+        BSFC grid: speed (rad/s) x BMEP (Pa) -> kg/J.
+    c_soc, c_ocv, c_rd, c_rc:
+        Literature cell maps over the displayed SOC fraction (V, ohm).
+    tc_a:
+        Torque converter a0..a8 (Nm/(rad/s)^2).
+    cmd:
+        Commands of the test, rows ``C_*`` x steps.
+    decim:
+        Write every ``decim``-th plant step (counted over the whole campaign in ``st``).
+    st:
+        State vector (``S_*``), updated in place.
+    out:
+        Output rows (``O_*`` columns), written from row ``row0`` on.
+    row0:
+        First output row to write.
+    led:
+        Energy ledger (``L_*``, J), accumulated in place.
 
     Returns
     -------
-    (rows written, steps run)
+    tuple of int
+        Output rows written and plant steps run. The test ends before its last command once its end
+        condition has fired and the car has come to rest.
     """
     dt = p[P_DT]
     n = cmd.shape[1]
@@ -873,5 +901,3 @@ def kinetic_energy(p: np.ndarray, st: np.ndarray) -> float:
     """Stored kinetic energy (vehicle as the dyno sees it, pump side, free engine), J."""
     return _ke(p, st)
 
-
-_ = (NL, L_KE0, L_KE1)
