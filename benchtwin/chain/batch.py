@@ -11,7 +11,9 @@ batch path in one call: encode -> deliver -> (write and read the logs) -> acquir
 from __future__ import annotations
 
 import json
+import os
 import shutil
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -78,9 +80,14 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
-    for ch, (bus, table) in enumerate(sorted(received.can.items()), start=1):
-        paths[f"{bus}.mf4"] = write_mf4(table, out / f"{bus}.mf4", channel=ch)
-        if blf:
+    buses = sorted(received.can.items())
+    with ThreadPoolExecutor(max_workers=max(1, min(len(buses), os.cpu_count() or 1))) as pool:
+        done = pool.map(lambda item: write_mf4(item[1][1], out / f"{item[1][0]}.mf4", channel=item[0]),
+                        enumerate(buses, start=1))
+        for (bus, _), p in zip(buses, done):
+            paths[f"{bus}.mf4"] = p
+    if blf:
+        for ch, (bus, table) in enumerate(buses, start=1):
             paths[f"{bus}.blf"] = write_blf(table, out / f"{bus}.blf", channel=ch)
     for dev, plog in received.polls.items():
         paths[f"{dev}.polls.npz"] = write_poll_log(plog, out / f"{dev}.polls.npz")
@@ -126,15 +133,23 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
         setup = validate_data(SetupConfig, json.loads(sp.read_text(encoding="utf-8")), str(sp))
     received = AcquisitionInput()
     skipped = []
-    for p in sorted(d.glob("*.mf4")):
-        bus = p.stem
-        bitrate = setup.buses[bus].bitrate if bus in setup.buses else 500_000
+
+    def read_one(p: Path) -> FrameTable | DataError:
+        bitrate = setup.buses[p.stem].bitrate if p.stem in setup.buses else 500_000
         try:
-            received.can[bus] = read_mf4(p, bus, bitrate)
+            return read_mf4(p, p.stem, bitrate)
         except DataError as exc:
-            if bus in setup.buses:
-                raise
-            skipped.append(f"{p.name}: {exc}")  # e.g. a Recording saved next to the logs
+            return exc
+
+    files = sorted(d.glob("*.mf4"))
+    with ThreadPoolExecutor(max_workers=max(1, min(len(files), os.cpu_count() or 1))) as pool:
+        for p, res in zip(files, pool.map(read_one, files)):
+            if isinstance(res, FrameTable):
+                received.can[p.stem] = res
+            elif p.stem in setup.buses:
+                raise res
+            else:
+                skipped.append(f"{p.name}: {res}")  # e.g. a Recording saved next to the logs
     for p in sorted(d.glob("*.polls.npz")):
         plog = read_poll_log(p)
         received.polls[plog.device] = plog

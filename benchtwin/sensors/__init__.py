@@ -10,6 +10,12 @@ campaign seed split per device. The per-device encoders (``encode_ivt``, ``encod
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
+from typing import Any
+
 import numpy as np
 
 from benchtwin.chain.frames import DeviceOutputs, FrameTable
@@ -36,7 +42,11 @@ def device_names(setup: SetupConfig) -> list[str]:
     return names
 
 
-def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0) -> DeviceOutputs:
+def _workers(workers: int | None) -> int:
+    return max(1, min(4, os.cpu_count() or 1)) if workers is None else max(1, int(workers))
+
+
+def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0, *, workers: int | None = None) -> DeviceOutputs:
     """Encode every sensor of ``setup`` over ``trace``.
 
     Parameters
@@ -47,6 +57,9 @@ def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0) -> DeviceOutp
         The bench.
     seed:
         Campaign seed; each device draws from its own stream split from it.
+    workers:
+        Threads encoding devices in parallel (numpy releases the GIL in the heavy loops); the
+        result does not depend on it. Default: the CPU count, at most 4.
 
     Raises
     ------
@@ -57,21 +70,38 @@ def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0) -> DeviceOutp
     """
     if len(trace) < 2:
         raise DataError("trace needs at least two samples to encode")
-    per_bus: dict[str, list[np.ndarray]] = {b: [] for b in setup.buses}
-    out = DeviceOutputs()
+    jobs: list[tuple[str, str, Callable[[], Any]]] = []  # (kind, bus or name, job)
     for place, cfg in setup.ivt.items():
-        per_bus[cfg.bus].append(encode_ivt(trace, place, cfg, device_rng(seed, f"ivt_{place}")))
+        jobs.append(("can", cfg.bus, partial(encode_ivt, trace, place, cfg, device_rng(seed, f"ivt_{place}"))))
     if setup.telemetry is not None:
-        per_bus[setup.telemetry.bus].append(encode_telemetry(trace, setup.telemetry, device_rng(seed, "telemetry")))
+        jobs.append(("can", setup.telemetry.bus,
+                     partial(encode_telemetry, trace, setup.telemetry, device_rng(seed, "telemetry"))))
     if setup.vehicle_can is not None:
-        per_bus[setup.vehicle_can.bus].append(
-            encode_can_device(trace, "vehicle", setup.vehicle_can, device_rng(seed, "vehicle_can")))
+        jobs.append(("can", setup.vehicle_can.bus, partial(encode_can_device, trace, "vehicle", setup.vehicle_can,
+                                                          device_rng(seed, "vehicle_can"))))
     if setup.dyno is not None:
-        per_bus[setup.dyno.bus].append(encode_can_device(trace, "dyno", setup.dyno, device_rng(seed, "dyno")))
+        jobs.append(("can", setup.dyno.bus, partial(encode_can_device, trace, "dyno", setup.dyno,
+                                                   device_rng(seed, "dyno"))))
     if setup.thermo is not None:
-        out.canopen["thermo"] = encode_thermo(trace, setup.thermo, device_rng(seed, "thermo"))
+        jobs.append(("canopen", "thermo", partial(encode_thermo, trace, setup.thermo, device_rng(seed, "thermo"))))
     if setup.pressure is not None:
-        out.modbus[setup.pressure.device] = encode_pressure(trace, setup.pressure, device_rng(seed, "pressure"))
+        jobs.append(("modbus", setup.pressure.device,
+                     partial(encode_pressure, trace, setup.pressure, device_rng(seed, "pressure"))))
+    n = _workers(workers)
+    if n == 1:
+        results = [job() for _, _, job in jobs]
+    else:
+        with ThreadPoolExecutor(max_workers=n, thread_name_prefix="encode") as pool:
+            results = list(pool.map(lambda j: j[2](), jobs))
+    out = DeviceOutputs()
+    per_bus: dict[str, list[np.ndarray]] = {b: [] for b in setup.buses}
+    for (kind, key, _), res in zip(jobs, results):
+        if kind == "can":
+            per_bus[key].append(res)
+        elif kind == "canopen":
+            out.canopen[key] = res
+        else:
+            out.modbus[key] = res
     for bus, parts in per_bus.items():
         out.can[bus] = FrameTable(bus, merge_frames(parts), setup.bitrate(bus))
     return out
