@@ -46,7 +46,16 @@ def _accuracy(res, vehicle) -> list[str]:
     if c is not None:
         a = np.asarray(vehicle.torque_converter.a_nm_per_radps2)
         errs = [c.value(f"a{k}") / a[k] - 1 for k in range(6)]
-        g = c.value("gamma_coupling") / vehicle.torque_converter.coupling_speed_ratio - 1
+        g_true = vehicle.torque_converter.coupling_speed_ratio
+        g = c.value("gamma_coupling") / g_true - 1
+        # the curves matter more than single coefficients (a1 is small and correlated with a0, a2)
+        sr = np.linspace(0.0, g_true, 50)
+        e = np.array([c.value(f"a{k}") for k in range(6)])
+        tp_t, tp_e = a[0] + a[1] * sr + a[2] * sr**2, e[0] + e[1] * sr + e[2] * sr**2
+        tr_t, tr_e = (a[3] + a[4] * sr + a[5] * sr**2) / tp_t, (e[3] + e[4] * sr + e[5] * sr**2) / tp_e
+        k_err = 100 * np.max(np.abs(np.sqrt(tp_t / tp_e) - 1))
+        out.append(f"torque converter curves over SR 0..Gamma: K-factor max {k_err:.2f} %, torque ratio max "
+                   f"{np.max(np.abs(tr_e - tr_t)):.3f}")
         r2 = {k: res.fits[f"torque_converter.{k}"].r2 for k in ("torque_ratio", "capacity_factor",
                                                                "capacity_factor_coupling")
               if f"torque_converter.{k}" in res.fits}
