@@ -41,7 +41,9 @@ def summary_rows(trace: Trace) -> list[tuple[str, str]]:
         seg = cyc[0]
         tc, vc = load_cycle(seg.settings.get("cycle", "wltc_class3b.csv"))
         m = seg.contains(t)
-        err = v[m] - np.interp(t[m] - seg.start_s, tc - tc[0], vc)
+        t_cyc = t[m] - seg.start_s + float(seg.settings.get("from_s", 0.0))
+        inside = t_cyc <= float(seg.settings.get("to_s") or tc[-1])
+        err = (v[m] - np.interp(t_cyc, tc, vc))[inside]
         rows.append(("cycle", seg.name))
         rows.append(("RMS speed error", f"{3.6 * np.sqrt(np.mean(err**2)):.3f} km/h"))
         rows.append(("max speed error", f"{3.6 * np.max(np.abs(err)):.2f} km/h"))

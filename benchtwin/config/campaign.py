@@ -132,6 +132,14 @@ class CycleTest(_TestBase):
 
     kind: Literal["cycle"]
     cycle: str = "wltc_class3b.csv"
+    from_s: float = Field(default=0.0, ge=0, description="run only part of the cycle: start time")
+    to_s: float | None = Field(default=None, gt=0, description="end time (default: the end of the cycle)")
+
+    @model_validator(mode="after")
+    def _window(self) -> CycleTest:
+        if self.to_s is not None and self.to_s <= self.from_s:
+            raise ValueError("to_s must be after from_s")
+        return self
 
 
 class CoastdownTest(_TestBase):

@@ -245,9 +245,18 @@ def build_protocol(campaign: CampaignConfig) -> Protocol:
             _dyno_stop(b, v, k, hm)
         elif isinstance(test, CycleTest):
             tc, vc = load_cycle(test.cycle)
-            settings["cycle_distance_m"] = float(np.sum(0.5 * (vc[1:] + vc[:-1]) * np.diff(tc)))
-            dur = float(tc[-1] - tc[0]) + dt
-            b.phase(dur, seg=k, hmode=hm, drv_mode=1, vtgt=lambda t, tc=tc, vc=vc: np.interp(t, tc - tc[0], vc))
+            t_end = float(tc[-1]) if test.to_s is None else min(test.to_s, float(tc[-1]))
+            if test.from_s >= t_end:
+                raise ConfigError(f"campaign {campaign.name!r}: test {k}: from_s {test.from_s} is past the end "
+                                  f"of {test.cycle} ({t_end:.0f} s)")
+            grid = np.arange(test.from_s, t_end + 1e-9, 0.1)
+            vg = np.interp(grid, tc, vc)
+            settings["cycle_distance_m"] = float(np.sum(0.5 * (vg[1:] + vg[:-1]) * np.diff(grid)))
+            dur = t_end - test.from_s + dt
+            b.phase(dur, seg=k, hmode=hm, drv_mode=1,
+                    vtgt=lambda t, tc=tc, vc=vc, t0=test.from_s: np.interp(t + t0, tc, vc))
+            if vg[-1] > 0.1:
+                _driver_stop(b, k, hm, float(vg[-1]), stop)
         elif isinstance(test, CoastdownTest):
             v = (test.start_speed_kmh + 5.0) * KMH
             b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.75 * test.approach_s),

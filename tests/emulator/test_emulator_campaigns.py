@@ -142,3 +142,19 @@ def test_the_four_hybrid_modes_behave_as_the_paper_describes(wltc_by_mode) -> No
     assert soc["charge"][1] > soc["charge"][0] + 10
     both = (ch["engine_on"] > 0.5) & (ch["k0_closed"] > 0.5)
     assert both.mean() > 0.5 and np.all(ch["em_torque_nm"][both] <= 1e-9)
+
+
+def test_part_of_a_cycle_then_the_driver_stops(vehicle) -> None:
+    camp = _campaign([{"kind": "cycle", "name": "part", "from_s": 100.0, "to_s": 200.0}])
+    tr = simulate_campaign(vehicle, camp)
+    (seg,) = tr.segments
+    assert seg.settings["from_s"] == 100.0 and seg.settings["to_s"] == 200.0
+    from benchtwin.emulator.protocols import load_cycle
+
+    tc, vc = load_cycle("wltc_class3b.csv")
+    m = tr.time_s <= 100.0
+    err = 3.6 * (tr["vehicle_speed_mps"][m] - np.interp(tr.time_s[m] + 100.0, tc, vc))
+    assert np.sqrt(np.mean(err**2)) < 1.0
+    assert tr["vehicle_speed_mps"][-1] == 0.0
+    with pytest.raises(Exception, match="to_s must be after from_s"):
+        _campaign([{"kind": "cycle", "from_s": 100.0, "to_s": 50.0}])
