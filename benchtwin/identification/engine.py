@@ -10,7 +10,7 @@ linear term (scipy ``RBFInterpolator``) over normalised coordinates, and
 ``BSFC = 3.6e9 / Q_LHV * pmf / BMEP``. Its smoothing is chosen by cross-validation unless given.
 Grid nodes outside the convex hull of the data are marked extrapolated and never used for the
 best-efficiency region (minimum BSFC and the area within ``+band`` g/kWh of it). Uncertainty of the
-minimum comes from a bootstrap of the cross-validated prediction errors.
+minimum comes from a wild bootstrap of the cross-validated prediction errors.
 
 The Willans line of the engine, per speed band: fuel power ``P_f = mdot Q_LHV = P_u / e + W_loss``
 (least squares on ``[P_u, 1]``); ``W_loss`` is on the fuel side, ``e W_loss`` the mechanical loss.
@@ -43,7 +43,7 @@ __all__ = ["EnginePoints", "bmep_bar", "engine_points", "fit_bsfc_map", "fit_eng
            "speed_bands"]
 
 RPM = 2.0 * math.pi / 60.0
-_SMOOTHINGS = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+_SMOOTHINGS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
 
 def bmep_bar(torque_nm: np.ndarray, specs: VehicleSpecs) -> np.ndarray:
@@ -135,13 +135,15 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
         The minimum is searched at BMEP at or above this (near zero load ``BSFC = pmf / BMEP`` turns
         every small error of the fuel MEP into a huge one, and the best point is never there).
     n_boot:
-        Bootstrap replicates for the uncertainty of the minimum (cross-validated prediction errors
-        added to the fitted fuel MEP, map refitted); SE and percentile 95 % interval.
+        Bootstrap replicates for the uncertainty of the minimum (each point's cross-validated
+        prediction error added to the fitted fuel MEP with a random sign, map refitted); SE and
+        percentile 95 % interval.
 
     Returns
     -------
     FitResult
-        Parameters ``bsfc_min`` (g/kWh), ``speed_at_min`` (rpm), ``bmep_at_min`` (bar), ``eta_max``;
+        ``r2`` and ``rmse`` are cross-validated (k-fold, BSFC at the points); parameters
+        ``bsfc_min`` (g/kWh), ``speed_at_min`` (rpm), ``bmep_at_min`` (bar), ``eta_max``;
         data ``speed_rpm``, ``bmep_bar``, ``bsfc`` (points), ``bsfc_fit``, ``map_speed_rpm``,
         ``map_bmep_bar``, ``map_bsfc`` (bmep x speed), ``map_extrapolated`` (bool, same shape),
         ``map_best_region`` (bool), ``map_eta``.
@@ -174,14 +176,19 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     folds = min(n.size, 10)
     if smoothing is None:
         smoothing = _cv_smoothing(P, pmf, _SMOOTHINGS, folds)
-    cv_err = _cv_residuals(P, pmf, smoothing, folds)
-    cv_err = cv_err[np.isfinite(cv_err)]
+    cv_all = _cv_residuals(P, pmf, smoothing, folds)
+    cv_ok = np.isfinite(cv_all)
+    cv_err = cv_all[cv_ok]
     cv_rmse = float(np.sqrt(np.mean(cv_err**2))) if cv_err.size else float("nan")
     rbf = RBFInterpolator(P, pmf, kernel="thin_plate_spline", smoothing=smoothing, degree=1)
     pmf_fit = rbf(P)
     fitted = q * pmf_fit / b
-    r2, adj = r_squared(bsfc, fitted, 3)
-    rmse = float(np.sqrt(np.mean((bsfc - fitted) ** 2)))
+    # the map interpolates (or nearly): its in-sample R^2 says nothing, so the fit reports the
+    # cross-validated R^2 of BSFC (each point predicted by the map built without its fold)
+    r2_in, _ = r_squared(bsfc, fitted, 3)
+    bsfc_cv = q * (pmf + cv_all) / b
+    r2, adj = r_squared(bsfc[cv_ok], bsfc_cv[cv_ok], 3)
+    rmse = float(np.sqrt(np.mean((bsfc[cv_ok] - bsfc_cv[cv_ok]) ** 2))) if cv_ok.any() else float("nan")
     sg = np.linspace(nlo, nhi, 25) if speed_grid is None else np.asarray(speed_grid, dtype=float)
     bg = np.linspace(max(blo, 0.0), bhi, 25) if bmep_grid is None else np.asarray(bmep_grid, dtype=float)
     S, B = np.meshgrid(sg, bg)
@@ -210,17 +217,15 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
 
     bmin, nmin, bmin_at = (float(x) for x in minima(pmf[:, None])[0])
     rng = np.random.default_rng(seed)
-    # the bootstrap draws the cross-validated prediction errors: with an interpolating map (no
-    # smoothing) the in-sample residuals are zero, while the map between the points is not exact
-    resid = cv_err if cv_err.size else pmf - pmf_fit
-    # heavy tails (points at the hull's edge are extrapolated in cross-validation): clip at 3 robust sigma
-    mad = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
-    if mad > 0:
-        resid = np.clip(resid, -3 * mad, 3 * mad)
+    # wild bootstrap of the cross-validated prediction errors: each point keeps its own error, with a
+    # random sign. With an interpolating map the in-sample residuals are zero while the map between
+    # the points is not exact; and the errors are heteroscedastic (points at the hull's edge are
+    # extrapolated in cross-validation), so they are not swapped between points.
+    resid = np.where(cv_ok, cv_all, 0.0) if cv_ok.any() else pmf - pmf_fit
     boots: list[np.ndarray] = []
     if np.any(resid != 0) and n_boot > 0:
-        yb = pmf_fit[:, None] + rng.choice(resid, (resid.size, n_boot), replace=True)
-        boots = list(minima(yb))
+        signs = rng.choice(np.array([-1.0, 1.0]), (resid.size, n_boot))
+        boots = list(minima(pmf_fit[:, None] + resid[:, None] * signs))
     boots_a = np.asarray(boots) if boots else np.zeros((1, 3))
 
     def est(name: str, value: float, col: np.ndarray, unit: str) -> ParameterEstimate:
@@ -238,7 +243,7 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     region = (~extrap) & (mapv <= bmin + band_gpkwh)
     fit = FitResult(params, r2, adj, rmse, int(n.size), n_excluded + n_out, sorted({s for s in segments if s}))
     fit.data.update(speed_rpm=n, torque_nm=t, bmep_bar=b, bsfc=bsfc, bsfc_fit=fitted, y=bsfc, y_fit=fitted,
-                    pmf_bar=pmf, pmf_fit_bar=pmf_fit,
+                    pmf_bar=pmf, pmf_fit_bar=pmf_fit, bsfc_cv=bsfc_cv, r2_in_sample=np.array([r2_in]),
                     map_speed_rpm=sg, map_bmep_bar=bg, map_bsfc=mapv, map_extrapolated=extrap,
                     map_best_region=region, map_eta=q / mapv, smoothing=np.array([smoothing]),
                     cv_rmse=np.array([cv_rmse]), band_gpkwh=np.array([band_gpkwh]))
