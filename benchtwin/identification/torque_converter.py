@@ -318,6 +318,8 @@ def identify_torque_converter(
     min_points: int = 10,
     pump_inertia: bool = True,
     derivative_window_s: float = 0.4,
+    calibrate_turbine_speed: bool = True,
+    min_calibration_points: int = 50,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
@@ -346,6 +348,14 @@ def identify_torque_converter(
         slow-but-not-static take-offs of a real test unless it is accounted for.
     derivative_window_s:
         Span of the central difference for the pump acceleration.
+    calibrate_turbine_speed:
+        Eq. 31 needs the effective rolling radius and a true vehicle speed; a vehicle CAN speed that
+        reads a few % high, or a catalogue tyre radius, shifts every SR. Where the lock-up is closed
+        (and the gear engaged, no shift, quasi-steady), the turbine turns with the pump exactly, so the
+        median of ``w_p / w_t(eq. 31)`` over those samples is the correction factor; it is applied to
+        all turbine speeds and reported as ``turbine_speed_scale`` (flagged when it is more than 10 %
+        from 1: check the gear ratios, final drive and wheel radius). Needs at least
+        ``min_calibration_points`` such samples, else eq. 31 is used as is.
 
     Returns
     -------
@@ -386,6 +396,20 @@ def identify_torque_converter(
     g = np.clip(gear, 1, len(specs.gear_ratios))
     ig = np.asarray(specs.gear_ratios)[g - 1]
     w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
+    scale, scale_se, n_cal = 1.0, float("nan"), 0
+    if calibrate_turbine_speed:
+        cal = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz)) & (gear >= 1) \
+            & (gear <= len(specs.gear_ratios)) & (np.nan_to_num(d["lockup_closed"]) >= 0.5) \
+            & (n_p >= min_pump_speed_rpm) & (np.abs(dn) <= max_pump_accel_rpm_s) & (d["vehicle_speed_kmh"] > 10.0)
+        n_cal = int(cal.sum())
+        if n_cal >= min_calibration_points:
+            ratio = n_p[cal] / RPM_PER_RADS / w_t[cal]
+            scale = float(np.median(ratio))
+            scale_se = 1.2533 * float(np.std(ratio, ddof=1)) / np.sqrt(n_cal)
+            w_t = w_t * scale
+            if abs(scale - 1.0) > 0.1:
+                reasons.append(f"turbine speed from eq. 31 is off by {100 * (scale - 1):+.1f} % against the motor "
+                               "speed with the lock-up closed: check gear ratios, final drive and wheel radius")
     if transmission:
         table = {int(k): (float(e), float(c)) for k, (e, c) in transmission.items()}
         lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in table})
@@ -405,6 +429,11 @@ def identify_torque_converter(
     res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], d["em_torque_nm"][use], t_t[use], gamma=gamma,
                                min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()),
                                dw_p=dn[use] / RPM_PER_RADS if pump_inertia else None)
+    from benchtwin.identification._fit import ParameterEstimate
+
+    res["converter"].add(ParameterEstimate(
+        "turbine_speed_scale", scale, scale_se, (scale - 1.96 * scale_se, scale + 1.96 * scale_se), float("nan"),
+        n_cal, "", segs))
     for r in reasons:
         res["converter"].flag(r)
         if "coupling" in res:

@@ -87,10 +87,13 @@ def tc_truth_vector() -> np.ndarray:
 
 def tc_recording(*, duration_s: float = 600.0, rate_hz: float = 10.0, gear: int = 1, noise_nm: float = 0.0,
                  seed: int = 1, transmission: dict[int, tuple[float, float]] | None = None,
-                 pump_inertia_kgm2: float = 0.0) -> tuple[Recording, dict[str, float]]:
+                 pump_inertia_kgm2: float = 0.0, speed_reading_bias: float = 0.0,
+                 lockup_closed_s: float = 0.0) -> tuple[Recording, dict[str, float]]:
     """Slow, quasi-steady electric take-offs with the lock-up open, K0 open, in one gear.
 
     With ``pump_inertia_kgm2`` the motor torque also accelerates the rotor and pump: T_em = T_p + J dw_p/dt.
+    ``lockup_closed_s`` appends a cruise with the lock-up closed (turbine = pump); ``speed_reading_bias``
+    makes the vehicle CAN speed read that fraction high (a speedometer-like error).
     """
     transmission = transmission or TRANSMISSION_TRUTH
     rng = np.random.default_rng(seed)
@@ -103,16 +106,28 @@ def tc_recording(*, duration_s: float = 600.0, rate_hz: float = 10.0, gear: int 
     eta_m, c0 = transmission[gear]
     t_out = ig * eta_m * (tt - c0)
     v_kmh = w_t / (ig * SPECS.final_drive_ratio) * SPECS.wheel_radius_m * 3.6
+    dw = 2 * np.pi / 300.0 * 90.0 * np.cos(2 * np.pi * t / 300.0) + 2 * np.pi / 7.0 * 8.0 * np.cos(2 * np.pi * t / 7.0)
+    t_em = tp + pump_inertia_kgm2 * dw
+    lock = np.zeros(t.size)
+    if lockup_closed_s > 0:
+        t2 = duration_s + np.arange(0.0, lockup_closed_s, 1.0 / rate_hz)
+        w2 = 150.0 + 20.0 * np.sin(2 * np.pi * (t2 - duration_s) / 60.0)
+        tq2 = np.full(t2.size, 80.0)
+        t = np.r_[t, t2]
+        w_p, t_em = np.r_[w_p, w2], np.r_[t_em, tq2]
+        t_out = np.r_[t_out, ig * eta_m * (tq2 - c0)]
+        v_kmh = np.r_[v_kmh, w2 / (ig * SPECS.final_drive_ratio) * SPECS.wheel_radius_m * 3.6]
+        lock = np.r_[lock, np.ones(t2.size)]
+    v_kmh = v_kmh * (1.0 + speed_reading_bias)
     rec = Recording(segments=[Segment(0.0, float(duration_s), "acceleration", f"tc_takeoff_g{gear}", {})])
     can = "vehicle_can"
     rec.add(Channel("em_speed_rpm", "rpm", t, w_p * 60 / (2 * np.pi), source=can))
-    dw = 2 * np.pi / 300.0 * 90.0 * np.cos(2 * np.pi * t / 300.0) + 2 * np.pi / 7.0 * 8.0 * np.cos(2 * np.pi * t / 7.0)
-    t_em = tp + pump_inertia_kgm2 * dw
     rec.add(Channel("em_torque_nm", "Nm", t, t_em + noise_nm * rng.standard_normal(t.size), source=can))
     rec.add(Channel("vehicle_speed_kmh", "km/h", t, v_kmh, source=can))
     rec.add(Channel("shaft_torque_nm", "Nm", t, t_out + noise_nm * ig * rng.standard_normal(t.size),
                     source="telemetry"))
-    for name, val in (("gear_actual", gear), ("gear_target", gear), ("lockup_closed", 0), ("k0_closed", 0)):
+    rec.add(Channel("lockup_closed", "", t, lock, source=can))
+    for name, val in (("gear_actual", gear), ("gear_target", gear), ("k0_closed", 0)):
         rec.add(Channel(name, "", t, np.full(t.size, float(val)), source=can))
     return rec, dict(TC_TRUTH)
 

@@ -125,3 +125,17 @@ def test_coupling_derived_quantities(ideal):
     np.testing.assert_allclose(coup.value("k_at_gamma"), truth["a6"] + truth["a7"] * g + truth["a8"] * g**2,
                                rtol=1e-3)
     np.testing.assert_allclose(coup.value("sr_zero_torque"), 1.0, rtol=1e-3)
+
+
+def test_speedometer_error_is_calibrated_on_lockup_closed_samples():
+    # the CAN speed reads 4 % high; with the lock-up closed the turbine turns with the motor, which fixes it
+    rec, truth = tc_recording(speed_reading_bias=0.04, lockup_closed_s=120.0)
+    res = identify_torque_converter(rec, SPECS, transmission=TRANSMISSION_TRUTH)
+    conv = res["converter"]
+    np.testing.assert_allclose(conv.value("turbine_speed_scale"), 1 / 1.04, rtol=1e-6)
+    assert conv["turbine_speed_scale"].n_points > 1000
+    np.testing.assert_allclose(conv.value("gamma_coupling"), truth["gamma"], rtol=1e-3)
+    np.testing.assert_allclose([conv.value(f"a{k}") for k in range(6)], tc_truth_vector()[:6], rtol=1e-3,
+                               atol=1e-6)
+    raw = identify_torque_converter(rec, SPECS, transmission=TRANSMISSION_TRUTH, calibrate_turbine_speed=False)
+    assert raw["converter"].value("gamma_coupling") > truth["gamma"] * 1.02  # every SR 4 % high
