@@ -225,6 +225,13 @@ def _bsfc(w: np.ndarray, b: np.ndarray, tab: np.ndarray, ws: float, bmep: float)
 
 
 @njit(cache=True)
+def _merge(j1: float, w1: float, j2: float, w2: float) -> tuple[float, float]:
+    """Two inertias locked together by a clutch: common speed (momentum kept) and the energy lost, J."""
+    w = (j1 * w1 + j2 * w2) / (j1 + j2)
+    return w, 0.5 * j1 * w1 * w1 + 0.5 * j2 * w2 * w2 - 0.5 * (j1 + j2) * w * w
+
+
+@njit(cache=True)
 def _ke(p: np.ndarray, st: np.ndarray) -> float:
     jp = p[P_M_J] + (p[P_E_J] if st[S_K0] > 0.5 else 0.0)
     ke = 0.5 * st[S_MEFF] * st[S_V] ** 2 + 0.5 * jp * st[S_WP] ** 2
@@ -524,8 +531,16 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
             ke_e_self = 0.5 * je * (we_new * we_new - we * we)
             we = we_new
             if k0_req and abs(we - wp) < 3.0:
-                led[L_K0] += 0.5 * je * (we * we - wp * wp)
-                we = wp
+                # the clutch locks: engine and pump side (with the vehicle if the lock-up is closed) share
+                # their momentum; the small speed difference is lost as clutch slip energy
+                rigid = lu and gear > 0 and kg > 0.0
+                j2 = jm + (meff / (kg * kg) if rigid else 0.0)
+                w, loss = _merge(je, we, j2, wp)
+                led[L_K0] += loss
+                wp = w
+                we = w
+                if rigid:
+                    v = w / kg
                 k0 = True
         else:
             we = wp
@@ -641,8 +656,12 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
             tp0, _tt0, _d0 = tc_torques(tc_a, gamma, wp, wt)
             tneed = tsrc - tp0 - jp * (wt - wp) / dt
             if abs(tneed) <= cap_now:
-                led[L_LOCKUP] += 0.5 * jp * (wp * wp - wt * wt)
-                wp = wt
+                # the lock-up sticks: pump side and vehicle (seen through the gear) share their momentum
+                w, loss = _merge(jp, wp, meff / (kg * kg), wt)
+                led[L_LOCKUP] += loss
+                wp = w
+                v = w / kg
+                wt = w
                 if k0:
                     we = wp
                 lu = True
