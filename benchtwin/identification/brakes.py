@@ -214,7 +214,8 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     -------
     FitResult
         Parameters ``regen_share_mean``, ``hydraulic_share_mean``, ``front_share_mean`` (means over
-        braking samples, SE from their spread) and ``regen_torque_p95_nm``; data: per-sample
+        braking samples) and ``regen_torque_p95_nm`` (95th percentile of the regenerative torque), SE
+        and 95 % interval from a moving-block bootstrap; R^2 is NaN (no regression); data: per-sample
         ``time_s``, ``v_kmh``, ``decel_mps2``, ``torque_total_nm``, ``torque_regen_nm``, ``torque_front_nm``,
         ``torque_rear_hyd_nm``, ``regen_share``, ``hydraulic_share``, ``front_share`` and the maps
         ``map_speed_edges_kmh``, ``map_decel_edges_mps2``, ``map_regen_share``, ``map_hydraulic_share``,
@@ -266,21 +267,29 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
         maps[f"map_{name}_share"], cnt = _binned_mean(vb, db, z, se, de, min_count)
     segs = sorted({s.name for s in rec.segments if s.kind in set(kinds or ()) and np.any(s.contains(g.t[brk]))})
 
-    def mean_est(name: str, z: np.ndarray, unit: str = "-") -> ParameterEstimate:
-        # consecutive samples are correlated: the SE counts one independent sample per smoothing window
-        n_eff = max(int(z.size / max(smooth_s * rate_hz, 1.0)), 2)
-        mu, sd = float(np.mean(z)), float(np.std(z, ddof=1))
-        s = sd / math.sqrt(n_eff)
-        tq = float(stats.t.ppf(0.975, n_eff - 1))
-        return ParameterEstimate(name, mu, s, (mu - tq * s, mu + tq * s), float("nan"), int(z.size), unit, segs)
+    # consecutive samples are correlated (smoothing, slow manoeuvres): a moving-block bootstrap over
+    # blocks of one smoothing window gives the standard errors and percentile intervals
+    block = max(round(smooth_s * rate_hz), 1)
+    rng = np.random.default_rng(0)
+    n_blocks = int(np.ceil(n_brk / block))
+    starts = rng.integers(0, max(n_brk - block, 0) + 1, (200, n_blocks))
+    boot_idx = (starts[:, :, None] + np.arange(block)[None, None, :]).reshape(200, -1)[:, :n_brk]
 
-    p95 = float(np.percentile(t_regen[brk], 95))
+    def est(name: str, z: np.ndarray, stat: str, unit: str = "-") -> ParameterEstimate:
+        def f(x: np.ndarray, axis: int | None = None) -> np.ndarray:
+            return np.mean(x, axis=axis) if stat == "mean" else np.percentile(x, 95, axis=axis)
+
+        val = float(f(z))
+        reps = f(z[boot_idx], axis=1)
+        lo, hi = float(np.percentile(reps, 2.5)), float(np.percentile(reps, 97.5))
+        return ParameterEstimate(name, val, float(np.std(reps, ddof=1)), (min(lo, val), max(hi, val)), float("nan"),
+                                 int(z.size), unit, segs)
+
     params = {
-        "regen_share_mean": mean_est("regen_share_mean", regen_share),
-        "hydraulic_share_mean": mean_est("hydraulic_share_mean", hyd_share),
-        "front_share_mean": mean_est("front_share_mean", front_share),
-        "regen_torque_p95_nm": ParameterEstimate("regen_torque_p95_nm", p95, float("nan"), (p95, p95), float("nan"),
-                                                 n_brk, "Nm", segs),
+        "regen_share_mean": est("regen_share_mean", regen_share, "mean"),
+        "hydraulic_share_mean": est("hydraulic_share_mean", hyd_share, "mean"),
+        "front_share_mean": est("front_share_mean", front_share, "mean"),
+        "regen_torque_p95_nm": est("regen_torque_p95_nm", t_regen[brk], "p95", "Nm"),
     }
     fit = FitResult(params, float("nan"), float("nan"), float("nan"), n_brk,
                     int((g.flagged & (seg if seg is not None else True)).sum()), segs)

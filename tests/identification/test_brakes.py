@@ -93,6 +93,8 @@ def test_blending_maps_follow_the_true_split(blend_plant, brake_plant, truth) ->
     assert np.median(np.abs(d["front_check_residual_nm"])) < 1e-6
     assert not any("front roller" in r for r in fit.reasons)
     assert 0 < fit.value("regen_share_mean") < 1 and fit["regen_share_mean"].std_error > 0
+    p95 = fit["regen_torque_p95_nm"]
+    assert 0 < p95.std_error < 0.1 * p95.value and p95.ci95[0] <= p95.value <= p95.ci95[1]
     with pytest.raises(InsufficientDataError):
         identify_brake_blending(to_recording(*brake_plant[:2]), SPECS, gains, kinds=None)
 
