@@ -99,8 +99,8 @@ def fit_willans_motoring(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: 
     p_hpcu_w:
         HPCU high-voltage power (W) of the points.
     p_lv_w:
-        DC/DC low-voltage output power (W); None when not measured (W_loss then includes the DC/DC draw
-        and the fit is flagged).
+        DC/DC low-voltage output power (W); None when not measured (W_loss then includes the DC/DC
+        draw: that parameter is flagged with the reason).
     eta_dcdc:
         A known DC/DC efficiency; when given it is not identified.
 
@@ -141,6 +141,7 @@ def fit_willans_motoring(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: 
         eta = eta_dcdc if eta_dcdc is not None else float("inf")
     for reason in reasons:
         fit.reasons.append(reason)
+        fit.params["W_loss"].status, fit.params["W_loss"].reason = "flagged", reason
     p_ma_motor = p_ma_hpcu - p_lv / eta
     fit.data.update(p_me=p_me, p_ma=p_ma_motor, c_m=c_m, p_me_fit=fit.data["y_fit"], torque_nm=t, speed_rpm=n,
                     p_el_w=p_ma_motor * V * (n * RPM) / (2 * np.pi),
@@ -193,6 +194,7 @@ def fit_willans_generating(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm
         eta = eta_dcdc if eta_dcdc is not None else float("inf")
     for reason in reasons:
         fit.reasons.append(reason)
+        fit.params["W_loss_gen"].status, fit.params["W_loss_gen"].reason = "flagged", reason
     p_ma_motor = p_ma_hpcu - p_lv / eta
     p_el = p_ma_motor * V * (n * RPM) / (2 * np.pi)
     fit.data.update(p_me=p_me, p_ma=p_ma_motor, c_m=c_m, p_ma_fit=fit.data["y_fit"], torque_nm=t, speed_rpm=n,

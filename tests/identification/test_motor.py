@@ -100,6 +100,7 @@ def test_without_dcdc_channels_the_fit_is_flagged_with_the_reason(truth) -> None
     mot = res.fits["motor.motoring"]
     assert any("DC/DC power not measured" in r for r in mot.reasons)
     assert "eta_dcdc" not in mot.params
+    assert mot["W_loss"].status == "flagged" and mot["e"].status == "ok"
 
 
 def test_other_vehicle(truth) -> None:
