@@ -541,6 +541,7 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
                 we = w
                 if rigid:
                     v = w / kg
+                    wt = w
                 k0 = True
         else:
             we = wp
