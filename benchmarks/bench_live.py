@@ -105,8 +105,10 @@ def serve(args: argparse.Namespace) -> dict:
 
     outputs = build_outputs(args.duration, args.rate)
     session = LiveSession(outputs, transport="socketcand", speedup=args.speedup, eds=EDS_PATH,
-                          canopen_bus={"thermo": "instrument"}, bitrates={"instrument": 500_000}).start()
+                          canopen_bus={"thermo": "instrument"}, bitrates={"instrument": 500_000},
+                          realtime_priority=args.realtime).start()
     try:
+        # the child recorder is started while this process is real-time: it inherits the policy too
         cmd = [sys.executable, __file__, "child", "--port", str(session.transport.port), "--modbus-port",
                str(session.modbus.port), "--speedup", str(args.speedup), "--duration", str(args.duration),
                "--rate", str(args.rate)]
@@ -123,7 +125,8 @@ def serve(args: argparse.Namespace) -> dict:
     proc.wait(timeout=60)
     res = json.loads(line[7:])
     loaded = report.streams["can:loaded"]
-    return {"speedup": args.speedup, "duration_s": args.duration, "rate_hz": args.rate, "wall_s": wall,
+    return {"speedup": args.speedup, "realtime": session.realtime_active,
+            "duration_s": args.duration, "rate_hz": args.rate, "wall_s": wall,
             "achieved_speedup": report.achieved_speedup, "frames_served": loaded.sent,
             "frames_per_s_wall": loaded.sent / wall, "bus_load": loaded.bus_load,
             "pacing_p50_ms": report.pacing_p50_ms, "pacing_p99_ms": report.pacing_p99_ms,
@@ -141,6 +144,8 @@ def main() -> int:
     ap.add_argument("--port", type=int, default=0)
     ap.add_argument("--modbus-port", type=int, default=0)
     ap.add_argument("--results", help="append a section to this RESULTS.md")
+    ap.add_argument("--realtime", type=int, default=None, metavar="PRIO",
+                    help="run the pacing thread under SCHED_FIFO at this priority (needs root/CAP_SYS_NICE)")
     args = ap.parse_args()
     if args.mode == "child":
         return child(args)
@@ -148,7 +153,9 @@ def main() -> int:
     print(json.dumps(r, indent=1, default=float))
     rec = r["recorder"]
     lost = rec["expected"] - rec["received"]
-    summary = (f"| {r['speedup']:g}x | {r['duration_s']:g} s | {r['rate_hz']:g} | {100 * r['bus_load']:.0f} % | "
+    prio = f"FIFO {args.realtime}" if r["realtime"] else "normal"
+    summary = (f"| {r['speedup']:g}x | {prio} | {r['duration_s']:g} s | {r['rate_hz']:g} | "
+               f"{100 * r['bus_load']:.0f} % | "
                f"{r['frames_per_s_wall']:.0f} | {r['pacing_p50_ms']:.3f} | {r['pacing_p99_ms']:.3f} | "
                f"{r['pacing_max_ms']:.2f} | {rec['received']}/{rec['expected']} ({lost} lost, "
                f"{'exact, in order' if rec['in_order_and_exact'] else 'MISMATCH'}) | "
@@ -161,12 +168,15 @@ def main() -> int:
             head = ("\n## Live delivery (benchmarks/bench_live.py)\n\n"
                     "Server and socketcand endpoint in one process, recorder (LiveRecorder) in another, loopback.\n"
                     "Pacing error = time the delivery call returned minus the item's deadline (all streams).\n\n"
-                    "| date (UTC) | machine | speed-up | plant time | frames/s (plant) | bus load (500k) | "
-                    "frames/s (wall) | p50 ms | p99 ms | max ms | frames received | Modbus polls ok | PDOs |\n"
-                    "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+                    "| date (UTC) | machine | speed-up | pacing thread | plant time | frames/s (plant) | "
+                    "bus load (500k) | frames/s (wall) | p50 ms | p99 ms | max ms | frames received | "
+                    "Modbus polls ok | PDOs |\n"
+                    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
         stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M")
+        load = os.getloadavg()[0]
         with p.open("a") as fh:
-            fh.write(head + f"| {stamp} | {platform.machine()}, {os.cpu_count()} cores " + summary + "\n")
+            fh.write(head + f"| {stamp} | {platform.machine()}, {os.cpu_count()} cores, load {load:.1f} "
+                     + summary + "\n")
     return 0 if lost == 0 and rec["in_order_and_exact"] else 1
 
 

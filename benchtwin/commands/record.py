@@ -29,6 +29,8 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--transport", default="socketcand", choices=["socketcand", "socketcan"])
     p.add_argument("--host", default="127.0.0.1", help="socketcand endpoint host (loopback)")
     p.add_argument("--port", type=int, default=29536, help="socketcand endpoint port")
+    p.add_argument("--connect-timeout", type=float, default=10.0,
+                   help="seconds to keep trying to reach the endpoint (it may still be starting)")
     p.add_argument("--channel-map", default="", help="socketcan: bus=iface,... (default: the bus names)")
     p.add_argument("--modbus-host", default=None, help="pressure module host (default: --host)")
     p.add_argument("--modbus-port", type=int, default=None, help="pressure module port (default: the setup's)")
@@ -72,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
     rec = recorder_from_setup(setup, spool, transport=args.transport, host=args.host, port=args.port,
                               modbus_host=args.modbus_host, modbus_port=args.modbus_port, speedup=args.speedup,
-                              buses=buses, channel_map=cmap, modbus=not args.no_modbus)
+                              buses=buses, channel_map=cmap, modbus=not args.no_modbus,
+                              connect_timeout=args.connect_timeout)
     rec.start()
     print(f"recording {', '.join(rec.buses)}"
           + (f" + modbus {', '.join(p.spec.device for p in rec.pollers)}" if rec.pollers else "")

@@ -14,7 +14,13 @@ from pathlib import Path
 from typing import Any
 
 from benchtwin.chain.frames import DeviceOutputs
-from benchtwin.chain.live.recorder import LiveCapture, LiveRecorder, ModbusPollSpec, open_acquisition_bus
+from benchtwin.chain.live.recorder import (
+    IvtTriggerSpec,
+    LiveCapture,
+    LiveRecorder,
+    ModbusPollSpec,
+    open_acquisition_bus,
+)
 from benchtwin.chain.live.session import LiveSession
 from benchtwin.config.setup import SetupConfig
 from benchtwin.segments import Segment
@@ -26,7 +32,7 @@ def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport:
                        speedup: float = 1.0, can_port: int = 0, modbus_port: int | None = None,
                        channel_map: Mapping[str, str] | None = None, start_s: float | None = None,
                        end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None,
-                       seed: int | None = 0) -> LiveSession:
+                       seed: int | None = 0, realtime_priority: int | None = None) -> LiveSession:
     """A :class:`LiveSession` serving ``outputs`` as the bench of ``setup`` describes.
 
     The pressure module answers with the setup's poll faults (exception and no-answer probabilities)
@@ -59,15 +65,18 @@ def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport:
     return LiveSession(outputs, transport=transport, speedup=speedup, can_port=can_port, modbus_port=port,
                        eds=EDS_PATH, canopen_bus=canopen_bus, ivt=ivt, holding=holding, modbus_faults=faults,
                        bitrates={b: c.bitrate for b, c in setup.buses.items()}, channel_map=channel_map,
-                       start_s=start_s, end_s=end_s, scheduler_options=scheduler_options)
+                       start_s=start_s, end_s=end_s, scheduler_options=scheduler_options,
+                       realtime_priority=realtime_priority)
 
 
 def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport: str = "socketcand",
                         host: str = "127.0.0.1", port: int = 29536, modbus_host: str | None = None,
                         modbus_port: int | None = None, speedup: float = 1.0, buses: list[str] | None = None,
                         channel_map: Mapping[str, str] | None = None, modbus: bool = True,
-                        canopen: bool = True) -> LiveRecorder:
+                        canopen: bool = True, connect_timeout: float = 10.0) -> LiveRecorder:
     """A :class:`LiveRecorder` connected to every bus, the pressure module and the thermo module of ``setup``.
+
+    IVT-S configured in triggered mode are triggered at their ``trigger_period_ms`` (plant time).
 
     Raises
     ------
@@ -76,13 +85,14 @@ def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport:
     """
     from benchtwin.chain.canopen_pdo import EDS_PATH
     from benchtwin.chain.modbus_map import INPUT_COUNT
+    from benchtwin.sensors.ivt import RESULT_NAMES
 
     names = list(buses) if buses is not None else list(setup.buses)
     opened = {}
     try:
         for b in names:
             opened[b] = open_acquisition_bus(transport, b, host=host, port=port,
-                                             channel=(channel_map or {}).get(b))
+                                             channel=(channel_map or {}).get(b), connect_timeout=connect_timeout)
     except BaseException:
         for bus in opened.values():
             bus.shutdown()
@@ -95,7 +105,10 @@ def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport:
     nodes = {}
     if canopen and setup.thermo is not None and setup.thermo.bus in opened:
         nodes["thermo"] = (setup.thermo.node_id, EDS_PATH, setup.thermo.bus)
-    return LiveRecorder(opened, spool_dir, modbus=polls, canopen=nodes, speedup=speedup)
+    triggers = [IvtTriggerSpec(cfg.bus, cfg.command_id, sum(1 << RESULT_NAMES.index(r) for r in cfg.results),
+                               cfg.trigger_period_ms / 1000.0)
+                for cfg in setup.ivt.values() if cfg.mode == "triggered" and cfg.bus in opened]
+    return LiveRecorder(opened, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=speedup)
 
 
 def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None,

@@ -23,6 +23,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,14 +37,14 @@ from benchtwin.chain.live.canopen_node import EdsLike, PdoLog, ThermoAcquisition
 from benchtwin.chain.transports.socketcand import SocketcandClientBus
 from benchtwin.errors import ConfigError, DataError, TransportError
 
-__all__ = ["LiveCapture", "LiveRecorder", "ModbusPollSpec", "open_acquisition_bus", "read_frame_spool",
-           "read_poll_spool"]
+__all__ = ["IvtTriggerSpec", "LiveCapture", "LiveRecorder", "ModbusPollSpec", "open_acquisition_bus",
+           "read_frame_spool", "read_poll_spool"]
 
 log = logging.getLogger(__name__)
 
 
 def open_acquisition_bus(transport: str, bus: str, *, host: str = "127.0.0.1", port: int = 29536,
-                         channel: str | None = None) -> can.BusABC:
+                         channel: str | None = None, connect_timeout: float = 10.0) -> can.BusABC:
     """Open an acquisition-side python-can bus on a served bus.
 
     Parameters
@@ -51,10 +52,12 @@ def open_acquisition_bus(transport: str, bus: str, *, host: str = "127.0.0.1", p
     transport:
         ``socketcand`` (our drop-aware client), ``socketcan`` (``channel`` = interface, e.g. vcan0)
         or ``virtual`` (``channel`` = the virtual channel name; same process only).
+    connect_timeout:
+        socketcand: seconds to keep trying while the server starts.
     """
     try:
         if transport == "socketcand":
-            return SocketcandClientBus(channel or bus, host=host, port=port)
+            return SocketcandClientBus(channel or bus, host=host, port=port, connect_timeout=connect_timeout)
         if transport == "socketcan":
             return can.Bus(interface="socketcan", channel=channel or bus)
         if transport == "virtual":
@@ -102,6 +105,16 @@ class ModbusPollSpec:
     timeout_s: float = 0.5
 
 
+@dataclass(frozen=True)
+class IvtTriggerSpec:
+    """An IVT-S in triggered mode: the acquisition sends ``0x31 00 mask`` on its command id every period."""
+
+    bus: str
+    command_id: int
+    mask: int = 0xFF
+    period_s: float = 0.02
+
+
 @dataclass
 class LiveCapture:
     """Everything one live acquisition received, as raw arrays (the decoder's input).
@@ -138,7 +151,8 @@ class _FrameSpooler(can.Listener):
 
     def __init__(self, recorder: LiveRecorder, bus: str, path: Path) -> None:
         self.recorder, self.bus, self.path = recorder, bus, path
-        self._rows: list[tuple[float, int, bool, int, bytes]] = []
+        # appended by the notifier thread, drained by the flusher: a deque needs no lock for that
+        self._rows: deque[tuple[float, int, bool, int, bytes]] = deque()
         self._lock = threading.Lock()
         self._fh = path.open("ab")
         self.parts: list[np.ndarray] = []
@@ -163,7 +177,8 @@ class _FrameSpooler(can.Listener):
 
     def flush(self) -> None:
         with self._lock:
-            rows, self._rows = self._rows, []
+            pop = self._rows.popleft
+            rows = [pop() for _ in range(len(self._rows))]
             if not rows:
                 return
             out = np.zeros(len(rows), dtype=FRAME_DTYPE)
@@ -283,6 +298,8 @@ class LiveRecorder:
         Devices to poll.
     canopen:
         Node name -> (node id, EDS, bus name) to receive with a RemoteNode.
+    triggers:
+        IVT-S to trigger periodically (plant-time period; sent every ``period_s / speedup`` wall seconds).
     speedup:
         The server's speed-up (acquisition seconds per wall second).
     flush_s:
@@ -291,8 +308,8 @@ class LiveRecorder:
 
     def __init__(self, buses: Mapping[str, can.BusABC], spool_dir: str | Path, *,
                  modbus: list[ModbusPollSpec] | None = None,
-                 canopen: Mapping[str, tuple[int, EdsLike, str]] | None = None, speedup: float = 1.0,
-                 flush_s: float = 0.2) -> None:
+                 canopen: Mapping[str, tuple[int, EdsLike, str]] | None = None,
+                 triggers: list[IvtTriggerSpec] | None = None, speedup: float = 1.0, flush_s: float = 0.2) -> None:
         if not speedup > 0:
             raise ConfigError(f"speed-up must be > 0, got {speedup}")
         self.buses = dict(buses)
@@ -310,6 +327,12 @@ class LiveRecorder:
         for name, (_, _, bus) in self.canopen_spec.items():
             if bus not in self.buses:
                 raise ConfigError(f"CANopen node {name!r} is on bus {bus!r}, which is not recorded")
+        self.triggers = list(triggers or [])
+        for t in self.triggers:
+            if t.bus not in self.buses:
+                raise ConfigError(f"IVT-S trigger on bus {t.bus!r}, which is not recorded")
+        self.triggers_sent = 0
+        self._trigger_threads: list[threading.Thread] = []
         self.thermo: dict[str, ThermoAcquisition] = {}
         self._stop = threading.Event()
         self._flusher: threading.Thread | None = None
@@ -338,10 +361,30 @@ class LiveRecorder:
             self.thermo[name] = ThermoAcquisition(node_id, eds, self.buses[bus], notifier=self.notifiers[bus])
         for p in self.pollers:
             p.start()
+        for spec in self.triggers:
+            th = threading.Thread(target=self._trigger_loop, args=(spec,), name="ivt-trigger", daemon=True)
+            th.start()
+            self._trigger_threads.append(th)
         self._flusher = threading.Thread(target=self._flush_loop, name="spool-flush", daemon=True)
         self._flusher.start()
         self._started = True
         return self
+
+    def _trigger_loop(self, spec: IvtTriggerSpec) -> None:
+        bus = self.buses[spec.bus]
+        msg = can.Message(arbitration_id=spec.command_id, is_extended_id=False, data=[0x31, 0x00, spec.mask & 0xFF])
+        period = spec.period_s / self.speedup
+        next_t = time.perf_counter()
+        while not self._stop.is_set():
+            try:
+                bus.send(msg)
+                self.triggers_sent += 1
+            except (can.CanError, OSError) as exc:
+                log.warning("IVT-S trigger on %s failed: %s", spec.bus, exc)
+                if self.spoolers[spec.bus].dropped:
+                    return
+            next_t += period
+            self._stop.wait(max(0.0, next_t - time.perf_counter()))
 
     def _flush_loop(self) -> None:
         while not self._stop.wait(self.flush_s):
@@ -386,6 +429,8 @@ class LiveRecorder:
         if not self._started:
             raise DataError("recorder was not started")
         self._stop.set()
+        for th in self._trigger_threads:
+            th.join(timeout=2.0)
         for p in self.pollers:
             p.stop()
         for n in self.notifiers.values():
@@ -413,6 +458,7 @@ class LiveRecorder:
             "error_frames": {b: s.errors for b, s in self.spoolers.items()},
             "polls": {p.spec.device: dict(p.counts) for p in self.pollers},
             "pdos": {n: len(a.log.times) for n, a in self.thermo.items()},
+            "ivt_triggers_sent": self.triggers_sent,
             "reason": reason,
         }
         for b in self.buses.values():

@@ -16,6 +16,7 @@ sent and lost, and for CAN streams the nominal bus load on the emulated bus.
 from __future__ import annotations
 
 import logging
+import os
 import sys
 import threading
 import time
@@ -27,7 +28,8 @@ import numpy as np
 
 from benchtwin.errors import ConfigError, DataError
 
-__all__ = ["LiveScheduler", "PacingReport", "Stream", "StreamStats", "bus_load_fraction"]
+__all__ = ["LiveScheduler", "PacingReport", "Stream", "StreamStats", "bus_load_fraction", "restore_policy",
+           "use_realtime_priority"]
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +44,37 @@ def bus_load_fraction(frames: np.ndarray, bitrate: int, span_s: float) -> float:
     stuffed = np.where(ext, 54.0, 34.0) + 8.0 * dlc
     bits = float(np.sum(base + np.floor((stuffed - 1.0) / 4.0)))
     return bits / (bitrate * span_s)
+
+
+def use_realtime_priority(priority: int) -> tuple[int, Any] | None:
+    """Put the calling thread under ``SCHED_FIFO`` at ``priority`` (1..99), as real-time test benches do.
+
+    Threads started afterwards inherit the policy, so call it before starting the servers: then the
+    pacing thread and every thread it waits for (the GIL holders) run at the same priority, and other
+    processes cannot delay a deadline. Needs root or CAP_SYS_NICE; without, a warning is logged.
+
+    Returns
+    -------
+    The previous (policy, param) to give to :func:`restore_policy`, or ``None`` when nothing changed.
+    """
+    if not 1 <= priority <= 99:
+        raise ConfigError(f"real-time priority must be 1..99, got {priority}")
+    try:
+        previous = (os.sched_getscheduler(0), os.sched_getparam(0))
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        log.warning("real-time priority unavailable (%s); pacing runs at normal priority", exc)
+        return None
+    return previous
+
+
+def restore_policy(previous: tuple[int, Any] | None) -> None:
+    """Undo :func:`use_realtime_priority` for the calling thread."""
+    if previous is not None:
+        try:
+            os.sched_setscheduler(0, previous[0], previous[1])
+        except OSError as exc:
+            log.warning("could not restore the scheduling policy: %s", exc)
 
 
 @dataclass

@@ -22,7 +22,13 @@ from benchtwin.chain.frames import DeviceOutputs, FrameTable
 from benchtwin.chain.live.canopen_node import EdsLike, ThermoNode
 from benchtwin.chain.live.ivt_commands import IvtCommandResponder
 from benchtwin.chain.live.modbus_server import ModbusDeviceServer, RegisterStore
-from benchtwin.chain.live.scheduler import LiveScheduler, PacingReport, Stream
+from benchtwin.chain.live.scheduler import (
+    LiveScheduler,
+    PacingReport,
+    Stream,
+    restore_policy,
+    use_realtime_priority,
+)
 from benchtwin.chain.transports import Transport, get_transport
 from benchtwin.errors import ConfigError
 from benchtwin.sensors.ivt import IvtDevice
@@ -65,6 +71,9 @@ class LiveSession:
         Plant-time slice to play.
     scheduler_options:
         Passed to :class:`~benchtwin.chain.live.scheduler.LiveScheduler` (``batch_window_s``, ``spin_s``).
+    realtime_priority:
+        Run the session (the pacing loop and every server thread it starts) under ``SCHED_FIFO`` at this
+        priority; see :func:`~benchtwin.chain.live.scheduler.use_realtime_priority`.
     """
 
     def __init__(self, outputs: DeviceOutputs, *, transport: str = "virtual", speedup: float = 1.0,
@@ -74,11 +83,16 @@ class LiveSession:
                  modbus_faults: Mapping[str, Mapping[str, Any]] | None = None,
                  bitrates: Mapping[str, int] | None = None,
                  channel_map: Mapping[str, str] | None = None, start_s: float | None = None,
-                 end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None) -> None:
+                 end_s: float | None = None, scheduler_options: Mapping[str, Any] | None = None,
+                 realtime_priority: int | None = None) -> None:
         self.outputs = outputs
         self.speedup = speedup
         self.start_s, self.end_s = start_s, end_s
         self.scheduler_options = dict(scheduler_options or {})
+        self.realtime_priority = realtime_priority
+        self._previous_policy: Any = None
+        #: True when the session runs under the real-time policy it asked for
+        self.realtime_active = False
         buses: dict[str, int] = {name: t.bitrate for name, t in outputs.can.items()}
         buses.update({b: r for b, r in (bitrates or {}).items() if b not in buses})
         default_bus = "instrument" if "instrument" in buses else (next(iter(buses)) if buses else "instrument")
@@ -118,6 +132,9 @@ class LiveSession:
         """Start the transports and servers; build the schedule (once; later calls do nothing)."""
         if self.scheduler is not None:
             return self
+        if self.realtime_priority is not None:  # before any thread starts: they inherit it
+            self._previous_policy = use_realtime_priority(self.realtime_priority)
+            self.realtime_active = self._previous_policy is not None
         try:
             self._start()
         except BaseException:
@@ -237,6 +254,8 @@ class LiveSession:
             self.modbus = None
         if self.transport is not None:
             self.transport.close()
+        restore_policy(self._previous_policy)
+        self._previous_policy = None
 
     def __enter__(self) -> LiveSession:
         return self.start()

@@ -533,12 +533,21 @@ class SocketcandClientBus(can.BusABC):
     host, port:
         The endpoint.
     connect_timeout:
-        Seconds to wait for the greeting and each ``< ok >``.
+        Seconds to keep trying to connect (the server may still be starting), and to wait for the
+        greeting and each ``< ok >``.
     """
 
     def __init__(self, channel: str, host: str = "127.0.0.1", port: int = 29536, connect_timeout: float = 5.0,
                  **kwargs: Any) -> None:
-        self._sock = socket.create_connection((host, int(port)), timeout=connect_timeout)
+        end = time.monotonic() + connect_timeout
+        while True:  # the server may still be starting: retry until the timeout
+            try:
+                self._sock = socket.create_connection((host, int(port)), timeout=max(0.1, end - time.monotonic()))
+                break
+            except ConnectionRefusedError:
+                if time.monotonic() >= end:
+                    raise
+                time.sleep(0.1)
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self._buf = bytearray()
         self._pending: list[can.Message] = []

@@ -37,9 +37,9 @@ def test_items_delivered_once_in_order_and_on_time():
     # every item left within a few ms of its deadline (the scheduler's own figures agree)
     deadline = wall0 + (t_a - t_a[0]) / 4.0
     err = np.array([w for w, _ in got_a]) - deadline
-    assert np.percentile(np.abs(err), 50) < 1e-3
-    # the bound leaves room for a loaded CI machine; benchmarks/bench_live.py measures the real figure
-    assert rep.streams["a"].pacing_p50_ms < 1.0 and rep.streams["a"].pacing_p99_ms < 10.0
+    assert np.percentile(np.abs(err), 50) < 2e-3
+    # the bounds leave room for a loaded CI machine; benchmarks/bench_live.py measures the real figures
+    assert rep.streams["a"].pacing_p50_ms < 2.0 and rep.streams["a"].pacing_p99_ms < 25.0
     assert rep.streams["a"].sent == len(t_a)
     assert rep.achieved_speedup == pytest.approx(4.0, rel=0.05)
 

@@ -1,0 +1,45 @@
+"""An IVT-S in triggered mode, live: the recorder triggers it, the emulated shunt answers with its newest
+result (the shunt's own state machine), and the decoded current follows the truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchtwin.chain.acquisition import acquire
+from benchtwin.chain.live.bench import capture_to_input, recorder_from_setup, session_from_setup
+from benchtwin.config.setup import load_setup
+from benchtwin.sensors import encode
+from benchtwin.sensors.synthetic import synthetic_trace
+
+pytestmark = pytest.mark.live
+
+SPEEDUP = 2.0
+
+
+def test_triggered_shunt_answers_the_recorders_triggers(tmp_path):
+    base = load_setup("ideal")
+    ivt = dict(base.ivt)
+    ivt["battery"] = ivt["battery"].model_copy(update={"mode": "triggered", "trigger_period_ms": 50,
+                                                       "results": ["I", "U1"]})
+    setup = base.model_copy(update={"ivt": ivt})
+    trace = synthetic_trace(3.0)
+    outputs = encode(trace, setup, seed=0)
+    with session_from_setup(outputs, setup, transport="socketcand", speedup=SPEEDUP, modbus_port=0) as s:
+        rec = recorder_from_setup(setup, tmp_path / "spool", port=s.transport.port, modbus=False, canopen=False,
+                                  speedup=SPEEDUP).start()
+        s.wait_for_clients(len(setup.buses), 5.0)
+        s.run()
+        cap = rec.stop(rec.wait(idle_s=0.5, duration_s=10.0))
+        counters = s.responders["instrument"].counters
+    assert cap.stats["ivt_triggers_sent"] > 0
+    assert counters["triggers"] == cap.stats["ivt_triggers_sent"]
+    assert counters["triggered_sent"] > 0.8 * 2 * counters["triggers"]  # I and U1 per trigger (once measured)
+    live = acquire(capture_to_input(cap), setup)
+    cur = live["battery_current_a"]
+    assert len(cur) == pytest.approx(counters["triggered_sent"] / 2, abs=2)
+    # values: answers carry the newest encoded result, so they lie on the encoded current
+    batch = acquire(outputs, setup)["battery_current_a"]
+    lo, hi = batch.values.min(), batch.values.max()
+    assert np.all((cur.values >= lo) & (cur.values <= hi))
+    assert set(np.round(cur.values, 6)) <= set(np.round(batch.values, 6))

@@ -1,0 +1,84 @@
+"""``benchtwin serve`` and ``benchtwin record`` as a user runs them: two processes, one Recording.
+
+The recorder writes the Recording (MF4, reloadable), the raw bus logs (MF4 bus logging) and the poll
+logs, and the Recording equals the batch Recording of the same run (same frames on the CAN channels).
+Bad arguments end with a one-line error, never a traceback.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import can
+import numpy as np
+import pytest
+
+from benchtwin.chain.acquisition import acquire
+from benchtwin.chain.live.modbus_server import free_port
+from benchtwin.cli import main
+from benchtwin.config.setup import load_setup
+from benchtwin.recording import Recording
+from benchtwin.sensors import encode
+from benchtwin.sensors.synthetic import synthetic_trace
+
+pytestmark = pytest.mark.live
+
+
+def test_serve_and_record_in_two_processes(tmp_path):
+    port, mb_port = free_port(), free_port()
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "benchtwin.cli", "serve", "--synthetic", "2", "--setup", "ideal", "--port", str(port),
+         "--modbus-port", str(mb_port), "--speedup", "2", "--wait-clients", "3", "--wait-timeout", "30",
+         "--segments-out", str(tmp_path / "segments.json")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out = tmp_path / "live.mf4"
+        rec = subprocess.run(
+            [sys.executable, "-m", "benchtwin.cli", "record", "--setup", "ideal", "--port", str(port),
+             "--modbus-port", str(mb_port), "--speedup", "2", "--idle", "1.0", "--out", str(out)],
+            capture_output=True, text=True, timeout=120)
+        _s_out, s_err = serve.communicate(timeout=60)
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.wait()
+    assert rec.returncode == 0, rec.stderr
+    assert serve.returncode == 0, s_err
+    assert "wrote" in rec.stdout and "Traceback" not in rec.stderr
+    live = Recording.load(out)
+    setup = load_setup("ideal")
+    outputs = encode(synthetic_trace(2.0), setup, seed=0)
+    batch = acquire(outputs, setup)
+    assert set(live.channels) == set(batch.channels)
+    for name in ("battery_current_a", "shaft_torque_nm", "vehicle_speed_kmh", "engine_coolant_in_degc"):
+        np.testing.assert_array_equal(live[name].values, batch[name].values, err_msg=name)
+        assert live[name].unit == batch[name].unit
+    raw = out.with_name("live_raw")
+    for bus in setup.buses:
+        with can.MF4Reader(str(raw / f"{bus}.mf4")) as reader:
+            n = sum(1 for _ in reader)
+        assert n == int(batch.meta["frames"][bus]), bus
+    assert (raw / f"{setup.pressure.device}.polls.npz").exists()
+    assert (tmp_path / "live.mf4.spool" / "vehicle.frames").stat().st_size > 0
+
+
+@pytest.mark.parametrize("argv", [
+    ["record", "--setup", "ideal", "--port", "1", "--out", "x.txt"],
+    ["record", "--setup", "ideal", "--port", "1", "--out", "x.mf4", "--buses", "nosuchbus"],
+    ["record", "--setup", "ideal", "--port", "1", "--out", "x.mf4", "--speedup", "0"],
+    ["serve", "--setup", "ideal", "--synthetic", "1", "--trace", "somewhere"],
+    ["serve", "--setup", "ideal", "--synthetic", "1", "--transport", "socketcan"],
+])
+def test_bad_arguments_end_with_one_line(argv, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("benchtwin: error:")
+
+
+def test_record_without_a_server_ends_cleanly(capsys, tmp_path):
+    assert main(["record", "--setup", "ideal", "--port", str(free_port()), "--connect-timeout", "0.5",
+                 "--out", str(tmp_path / "x.mf4")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot connect" in err and "Traceback" not in err
