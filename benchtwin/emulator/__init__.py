@@ -6,11 +6,33 @@ Public API::
     from benchtwin.emulator import simulate_campaign
     trace = simulate_campaign(load_vehicle(), load_campaign("wltc.toml"))
 
-The stepping loop (:mod:`benchtwin.emulator.plant`) is compiled with numba; protocols are precomputed
-into per-step command arrays (:mod:`benchtwin.emulator.protocols`); controllers are designed and
-discretised with python-control (:mod:`benchtwin.emulator.params`); thermal states and the 12 V load
-profile are computed outside the loop. Every random draw comes from the campaign seed, split per
-subsystem with :class:`numpy.random.SeedSequence`.
+How it is built
+---------------
+- The stepping loop (:mod:`benchtwin.emulator.plant`) is one numba-compiled function over preallocated
+  arrays; tests run block by block (:mod:`benchtwin.emulator.protocols` precomputes per-step commands) and
+  may end early on an in-loop condition (speed reached, displayed SOC reached).
+- Controllers (driver PI on force with feed-forward, dyno speed PI) are designed for a pure mass and
+  discretised with python-control (``c2d``, Tustin); their coefficients feed the loop
+  (:mod:`benchtwin.emulator.params`).
+- Thermal states (:mod:`benchtwin.emulator.thermal`) and the random 12 V load profile are computed outside
+  the loop. Every random draw comes from the campaign seed, split per subsystem with
+  :class:`numpy.random.SeedSequence`.
+
+Model choices (the forms of docs/models.md are followed exactly)
+----------------------------------------------------------------
+- Engine, motor, torque converter, gearbox, battery and brakes use the paper's equations; see
+  docs/models.md. Engine start: a fixed fuel mass; the engine runs up on its own with K0 open and the K0
+  closes at synchronous speed (momentum kept, slip energy booked).
+- Shifts: the target gear changes at once, the actual gear after the actuation delay. With the lock-up
+  closed, the on-coming clutch exchanges momentum between the pump side and the vehicle; with it open,
+  the turbine speed moves to the new ratio over the inertia phase (``shift_inertia_phase_s``).
+- Lock-up: capacity ramps up while engaging and the clutch sticks once the torque needed to hold is within
+  capacity. Traction / gearbox-input torque limiter on the driver's demand (``max_wheel_force_n``).
+- Dyno: road-load mode simulates the test mass and applies target minus the vehicle's parasitic loss
+  (so ``-m dv/dt`` on a coastdown is F0 + F1 v + F2 v^2); speed-controlled mode holds the roller speed
+  with the rollers' own inertia. Roller forces are reported per axle.
+- Energy: an explicit ledger (``trace.meta["energy_ledger_j"]``) integrates every input, loss, work and
+  stored term at the step's mid-point speeds; :func:`energy_balance` sums it.
 """
 
 from __future__ import annotations
