@@ -100,11 +100,11 @@ from benchtwin.emulator.params import (
 from benchtwin.emulator.plant import N_STATE, S_STEP, S_T, kinetic_energy, run_plant
 from benchtwin.emulator.protocols import build_protocol
 from benchtwin.emulator.thermal import simulate_thermal
-from benchtwin.errors import SimulationError
+from benchtwin.errors import ConfigError, SimulationError
 from benchtwin.segments import Segment
 from benchtwin.trace import TRACE_CHANNELS, Trace
 
-__all__ = ["energy_balance", "lv_load_profile", "simulate_campaign"]
+__all__ = ["check_campaign", "energy_balance", "lv_load_profile", "simulate_campaign"]
 
 #: Trace channel -> loop output column
 _DIRECT: dict[str, int] = {
@@ -178,6 +178,34 @@ def _initial_state(tables: PlantTables, vehicle: VehicleConfig, campaign: Campai
     return st
 
 
+def check_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> None:
+    """Check that the campaign's tests fit the vehicle (gears that exist, machine speeds within limits).
+
+    Raises
+    ------
+    ConfigError
+        One line per problem, naming the test, the key and what is allowed.
+    """
+    problems = []
+    n = vehicle.n_gears
+    max_rpm = min(vehicle.motor.max_speed_rpm, vehicle.engine.max_speed_rpm)
+    for k, test in enumerate(campaign.tests):
+        gear = getattr(test, "gear", 0)
+        label = f"campaign {campaign.name!r}: tests[{k}] ({test.name or test.kind})"
+        if gear > n:
+            problems.append(f"{label}: key 'gear' = {gear}: the vehicle has {n} gears (1..{n})")
+            continue
+        speed = getattr(test, "speed_kmh", None)
+        if gear > 0 and speed is not None:
+            rpm = (speed / 3.6 / vehicle.specs.wheel_radius_m * vehicle.specs.final_drive_ratio
+                   * vehicle.specs.gear_ratios[gear - 1] * 30.0 / np.pi)
+            if rpm > max_rpm:
+                problems.append(f"{label}: key 'speed_kmh' = {speed}: {rpm:.0f} rpm in gear {gear} exceeds "
+                                f"{max_rpm:.0f} rpm; use a lower speed or a higher gear")
+    if problems:
+        raise ConfigError("\n".join(problems))
+
+
 def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progress: bool = False) -> Trace:
     """Run every test of ``campaign`` on ``vehicle`` and return the truth as a Trace.
 
@@ -201,6 +229,7 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     SimulationError
         If the plant leaves its physical domain (non-finite states).
     """
+    check_campaign(vehicle, campaign)
     tables = build_tables(vehicle, campaign)
     dt = 1.0 / campaign.plant_rate_hz
     proto = build_protocol(campaign)

@@ -158,3 +158,16 @@ def test_part_of_a_cycle_then_the_driver_stops(vehicle) -> None:
     assert tr["vehicle_speed_mps"][-1] == 0.0
     with pytest.raises(Exception, match="to_s must be after from_s"):
         _campaign([{"kind": "cycle", "from_s": 100.0, "to_s": 50.0}])
+
+
+def test_campaign_that_does_not_fit_the_vehicle_is_refused(vehicle) -> None:
+    from benchtwin.errors import ConfigError
+
+    camp = _campaign([{"kind": "ramp_up", "name": "g12", "gear": 12, "speed_kmh": 50.0, "pedal_steps_pct": [5.0]},
+                      {"kind": "ramp_up", "name": "fast", "gear": 1, "speed_kmh": 120.0, "pedal_steps_pct": [5.0]}])
+    with pytest.raises(ConfigError) as exc:
+        simulate_campaign(vehicle, camp)
+    lines = str(exc.value).splitlines()
+    assert len(lines) == 2
+    assert "tests[0] (g12): key 'gear' = 12: the vehicle has 9 gears" in lines[0]
+    assert "tests[1] (fast): key 'speed_kmh' = 120.0" in lines[1] and "exceeds" in lines[1]
