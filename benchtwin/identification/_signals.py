@@ -37,6 +37,7 @@ __all__ = [
     "segment_mask",
     "segment_names",
     "smooth_derivative",
+    "time_ordered",
 ]
 
 #: roles that are discrete states: zero-order hold, never interpolated
@@ -89,6 +90,16 @@ class Grid:
         return 1.0 / self.rate_hz
 
 
+def time_ordered(ch: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Timestamps, values and flags of a channel in time order (samples delivered out of order are
+    sorted, stably; interpolation and window sums need increasing time)."""
+    ts, vs, fl = ch.timestamps, ch.values, ch.flags
+    if ts.size > 1 and np.any(np.diff(ts) < 0):
+        order = np.argsort(ts, kind="stable")
+        return ts[order], vs[order], fl[order]
+    return ts, vs, fl
+
+
 class _IndexCache:
     """Fractional sample indices of grid times per time base (channels of one source share it)."""
 
@@ -112,8 +123,8 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
     """Values of ``ch`` at ``t`` (linear, or zero-order hold; NaN outside its span) and a mask of grid
     samples touched by a flagged or non-finite source sample."""
     n = len(ch)
-    ts, vs = ch.timestamps, ch.values
-    raw_bad = ((ch.flags & _BAD) != 0) | ~np.isfinite(vs)
+    ts, vs, fl = time_ordered(ch)
+    raw_bad = ((fl & _BAD) != 0) | ~np.isfinite(vs)
     fidx = cache.fidx(ts) if cache is not None else np.interp(t, ts, np.arange(n, dtype=float))
     idx = np.floor(fidx).astype(np.int64)
     idx[t < ts[0]] = -1
@@ -175,8 +186,8 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
     empty = [c.name for c in chans if len(c) == 0]
     if empty:
         raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
-    lo = max(float(c.timestamps[0]) for c in chans)
-    hi = min(float(c.timestamps[-1]) for c in chans)
+    lo = max(float(c.timestamps.min()) for c in chans)
+    hi = min(float(c.timestamps.max()) for c in chans)
     if not hi > lo:
         raise DataError(f"{what}: channels {', '.join(names)} do not overlap in time")
     t = lo + np.arange(int(np.floor((hi - lo) * rate_hz)) + 1) / rate_hz

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchtwin.errors import DataError
-from benchtwin.identification._signals import BAD_FLAGS, Grid, gather, runs, segment_mask
+from benchtwin.identification._signals import BAD_FLAGS, Grid, gather, runs, segment_mask, time_ordered
 from benchtwin.recording import Recording
 from benchtwin.roles import unit_of_role
 
@@ -149,17 +149,15 @@ class SteadyWindows:
         current), the mean of the sample-by-sample product; on different timestamps, the product of
         the two means.
         """
-        ch = rec[name]
-        good = ((ch.flags & BAD_FLAGS) == 0) & np.isfinite(ch.values)
-        vals = ch.values
+        ts, vals, fl = time_ordered(rec[name])
+        good = ((fl & BAD_FLAGS) == 0) & np.isfinite(vals)
         if other is not None:
-            ch2 = rec[other]
-            if ch2.timestamps.shape == ch.timestamps.shape and np.array_equal(ch2.timestamps, ch.timestamps):
-                good = good & ((ch2.flags & BAD_FLAGS) == 0) & np.isfinite(ch2.values)
-                vals = ch.values * ch2.values
+            ts2, vals2, fl2 = time_ordered(rec[other])
+            if ts2.shape == ts.shape and np.array_equal(ts2, ts):
+                good = good & ((fl2 & BAD_FLAGS) == 0) & np.isfinite(vals2)
+                vals = vals * vals2
             else:
                 return self.raw_average(rec, name) * self.raw_average(rec, other)
-        ts = ch.timestamps
         lo = np.searchsorted(ts, [w.start_s for w in self.windows], side="left")
         hi = np.searchsorted(ts, [w.end_s for w in self.windows], side="left")
         cs = np.concatenate(([0.0], np.cumsum(np.where(good, vals, 0.0))))
