@@ -125,29 +125,34 @@ def test_cli_on_the_insight_log(tmp_path, capsys):
     assert (out / "figures" / "fig16_battery.png").exists()
 
 
-@pytest.fixture(scope="module", params=["p2_phev_9at.toml", "p2_phev_alt.toml"])
+@pytest.fixture(scope="module", params=[("p2_phev_9at.toml", "ideal"), ("p2_phev_alt.toml", "ideal"),
+                                        ("p2_phev_9at.toml", "paper")], ids=["9at-ideal", "alt-ideal", "9at-paper"])
 def quick_chain(request):
-    """The quick campaign through the emulator and the batch chain with the ideal setup, on two vehicles
-    (the second with other values, so nothing is tuned to one vehicle)."""
+    """The quick campaign through the emulator and the batch chain: ideal setup on two vehicles (the second with
+    other values, so nothing is tuned to one vehicle) and the paper's realistic setup."""
     from benchtwin.chain.batch import run_batch
     from benchtwin.config import load_campaign, load_vehicle
     from benchtwin.config.setup import load_setup
     from benchtwin.emulator import simulate_campaign
 
-    vehicle = load_vehicle(scenario_path("vehicles", request.param))
+    vehicle_file, setup = request.param
+    vehicle = load_vehicle(scenario_path("vehicles", vehicle_file))
     trace = simulate_campaign(vehicle, load_campaign(scenario_path("campaigns", "quick.toml")))
-    rec = run_batch(trace, load_setup(scenario_path("setups", "ideal.toml")))
-    return rec, vehicle
+    rec = run_batch(trace, load_setup(scenario_path("setups", f"{setup}.toml")))
+    return rec, vehicle, setup
 
 
 def test_quick_campaign_through_the_batch_chain(quick_chain):
-    rec, vehicle = quick_chain
+    rec, vehicle, setup = quick_chain
     res = identify_all(rec, vehicle.specs)
     assert not res.meta["skipped"] or set(res.meta["skipped"]) <= {"brakes"}
     b, tb = res.fits["battery"], vehicle.battery
-    # ideal chain: the IVT-S and the displayed SOC are decoded at their CAN resolution; 0.1 %
+    # ideal chain: the IVT-S and the displayed SOC are decoded at their CAN resolution: 0.1 %;
+    # paper setup: IVT-S noise and offset, 40 s of depletion in this short campaign: 0.5 %
+    rel = 1e-3 if setup == "ideal" else 5e-3
     for name, true in (("alpha", tb.alpha), ("beta_discharge", tb.beta_discharge), ("beta_charge", tb.beta_charge)):
-        assert b.value(name) == pytest.approx(true, rel=1e-3), name
+        assert b.value(name) == pytest.approx(true, rel=rel), name
+    assert b.adj_r2 > 0.995  # paper: about 0.995
     sh = vehicle.shift_schedule
     n_ok = 0
     for g in range(1, len(sh.up_v0_kmh) + 1):
