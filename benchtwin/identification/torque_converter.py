@@ -320,6 +320,7 @@ def identify_torque_converter(
     derivative_window_s: float = 0.4,
     calibrate_turbine_speed: bool = True,
     min_calibration_points: int = 50,
+    outlier_sigma: float | None = 5.0,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
@@ -356,6 +357,8 @@ def identify_torque_converter(
         all turbine speeds and reported as ``turbine_speed_scale`` (flagged when it is more than 10 %
         from 1: check the gear ratios, final drive and wheel radius). Needs at least
         ``min_calibration_points`` such samples, else eq. 31 is used as is.
+    outlier_sigma:
+        Robust rejection of transients, see :func:`fit_torque_converter`.
 
     Returns
     -------
@@ -428,7 +431,7 @@ def identify_torque_converter(
     n_total = int(t.size)
     res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], d["em_torque_nm"][use], t_t[use], gamma=gamma,
                                min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()),
-                               dw_p=dn[use] / RPM_PER_RADS if pump_inertia else None)
+                               dw_p=dn[use] / RPM_PER_RADS if pump_inertia else None, outlier_sigma=outlier_sigma)
     from benchtwin.identification._fit import ParameterEstimate
 
     res["converter"].add(ParameterEstimate(

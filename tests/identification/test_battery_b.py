@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from _synth_b import SPECS, battery_recording
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from benchtwin.errors import InsufficientDataError, MissingChannelError, NoExcitationError
 from benchtwin.identification.battery import (
@@ -140,3 +142,12 @@ def test_r0_steps_and_rest_ocv_on_synthetic_hppc():
     assert ocv.data["soc"].size == 6
     with pytest.raises(InsufficientDataError):
         identify_battery_r0_steps(rec, min_step_a=50.0)
+
+
+@settings(max_examples=15, deadline=None)
+@given(alpha=st.floats(0.9, 1.1), beta_d=st.floats(0.5, 2.5), beta_c=st.floats(0.5, 2.5))
+def test_any_alpha_beta_comes_back(alpha, beta_d, beta_c):
+    rec, truth = battery_recording({"alpha": alpha, "beta_discharge": beta_d, "beta_charge": beta_c}, rate_hz=2.0)
+    fit = identify_battery(rec, SPECS)
+    for name in ("alpha", "beta_discharge", "beta_charge"):
+        np.testing.assert_allclose(fit.value(name), truth[name], rtol=1e-6, err_msg=name)

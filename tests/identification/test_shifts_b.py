@@ -8,7 +8,7 @@ from _synth_b import N_GEARS, shift_recording
 
 from benchtwin.errors import MissingChannelError
 from benchtwin.identification.shifts import find_shift_events, identify_shift_thresholds
-from benchtwin.recording import Channel, Recording
+from benchtwin.recording import Channel, Flag, Recording
 
 
 @pytest.fixture(scope="module")
@@ -87,3 +87,18 @@ def test_pedal_step_shifts_are_not_speed_crossings():
     assert ev["crossing"].tolist() == [False]
     res = identify_shift_thresholds(rec)
     assert res["up_3_4"].n_points == 0 and res["up_3_4"].n_excluded == 1
+
+
+def test_flagged_speed_at_an_event_is_excluded_and_counted(ideal):
+    rec, truth = ideal
+    ev = find_shift_events(rec)
+    first_up_12 = ev["t"][(ev["from_gear"] == 1) & (ev["to_gear"] == 2)][0]
+    sp = rec["vehicle_speed_kmh"]
+    flags = sp.flags.copy()
+    flags[np.abs(sp.timestamps - first_up_12) < 0.5] = int(Flag.STATUS_ERROR)
+    r = Recording(dict(rec.channels), rec.segments)
+    r.add(Channel("vehicle_speed_kmh", "km/h", sp.timestamps, sp.values, flags, sp.source))
+    res = identify_shift_thresholds(r)
+    assert res["up_1_2"].n_points == len(truth["up_pedals"]) - 1
+    assert res["up_1_2"].n_excluded == 1
+    np.testing.assert_allclose(res["up_1_2"].value("c0_kmh"), truth["up"][1][0], rtol=1e-3)

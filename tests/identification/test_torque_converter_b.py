@@ -13,7 +13,7 @@ from benchtwin.identification.torque_converter import (
     identify_torque_converter,
     tc_torques,
 )
-from benchtwin.recording import Channel, Recording
+from benchtwin.recording import Channel, Flag, Recording
 
 
 @pytest.fixture(scope="module")
@@ -139,3 +139,23 @@ def test_speedometer_error_is_calibrated_on_lockup_closed_samples():
                                atol=1e-6)
     raw = identify_torque_converter(rec, SPECS, transmission=TRANSMISSION_TRUTH, calibrate_turbine_speed=False)
     assert raw["converter"].value("gamma_coupling") > truth["gamma"] * 1.02  # every SR 4 % high
+
+
+def test_saturated_shaft_torque_is_excluded_and_counted(ideal):
+    rec, _, base = ideal
+    r = Recording(dict(rec.channels), rec.segments)
+    sh = rec["shaft_torque_nm"]
+    values, flags = sh.values.copy(), sh.flags.copy()
+    clip = slice(2000, 2600)  # the telemetry clipped at its range for a minute
+    values[clip] = 900.0
+    flags[clip] = int(Flag.SATURATED)
+    r.add(Channel("shaft_torque_nm", "Nm", sh.timestamps, values, flags, sh.source))
+    res = identify_torque_converter(r, SPECS, transmission=TRANSMISSION_TRUTH)
+    # part of that minute was outside the model's domain anyway; the rest is now excluded too
+    assert res["converter"].n_excluded >= base["converter"].n_excluded + 100
+    np.testing.assert_allclose([res["converter"].value(f"a{k}") for k in range(6)], tc_truth_vector()[:6],
+                               rtol=1e-3, atol=1e-6)
+    # the same clipped values without their flags do get in (the robust step only softens them)
+    r.add(Channel("shaft_torque_nm", "Nm", sh.timestamps, values, None, sh.source))
+    unflagged = identify_torque_converter(r, SPECS, transmission=TRANSMISSION_TRUTH, outlier_sigma=None)
+    assert abs(unflagged["converter"].value("a3") / TC_TRUTH["a3"] - 1) > 1e-3
