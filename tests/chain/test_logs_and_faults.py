@@ -311,3 +311,18 @@ def test_pdo_gaps_and_telemetry_drops_are_lost_frames() -> None:
     np.testing.assert_array_equal((th.flags[1:] & Flag.LOST_FRAME) != 0, gaps)
     tq = rec["shaft_torque_nm"]
     assert np.count_nonzero(tq.flags & Flag.LOST_FRAME) == pytest.approx(0.01 * 30 * 500, rel=0.4)
+
+
+def test_triggered_ivt_is_decoded_with_its_command_traffic() -> None:
+    setup = load_setup("ideal").model_copy(deep=True)
+    setup.ivt["hpcu"].mode = "triggered"
+    setup.ivt["hpcu"].trigger_period_ms = 100
+    trace = synthetic_trace(20.0, 100.0, seed=6)
+    rec = run_batch(trace, setup, seed=1)
+    cur = rec["hpcu_current_a"]
+    assert len(cur) == pytest.approx(20.0 / 0.1, abs=2)
+    assert rec.meta["ivt_commands"]["ivt_hpcu"] == len(cur)
+    assert rec.meta["ivt_answers"]["ivt_hpcu"] == len(cur)
+    truth = np.interp(cur.timestamps, trace.time_s, trace["hpcu_hv_current_a"])
+    assert np.abs(cur.values - truth).max() <= 1000 / 2**16 + 0.0005 + 1e-9
+    assert not np.any(cur.flags)
