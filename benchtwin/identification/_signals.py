@@ -36,6 +36,7 @@ __all__ = [
     "runs",
     "segment_mask",
     "segment_names",
+    "segments_span",
     "smooth_derivative",
     "time_ordered",
 ]
@@ -146,7 +147,7 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
 
 
 def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: Iterable[str] = (),
-           hold: Iterable[str] = (), what: str = "identification") -> Grid:
+           hold: Iterable[str] = (), what: str = "identification", span: tuple[float, float] | None = None) -> Grid:
     """Resample required and optional channels of ``rec`` onto one grid.
 
     Parameters
@@ -163,6 +164,8 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
         Extra channels to zero-order hold (state roles are always held).
     what:
         Name of the method, for messages.
+    span:
+        Restrict the grid to this time span (e.g. :func:`segments_span`).
 
     Returns
     -------
@@ -188,6 +191,8 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
         raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
     lo = max(float(c.timestamps.min()) for c in chans)
     hi = min(float(c.timestamps.max()) for c in chans)
+    if span is not None:
+        lo, hi = max(lo, float(span[0])), min(hi, float(span[1]))
     if not hi > lo:
         raise DataError(f"{what}: channels {', '.join(names)} do not overlap in time")
     t = lo + np.arange(int(np.floor((hi - lo) * rate_hz)) + 1) / rate_hz
@@ -227,6 +232,17 @@ def segment_mask(rec: Recording, t: np.ndarray, kinds: Iterable[str] | None) -> 
     for s in segs:
         mask |= s.contains(t)
     return mask
+
+
+def segments_span(rec: Recording, kinds: Iterable[str] | None) -> tuple[float, float] | None:
+    """Time span covering every segment of the given kinds, or None (no such segment, or no kinds)."""
+    if kinds is None:
+        return None
+    kinds = set(kinds)
+    segs = [s for s in rec.segments if s.kind in kinds]
+    if not segs:
+        return None
+    return min(s.start_s for s in segs), max(s.end_s for s in segs)
 
 
 def segment_names(rec: Recording, times: Iterable[float]) -> list[str]:

@@ -24,7 +24,14 @@ from scipy import stats
 
 from benchtwin.errors import IdentificationError, InsufficientDataError, MissingChannelError
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate, linear_fit
-from benchtwin.identification._signals import check_spread, gather, raise_all_failed, segment_mask, smooth_derivative
+from benchtwin.identification._signals import (
+    check_spread,
+    gather,
+    raise_all_failed,
+    segment_mask,
+    segments_span,
+    smooth_derivative,
+)
 from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.identification.steady import Tolerance, find_steady_windows
 from benchtwin.recording import Recording
@@ -225,7 +232,8 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     front = _axle_channels(rec, _FRONT, "front")
     rear = _axle_channels(rec, _REAR, "rear")
     vch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
-    g = gather(rec, [vch, *front, *rear, "dyno_force_front_n", "dyno_force_rear_n"], rate_hz, what="brake blending")
+    g = gather(rec, [vch, *front, *rear, "dyno_force_front_n", "dyno_force_rear_n"], rate_hz, what="brake blending",
+               span=segments_span(rec, kinds))
     use = ~g.bad
     seg = segment_mask(rec, g.t, kinds)
     if seg is not None:

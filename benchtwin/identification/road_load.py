@@ -29,6 +29,7 @@ from benchtwin.identification._signals import (
     runs,
     segment_mask,
     segment_names,
+    segments_span,
     smooth_derivative,
 )
 from benchtwin.identification.specs import VehicleSpecs
@@ -52,7 +53,8 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
     if rate_hz is None:
         rate_hz = native_rate(rec[ch])
-    g = gather(rec, [ch], rate_hz, optional=("gear_actual", "pedal_pct", "brake_pedal_pct"), what="road load")
+    g = gather(rec, [ch], rate_hz, optional=("gear_actual", "pedal_pct", "brake_pedal_pct"), what="road load",
+               span=segments_span(rec, kinds))
     v = g[ch]
     cand = ~g.bad & (v > v_min)
     if v_max is not None:

@@ -20,7 +20,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchtwin.errors import DataError
-from benchtwin.identification._signals import BAD_FLAGS, Grid, gather, runs, segment_mask, time_ordered
+from benchtwin.identification._signals import (
+    BAD_FLAGS,
+    Grid,
+    gather,
+    runs,
+    segment_mask,
+    segments_span,
+    time_ordered,
+)
 from benchtwin.recording import Recording
 from benchtwin.roles import unit_of_role
 
@@ -315,7 +323,8 @@ def find_steady_windows(rec: Recording, channels: Sequence[str], *, states: Iter
     state_names = [s for s in states if s in rec]
     extra = [e for e in extra if e not in channels]
     if grid is None:
-        grid = gather(rec, channels + extra, rate_hz, optional=[*state_names, *optional], what="steady-state detection")
+        grid = gather(rec, channels + extra, rate_hz, optional=[*state_names, *optional],
+                      what="steady-state detection", span=segments_span(rec, kinds))
     usable = ~grid.bad
     seg = segment_mask(rec, grid.t, kinds)
     reasons: list[str] = []
