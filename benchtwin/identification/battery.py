@@ -355,8 +355,12 @@ def identify_battery_map_free(
     min_abs_current_a:
         Samples with ``0 < |I| <`` this are left out (near-zero current carries relaxation
         voltage, not OCV, on a dynamic trace); rest samples with ``I == 0`` exactly are kept.
+    rate_hz:
+        Common time base; default the voltage channel's own rate, at most 10 Hz.
     min_node_points:
         A node whose support has fewer samples of one direction loses that resistance (flagged).
+    segment_kinds:
+        Use only samples inside segments of these kinds (``None``: every sample).
 
     Returns
     -------
@@ -525,6 +529,15 @@ def identify_battery_ocv_rest(
     A rest is a run of samples with ``|I| <= rest_current_a`` lasting at least ``min_rest_s``;
     its OCV is the mean voltage over its last ``average_s`` seconds (the cell has relaxed), at the
     SOC of that moment (``displayed_soc_pct`` or coulomb counting with ``capacity_ah``).
+
+    Parameters
+    ----------
+    rec:
+        Recording with ``battery_voltage_v`` and ``battery_current_a`` (and ``displayed_soc_pct``).
+    n_cells:
+        Divide the voltage by this (1: pack values).
+    capacity_ah, min_rest_s, rest_current_a, average_s:
+        As above.
 
     Returns
     -------

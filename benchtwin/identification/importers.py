@@ -104,6 +104,13 @@ def _to_recording(table_time: np.ndarray, columns: dict[str, tuple[np.ndarray, n
 def import_csv(path: str | Path, smap: SignalMap) -> Recording:
     """Import a CSV/TSV log into a Recording.
 
+    Parameters
+    ----------
+    path:
+        The log file.
+    smap:
+        The signal map (columns, units, time column, delimiter).
+
     Raises
     ------
     DataError, MissingChannelError, ConfigError
@@ -128,6 +135,18 @@ def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
     """Import an MF4 log (asammdf) into a Recording; each mapped channel keeps its own time base.
 
     The unit of a mapped channel is taken from the file when the signal map gives none.
+
+    Parameters
+    ----------
+    path:
+        The MF4 file.
+    smap:
+        The signal map (``column`` = MF4 channel name).
+
+    Raises
+    ------
+    DataError, MissingChannelError, ConfigError
+        Unreadable file, a mapped channel missing or not numeric, an unknown unit.
     """
     from asammdf import MDF
 
@@ -162,7 +181,20 @@ def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
 
 
 def import_log(path: str | Path, signal_map: SignalMap | str | Path) -> Recording:
-    """Import a CSV or MF4 log through a signal map (format from the map, else the file extension)."""
+    """Import a CSV or MF4 log through a signal map (format from the map, else the file extension).
+
+    Parameters
+    ----------
+    path:
+        The log file.
+    signal_map:
+        A :class:`SignalMap` or the path of its TOML file.
+
+    Returns
+    -------
+    Recording
+        One channel per mapped role, in the role's unit.
+    """
     smap = signal_map if isinstance(signal_map, SignalMap) else load_signal_map(signal_map)
     fmt = smap.source.format or ("mf4" if Path(path).suffix.lower() in (".mf4", ".mdf", ".dat") else "csv")
     return import_mf4(path, smap) if fmt == "mf4" else import_csv(path, smap)

@@ -71,7 +71,13 @@ class Method:
 
 
 def transmission_table(result: IdentificationResult) -> dict[int, tuple[float, float]]:
-    """Gear -> ``(eta_m, C0)`` from the drive fits ``transmission.gear<g>`` that are not flagged."""
+    """Gear -> ``(eta_m, C0)`` from the drive fits ``transmission.gear<g>`` that are not flagged.
+
+    Parameters
+    ----------
+    result:
+        An identification result holding the transmission fits.
+    """
     out: dict[int, tuple[float, float]] = {}
     for key, fit in result.fits.items():
         if not key.startswith("transmission.gear") or key.endswith("_coast") or fit.status != "ok":

@@ -35,7 +35,7 @@ An unknown role, unit or quantity mismatch is a :class:`~benchtwin.errors.Config
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -45,7 +45,8 @@ from benchtwin.errors import ConfigError
 from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.roles import ROLES
 
-__all__ = ["UNITS", "BatteryHints", "ChannelMap", "SignalMap", "SourceOptions", "convert_units", "load_signal_map"]
+__all__ = ["UNITS", "BatteryHints", "ChannelMap", "SignalMap", "SourceOptions", "convert_units", "load_signal_map",
+           "signal_map_from_dict"]
 
 #: unit -> (quantity, factor, offset): value_in_base = value * factor + offset
 UNITS: dict[str, tuple[str, float, float]] = {
@@ -197,6 +198,11 @@ class SignalMap(StrictModel):
 def load_signal_map(path: str | Path) -> SignalMap:
     """Load and check a signal map TOML file.
 
+    Parameters
+    ----------
+    path:
+        The TOML file.
+
     Raises
     ------
     ConfigError
@@ -205,6 +211,14 @@ def load_signal_map(path: str | Path) -> SignalMap:
     return load_model(SignalMap, path).check(str(path))
 
 
-def signal_map_from_dict(data: dict, origin: str = "<signal map>") -> SignalMap:
-    """Validate a signal map given as a mapping (same checks as :func:`load_signal_map`)."""
+def signal_map_from_dict(data: dict[str, Any], origin: str = "<signal map>") -> SignalMap:
+    """Validate a signal map given as a mapping (same checks as :func:`load_signal_map`).
+
+    Parameters
+    ----------
+    data:
+        The parsed TOML content.
+    origin:
+        Name used in error messages.
+    """
     return validate_data(SignalMap, data, origin).check(origin)

@@ -48,7 +48,22 @@ RPM_PER_RADS = 60.0 / (2.0 * np.pi)
 
 
 def tc_torques(a: np.ndarray, gamma: float, w_p: np.ndarray, w_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pump and turbine torque of the model (eq. 35-36) for coefficients ``a = a0..a8``."""
+    """Pump and turbine torque of the model (eq. 35-36) for coefficients ``a = a0..a8``.
+
+    Parameters
+    ----------
+    a:
+        ``a0..a8`` (Nm s^2/rad^2).
+    gamma:
+        Coupling speed ratio: converter mode below, coupling mode at and above.
+    w_p, w_t:
+        Pump and turbine speed, rad/s.
+
+    Returns
+    -------
+    t_p, t_t
+        Pump and turbine torque, Nm.
+    """
     a = np.asarray(a, dtype=float)
     w_p = np.asarray(w_p, dtype=float)
     w_t = np.asarray(w_t, dtype=float)
@@ -65,6 +80,13 @@ def coupling_point(a_conv: np.ndarray, *, lo: float = 0.0, hi: float = 1.2) -> f
     """Smallest SR in ``(lo, hi]`` where the converter-mode torque ratio equals 1 (NaN if none).
 
     ``(a3 - a0) + (a4 - a1) SR + (a5 - a2) SR^2 = 0``.
+
+    Parameters
+    ----------
+    a_conv:
+        ``a0..a5``.
+    lo, hi:
+        Search interval of SR.
     """
     a = np.asarray(a_conv, dtype=float)
     c0, c1, c2 = a[3] - a[0], a[4] - a[1], a[5] - a[2]
@@ -131,6 +153,8 @@ def fit_torque_converter(
         Tolerance on "TR reaches 1" for the first estimate of ``gamma``.
     min_points:
         Minimum points per mode.
+    segments, n_excluded:
+        Segment names and the count of points the caller excluded, carried into the results.
     dw_p:
         Pump acceleration (rad/s^2). When given, ``t_p`` is the torque *applied* to the pump shaft
         (the motor torque) and the pump-side inertia ``J_pump_kgm2`` (motor rotor + pump) is
@@ -332,6 +356,8 @@ def identify_torque_converter(
         when present.
     specs:
         Gear ratios, final drive, wheel radius.
+    rate_hz:
+        Common time base of the channels.
     transmission:
         Gear -> ``(eta_m, C0)`` from the transmission identification. A gear without a model uses
         the nearest gear's (flagged with the reason). Without any, eta = 1 and C0 = 0 and the result
@@ -339,8 +365,12 @@ def identify_torque_converter(
     max_pump_accel_rpm_s:
         Quasi-steady limit on ``|d n_p / dt|``: inertia torques stay small (and are identified, see
         ``pump_inertia``).
+    min_pump_speed_rpm:
+        Points below this pump speed are left out (creep, stand-still).
     min_pump_torque_nm:
         Points below this pump torque are left out: there the torque ratio is mostly sensor noise.
+    gamma, min_points:
+        See :func:`fit_torque_converter`.
     shift_hold_s:
         Samples within this time of a gear change (target or actual) are left out.
     pump_inertia:

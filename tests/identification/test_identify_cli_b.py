@@ -192,3 +192,24 @@ def test_cli_on_the_leaf_hppc(tmp_path):
     # (a negative resistance there): the fit is flagged with that reason instead of passing as confident
     assert fits["battery_map_free"]["status"] == "flagged"
     assert any("non-positive resistance" in r for r in fits["battery_map_free"]["reasons"])
+
+
+@pytest.mark.parametrize("module", ["battery", "torque_converter", "shifts", "importers", "signal_map", "run",
+                                    "figures"])
+def test_public_functions_document_every_argument(module):
+    """Keep the docs honest (as python-control's docstrings test does): every argument is named in the docstring."""
+    import importlib
+    import inspect
+
+    mod = importlib.import_module(f"benchtwin.identification.{module}")
+    missing = []
+    for name in mod.__all__:
+        obj = getattr(mod, name)
+        if not inspect.isfunction(obj):
+            continue
+        doc = inspect.getdoc(obj) or ""
+        assert doc, f"{module}.{name} has no docstring"
+        for p in inspect.signature(obj).parameters:
+            if p not in doc:
+                missing.append(f"{name}({p})")
+    assert not missing, f"{module}: arguments not documented: {', '.join(missing)}"
