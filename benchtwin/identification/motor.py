@@ -85,9 +85,24 @@ def _check(pts_t: np.ndarray, pts_n: np.ndarray, what: str, min_points: int) -> 
     check_spread(pts_n, 0.1 * float(np.mean(pts_n)), what, "motor speed", "rpm")
 
 
+def _lv(specs: VehicleSpecs, t: np.ndarray, n: np.ndarray, p_lv_w: np.ndarray | None, what: str
+        ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """DC/DC power (W) and its normalised form; zeros and a reason when not measured."""
+    if p_lv_w is None:
+        return np.zeros_like(t), np.zeros_like(t), [f"DC/DC power not measured: {what} includes the DC/DC "
+                                                    "converter's draw"]
+    p = np.asarray(p_lv_w, dtype=float)
+    return p, _norm(specs, t, n, p)[1], []
+
+
+def _check_form(form: str) -> None:
+    if form not in ("normalised", "power"):
+        raise IdentificationError(f"motor: form must be 'normalised' or 'power', got {form!r}")
+
+
 def fit_willans_motoring(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray,
                          p_lv_w: np.ndarray | None = None, *, eta_dcdc: float | None = None, min_points: int = 5,
-                         segments: Iterable[str] = (), n_excluded: int = 0) -> FitResult:
+                         segments: Iterable[str] = (), n_excluded: int = 0, form: str = "normalised") -> FitResult:
     """Willans line of the motor in motoring (eq. 20-24), with the DC/DC efficiency when ``p_lv_w`` is given.
 
     Parameters
@@ -103,91 +118,115 @@ def fit_willans_motoring(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: 
         draw: that parameter is flagged with the reason).
     eta_dcdc:
         A known DC/DC efficiency; when given it is not identified.
+    form:
+        ``"normalised"`` (eq. 20-22: ``p_me`` on ``[p_ma_hpcu, -p_lv, -1/c_m]``, unknowns
+        ``C0, C0/eta_dcdc, C1``; R^2 is that of ``p_me`` as in the paper) or ``"power"``
+        (``P_hpcu`` on ``[T omega, 1, P_lv]``, unknowns ``1/e, W_loss/e, 1/eta_dcdc``). The model
+        is the same; the normalised form weights the points by ``1/omega^2``.
 
     Returns
     -------
     FitResult
-        Parameters ``C0``, (``C0_over_eta_dcdc``), ``C1`` and derived ``e``, ``W_loss`` (W),
-        ``eta_dcdc``; data ``p_me``, ``p_ma`` (motor only), ``c_m``, ``p_me_fit``.
+        The raw unknowns and derived ``e``, ``W_loss`` (W), ``eta_dcdc`` and ``eta_peak`` (the
+        highest efficiency of the map inside the envelope seen); data ``p_me``, ``p_ma`` (motor
+        only), ``c_m``, ``p_me_fit``, the points and the map (:func:`efficiency_map`).
     """
+    _check_form(form)
     what = "motor.motoring"
     t = np.asarray(torque_nm, dtype=float)
     n = np.asarray(speed_rpm, dtype=float)
     _check(t, n, what, min_points)
-    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, np.asarray(p_hpcu_w, dtype=float))
+    p_hpcu = np.asarray(p_hpcu_w, dtype=float)
+    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, p_hpcu)
     V, r = specs.em_rotor_volume_m3, specs.em_rotor_radius_m
-    reasons = []
-    if p_lv_w is None:
-        p_lv = np.zeros_like(t)
-        reasons.append("DC/DC power not measured: W_loss includes the DC/DC converter's draw")
+    p_lv, p_lv_n, reasons = _lv(specs, t, n, p_lv_w, "W_loss")
+    with_eta = p_lv_w is not None and eta_dcdc is None
+    corr = 1.0 / eta_dcdc if eta_dcdc is not None else 0.0
+    pm = t * n * RPM
+    if form == "normalised":
+        cols = [p_ma_hpcu - corr * p_lv_n, -1.0 / c_m] + ([-p_lv_n] if with_eta else [])
+        names, units = ["C0", "C1"] + (["C0_over_eta_dcdc"] if with_eta else []), ["-", "Pa m/s", "-"]
+        y = p_me
+
+        def e_w_eta(x: np.ndarray) -> tuple[float, float, float]:
+            return 4 * np.pi * x[0], 2 * V * x[1] / r, (x[0] / x[2] if with_eta else np.nan)
     else:
-        p_lv = _norm(specs, t, n, np.asarray(p_lv_w, dtype=float))[1]
-    if p_lv_w is not None and eta_dcdc is None:
-        A = np.column_stack([p_ma_hpcu, -p_lv, -1.0 / c_m])
-        names, units = ["C0", "C0_over_eta_dcdc", "C1"], ["-", "-", "Pa m/s"]
-    else:
-        corr = p_lv / eta_dcdc if eta_dcdc is not None else p_lv * 0.0
-        A = np.column_stack([p_ma_hpcu - corr, -1.0 / c_m])
-        names, units = ["C0", "C1"], ["-", "Pa m/s"]
-    fit = linear_fit(A, p_me, names, units=units, segments=sorted({s for s in segments if s}), min_points=min_points,
-                     n_excluded=n_excluded, what=what)
-    k = len(names) - 1
-    derived(fit, "e", lambda x: 4 * np.pi * x[0], unit="-")
-    derived(fit, "W_loss", lambda x: 2 * V * x[k] / r, unit="W")
-    if len(names) == 3:
-        derived(fit, "eta_dcdc", lambda x: x[0] / x[1], unit="-")
+        cols = [pm, np.ones_like(pm)] + ([p_lv] if with_eta else [])
+        names, units = ["inv_e", "W_loss_over_e"] + (["inv_eta_dcdc"] if with_eta else []), ["-", "W", "-"]
+        y = p_hpcu - corr * p_lv
+
+        def e_w_eta(x: np.ndarray) -> tuple[float, float, float]:
+            return 1.0 / x[0], x[1] / x[0], (1.0 / x[2] if with_eta else np.nan)
+
+    fit = linear_fit(np.column_stack(cols), y, names, units=units[: len(names)],
+                     segments=sorted({s for s in segments if s}), min_points=min_points, n_excluded=n_excluded,
+                     what=what)
+    derived(fit, "e", lambda x: e_w_eta(x)[0], unit="-")
+    derived(fit, "W_loss", lambda x: e_w_eta(x)[1], unit="W")
+    if with_eta:
+        derived(fit, "eta_dcdc", lambda x: e_w_eta(x)[2], unit="-")
         eta = fit.value("eta_dcdc")
     else:
         eta = eta_dcdc if eta_dcdc is not None else float("inf")
+    p_el = p_hpcu - p_lv / eta
+    mp = efficiency_map(fit.value("e"), fit.value("W_loss"), t, n)
+    fit.data.update(mp)
+    valid = np.isfinite(mp["map_eta"])
+    P = (mp["map_torque_nm"][:, None] * mp["map_speed_rpm"][None, :] * RPM)[valid]
+    derived(fit, "eta_peak", lambda x: float(np.max(e_w_eta(x)[0] * P / (P + e_w_eta(x)[1]))), unit="-")
     for reason in reasons:
         fit.reasons.append(reason)
         fit.params["W_loss"].status, fit.params["W_loss"].reason = "flagged", reason
-    p_ma_motor = p_ma_hpcu - p_lv / eta
-    fit.data.update(p_me=p_me, p_ma=p_ma_motor, c_m=c_m, p_me_fit=fit.data["y_fit"], torque_nm=t, speed_rpm=n,
-                    p_el_w=p_ma_motor * V * (n * RPM) / (2 * np.pi),
-                    eta_measured=t * n * RPM / (p_ma_motor * V * (n * RPM) / (2 * np.pi)))
+    p_me_fit = fit.data["y_fit"] if form == "normalised" else \
+        (fit.value("e") * p_el - fit.value("W_loss")) / (2 * V * n * RPM)
+    fit.data.update(p_me=p_me, p_ma=_norm(specs, t, n, p_el)[1], c_m=c_m, p_me_fit=p_me_fit, torque_nm=t,
+                    speed_rpm=n, p_el_w=p_el, eta_measured=pm / p_el)
     e = fit.value("e")
     if not 0.5 < e <= 1.0 or fit.value("W_loss") < 0:
         fit.flag(f"e = {e:.4f}, W_loss = {fit.value('W_loss'):.0f} W are not physical: check signs and channels")
-    if len(names) == 3 and not 0.5 < eta <= 1.0:
+    if with_eta and not 0.5 < eta <= 1.0:
         fit.flag(f"eta_dcdc = {eta:.3f} is not physical: the 12 V load did not vary enough to separate it")
     return fit
 
 
 def fit_willans_generating(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray,
                            p_lv_w: np.ndarray | None = None, *, eta_dcdc: float | None = None, min_points: int = 5,
-                           segments: Iterable[str] = (), n_excluded: int = 0) -> FitResult:
-    """Willans line in generating: ``P_el = e_gen T omega + W_loss_gen`` in the normalised form.
+                           segments: Iterable[str] = (), n_excluded: int = 0, form: str = "normalised") -> FitResult:
+    """Willans line in generating: ``P_el = e_gen T omega + W_loss_gen``.
 
-    Parameters are as for :func:`fit_willans_motoring` (torque < 0). Returns parameters ``G0``
-    (``4 pi e_gen``), ``G1`` (``2 pi r W_loss_gen / V``), (``G2`` = ``1 / eta_dcdc``) and derived
-    ``e_gen``, ``W_loss_gen`` (W), ``eta_dcdc``.
+    Parameters are as for :func:`fit_willans_motoring` (torque < 0). The normalised form regresses
+    ``p_ma_hpcu`` on ``[p_me, 1/c_m, p_lv]`` (unknowns ``G0 = 4 pi e_gen``,
+    ``G1 = 2 pi r W_loss_gen / V``, ``G2 = 1/eta_dcdc``); the power form ``P_hpcu`` on
+    ``[T omega, 1, P_lv]`` (unknowns ``k_tw = e_gen``, ``k_1 = W_loss_gen``, ``k_lv = 1/eta_dcdc``).
+    Derived: ``e_gen``, ``W_loss_gen`` (W), ``eta_dcdc``.
     """
+    _check_form(form)
     what = "motor.generating"
     t = np.asarray(torque_nm, dtype=float)
     n = np.asarray(speed_rpm, dtype=float)
     _check(t, n, what, min_points)
-    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, np.asarray(p_hpcu_w, dtype=float))
+    p_hpcu = np.asarray(p_hpcu_w, dtype=float)
+    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, p_hpcu)
     V, r = specs.em_rotor_volume_m3, specs.em_rotor_radius_m
-    reasons = []
-    if p_lv_w is None:
-        p_lv = np.zeros_like(t)
-        reasons.append("DC/DC power not measured: W_loss_gen includes the DC/DC converter's draw")
+    p_lv, p_lv_n, reasons = _lv(specs, t, n, p_lv_w, "W_loss_gen")
+    with_eta = p_lv_w is not None and eta_dcdc is None
+    corr = 1.0 / eta_dcdc if eta_dcdc is not None else 0.0
+    pm = t * n * RPM
+    if form == "normalised":
+        cols = [p_me, 1.0 / c_m] + ([p_lv_n] if with_eta else [])
+        y = p_ma_hpcu - corr * p_lv_n
+        names, units = ["G0", "G1", "G2"][: len(cols)], ["-", "Pa m/s", "-"][: len(cols)]
+        scale = (1.0 / (4 * np.pi), V / (2 * np.pi * r))
     else:
-        p_lv = _norm(specs, t, n, np.asarray(p_lv_w, dtype=float))[1]
-    if p_lv_w is not None and eta_dcdc is None:
-        A = np.column_stack([p_me, 1.0 / c_m, p_lv])
-        b = p_ma_hpcu
-        names = ["G0", "G1", "G2"]
-    else:
-        A = np.column_stack([p_me, 1.0 / c_m])
-        b = p_ma_hpcu - (p_lv / eta_dcdc if eta_dcdc is not None else 0.0)
-        names = ["G0", "G1"]
-    fit = linear_fit(A, b, names, units=["-", "Pa m/s", "-"][: len(names)], segments=sorted({s for s in segments if s}),
+        cols = [pm, np.ones_like(pm)] + ([p_lv] if with_eta else [])
+        y = p_hpcu - corr * p_lv
+        names, units = ["k_tw", "k_1", "k_lv"][: len(cols)], ["-", "W", "-"][: len(cols)]
+        scale = (1.0, 1.0)
+    fit = linear_fit(np.column_stack(cols), y, names, units=units, segments=sorted({s for s in segments if s}),
                      min_points=min_points, n_excluded=n_excluded, what=what)
-    derived(fit, "e_gen", lambda x: x[0] / (4 * np.pi), unit="-")
-    derived(fit, "W_loss_gen", lambda x: x[1] * V / (2 * np.pi * r), unit="W")
-    if len(names) == 3:
+    derived(fit, "e_gen", lambda x: x[0] * scale[0], unit="-")
+    derived(fit, "W_loss_gen", lambda x: x[1] * scale[1], unit="W")
+    if with_eta:
         derived(fit, "eta_dcdc", lambda x: 1.0 / x[2], unit="-")
         eta = fit.value("eta_dcdc")
     else:
@@ -195,10 +234,10 @@ def fit_willans_generating(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm
     for reason in reasons:
         fit.reasons.append(reason)
         fit.params["W_loss_gen"].status, fit.params["W_loss_gen"].reason = "flagged", reason
-    p_ma_motor = p_ma_hpcu - p_lv / eta
-    p_el = p_ma_motor * V * (n * RPM) / (2 * np.pi)
-    fit.data.update(p_me=p_me, p_ma=p_ma_motor, c_m=c_m, p_ma_fit=fit.data["y_fit"], torque_nm=t, speed_rpm=n,
-                    p_el_w=p_el, eta_measured=p_el / (t * n * RPM))
+    p_el = p_hpcu - p_lv / eta
+    p_el_fit = fit.value("e_gen") * pm + fit.value("W_loss_gen")
+    fit.data.update(p_me=p_me, p_ma=_norm(specs, t, n, p_el)[1], c_m=c_m, p_ma_fit=_norm(specs, t, n, p_el_fit)[1],
+                    torque_nm=t, speed_rpm=n, p_el_w=p_el, eta_measured=p_el / pm)
     if not 0.5 < fit.value("e_gen") <= 1.0:
         fit.flag(f"e_gen = {fit.value('e_gen'):.4f} is not physical: check signs and channels")
     return fit
@@ -239,7 +278,7 @@ def efficiency_map(e: float, w_loss: float, torque_nm: np.ndarray, speed_rpm: np
 
 def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints | None = None,
                    eta_dcdc: float | None = None, min_torque_nm: float = 5.0, min_points: int = 5,
-                   **kwargs: object) -> IdentificationResult:
+                   form: str = "normalised", **kwargs: object) -> IdentificationResult:
     """Willans lines of the motor (motoring and generating) and the efficiency map, from a Recording.
 
     Parameters
@@ -255,6 +294,8 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
         A known DC/DC efficiency (else identified).
     min_torque_nm:
         Points with ``|T|`` below this are left out (neither motoring nor generating).
+    form:
+        ``"normalised"`` (the paper's eq. 20-22) or ``"power"`` (see :func:`fit_willans_motoring`).
 
     Returns
     -------
@@ -281,25 +322,11 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
         try:
             fit = func(specs, pts.torque_nm[sel], pts.speed_rpm[sel], pts.p_hpcu_w[sel],
                        None if pts.p_lv_w is None else pts.p_lv_w[sel], eta_dcdc=eta_dcdc, min_points=min_points,
-                       segments=list(segs[sel]), n_excluded=pts.n_flagged)
+                       segments=list(segs[sel]), n_excluded=pts.n_flagged, form=form)
         except IdentificationError as exc:
             out.errors[key] = f"{type(exc).__name__}: {exc}"
             failures[key] = exc
             continue
-        if side == "motoring":
-            mp = efficiency_map(fit.value("e"), fit.value("W_loss"), fit.data["torque_nm"], fit.data["speed_rpm"])
-            fit.data.update(mp)
-            valid = np.isfinite(mp["map_eta"])
-            P = (mp["map_torque_nm"][:, None] * mp["map_speed_rpm"][None, :] * RPM)[valid]
-            nraw = fit.data["cov"].shape[0]
-
-            def peak(x: np.ndarray, P: np.ndarray = P, nraw: int = nraw,
-                     k: float = 2 * specs.em_rotor_volume_m3 / specs.em_rotor_radius_m) -> float:
-                e = 4 * np.pi * x[0]
-                w = k * x[nraw - 1]
-                return float(np.max(e * P / (P + w)))
-
-            derived(fit, "eta_peak", peak, unit="-")
         out.fits[key] = fit
     if not out.fits:
         raise_all_failed("motor (motoring and generating)", failures)

@@ -124,3 +124,16 @@ def test_emulated_regen_steps_through_the_ideal_chain(quick_ideal) -> None:
     np.testing.assert_allclose(gen.value("e_gen"), vehicle.motor.willans_e_gen, rtol=1e-3)
     np.testing.assert_allclose(gen.value("W_loss_gen"), vehicle.motor.willans_w_loss_gen_w, rtol=0.01)
     assert "InsufficientDataError" in res.errors.get("motor.motoring", "InsufficientDataError")
+
+
+def test_power_form_gives_the_same_parameters(ramp_rec, truth) -> None:
+    """P_hpcu on [T omega, 1, P_lv] (the brief's form) and the paper's normalised eq. 20 are one model."""
+    norm = identify_motor(ramp_rec, SPECS)
+    power = identify_motor(ramp_rec, SPECS, form="power")
+    for side, names in (("motor.motoring", ("e", "W_loss", "eta_dcdc", "eta_peak")),
+                        ("motor.generating", ("e_gen", "W_loss_gen", "eta_dcdc"))):
+        for name in names:
+            np.testing.assert_allclose(power.fits[side].value(name), norm.fits[side].value(name), rtol=1e-3)
+    np.testing.assert_allclose(power.fits["motor.motoring"].value("e"), truth.e, rtol=1e-4)
+    np.testing.assert_allclose(power.fits["motor.motoring"].data["p_me_fit"], norm.fits["motor.motoring"].data["p_me"],
+                               rtol=1e-3)
