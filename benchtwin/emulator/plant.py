@@ -232,6 +232,12 @@ def _merge(j1: float, w1: float, j2: float, w2: float) -> tuple[float, float]:
 
 
 @njit(cache=True)
+def jp_now(jm: float, je: float, k0: bool) -> float:
+    """Inertia of the pump side: motor and converter pump, plus the engine when K0 is closed."""
+    return jm + (je if k0 else 0.0)
+
+
+@njit(cache=True)
 def _ke(p: np.ndarray, st: np.ndarray) -> float:
     jp = p[P_M_J] + (p[P_E_J] if st[S_K0] > 0.5 else 0.0)
     ke = 0.5 * st[S_MEFF] * st[S_V] ** 2 + 0.5 * jp * st[S_WP] ** 2
@@ -435,25 +441,17 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
                 else:
                     gear -= 1
                 sht = 0.0
-                if not lu and g_old > 0 and gear > 0:
-                    # inertia phase through the open converter: the turbine speed moves to the new ratio
+                if g_old > 0 and gear > 0:
+                    # clutch-to-clutch shift: the lock-up opens (slip control), the turbine speed moves to the
+                    # new ratio over the inertia phase while the motor takes the pump side's inertia torque
+                    lu = False
+                    lut = 0.0
                     ramp = t_inertia
                     kold = ratios[g_old] * ifd / rw
-                if lu and g_old > 0 and gear > 0:
-                    # clutch-to-clutch shift with the lock-up closed: the on-coming clutch brings the pump side
-                    # to the new synchronous speed, exchanging momentum with the vehicle (inelastic, J lost)
-                    jps = jm + (je if k0 else 0.0)
-                    kn = ratios[gear] * ifd / rw
-                    ke_before = 0.5 * meff * v * v + 0.5 * jps * wp * wp
-                    v = (meff * v + kn * jps * wp) / (meff + jps * kn * kn)
-                    wp = kn * v
-                    if k0:
-                        we = wp
-                    led[L_SHIFT] += ke_before - (0.5 * meff * v * v + 0.5 * jps * wp * wp)
         else:
             sht = 0.0
         kg = ratios[gear] * ifd / rw if gear > 0 else 0.0
-        if gear == 0 or lu:
+        if gear == 0:
             ramp = 0.0
         kge = kg + (kold - kg) * (ramp / t_inertia) if ramp > 0.0 else kg
         rge = kge * rw / ifd
@@ -593,6 +591,10 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
             t_in_real = tm + te
             breg = -kgr * (t_in_real / eta_m[gear] - c0[gear]) if t_in_real <= eta_m[gear] * c0[gear] else 0.0
             bhyd = max(bdem - breg, 0.0)
+        if ramp > 0.0 and gear > 0 and not lu:
+            # torque intervention during the inertia phase: the motor takes the pump side's inertia torque so
+            # that the pump follows the turbine instead of dumping its energy into the driveline
+            tm += jp_now(jm, je, k0) * (kg - kold) * v / t_inertia
         tm = min(max(tm, -tm_gen), tm_max)
         # idle speed holding when the pump side is free
         free = (not lu) or gear == 0
@@ -675,6 +677,7 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
         tout = 0.0
         tp_eff = 0.0
         tlu_eff = 0.0
+        slip_w = 0.0
         dw = 0.0
         a = 0.0
         if gear > 0 and lu:
@@ -708,12 +711,20 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
                 tin = tt + tlu
                 eta = eta_m[gear]
                 cc = c0[gear]
+                # during the inertia phase the slipping shift clutch passes the torque at the lower ratio
+                # (higher ratio in coast); the speed difference times torque is clutch slip energy
+                reff = rge
+                if ramp > 0.0:
+                    rnew = ratios[gear]
+                    rold = kold * rw / ifd
+                    reff = min(rnew, rold) if tin >= 0.0 else max(rnew, rold)
                 if tin >= cc:
-                    tout = rge * eta * (tin - cc)
+                    tout = reff * eta * (tin - cc)
                 elif tin <= eta * cc:
-                    tout = rge * (tin / eta - cc)
+                    tout = reff * (tin / eta - cc)
                 else:
                     tout = 0.0
+                slip_w = (rge - reff) * ifd / rw  # turbine speed above the clutch's output side, per m/s
                 num = tsrc - tp - tlu
                 dw = dt * num / (jp + dt * (dtp + dlu + d_idle))
                 tp_eff = tp + dtp * dw
@@ -810,7 +821,8 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
             led[L_TC] += (tp_eff * w_mid - tt * wt_mid) * dt
             led[L_LOCKUP] += (tlu_eff * w_mid - tlu * wt_mid) * dt
         if gear > 0:
-            led[L_TRANS] += (tin * wt_mid - tout * ws_mid) * dt
+            led[L_SHIFT] += tin * slip_w * v_mid * dt
+            led[L_TRANS] += (tin * (wt_mid - slip_w * v_mid) - tout * ws_mid) * dt
         led[L_BRAKES] += (fb * v_mid - stop_fix * v_mid) * dt if v_mid > 0.0 else 0.0
         if dmode == 0:
             led[L_ROAD] += f_rl * v_mid * dt
