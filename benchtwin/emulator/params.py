@@ -54,7 +54,7 @@ P_TC_GAMMA = 29
 P_LU_GEAR = 30
 P_LU_V = 31
 P_LU_CAP = 32
-P_LU_SLIP = 33
+P_LU_TENG = 33
 P_SHIFT_DELAY = 34
 P_B_GF = 35  # Nm per bar
 P_B_GR = 36
@@ -299,7 +299,7 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     p[P_LU_GEAR] = tc.lockup_min_gear
     p[P_LU_V] = tc.lockup_min_speed_kmh * KMH
     p[P_LU_CAP] = tc.lockup_capacity_nm
-    p[P_LU_SLIP] = tc.lockup_engage_time_s
+    p[P_LU_TENG] = tc.lockup_engage_time_s
     p[P_SHIFT_DELAY] = tr.shift_delay_s
     p[P_SHIFT_INERTIA] = tr.shift_inertia_phase_s
     p[P_B_GF], p[P_B_GR] = br.gain_front_nm_per_bar, br.gain_rear_nm_per_bar

@@ -142,7 +142,7 @@ from benchtwin.emulator.params import (
     P_LHV,
     P_LU_CAP,
     P_LU_GEAR,
-    P_LU_SLIP,
+    P_LU_TENG,
     P_LU_V,
     P_LV_CAP_AS,
     P_LV_DROOP,
@@ -655,7 +655,7 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
         cap_now = 0.0
         if lu_req and not lu and gear > 0 and ramp <= 0.0:
             lut += dt
-            cap_now = p[P_LU_CAP] * min(lut / p[P_LU_SLIP], 1.0)
+            cap_now = p[P_LU_CAP] * min(lut / p[P_LU_TENG], 1.0)
             tp0, _tt0, _d0 = tc_torques(tc_a, gamma, wp, wt)
             tneed = tsrc - tp0 - jp * (wt - wp) / dt
             if abs(tneed) <= cap_now:
