@@ -343,9 +343,10 @@ def mercedes_points() -> dict[str, np.ndarray]:
     return {"speed_rpm": data[:, 0], "torque_nm": data[:, 1], "fuel_gps": data[:, 2]}
 
 
-@pytest.fixture(scope="session")
-def quick_ideal():
-    """The quick campaign of the emulator through the ideal batch chain: (vehicle config, Recording).
+@pytest.fixture(scope="session", params=["p2_phev_9at.toml", "p2_phev_alt.toml"])
+def quick_ideal(request):
+    """The quick campaign of the emulator through the ideal batch chain: (vehicle config, Recording), on the
+    paper vehicle and on a second vehicle file with other values (so nothing is tuned to one vehicle).
 
     This is the real path (plant -> sensors -> wire formats -> acquisition) with every imperfection off;
     what remains is each wire's resolution (e.g. 2.1 Nm on the shaft torque at K_TEL 500, 0.01 km/h speeds).
@@ -357,7 +358,7 @@ def quick_ideal():
     from benchtwin.config.vehicle import load_vehicle
     from benchtwin.emulator import simulate_campaign
 
-    vehicle = load_vehicle()
+    vehicle = load_vehicle(scenario_path("vehicles", request.param))
     trace = simulate_campaign(vehicle, load_campaign(scenario_path("campaigns", "quick.toml")))
     rec = run_batch(trace, load_setup(scenario_path("setups", "ideal.toml")), seed=1)
     return vehicle, rec

@@ -112,12 +112,13 @@ def test_recovers_a_different_vehicle() -> None:
 
 
 def test_emulated_ramp_up_through_the_ideal_chain(quick_ideal) -> None:
-    """The emulator's 5th-gear hybrid ramp-up through the ideal chain: eta_m within 0.5 % and C0 within 10 %.
-    The shaft torque's 2.1 Nm resolution (K_TEL 500, 12 bit) is not averaged out on constant holds; at the
-    lowest step (about 20 Nm input) it is a 4 % error of the efficiency, which is what limits C0 here."""
+    """The emulator's 5th-gear hybrid ramp-up through the ideal chain: eta_m within 0.5 % and C0 within 15 %
+    (measured: 0.13 % / 2 % on the paper vehicle, 0.15 % / 8 % on the second one). The shaft torque's 2.1 Nm
+    resolution (K_TEL 500, 12 bit) is not averaged out on constant holds; at the lowest step (about 20 Nm
+    input) it is a 4 % error of the efficiency, which is what limits C0 with four points."""
     vehicle, rec = quick_ideal
     res = identify_transmission(rec, vehicle.specs)
     fit = res.fits["transmission.gear5"]
     np.testing.assert_allclose(fit.value("eta_m"), vehicle.transmission.eta_m[4], rtol=5e-3)
-    np.testing.assert_allclose(fit.value("C0"), vehicle.transmission.c0_nm[4], rtol=0.1)
+    np.testing.assert_allclose(fit.value("C0"), vehicle.transmission.c0_nm[4], rtol=0.15)
     assert fit.segments == ["ramp_up_g5_85kmh_hybrid"]
