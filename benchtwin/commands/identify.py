@@ -4,7 +4,8 @@ RECORDING is an MF4 file saved by benchtwin (``Recording.save``), or any CSV/MF4
 ``--signal-map`` maps its channels to roles. The vehicle specs come from ``--specs`` (a TOML file with
 the VehicleSpecs keys, at top level or in a ``[specs]`` table) or from the signal map's ``[specs]``.
 Writes ``DIR/params.json`` (every fit with every parameter and its statistics, the errors of the
-methods that could not give trustworthy numbers, and what was skipped) and ``DIR/figures/*.png``.
+methods that could not give trustworthy numbers, and what was skipped), ``DIR/figures/*.png`` and the
+identified battery maps as CSV tables (``DIR/battery_cell_maps.csv``, ``DIR/battery_ocv_r_map_free.csv``).
 """
 
 from __future__ import annotations
@@ -52,6 +53,31 @@ def _load_specs(path: Path) -> Any:
     if "specs" in data and isinstance(data["specs"], dict):
         data = data["specs"]
     return validate_data(VehicleSpecs, data, str(path))
+
+
+def _write_tables(result: Any, out: Path) -> list[Path]:
+    """Write the identified maps as CSV tables (the battery cell maps of Figure 16, the map-free OCV/R)."""
+    import numpy as np
+
+    written = []
+    b = result.fits.get("battery")
+    if b is not None and "map_soc" in b.data:
+        path = out / "battery_cell_maps.csv"
+        cols = np.column_stack([b.data["map_soc"], b.data["map_ocv"], b.data["map_r_dch"], b.data["map_r_ch"]])
+        np.savetxt(path, cols, delimiter=",", fmt="%.6g", comments="",
+                   header="# corrected cell maps (eq. 30): alpha*OCV_lit, beta_dch*R_lit_dch, beta_ch*R_lit_ch\n"
+                          "soc_pct,ocv_v,r_discharge_ohm,r_charge_ohm")
+        written.append(path)
+    mf = result.fits.get("battery_map_free")
+    if mf is not None and "soc_nodes" in mf.data:
+        path = out / "battery_ocv_r_map_free.csv"
+        cols = np.column_stack([mf.data["soc_nodes"], mf.data["ocv_nodes"], mf.data["r_dch_nodes"],
+                                mf.data["r_ch_nodes"]])
+        np.savetxt(path, cols, delimiter=",", fmt="%.6g", comments="",
+                   header="# map-free V = OCV(SOC) - I R(SOC), piecewise linear between the nodes; nan: not "
+                          "identified\nsoc_pct,ocv_v,r_discharge_ohm,r_charge_ohm")
+        written.append(path)
+    return written
 
 
 def _summary(result: Any) -> list[str]:
@@ -108,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
 
         figures = render_figures(result, out / "figures")
     result.meta["figures"] = sorted(str(p.relative_to(out)) for p in figures.values())
+    result.meta["tables"] = sorted(str(p.relative_to(out)) for p in _write_tables(result, out))
     params = out / "params.json"
     params.write_text(json.dumps(result.to_dict(), indent=1, default=str), encoding="utf-8")
     print(f"identified {len(result.parameters())} parameters in {len(result.fits)} fits "

@@ -41,6 +41,7 @@ __all__ = [
     "identify_battery_ocv_rest",
     "identify_battery_r0_steps",
     "load_literature_maps",
+    "refine_soc",
 ]
 
 #: segment kinds that are depletion / charge tests (used when the Recording has a segment table)
@@ -235,6 +236,7 @@ def identify_battery(
     segment_kinds: tuple[str, ...] | None = BATTERY_SEGMENT_KINDS,
     min_points: int = 20,
     min_direction_points: int = 10,
+    refine_displayed_soc: bool = True,
 ) -> FitResult:
     """Identify ``alpha``, ``beta_discharge`` and ``beta_charge`` of eq. 30.
 
@@ -255,6 +257,9 @@ def identify_battery(
         has no such segment.
     min_points, min_direction_points:
         Minimum usable samples overall and per current direction.
+    refine_displayed_soc:
+        Use the displayed SOC refined by coulomb counting (:func:`refine_soc`) instead of its
+        quantised values; the slope is reported as ``soc_per_ah`` (% per Ah, 100 / usable capacity).
 
     Returns
     -------
@@ -279,7 +284,10 @@ def identify_battery(
         n_cells = specs.n_cells_series
     maps = maps or load_literature_maps()
     d, use, segs, n_bad = _battery_samples(rec, soc=True, rate_hz=rate_hz, kinds=segment_kinds)
-    s, i, v = d["displayed_soc_pct"][use], d["battery_current_a"][use], d["battery_voltage_v"][use]
+    soc_all, k_soc, k_se, n_blocks = d["displayed_soc_pct"], float("nan"), float("nan"), 0
+    if refine_displayed_soc:
+        soc_all, k_soc, k_se, n_blocks = refine_soc(d["t"], d["battery_current_a"], d["displayed_soc_pct"], use)
+    s, i, v = soc_all[use], d["battery_current_a"][use], d["battery_voltage_v"][use]
     if s.size < min_points:
         raise InsufficientDataError(f"battery: {s.size} usable samples, need {min_points}")
     v_cell = v / n_cells
@@ -299,6 +307,11 @@ def identify_battery(
                      n_excluded=n_bad, what="battery eq. 30")
     for r in reasons:
         fit.flag(r)
+    if refine_displayed_soc:
+        fit.add(ParameterEstimate("soc_per_ah", k_soc, k_se, (k_soc - 1.96 * k_se, k_soc + 1.96 * k_se),
+                                  float("nan"), n_blocks, "%/Ah", segs))
+        if not np.isfinite(k_soc):
+            fit.reasons.append("displayed SOC used as is: it does not change within any block of usable samples")
     # the paper's statistics are on the pack voltage (same R^2, RMSE in volts of the pack)
     fit.rmse *= n_cells
     alpha = fit.value("alpha")
@@ -308,11 +321,68 @@ def identify_battery(
     lit = (maps.ocv(s) - i * np.where(dch, maps.r_discharge(s), maps.r_charge(s))) * n_cells
     fit.data.update({
         "t": t, "v_meas": v, "v_model": fit.data["y_fit"] * n_cells, "v_lit": lit, "current": i, "soc": s,
+        "soc_displayed": d["displayed_soc_pct"][use],
         "map_soc": maps.soc_pct, "map_ocv": alpha * maps.ocv_v, "map_r_dch": b_d * maps.r_discharge_ohm,
         "map_r_ch": b_c * maps.r_charge_ohm, "lit_ocv": maps.ocv_v, "lit_r_dch": maps.r_discharge_ohm,
         "lit_r_ch": maps.r_charge_ohm,
     })
     return fit
+
+
+def refine_soc(t_s: np.ndarray, current_a: np.ndarray, soc_pct: np.ndarray, use: np.ndarray
+               ) -> tuple[np.ndarray, float, float, int]:
+    """Displayed SOC refined by coulomb counting.
+
+    A displayed SOC is quantised on the CAN (0.5 % steps are common): between steps it lags or leads
+    the true SOC by up to half a step, which biases the OCV term of eq. 30. The IVT-S current is far
+    finer, so ``s = s0_b + k Q(t)`` is fitted to the displayed values, with ``Q`` the charge counted
+    from the current (Ah, positive when charging), one offset ``s0_b`` per contiguous block of usable
+    samples and one slope ``k`` (% per Ah, i.e. 100 / usable capacity) shared by all blocks. A rounded
+    staircase scatters evenly about the line, so the fitted SOC follows the true one.
+
+    Parameters
+    ----------
+    t_s, current_a, soc_pct:
+        Common time base, current (A, positive discharge) and displayed SOC.
+    use:
+        Usable samples; blocks are its runs.
+
+    Returns
+    -------
+    soc, k, k_se, n_blocks
+        Refined SOC on every sample (the displayed SOC where it could not be refined), the slope and
+        its standard error (NaN when not refined) and the number of blocks that carried a slope.
+    """
+    i = np.nan_to_num(np.asarray(current_a, dtype=float))
+    dq = np.r_[0.0, -0.5 * (i[1:] + i[:-1]) * np.diff(t_s)] / 3600.0
+    q = np.cumsum(dq)
+    edges = np.flatnonzero(np.diff(np.r_[0, use.astype(np.int8), 0]))
+    sxy = sxx = 0.0
+    blocks = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        qb, sb = q[a:b], soc_pct[a:b]
+        if b - a < 3 or np.ptp(sb) <= 0:
+            continue
+        dqb, dsb = qb - qb.mean(), sb - sb.mean()
+        sxy += float(dqb @ dsb)
+        sxx += float(dqb @ dqb)
+        blocks.append((a, b))
+    if not blocks or not sxx > 0:
+        return soc_pct, float("nan"), float("nan"), 0
+    k = sxy / sxx
+    if not k > 0:
+        return soc_pct, float("nan"), float("nan"), 0
+    out = np.asarray(soc_pct, dtype=float).copy()
+    ss_res, n = 0.0, 0
+    for a, b in zip(edges[::2], edges[1::2]):
+        qb, sb = q[a:b], soc_pct[a:b]
+        s0 = float(np.mean(sb - k * qb))
+        out[a:b] = s0 + k * qb
+        ss_res += float(np.sum((sb - out[a:b]) ** 2))
+        n += b - a
+    dof = max(n - len(blocks) - 1, 1)
+    k_se = float(np.sqrt(ss_res / dof / sxx))
+    return out, k, k_se, len(blocks)
 
 
 def _hat_basis(x: np.ndarray, nodes: np.ndarray) -> np.ndarray:

@@ -28,24 +28,35 @@ SPECS = VehicleSpecs(
 BATTERY_TRUTH = {"alpha": 1.021, "beta_discharge": 1.37, "beta_charge": 1.18}
 
 
+#: displayed SOC per Ah of charge (100 / usable capacity of 25 Ah)
+SOC_PER_AH = 4.0
+
+
 def battery_recording(truth: dict[str, float] | None = None, *, rate_hz: float = 10.0, noise_v: float = 0.0,
-                      seed: int = 0, with_charge: bool = True) -> tuple[Recording, dict[str, float]]:
-    """A depletion test (SOC 95 -> 15 %) and a charge test (20 -> 35 %) on the eq. 30 pack model."""
+                      seed: int = 0, with_charge: bool = True, soc_step_pct: float = 0.0
+                      ) -> tuple[Recording, dict[str, float]]:
+    """A depletion test (SOC 95 -> 15 %) and a charge test (20 -> 35 %) on the eq. 30 pack model.
+
+    SOC follows the current by coulomb counting (:data:`SOC_PER_AH`); with ``soc_step_pct`` the
+    displayed SOC on the CAN is rounded to that step, as a real car's is.
+    """
     truth = dict(truth or BATTERY_TRUTH)
     maps = load_literature_maps()
     n = SPECS.n_cells_series
     rng = np.random.default_rng(seed)
     parts_t, parts_i, parts_s, segs = [], [], [], []
     t0 = 0.0
-    tests = [("constant_drive", "deplete_90kmh", 95.0, 15.0, 1800.0, 1)]
+    # (kind, name, start SOC, duration, mean |I|, sign): 40 A for 1800 s = 20 Ah = 80 %; 15 A for 900 s = 15 %
+    tests = [("constant_drive", "deplete_90kmh", 95.0, 1800.0, 40.0, 1)]
     if with_charge:
-        tests.append(("constant_drive", "charge_50kmh", 20.0, 35.0, 900.0, -1))
-    for kind, name, s0, s1, dur, sign in tests:
+        tests.append(("constant_drive", "charge_50kmh", 20.0, 900.0, 15.0, -1))
+    for kind, name, s0, dur, i_mean, sign in tests:
         t = t0 + np.arange(0.0, dur, 1.0 / rate_hz)
         tau = (t - t0) / dur
-        s = s0 + (s1 - s0) * tau
-        # current varies around its mean (driver corrections, auxiliaries)
-        i = sign * (40.0 + 25.0 * np.sin(2 * np.pi * tau * 37) + 10.0 * np.sin(2 * np.pi * tau * 211))
+        # current varies around its mean (driver corrections, auxiliaries) and keeps its sign
+        i = sign * i_mean * (1.0 + 0.6 * np.sin(2 * np.pi * tau * 37) + 0.25 * np.sin(2 * np.pi * tau * 211))
+        q = np.r_[0.0, np.cumsum(-0.5 * (i[1:] + i[:-1]) * np.diff(t))] / 3600.0
+        s = s0 + SOC_PER_AH * q
         parts_t.append(t)
         parts_i.append(i)
         parts_s.append(s)
@@ -56,10 +67,11 @@ def battery_recording(truth: dict[str, float] | None = None, *, rate_hz: float =
     s = np.concatenate(parts_s)
     r = np.where(i > 0, truth["beta_discharge"] * maps.r_discharge(s), truth["beta_charge"] * maps.r_charge(s))
     v = (truth["alpha"] * maps.ocv(s) - i * r) * n + noise_v * rng.standard_normal(t.size)
+    shown = np.round(s / soc_step_pct) * soc_step_pct if soc_step_pct > 0 else s
     rec = Recording(segments=segs)
     rec.add(Channel("battery_voltage_v", "V", t, v, source="ivt_battery"))
     rec.add(Channel("battery_current_a", "A", t, i, source="ivt_battery"))
-    rec.add(Channel("displayed_soc_pct", "%", t, s, source="vehicle_can"))
+    rec.add(Channel("displayed_soc_pct", "%", t, shown, source="vehicle_can"))
     return rec, truth
 
 

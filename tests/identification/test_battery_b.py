@@ -151,3 +151,17 @@ def test_any_alpha_beta_comes_back(alpha, beta_d, beta_c):
     fit = identify_battery(rec, SPECS)
     for name in ("alpha", "beta_discharge", "beta_charge"):
         np.testing.assert_allclose(fit.value(name), truth[name], rtol=1e-6, err_msg=name)
+
+
+def test_quantised_displayed_soc_is_refined_by_coulomb_counting():
+    from _synth_b import SOC_PER_AH
+
+    rec, truth = battery_recording(soc_step_pct=0.5)  # the CAN shows SOC in 0.5 % steps
+    fit = identify_battery(rec, SPECS)
+    for name in ("alpha", "beta_discharge", "beta_charge"):
+        np.testing.assert_allclose(fit.value(name), truth[name], rtol=2e-4, err_msg=name)
+    np.testing.assert_allclose(fit.value("soc_per_ah"), SOC_PER_AH, rtol=1e-3)
+    raw = identify_battery(rec, SPECS, refine_displayed_soc=False)
+    err_raw = max(abs(raw.value(n) / truth[n] - 1) for n in ("alpha", "beta_discharge", "beta_charge"))
+    err_ref = max(abs(fit.value(n) / truth[n] - 1) for n in ("alpha", "beta_discharge", "beta_charge"))
+    assert err_ref < err_raw / 3

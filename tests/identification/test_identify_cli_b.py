@@ -12,6 +12,7 @@ from test_real_data_b import _reference_dir
 from benchtwin.cli import main
 from benchtwin.config._base import scenario_path
 from benchtwin.errors import DataError
+from benchtwin.identification.battery import load_literature_maps
 from benchtwin.identification.run import identify_all, transmission_table
 from benchtwin.recording import Recording
 
@@ -94,6 +95,11 @@ def test_cli_writes_params_and_figures(combined, tmp_path, capsys):
         assert name in params["meta"]["figures"]
         assert (out / name).stat().st_size > 10_000
     assert "battery" in capsys.readouterr().out
+    maps = np.loadtxt(out / "battery_cell_maps.csv", delimiter=",", skiprows=2)
+    assert params["meta"]["tables"] == ["battery_cell_maps.csv"]
+    m = load_literature_maps()
+    np.testing.assert_allclose(maps[:, 1], truth["battery"]["alpha"] * m.ocv_v, rtol=1e-3)
+    np.testing.assert_allclose(maps[:, 2], truth["battery"]["beta_discharge"] * m.r_discharge_ohm, rtol=1e-3)
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
