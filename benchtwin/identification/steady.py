@@ -147,8 +147,14 @@ class SteadyWindows:
     def average(self, x: np.ndarray) -> np.ndarray:
         """Mean of a grid-aligned array (e.g. a product such as power) over each window."""
         x = np.asarray(x, dtype=float)
-        return np.array([np.nanmean(x[w.i0:w.i1]) if np.isfinite(x[w.i0:w.i1]).any() else np.nan
-                         for w in self.windows])
+        fin = np.isfinite(x)
+        c1 = np.concatenate(([0.0], np.cumsum(np.where(fin, x, 0.0))))
+        cn = np.concatenate(([0], np.cumsum(fin)))
+        a = np.array([w.i0 for w in self.windows], dtype=int)
+        b = np.array([w.i1 for w in self.windows], dtype=int)
+        cnt = cn[b] - cn[a]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(cnt > 0, (c1[b] - c1[a]) / np.maximum(cnt, 1), np.nan)
 
     def raw_average(self, rec: Recording, name: str, other: str | None = None) -> np.ndarray:
         """Mean of a channel's own good samples over each window (all the source's samples, not the grid's).

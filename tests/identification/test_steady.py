@@ -86,3 +86,4 @@ def test_out_of_order_samples_give_the_same_windows_and_means(ramp_plant) -> Non
     assert [(w.i0, w.i1) for w in got.windows] == [(w.i0, w.i1) for w in ref.windows]
     np.testing.assert_allclose(got.raw_average(rec, "em_torque_nm"), ref_raw, rtol=1e-12)
     np.testing.assert_allclose(got.means("em_torque_nm"), ref.means("em_torque_nm"), rtol=1e-12)
+    np.testing.assert_allclose(got.average(got.grid["em_torque_nm"]), got.means("em_torque_nm"), rtol=1e-9)
