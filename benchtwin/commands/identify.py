@@ -128,14 +128,19 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataError(f"{out}: cannot create the output folder ({exc.strerror})") from None
+    params = out / "params.json"
+    # the numbers first: whatever happens to the figures, the identified parameters are on disk
+    params.write_text(json.dumps(result.to_dict(), indent=1, default=str), encoding="utf-8")
+    result.meta["tables"] = sorted(str(p.relative_to(out)) for p in _write_tables(result, out))
     figures: dict[str, Path] = {}
     if not args.no_figures:
         from benchtwin.identification.figures import render_figures
 
-        figures = render_figures(result, out / "figures")
+        fig_errors: dict[str, str] = {}
+        figures = render_figures(result, out / "figures", errors=fig_errors)
+        if fig_errors:
+            result.meta["figure_errors"] = fig_errors
     result.meta["figures"] = sorted(str(p.relative_to(out)) for p in figures.values())
-    result.meta["tables"] = sorted(str(p.relative_to(out)) for p in _write_tables(result, out))
-    params = out / "params.json"
     params.write_text(json.dumps(result.to_dict(), indent=1, default=str), encoding="utf-8")
     print(f"identified {len(result.parameters())} parameters in {len(result.fits)} fits "
           f"({len(result.errors)} errors, {len(result.meta.get('skipped', {}))} methods skipped)")

@@ -389,8 +389,19 @@ FIGURES: dict[str, Callable[[IdentificationResult, Path], Path | None]] = {
 }
 
 
-def render_figures(result: IdentificationResult, out_dir: str | Path) -> dict[str, Path]:
+def render_figures(result: IdentificationResult, out_dir: str | Path,
+                   errors: dict[str, str] | None = None) -> dict[str, Path]:
     """Draw every figure the result has data for into ``out_dir``.
+
+    Parameters
+    ----------
+    result:
+        The identification result.
+    out_dir:
+        Folder for the PNG files (created).
+    errors:
+        When given, a figure that cannot be drawn (unexpected arrays) is skipped and its error
+        message stored here under its file stem, so one bad figure does not stop the others.
 
     Returns
     -------
@@ -400,7 +411,13 @@ def render_figures(result: IdentificationResult, out_dir: str | Path) -> dict[st
     out_dir = Path(out_dir)
     written: dict[str, Path] = {}
     for stem, func in FIGURES.items():
-        p = func(result, out_dir / f"{stem}.png")
+        try:
+            p = func(result, out_dir / f"{stem}.png")
+        except (ValueError, TypeError, KeyError, IndexError) as exc:
+            if errors is None:
+                raise
+            errors[stem] = f"{type(exc).__name__}: {exc}"
+            continue
         if p is not None:
             written[stem] = p
     return written

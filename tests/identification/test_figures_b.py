@@ -103,3 +103,17 @@ def test_figures_without_data_are_left_out(tmp_path):
     written = render_figures(res, tmp_path)
     assert list(written) == ["fig16_battery"]
     assert not (tmp_path / "fig18_tc_torque_ratio.png").exists()
+
+
+def test_a_figure_that_fails_does_not_stop_the_others(full_result, tmp_path):
+    bad = IdentificationResult(fits=dict(full_result.fits))
+    broken = FitResult({}, 0.9, 0.9, 0.1, 3)
+    broken.data.update(sr=np.array([0.1, 0.2]), tr=np.array([1.0]), tr_model=np.array([1.0, 2.0]),
+                       gamma=np.array([]))  # inconsistent arrays
+    bad.fits["torque_converter.torque_ratio"] = broken
+    errors: dict[str, str] = {}
+    written = render_figures(bad, tmp_path, errors=errors)
+    assert "fig18_tc_torque_ratio" in errors and "fig18_tc_torque_ratio" not in written
+    assert "fig16_battery" in written
+    with pytest.raises((ValueError, IndexError)):
+        render_figures(bad, tmp_path / "strict")
