@@ -15,11 +15,15 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from benchtwin.chain.frames import FRAME_DTYPE, ProcessImage
 from benchtwin.errors import CanopenError
+
+if TYPE_CHECKING:
+    from canopen import ObjectDictionary
 
 __all__ = [
     "AI_OVERLOAD_NEG",
@@ -42,7 +46,7 @@ _TYPES: dict[int, tuple[str, int]] = {
 }
 
 
-def load_od(node_id: int, eds: str | Path = EDS_PATH):
+def load_od(node_id: int, eds: str | Path = EDS_PATH) -> ObjectDictionary:
     """Import the thermo module's object dictionary for ``node_id`` with canopen.
 
     Raises

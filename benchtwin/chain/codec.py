@@ -18,10 +18,14 @@ below it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from benchtwin.errors import FrameError
+
+if TYPE_CHECKING:
+    from cantools.database.can import Message, Signal
 
 __all__ = ["MessageCodec", "SignalLayout", "bytes_to_u64", "u64_to_bytes"]
 
@@ -69,7 +73,7 @@ def u64_to_bytes(words: np.ndarray, little_endian: bool) -> np.ndarray:
     return words.astype("<u8" if little_endian else ">u8").view(np.uint8).reshape(-1, 8)
 
 
-def _layout(signal) -> SignalLayout:
+def _layout(signal: Signal) -> SignalLayout:
     little = signal.byte_order == "little_endian"
     if little:
         shift = signal.start
@@ -92,7 +96,7 @@ class MessageCodec:
         A cantools ``Message`` (from a DBC).
     """
 
-    def __init__(self, message) -> None:
+    def __init__(self, message: Message) -> None:
         self.message = message
         self.frame_id = int(message.frame_id)
         self.name = str(message.name)

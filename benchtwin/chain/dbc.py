@@ -32,13 +32,16 @@ from __future__ import annotations
 import functools
 from collections import OrderedDict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cantools
 from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
 from benchtwin.errors import ConfigError
+
+if TYPE_CHECKING:
+    from benchtwin.config.setup import SetupConfig
 
 __all__ = [
     "AD_TORQUE_LSB_V",
@@ -230,7 +233,7 @@ def ivt_node_name(place: str) -> str:
     return "IVT_" + "".join(w.capitalize() for w in place.split("_"))
 
 
-def bus_database(setup: Any, bus: str) -> Database:
+def bus_database(setup: SetupConfig, bus: str) -> Database:
     """Every CAN layout on one bus of a setup, as one cantools Database (what a user loads to decode a log).
 
     IVT-S messages are renamed per place (``IVT_Hpcu_Result_I``) and moved to the shunt's ids; the
@@ -265,7 +268,7 @@ def bus_database(setup: Any, bus: str) -> Database:
     return Database(messages, list(nodes.values()), version=f"benchtwin-{setup.name}-{bus}")
 
 
-def write_bus_dbcs(setup: Any, directory: str | Path) -> dict[str, Path]:
+def write_bus_dbcs(setup: SetupConfig, directory: str | Path) -> dict[str, Path]:
     """Write ``<bus>.dbc`` for every bus of the setup into ``directory``; return bus -> path."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
