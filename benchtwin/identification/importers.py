@@ -22,8 +22,8 @@ from benchtwin.roles import ROLES
 __all__ = ["import_csv", "import_log", "import_mf4", "read_csv_table"]
 
 
-def read_csv_table(path: str | Path, *, delimiter: str | None = None, comment: str = "#", header_row: int = 0
-                   ) -> dict[str, np.ndarray]:
+def read_csv_table(path: str | Path, *, delimiter: str | None = None, comment: str = "#", header_row: int = 0,
+                   datetime_columns: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
     """Read a delimited text table into column name -> float array.
 
     Parameters
@@ -36,6 +36,9 @@ def read_csv_table(path: str | Path, *, delimiter: str | None = None, comment: s
         Lines starting with this (after leading blanks) are skipped.
     header_row:
         Index of the header line among the non-comment, non-blank lines; lines before it are skipped.
+    datetime_columns:
+        Columns that may hold ISO 8601 date-times (``2024-05-03 14:02:07.250``) instead of numbers; they
+        are returned as seconds since their first value.
 
     Returns
     -------
@@ -69,6 +72,11 @@ def read_csv_table(path: str | Path, *, delimiter: str | None = None, comment: s
     for j, name in enumerate(header):
         if not name:
             continue
+        if name in datetime_columns:
+            dt = _parse_datetimes([row[j] if j < len(row) else "" for row in data])
+            if dt is not None:
+                out[name] = dt
+                continue
         col = np.full(len(data), np.nan)
         for r, row in enumerate(data):
             if j < len(row):
@@ -79,6 +87,24 @@ def read_csv_table(path: str | Path, *, delimiter: str | None = None, comment: s
     if not out:
         raise DataError(f"{path}: no numeric column found (delimiter {delimiter!r})")
     return out
+
+
+def _parse_datetimes(cells: list[str]) -> np.ndarray | None:
+    """ISO 8601 date-times -> seconds since the first one (NaN where a cell does not parse); None if none do."""
+    vals = np.full(len(cells), np.nan)
+    first = None
+    for k, c in enumerate(cells):
+        c = c.strip().replace("T", " ")
+        if not c:
+            continue
+        try:
+            d = np.datetime64(c.replace(" ", "T"), "us")
+        except ValueError:
+            continue
+        if first is None:
+            first = d
+        vals[k] = (d - first) / np.timedelta64(1, "s")
+    return vals if first is not None else None
 
 
 def _to_recording(table_time: np.ndarray, columns: dict[str, tuple[np.ndarray, np.ndarray, str]], smap: SignalMap,
@@ -104,6 +130,9 @@ def _to_recording(table_time: np.ndarray, columns: dict[str, tuple[np.ndarray, n
 def import_csv(path: str | Path, smap: SignalMap) -> Recording:
     """Import a CSV/TSV log into a Recording.
 
+    The time column holds numbers in ``source.time_unit``, or ISO 8601 date-times (then the time is
+    seconds since the first row).
+
     Parameters
     ----------
     path:
@@ -117,8 +146,14 @@ def import_csv(path: str | Path, smap: SignalMap) -> Recording:
         Unreadable file, a mapped column missing, or no time column.
     """
     src = smap.source
-    table = read_csv_table(path, delimiter=src.delimiter, comment=src.comment, header_row=src.header_row)
     tcol = src.time_column
+    table = read_csv_table(path, delimiter=src.delimiter, comment=src.comment, header_row=src.header_row)
+    is_datetime = False
+    if tcol is not None and tcol not in table:
+        # not numbers: perhaps date-times
+        table = read_csv_table(path, delimiter=src.delimiter, comment=src.comment, header_row=src.header_row,
+                               datetime_columns=(tcol,))
+        is_datetime = tcol in table
     if tcol is None:
         cands = [c for c in table if c.lower().startswith("time")]
         if not cands:
@@ -126,7 +161,7 @@ def import_csv(path: str | Path, smap: SignalMap) -> Recording:
         tcol = cands[0]
     if tcol not in table:
         raise MissingChannelError(f"{path}: time column {tcol!r} not in the log (columns: {', '.join(table)})")
-    t = convert_units(table[tcol], src.time_unit, "s", key="source.time_unit")
+    t = table[tcol] if is_datetime else convert_units(table[tcol], src.time_unit, "s", key="source.time_unit")
     cols = {name: (t, vals, "") for name, vals in table.items()}
     return _to_recording(t, cols, smap, str(path))
 

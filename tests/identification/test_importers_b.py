@@ -138,6 +138,17 @@ def test_template_map_imports_an_mf4_log_with_specs(tmp_path):
     np.testing.assert_allclose(rec["em_speed_rpm"].values, 1000.0 * 60 / (2 * np.pi))
 
 
+def test_datetime_time_column(tmp_path):
+    p = tmp_path / "logger.csv"
+    p.write_text("Timestamp;Speed\n2024-05-03 14:02:07.000;10\n2024-05-03 14:02:07.250;11\n"
+                 "2024-05-03T14:02:08.500;12\n", encoding="utf-8")
+    m = {"source": {"time_column": "Timestamp", "delimiter": ";"},
+         "channels": {"vehicle_speed_kmh": {"column": "Speed", "unit": "km/h"}}}
+    rec = import_log(p, signal_map_from_dict(m))
+    np.testing.assert_allclose(rec["vehicle_speed_kmh"].timestamps, [0.0, 0.25, 1.5])
+    np.testing.assert_allclose(rec["vehicle_speed_kmh"].values, [10.0, 11.0, 12.0])
+
+
 def test_read_csv_table_drops_text_columns(tmp_path):
     p = tmp_path / "x.csv"
     p.write_text("a,b,c\n1,x,3\n2,y,4\n", encoding="utf-8")
