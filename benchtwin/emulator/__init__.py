@@ -238,7 +238,7 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     rngs = {name: np.random.default_rng(child) for name, child in zip(RANDOM_SUBSYSTEMS, children, strict=True)}
     lv_load = lv_load_profile(vehicle.low_voltage, n_max, dt, rngs["lv_loads"])
     decim = 1 if campaign.output_rate_hz is None else round(campaign.plant_rate_hz / campaign.output_rate_hz)
-    out = np.empty(((n_max + decim - 1) // decim + 1, NO))
+    out = np.empty((NO, (n_max + decim - 1) // decim + 1))  # one contiguous row per channel
     led = np.zeros(NL)
     st = _initial_state(tables, vehicle, campaign)
     led[L_KE0] = kinetic_energy(tables.p, st)
@@ -269,17 +269,21 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     finally:
         if bar is not None:
             bar.close()
-    out = out[:rows]
+    out = out[:, :rows] if rows > 0.8 * out.shape[1] else out[:, :rows].copy()  # release an unused tail
     n_out = rows
     led[L_KE1] = kinetic_energy(tables.p, st)
-    if not np.all(np.isfinite(out[:, [O_V, O_WP, O_IB, O_SOC]])):
+    if not np.all(np.isfinite(out[[O_V, O_WP, O_IB, O_SOC]])):
         raise SimulationError(f"campaign {campaign.name!r}: the plant left its physical domain (non-finite states)")
 
     dt_out = dt * decim
     time_s = np.arange(n_out) * dt_out
-    channels: dict[str, np.ndarray] = {name: out[:, col].copy() for name, col in _DIRECT.items()}
-    channels.update(simulate_thermal(vehicle.thermal, dt_out, out[:, O_Q_ENGINE], out[:, O_Q_MOTOR],
-                                     out[:, O_Q_BATT], campaign.ambient_degc))
+    channels: dict[str, np.ndarray] = {}
+    used: set[int] = set()
+    for name, col in _DIRECT.items():  # views on the output rows; a row shared by two channels is copied once
+        channels[name] = out[col] if col not in used else out[col].copy()
+        used.add(col)
+    channels.update(simulate_thermal(vehicle.thermal, dt_out, out[O_Q_ENGINE], out[O_Q_MOTOR],
+                                     out[O_Q_BATT], campaign.ambient_degc))
     missing = set(TRACE_CHANNELS) - set(channels)
     if missing:  # pragma: no cover - guarded by the tests
         raise SimulationError(f"emulator does not produce {sorted(missing)}")

@@ -278,9 +278,9 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
     st:
         State vector (``S_*``), updated in place.
     out:
-        Output rows (``O_*`` columns), written from row ``row0`` on.
+        Outputs, one row per ``O_*`` channel and one column per written step, from column ``row0`` on.
     row0:
-        First output row to write.
+        First output column to write.
     led:
         Energy ledger (``L_*``, J), accumulated in place.
 
@@ -832,7 +832,7 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
 
         # ---- outputs (state at the start of the step, actions over the step) ----
         if kstep % decim == 0:
-            o = out[iout]
+            o = out[:, iout]
             o[O_V] = v
             o[O_A] = a
             o[O_X] = x
