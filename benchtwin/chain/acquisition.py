@@ -369,6 +369,22 @@ def _dbc_channels(stem: str, codec: MessageCodec, t: np.ndarray, words: np.ndarr
 # ---------------------------------------------------------------------------------------------- Modbus
 
 
+def _unwrap_u32(raw: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Unwrap a uint32 millisecond counter (wraps every 49.7 days; a clock that starts before zero
+    starts near 2^32) over the good polls; failed polls keep whatever they hold."""
+    out = raw.astype(np.int64).copy()
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        return out
+    g = out[idx]
+    d = np.diff(g)
+    g = g + np.concatenate([[0], np.cumsum(np.where(d < -(1 << 31), 1 << 32, 0) - np.where(d > 1 << 31, 1 << 32, 0))])
+    if g[0] >= 1 << 31:  # read as a signed clock
+        g = g - (1 << 32)
+    out[idx] = g
+    return out
+
+
 def _decode_polls(log_: PollLog, setup: SetupConfig, sink: _Sink, drops: np.ndarray) -> None:
     cfg = setup.pressure
     n = len(log_)
@@ -384,7 +400,8 @@ def _decode_polls(log_: PollLog, setup: SetupConfig, sink: _Sink, drops: np.ndar
         return
     # time base: the module's uptime registers where polled, else the poll times
     if log_.count > REG_UPTIME_LO:
-        up = (log_.values[:, REG_UPTIME_HI].astype(np.int64) << 16 | log_.values[:, REG_UPTIME_LO]) / 1000.0
+        raw = log_.values[:, REG_UPTIME_HI].astype(np.int64) << 16 | log_.values[:, REG_UPTIME_LO]
+        up = _unwrap_u32(raw, ok) / 1000.0
     else:
         up = log_.times.copy()
     last_good = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
