@@ -171,3 +171,12 @@ def test_campaign_that_does_not_fit_the_vehicle_is_refused(vehicle) -> None:
     assert len(lines) == 2
     assert "tests[0] (g12): key 'gear' = 12: the vehicle has 9 gears" in lines[0]
     assert "tests[1] (fast): key 'speed_kmh' = 120.0" in lines[1] and "exceeds" in lines[1]
+
+
+def test_controller_coefficients_are_the_tustin_discretisation_of_the_designed_pi() -> None:
+    from benchtwin.emulator.params import _pi_coefficients
+
+    mass, bw, zeta, dt = 2162.0, 1.5, 1.0, 0.01
+    b0, b1 = _pi_coefficients(mass, bw, zeta, dt)
+    kp, ki = 2 * zeta * bw * mass, bw**2 * mass
+    np.testing.assert_allclose([b0, b1], [kp + ki * dt / 2, -kp + ki * dt / 2], rtol=1e-12)
