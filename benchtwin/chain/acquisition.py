@@ -44,7 +44,13 @@ from benchtwin.config.setup import IVT_PLACES, SetupConfig
 from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.roles import unit_of_role
 from benchtwin.segments import Segment
-from benchtwin.sensors.ivt import STATUS_MEAS_ERROR, STATUS_OUT_OF_RANGE, STATUS_SYS_ERROR, unpack_result_words
+from benchtwin.sensors.ivt import (
+    STATUS_MEAS_ERROR,
+    STATUS_OCS,
+    STATUS_OUT_OF_RANGE,
+    STATUS_SYS_ERROR,
+    unpack_result_words,
+)
 from benchtwin.sensors.pressure import pressure_from_counts
 from benchtwin.sensors.telemetry import torque_from_code, unpack_ad_words
 from benchtwin.sensors.vehicle import SIGNAL_MAP, message_codecs
@@ -271,6 +277,10 @@ def _decode_bus(table: FrameTable, setup: SetupConfig, sink: _Sink, drops: np.nd
             flags = proto | _counter_flags(counter, 4)
             flags[(status & STATUS_OUT_OF_RANGE) != 0] |= _F["OUT_OF_RANGE"] | _F["SATURATED"]
             flags[(status & (STATUS_MEAS_ERROR | STATUS_SYS_ERROR)) != 0] |= _F["STATUS_ERROR"]
+            n_ocs = int(np.count_nonzero(status & STATUS_OCS))
+            if n_ocs:  # over-current detection is an event of the circuit, not a measurement error
+                ocs = sink.counts.setdefault("ivt_ocs_frames", {})
+                ocs[f"ivt_{place}"] = ocs.get(f"ivt_{place}", 0) + n_ocs
             t = ts[good]
             _mark_after(flags, t, drops, _F["TRANSPORT_DROP"] | _F["LOST_FRAME"])
             ivt.setdefault(place, {})[k] = (t, value, flags)

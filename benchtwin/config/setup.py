@@ -134,6 +134,8 @@ class IvtConfig(StrictModel):
     voltage_range_v: float = Field(600.0, gt=0)
     adc_bits: int = Field(16, ge=8, le=32, description="the shunt's converter resolution over +-range")
     temperature_degc: float = Field(25.0, description="shunt temperature reported in T")
+    ocs_threshold_a: float | None = Field(None, gt=0, description="over-current detection threshold: status "
+                                                                  "bit OCS on the current result (None: off)")
     current_errors: ChannelErrors = Field(default_factory=ChannelErrors)
     voltage_errors: ChannelErrors = Field(default_factory=ChannelErrors)
     link: LinkErrors = Field(default_factory=LinkErrors)

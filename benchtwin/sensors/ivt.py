@@ -11,7 +11,9 @@ e.g. I = -12345 mA with counter 5 is ``00 05 FF FF CF C7``.
 
 Measurement: the shunt's own 16-bit converter over +-range (LSB 30.5 mA at 1000 A, 18.3 mV at
 600 V), then the integer result units. Out of range: the value is clipped at the range and the
-status bit 5 is set. Power W = I * U1; charge As and energy Wh are integrated from I and I*U1.
+status bit 5 is set. With ``ocs_threshold_a`` set, the over-current detection bit (4) is set on the
+current result while |I| exceeds it (an event, not an error: the acquisition counts it).
+Power W = I * U1; charge As and energy Wh are integrated from I and I*U1.
 U2 and U3 are not wired at the paper's places and read 0 V.
 
 Commands (:class:`IvtDevice`, used by the live half; answers have byte 0 = command + 0x80,
@@ -42,6 +44,7 @@ __all__ = [
     "MODE_OFF",
     "MODE_TRIGGERED",
     "RESULT_NAMES",
+    "STATUS_OCS",
     "STATUS_OUT_OF_RANGE",
     "IvtAnswer",
     "IvtDevice",
@@ -165,6 +168,8 @@ def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generat
     values[6] = np.trunc(np.interp(ts, trace.time_s, q))
     values[7] = np.trunc(np.interp(ts, trace.time_s, e))
     status[0] = np.where(i_over, STATUS_OUT_OF_RANGE, 0)
+    if cfg.ocs_threshold_a is not None:
+        status[0] |= np.where(np.abs(i_m) > cfg.ocs_threshold_a, STATUS_OCS, 0)
     status[1] = np.where(u_over, STATUS_OUT_OF_RANGE, 0)
     status[5] = np.where(i_over | u_over, STATUS_OUT_OF_RANGE, 0)
     values = np.clip(values, -(2**31), 2**31 - 1)

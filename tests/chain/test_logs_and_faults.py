@@ -342,3 +342,15 @@ def test_pressure_module_clock_before_zero_and_drifting() -> None:
     truth = np.interp(t_plant, trace.time_s, trace["brake_pressure_fl_pa"]) / 1e5
     assert np.abs(p.values - truth).max() < 0.01
     assert rec.meta["clock_offsets_s"]["pressure->acquisition"] == pytest.approx(0.5, abs=0.01)
+
+
+def test_ivt_over_current_detection_is_counted_not_flagged() -> None:
+    setup = load_setup("ideal").model_copy(deep=True)
+    setup.ivt["battery"].ocs_threshold_a = 150.0
+    trace = synthetic_trace(20.0, 100.0, seed=1)
+    rec = run_batch(trace, setup, seed=1)
+    cur = rec["battery_current_a"]
+    expected = int(np.count_nonzero(np.abs(cur.values) > 150.0 + 0.05))
+    assert expected > 0
+    assert rec.meta["ivt_ocs_frames"]["ivt_battery"] >= expected
+    assert not np.any(cur.flags)
