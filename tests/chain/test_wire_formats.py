@@ -5,6 +5,8 @@ from __future__ import annotations
 import cantools
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from benchtwin.chain.canopen_pdo import EDS_PATH, load_od, pdo_layout
 from benchtwin.chain.codec import MessageCodec
@@ -149,3 +151,24 @@ def test_merge_frames_equals_stable_sort() -> None:
     ins = insert_frames(parts[2], parts[3])
     ref2 = np.concatenate([parts[2], parts[3]])
     np.testing.assert_array_equal(ins, ref2[np.argsort(ref2["timestamp"], kind="stable")])
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.integers(0, 63), st.integers(1, 64), st.booleans(), st.booleans(), st.data())
+def test_codec_any_single_signal_layout_matches_cantools(start: int, length: int, big: bool, signed: bool,
+                                                         data: st.DataObject) -> None:
+    from cantools.database.can import Message, Signal
+
+    sig = Signal("S", start, length, "big_endian" if big else "little_endian", signed)
+    try:
+        msg = Message(0x123, "M", 8, [sig], strict=True)
+    except Exception:
+        assume(False)  # the layout does not fit in 8 bytes
+        return
+    codec = MessageCodec(msg)
+    lay = codec.signals["S"]
+    raw = data.draw(st.integers(lay.raw_min, lay.raw_max))
+    packed = codec.pack({"S": np.array([raw])})
+    assert packed[0].tobytes() == msg.encode({"S": raw}, scaling=False)
+    assert int(codec.unpack(packed)["S"][0]) == raw
+    assert msg.decode(packed[0].tobytes(), scaling=False)["S"] == raw
