@@ -213,18 +213,24 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
     """
     exp: list[_Expect] = []
     tx = vehicle.transmission
+    quant_note = ("without noise to dither it, the 12-bit telemetry converter's step (1.07 Nm at K_TEL 1000) "
+                  "biases each steady point by up to half a step; at the lowest points (~20 Nm at the shaft) that is "
+                  "2-3 % of the torque, so the bound is the one that step allows, not 0.1 %")
     for g in range(vehicle.n_gears):
         for suffix in ("", "_coast"):
             fit = f"transmission.gear{g + 1}{suffix}"
+            coast = bool(suffix)
             exp.append(_Expect("transmission", f"{fit}.eta_m", tx.eta_m[g], "-",
-                               {"ideal": ("rel", 1e-3), "realistic": ("rel", 5e-3)},
-                               "realistic: plus the gain errors of the shaft torque and of the CAN input torques",
+                               {"ideal": ("rel", 6e-3 if coast else 1.5e-3), "realistic": ("rel", 8e-3)},
+                               (quant_note if coast else "drive points reach 100-400 Nm: the converter step is "
+                                "below 0.15 %") + "; realistic: plus the gain errors of the shaft torque and of "
+                               "the CAN input torques",
                                lambda b: b["shaft_gain"] + max(b["engine_torque_gain"], b["em_torque_gain"])))
             exp.append(_Expect("transmission", f"{fit}.C0", tx.c0_nm[g], "Nm",
-                               {"ideal": ("abs", 0.3), "realistic": ("abs", 1.5)},
-                               "C0 is the intercept of eq. 16: a 4 Nm drag under 50-400 Nm inputs; 0.3 Nm is 0.1 % "
-                               "of the ~300 Nm mean input torque (shaft-torque LSB 1.07 Nm over the gear ratio); "
-                               "realistic: plus the offsets of the input torques and the shaft torque",
+                               {"ideal": ("abs", 1.5 if coast else 0.3), "realistic": ("abs", 2.0)},
+                               "C0 is the intercept of eq. 16, a 3-7 Nm drag under 15-400 Nm inputs"
+                               + ("; " + quant_note if coast else ": 0.3 Nm is 0.1 % of the ~300 Nm mean input")
+                               + "; realistic: plus the offsets of the input torques and the shaft torque",
                                lambda b: b["engine_torque_offset"] + b["em_torque_offset"] + b["shaft_offset"]))
     m = vehicle.motor
     exp += [
@@ -677,7 +683,8 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
 
 
 def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *, profile: str | None = None,
-             out_dir: str | Path | None = None, figures: bool = False, progress: bool = False) -> ValidationReport:
+             out_dir: str | Path | None = None, figures: bool = False, progress: bool = False,
+             trace: Trace | None = None) -> ValidationReport:
     """Simulate the campaign, run the batch chain, identify, and compare with the truth.
 
     Parameters
@@ -693,6 +700,8 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         Also render the identification figures (needs ``out_dir``).
     progress:
         Show the plant's progress bar.
+    trace:
+        A Trace of this vehicle and campaign already simulated (to compare several setups on one run).
 
     Returns
     -------
@@ -706,7 +715,8 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     report = ValidationReport(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
                                     "profile": prof, "seed": campaign.seed})
     t0 = time.perf_counter()
-    trace = simulate_campaign(vehicle, campaign, progress=progress)
+    if trace is None:
+        trace = simulate_campaign(vehicle, campaign, progress=progress)
     t1 = time.perf_counter()
     rec = run_batch(trace, setup, seed=campaign.seed, out_dir=out_dir)
     t2 = time.perf_counter()
