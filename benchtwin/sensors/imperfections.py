@@ -5,9 +5,9 @@ Measured value (:func:`measure`), in the unit the sensor measures::
     x_f   = LTI(bandwidth)(x_true)                python-control tf, c2d (ZOH) at the trace step,
                                                   applied with scipy.signal.lfilter from steady state
     x_s   = x_f(t_true - latency)                 sampled when the device samples (its own clock)
-    x_s   = held over each stuck interval
     x_m   = (1 + gain_error) x_s + offset + N(0, noise_std)
     x_q   = quantisation_step * round(x_m / step) (the wire's own resolution comes after, per device)
+    x_q   = frozen at its first reading over each stuck interval (noise included: a stuck-at output)
 
 Clocks (:class:`DeviceClock`): a device clock reads ``t_dev = (1 + drift) * t_plant + offset``;
 frames carry device time. Frame faults (:func:`frame_faults`): independent drops, duplicates
@@ -147,10 +147,6 @@ def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, error
         x = lti_filter(x, dt, errors.bandwidth_hz, errors.filter_order, errors.damping)
     ts = np.asarray(t_sample, dtype=np.float64) - latency_s
     y = hold_sample(t_trace, x, ts) if hold else sample(t_trace, x, ts)
-    for iv in errors.stuck:
-        inside = (ts >= iv.start_s) & (ts < iv.end_s)
-        if inside.any():
-            y[inside] = (hold_sample if hold else sample)(t_trace, x, np.array([iv.start_s]))[0]
     if errors.gain_error_frac:
         y = y * (1.0 + errors.gain_error_frac)
     if errors.offset:
@@ -159,6 +155,10 @@ def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, error
         y = y + rng.normal(0.0, errors.noise_std, y.shape)
     if errors.quantisation_step > 0:
         y = np.rint(y / errors.quantisation_step) * errors.quantisation_step
+    for iv in errors.stuck:  # the output freezes at its first reading in the interval
+        inside = np.flatnonzero((ts >= iv.start_s) & (ts < iv.end_s))
+        if inside.size:
+            y[inside] = y[inside[0]]
     return y
 
 
