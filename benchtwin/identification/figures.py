@@ -250,7 +250,12 @@ def figure_torque_ratio(result: IdentificationResult, path: Path) -> Path | None
         return None
     d = f.data
     fig, (ax,) = _new()
-    ax.plot(d["sr"], d["tr"], ".", color="tab:red", ms=3, label="data")
+    inl = np.asarray(d.get("inlier", np.ones(np.size(d["sr"]))), dtype=bool)
+    if inl.shape == np.shape(d["sr"]) and not inl.all():
+        ax.plot(d["sr"][~inl], d["tr"][~inl], ".", color="0.7", ms=3, label="left out (transients)")
+        ax.plot(d["sr"][inl], d["tr"][inl], ".", color="tab:red", ms=3, label="data")
+    else:
+        ax.plot(d["sr"], d["tr"], ".", color="tab:red", ms=3, label="data")
     order = np.argsort(d["sr"])
     ax.plot(d["sr"][order], d["tr_model"][order], "-", color="tab:blue", label=f"model, R2 {f.r2:.3f}")
     g = float(d["gamma"][0])
@@ -271,7 +276,12 @@ def figure_capacity_factor(result: IdentificationResult, path: Path) -> Path | N
     d = f.data
     fc = result.fits.get("torque_converter.capacity_factor_coupling")
     fig, (ax,) = _new()
-    ax.plot(d["sr"], d["cf"], ".", color="tab:red", ms=3, label="data")
+    inl = np.asarray(d.get("inlier", np.ones(np.size(d["sr"]))), dtype=bool)
+    if inl.shape == np.shape(d["sr"]) and not inl.all():
+        ax.plot(d["sr"][~inl], d["cf"][~inl], ".", color="0.7", ms=3, label="left out (transients)")
+        ax.plot(d["sr"][inl], d["cf"][inl], ".", color="tab:red", ms=3, label="data")
+    else:
+        ax.plot(d["sr"], d["cf"], ".", color="tab:red", ms=3, label="data")
     order = np.argsort(d["sr"])
     lab = f"model, R2 {f.r2:.3f} converter" + (f", {fc.r2:.3f} coupling" if fc is not None else "")
     ax.plot(d["sr"][order], d["cf_model"][order], "-", color="tab:blue", label=lab)
