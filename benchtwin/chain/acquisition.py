@@ -9,8 +9,9 @@ counter gaps, duplicates, reordering, PDO gaps and transport drops are counted i
 and every good sample is kept.
 
 Decoding is vectorised: frames are grouped per identifier with one stable sort, and each group is
-unpacked column-wise from the DBC/EDS layouts (:mod:`benchtwin.chain.codec`,
-:mod:`benchtwin.chain.canopen_pdo`).
+unpacked column-wise from the DBC/EDS layouts (:mod:`benchtwin.chain.codec` compiled from the
+cantools Signal definitions of the IVT-S, AD module, vehicle and dyno messages;
+:mod:`benchtwin.chain.canopen_pdo` from the EDS TPDO mapping read with canopen).
 
 Channels keep the time base of their source (the device's clock as stamped on the frame, the
 pressure module's uptime registers). ``meta["clock_offsets_s"]`` reports the offsets between
@@ -31,6 +32,7 @@ import numpy as np
 
 from benchtwin.chain.canopen_pdo import AI_OVERLOAD_NEG, AI_OVERLOAD_POS, pdo_layout
 from benchtwin.chain.codec import MessageCodec
+from benchtwin.chain.dbc import build_ad_module, build_ivt, ivt_node_name
 from benchtwin.chain.frames import POLL_OK, POLL_TIMEOUT, FrameTable, PollLog, TransportEvent
 from benchtwin.chain.modbus_map import (
     CHANNELS,
@@ -49,10 +51,9 @@ from benchtwin.sensors.ivt import (
     STATUS_OCS,
     STATUS_OUT_OF_RANGE,
     STATUS_SYS_ERROR,
-    unpack_result_words,
 )
 from benchtwin.sensors.pressure import pressure_from_counts
-from benchtwin.sensors.telemetry import torque_from_code, unpack_ad_words
+from benchtwin.sensors.telemetry import torque_from_code
 from benchtwin.sensors.vehicle import SIGNAL_MAP, message_codecs
 
 __all__ = ["AcquisitionInput", "acquire", "detect_lag"]
@@ -194,13 +195,16 @@ def _handlers(setup: SetupConfig, bus: str) -> dict[int, _Handler]:
     for place, cfg in setup.ivt.items():
         if cfg.bus != bus:
             continue
+        db = build_ivt(ivt_node_name(place), cfg.result_base_id, cfg.command_id, cfg.response_id, cfg.cycle_ms)
         for k, cid in enumerate(cfg.result_ids):
-            out[cid] = _Handler("ivt", f"ivt_{place}", 6, (place, k))
+            codec = MessageCodec(db.get_message_by_frame_id(cid))
+            out[cid] = _Handler("ivt", f"ivt_{place}", codec.length, (place, k, codec))
         out[cfg.command_id] = _Handler("ivt_cmd", f"ivt_{place}", 0, place)
         out[cfg.response_id] = _Handler("ivt_resp", f"ivt_{place}", 0, place)
     tel = setup.telemetry
     if tel is not None and tel.bus == bus:
-        out[tel.can_id] = _Handler("ad", "telemetry", 3, tel, 1.0 / tel.rate_hz)
+        codec = MessageCodec(build_ad_module("AD_Torque", tel.can_id).messages[0])
+        out[tel.can_id] = _Handler("ad", "telemetry", codec.length, (tel, codec), 1.0 / tel.rate_hz)
     th = setup.thermo
     if th is not None and th.bus == bus:
         layout = pdo_layout(th.node_id)
@@ -268,12 +272,17 @@ def _decode_bus(table: FrameTable, setup: SetupConfig, sink: _Sink, drops: np.nd
     for cid, idx in groups.items():
         h = handlers[cid]
         if h.kind == "ivt":
-            place, k = h.info
+            place, k, codec = h.info
+            names = list(codec.signals)  # MuxID, Status, Counter, value (DBC signal order)
+            mux_name = next(n for n in names if n.endswith("_MuxID"))
             w_all = words[idx]
-            mux_bad = (w_all & np.uint64(0xFF)) != k
-            good, proto, nbad = _good_and_proto(dlc, idx, 6, mux_bad)
+            mux_bad = codec.unpack_words(w_all, [mux_name])[mux_name] != k
+            good, proto, nbad = _good_and_proto(dlc, idx, h.length, mux_bad)
             sink.protocol_error(f"{table.bus}:0x{cid:X}", nbad)
-            _, counter, status, value = unpack_result_words(w_all[~mux_bad & (dlc[idx] == 6)] if nbad else w_all)
+            raw = codec.unpack_words(w_all[~mux_bad & (dlc[idx] == h.length)] if nbad else w_all)
+            counter = raw[next(n for n in names if n.endswith("_Counter"))]
+            status = raw[next(n for n in names if n.endswith("_Status"))]
+            value = raw[next(n for n in names if not n.endswith(("_MuxID", "_Counter", "_Status")))]
             flags = proto | _counter_flags(counter, 4)
             flags[(status & STATUS_OUT_OF_RANGE) != 0] |= _F["OUT_OF_RANGE"] | _F["SATURATED"]
             flags[(status & (STATUS_MEAS_ERROR | STATUS_SYS_ERROR)) != 0] |= _F["STATUS_ERROR"]
@@ -293,14 +302,16 @@ def _decode_bus(table: FrameTable, setup: SetupConfig, sink: _Sink, drops: np.nd
                 if unk:
                     sink.protocol_error(f"{table.bus}:0x{cid:X} unknown-command answers", unk)
         elif h.kind == "ad":
+            tel, codec = h.info
             good, proto, nbad = _good_and_proto(dlc, idx, h.length)
             sink.protocol_error(f"{table.bus}:0x{cid:X}", nbad)
-            code, counter, clip = unpack_ad_words(words[good])
+            raw = codec.unpack_words(words[good])
+            code, counter, clip = raw["AD_Torque_Vout"], raw["AD_Torque_Counter"], raw["AD_Torque_Clip"]
             flags = proto | _counter_flags(counter, 4)
             flags[clip != 0] |= _F["SATURATED"]
             t = ts[good]
             _mark_after(flags, t, drops, _F["TRANSPORT_DROP"] | _F["LOST_FRAME"])
-            sink.add("shaft_torque_nm", unit_of_role("shaft_torque_nm"), t, torque_from_code(code, h.info), flags,
+            sink.add("shaft_torque_nm", unit_of_role("shaft_torque_nm"), t, torque_from_code(code, tel), flags,
                      "telemetry")
         elif h.kind == "pdo":
             layout, tp = h.info

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from benchtwin.chain.codec import MessageCodec
+from benchtwin.chain.dbc import build_ivt, ivt_node_name
 from benchtwin.chain.frames import FRAME_DTYPE
 from benchtwin.chain.merge import merge_frames
 from benchtwin.config.setup import IVT_PLACES, IvtConfig
@@ -209,12 +211,17 @@ def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generato
     n = s.t_device.shape[0]
     counter = np.arange(n, dtype=np.int64) & 0xF
     # the results of one measurement follow each other in mux order: build them interleaved
+    # packed with the codec compiled from the shunt's DBC messages (the layout's one source of truth)
+    db = build_ivt(ivt_node_name(place), cfg.result_base_id, cfg.command_id, cfg.response_id, cfg.cycle_ms)
     res = np.zeros((n, len(enabled)), dtype=FRAME_DTYPE)
     for j, k in enumerate(enabled):
+        codec = MessageCodec(db.get_message_by_frame_id(cfg.result_base_id + k))
+        prefix = f"{ivt_node_name(place)}_{RESULT_NAMES[k]}"
         res["timestamp"][:, j] = s.t_device + RESULT_SPACING_S * k
         res["arbitration_id"][:, j] = cfg.result_base_id + k
-        res["dlc"][:, j] = 6
-        res["data"][:, j] = pack_results(k, counter, s.status[k], s.values[k])
+        res["dlc"][:, j] = codec.length
+        res["data"][:, j] = codec.pack({f"{prefix}_MuxID": k, f"{prefix}_Counter": counter,
+                                        f"{prefix}_Status": s.status[k], prefix: s.values[k]}, n)
     parts.insert(0, res.reshape(-1))
     frames = merge_frames(parts)
     return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from benchtwin.chain.dbc import AD_TORQUE_LSB_V
+from benchtwin.chain.codec import MessageCodec
+from benchtwin.chain.dbc import AD_TORQUE_LSB_V, build_ad_module
 from benchtwin.chain.frames import FRAME_DTYPE
 from benchtwin.config.setup import K_TEL_STEPS, ShaftConfig, TelemetryConfig
 from benchtwin.errors import ConfigError
@@ -142,5 +143,6 @@ def encode_telemetry(trace: Trace, cfg: TelemetryConfig, rng: np.random.Generato
     frames["timestamp"] = t_dev
     frames["arbitration_id"] = cfg.can_id
     frames["dlc"] = 3
-    frames["data"] = pack_ad_frames(code, np.arange(n) & 0xF, clip)
+    codec = MessageCodec(build_ad_module("AD_Torque", cfg.can_id).messages[0])
+    frames["data"] = codec.pack({"AD_Torque_Vout": code, "AD_Torque_Counter": np.arange(n), "AD_Torque_Clip": clip}, n)
     return frame_faults(frames, np.zeros(n, np.int64), cfg.link, rng)
