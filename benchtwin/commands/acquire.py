@@ -27,7 +27,8 @@ __all__ = ["add_subparser", "run"]
 def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the ``acquire`` subcommand."""
     p = subparsers.add_parser("acquire", help="decode raw bench logs (or a Trace through the sensors) into a "
-                                              "Recording MF4", description=__doc__.split("\n\n", 1)[1])
+                                              "Recording MF4", description=__doc__.split("\n\n", 1)[1],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("logdir", nargs="?", type=Path, default=None, help="folder of raw logs to decode")
     p.add_argument("--setup", default=None, help="setup TOML or shipped name (default: LOGDIR/setup.json)")
     p.add_argument("--trace", type=Path, default=None, help="encode this saved Trace first (folder of trace.mf4)")
