@@ -38,6 +38,7 @@ __all__ = [
     "segment_names",
     "segments_span",
     "smooth_derivative",
+    "source_shifts",
     "time_ordered",
 ]
 
@@ -67,6 +68,8 @@ class Grid:
         Grid rate.
     present:
         Names of optional channels that were present.
+    shifts:
+        Source -> seconds added to its timestamps (clock alignment, see :func:`source_shifts`).
     """
 
     t: np.ndarray
@@ -75,6 +78,7 @@ class Grid:
     flagged: np.ndarray
     rate_hz: float
     present: set[str] = field(default_factory=set)
+    shifts: dict[str, float] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -91,14 +95,54 @@ class Grid:
         return 1.0 / self.rate_hz
 
 
-def time_ordered(ch: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Timestamps, values and flags of a channel in time order (samples delivered out of order are
-    sorted, stably; interpolation and window sums need increasing time)."""
+def time_ordered(ch: Channel, shift_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Timestamps (plus ``shift_s``), values and flags of a channel in time order (samples delivered out
+    of order are sorted, stably; interpolation and window sums need increasing time)."""
     ts, vs, fl = ch.timestamps, ch.values, ch.flags
     if ts.size > 1 and np.any(np.diff(ts) < 0):
         order = np.argsort(ts, kind="stable")
-        return ts[order], vs[order], fl[order]
-    return ts, vs, fl
+        ts, vs, fl = ts[order], vs[order], fl[order]
+    return (ts + shift_s if shift_s else ts), vs, fl
+
+
+def source_shifts(rec: Recording) -> dict[str, float]:
+    """Time to add to each source's timestamps to put it on one reference clock.
+
+    The acquisition keeps every source on its own clock and reports the offsets it detected in
+    ``rec.meta["clock_offsets_s"]`` (``"a->b"``: time to add to ``a``'s timestamps to line them up
+    with ``b``). The reference is the vehicle CAN's clock (else the first source by name); the
+    acquisition host clock (``"acquisition"``) is taken as that reference, since the bus loggers
+    stamp frames on it. An offset key names a source exactly or by a unique part of its name
+    (``"pressure"`` for ``"brake_pressure"``). Sources not linked to the reference get no shift.
+    """
+    offsets = rec.meta.get("clock_offsets_s") if isinstance(rec.meta, dict) else None
+    sources = {c.source for c in rec.channels.values() if c.source}
+    if not offsets or not isinstance(offsets, dict) or not sources:
+        return {}
+
+    def node(name: str) -> str:
+        if name in sources:
+            return name
+        found = [s for s in sources if name and name in s]
+        return found[0] if len(found) == 1 else name
+
+    edges = []
+    for key, val in offsets.items():
+        if not isinstance(key, str) or "->" not in key or not isinstance(val, int | float) or not np.isfinite(val):
+            continue
+        a, b = key.split("->", 1)
+        edges.append((node(a), node(b), float(val)))
+    ref = "vehicle_can" if "vehicle_can" in sources else sorted(sources)[0]
+    shift = {ref: 0.0, "acquisition": 0.0}
+    changed = True
+    while changed:
+        changed = False
+        for a, b, o in edges:
+            if b in shift and a not in shift:
+                shift[a], changed = shift[b] + o, True
+            elif a in shift and b not in shift:
+                shift[b], changed = shift[a] - o, True
+    return {k: v for k, v in shift.items() if k in sources and v != 0.0}
 
 
 class _IndexCache:
@@ -119,12 +163,12 @@ class _IndexCache:
         return f
 
 
-def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = None
+def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = None, shift_s: float = 0.0
             ) -> tuple[np.ndarray, np.ndarray]:
     """Values of ``ch`` at ``t`` (linear, or zero-order hold; NaN outside its span) and a mask of grid
     samples touched by a flagged or non-finite source sample."""
     n = len(ch)
-    ts, vs, fl = time_ordered(ch)
+    ts, vs, fl = time_ordered(ch, shift_s)
     raw_bad = ((fl & _BAD) != 0) | ~np.isfinite(vs)
     fidx = cache.fidx(ts) if cache is not None else np.interp(t, ts, np.arange(n, dtype=float))
     idx = np.floor(fidx).astype(np.int64)
@@ -147,7 +191,8 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
 
 
 def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: Iterable[str] = (),
-           hold: Iterable[str] = (), what: str = "identification", span: tuple[float, float] | None = None) -> Grid:
+           hold: Iterable[str] = (), what: str = "identification", span: tuple[float, float] | None = None,
+           align: bool = True) -> Grid:
     """Resample required and optional channels of ``rec`` onto one grid.
 
     Parameters
@@ -166,6 +211,9 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
         Name of the method, for messages.
     span:
         Restrict the grid to this time span (e.g. :func:`segments_span`).
+    align:
+        Put every source on one clock with the offsets the acquisition detected
+        (:func:`source_shifts`); the grid's time is then the reference clock's.
 
     Returns
     -------
@@ -189,8 +237,9 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
     empty = [c.name for c in chans if len(c) == 0]
     if empty:
         raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
-    lo = max(float(c.timestamps.min()) for c in chans)
-    hi = min(float(c.timestamps.max()) for c in chans)
+    shifts = source_shifts(rec) if align else {}
+    lo = max(float(c.timestamps.min()) + shifts.get(c.source, 0.0) for c in chans)
+    hi = min(float(c.timestamps.max()) + shifts.get(c.source, 0.0) for c in chans)
     if span is not None:
         lo, hi = max(lo, float(span[0])), min(hi, float(span[1]))
     if not hi > lo:
@@ -202,18 +251,18 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
     flagged = np.zeros(t.shape, dtype=bool)
     cache = _IndexCache(t)
     for c in chans:
-        v, fl = _sample(c, t, c.name in held, cache)
+        v, fl = _sample(c, t, c.name in held, cache, shifts.get(c.source, 0.0))
         values[c.name] = v
         flagged |= fl
         bad |= fl | ~np.isfinite(v)
     present = set()
     for n in optional:
         if n in rec and len(rec[n]) and n not in values:
-            v, fl = _sample(rec[n], t, n in held, cache)
+            v, fl = _sample(rec[n], t, n in held, cache, shifts.get(rec[n].source, 0.0))
             v[fl] = np.nan
             values[n] = v
             present.add(n)
-    return Grid(t, values, bad, flagged, rate_hz, present)
+    return Grid(t, values, bad, flagged, rate_hz, present, shifts)
 
 
 def segment_mask(rec: Recording, t: np.ndarray, kinds: Iterable[str] | None) -> np.ndarray | None:

@@ -161,12 +161,13 @@ class SteadyWindows:
 
         With ``other`` (a channel of the same source on the same timestamps, e.g. the voltage of a
         current), the mean of the sample-by-sample product; on different timestamps, the product of
-        the two means.
+        the two means. Timestamps get the grid's clock shifts (:func:`source_shifts`).
         """
-        ts, vals, fl = time_ordered(rec[name])
+        shifts = self.grid.shifts
+        ts, vals, fl = time_ordered(rec[name], shifts.get(rec[name].source, 0.0))
         good = ((fl & BAD_FLAGS) == 0) & np.isfinite(vals)
         if other is not None:
-            ts2, vals2, fl2 = time_ordered(rec[other])
+            ts2, vals2, fl2 = time_ordered(rec[other], shifts.get(rec[other].source, 0.0))
             if ts2.shape == ts.shape and np.array_equal(ts2, ts):
                 good = good & ((fl2 & BAD_FLAGS) == 0) & np.isfinite(vals2)
                 vals = vals * vals2

@@ -87,3 +87,28 @@ def test_out_of_order_samples_give_the_same_windows_and_means(ramp_plant) -> Non
     np.testing.assert_allclose(got.raw_average(rec, "em_torque_nm"), ref_raw, rtol=1e-12)
     np.testing.assert_allclose(got.means("em_torque_nm"), ref.means("em_torque_nm"), rtol=1e-12)
     np.testing.assert_allclose(got.average(got.grid["em_torque_nm"]), got.means("em_torque_nm"), rtol=1e-9)
+
+
+def test_sources_are_put_on_one_clock_with_the_detected_offsets(ramp_plant) -> None:
+    """The acquisition keeps each source on its own clock and reports offsets; gather aligns them."""
+    from benchtwin.identification._signals import gather, source_shifts
+
+    t, sig, segs = ramp_plant
+    rec = to_recording(t, sig, segments=segs)
+    for ch in rec.channels.values():
+        if ch.source == "telemetry":
+            ch.timestamps = ch.timestamps + 0.7  # the telemetry clock runs 0.7 s ahead
+        if ch.source == "modbus_pressure":
+            ch.timestamps = ch.timestamps - 0.2
+    rec.meta["clock_offsets_s"] = {"vehicle_can->telemetry": 0.7, "pressure->acquisition": 0.2}
+    assert source_shifts(rec) == {"telemetry": -0.7}  # no pressure channel in this recording
+    rec.add(type(rec["em_torque_nm"])("brake_pressure_fl_bar", "bar", t[::2] - 0.2, np.zeros(t[::2].size), None,
+                                      "modbus_pressure"))
+    assert source_shifts(rec) == {"telemetry": -0.7, "modbus_pressure": 0.2}
+    g = gather(rec, ["em_torque_nm", "shaft_torque_nm"], 10.0)
+    exact = gather(to_recording(t, sig), ["em_torque_nm", "shaft_torque_nm"], 10.0)
+    k = np.searchsorted(exact.t, g.t[0])
+    np.testing.assert_allclose(g["shaft_torque_nm"][5:-5], exact["shaft_torque_nm"][k + 5:k + g.t.size - 5],
+                               atol=1e-6)
+    unaligned = gather(rec, ["em_torque_nm", "shaft_torque_nm"], 10.0, align=False)
+    assert unaligned.shifts == {} and g.shifts == {"telemetry": -0.7, "modbus_pressure": 0.2}
