@@ -161,7 +161,7 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
 
 def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "transmission",
                                 segments: Sequence[str] = (), n_excluded: int = 0, min_points: int = 3,
-                                min_rel_spread: float = 0.1, weighted: bool = True) -> FitResult:
+                                min_rel_spread: float = 0.1, weighted: bool = True, min_r2: float = 0.5) -> FitResult:
     """Least squares of eq. 15-17: ``eta = eta_m - (eta_m C0) / C``.
 
     Parameters
@@ -177,6 +177,8 @@ def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "
         measured efficiency grows as ``1/C``; weighting by the inverse variance keeps low-torque
         points from dominating and makes the standard errors honest (the paper's plain OLS is
         ``weighted=False``; both give the same result on exact data).
+    min_r2:
+        Below this R^2 the fit is flagged (the paper reports 0.95 in 5th gear).
 
     Returns
     -------
@@ -203,6 +205,8 @@ def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "
                     eta_curve=fit.value("eta_m") * (1.0 - fit.value("C0") / cc))
     if not 0.5 < fit.value("eta_m") <= 1.0:
         fit.flag(f"eta_m = {fit.value('eta_m'):.4f} is outside (0.5, 1]: the points do not follow eq. 14")
+    if not fit.r2 >= min_r2:
+        fit.flag(f"R^2 = {fit.r2:.2f} < {min_r2}: eq. 14 does not explain these points (noise, unsteady points?)")
     return fit
 
 

@@ -84,6 +84,12 @@ def test_bad_data_paths() -> None:
         fit_transmission_efficiency(np.array([50.0, 80.0]), np.array([0.9, 0.92]))
     with pytest.raises(NoExcitationError):
         fit_transmission_efficiency(np.full(8, 100.0), np.full(8, 0.92))
+    # points that do not follow eq. 14 at all: a flagged result with the reason, not confident numbers
+    rng = np.random.default_rng(0)
+    c = np.linspace(20, 200, 12)
+    junk = fit_transmission_efficiency(c, 0.9 + rng.normal(0, 0.03, c.size))
+    assert junk.status == "flagged" and any("R^2" in r for r in junk.reasons)
+    assert junk["C0"].status == "flagged"
     # two "points" that are the same point many times over and nothing else: collinear design
     c = np.array([100.0, 100.0 + 1e-9] * 5)
     with pytest.raises((CollinearError, NoExcitationError)):
