@@ -50,8 +50,10 @@ def _axle_channels(rec: Recording, names: Sequence[str], axle: str) -> list[str]
 
 
 def fit_brake_gain(p_bar: np.ndarray, torque_nm: np.ndarray, axle: str, *, segments: Sequence[str] = (),
-                   n_excluded: int = 0, min_points: int = 4, intercept: bool = True) -> FitResult:
+                   n_excluded: int = 0, min_points: int = 4, intercept: bool = True, min_r2: float = 0.9) -> FitResult:
     """Least squares ``T = m p + c`` for one axle (``c`` omitted with ``intercept=False``).
+
+    A non-positive gain or an R^2 below ``min_r2`` flags the fit with the reason.
 
     Raises
     ------
@@ -75,6 +77,8 @@ def fit_brake_gain(p_bar: np.ndarray, torque_nm: np.ndarray, axle: str, *, segme
                     torque_curve_nm=fit.value(f"m_{tag}") * pc + (fit.value(f"c_{tag}") if intercept else 0.0))
     if fit.value(f"m_{tag}") <= 0:
         fit.flag(f"{axle} gain is not positive: check the sign of the roller force")
+    if not fit.r2 >= min_r2:
+        fit.flag(f"R^2 = {fit.r2:.2f} < {min_r2}: torque and pressure are not proportional in these points")
     return fit
 
 

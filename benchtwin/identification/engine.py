@@ -331,6 +331,8 @@ def fit_engine_willans(speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: n
                         band_speed_rpm=np.array([float(np.mean(n[g]))]))
         if not 0.1 < fit.value("e") < 0.6:
             fit.flag(f"e = {fit.value('e'):.3f} is not plausible for a combustion engine")
+        if not fit.r2 >= 0.9:
+            fit.flag(f"R^2 = {fit.r2:.2f} < 0.9: fuel power is not linear in brake power in this band")
         out.fits[key] = fit
     if not out.fits:
         raise InsufficientDataError("engine Willans: no speed band could be fitted ("

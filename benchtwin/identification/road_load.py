@@ -81,8 +81,11 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
 
 
 def fit_road_load(v_kmh: np.ndarray, force_n: np.ndarray, *, segments: Sequence[str] = (), n_excluded: int = 0,
-                  min_points: int = 10, min_span_kmh: float = 30.0, what: str = "road_load") -> FitResult:
+                  min_points: int = 10, min_span_kmh: float = 30.0, what: str = "road_load",
+                  min_r2: float = 0.9) -> FitResult:
     """Least squares ``F = F0 + F1 v + F2 v^2`` (v km/h, F N) with full statistics.
+
+    A fit with R^2 below ``min_r2`` or a negative F0 or F2 is flagged with the reason.
 
     Raises
     ------
@@ -101,6 +104,8 @@ def fit_road_load(v_kmh: np.ndarray, force_n: np.ndarray, *, segments: Sequence[
                     force_curve_n=fit.value("F0") + fit.value("F1") * vc + fit.value("F2") * vc**2)
     if fit.value("F0") < 0 or fit.value("F2") < 0:
         fit.flag("negative F0 or F2: the coastdown does not look like a road-load curve")
+    if not fit.r2 >= min_r2:
+        fit.flag(f"R^2 = {fit.r2:.2f} < {min_r2}: the decelerations do not follow a road-load curve")
     return fit
 
 

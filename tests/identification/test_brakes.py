@@ -51,6 +51,8 @@ def test_bad_data_paths(brake_plant, truth) -> None:
         fit_brake_gain(np.full(6, 20.0), np.full(6, 800.0), "front")
     with pytest.raises(InsufficientDataError):
         fit_brake_gain(np.array([5.0, 30.0]), np.array([200.0, 1200.0]), "rear")
+    flipped = fit_brake_gain(np.array([5.0, 10, 20, 30, 40]), -25.0 * np.array([5.0, 10, 20, 30, 40]), "rear")
+    assert flipped.status == "flagged" and any("sign" in r for r in flipped.reasons)
     t, sig, segs = brake_plant
     rec = to_recording(t, sig, segments=segs)
     for c in ("brake_pressure_rl_bar", "brake_pressure_rr_bar"):

@@ -76,6 +76,9 @@ def test_bad_data_paths(truth) -> None:
         fit_road_load(np.linspace(80, 90, 40), np.full(40, 400.0))
     with pytest.raises(InsufficientDataError):
         fit_road_load(np.array([30.0, 60, 90]), np.array([200.0, 250, 330]))
+    v = np.linspace(20, 120, 40)
+    junk = fit_road_load(v, 400 + np.random.default_rng(1).normal(0, 150, v.size))  # no road-load curve in it
+    assert junk.status == "flagged" and junk["F1"].status == "flagged"
     t, sig, _ = coastdown_plant(truth)
     sig = dict(sig, gear_actual=np.full_like(t, 5.0))  # never in neutral: no coastdown
     with pytest.raises(InsufficientDataError, match="no coastdown"):
