@@ -451,8 +451,9 @@ def identify_torque_converter(
             reasons.append(f"gear {k} has no transmission model: eta_m and C0 of gear {near} used")
         full = {k: table[k] if k in table else table[min(table, key=lambda j: (abs(j - k), j))]
                 for k in range(1, len(specs.gear_ratios) + 1)}
-        eta = np.array([full[int(k)][0] for k in g])
-        c0 = np.array([full[int(k)][1] for k in g])
+        eta_tab = np.array([full[k][0] for k in range(1, len(specs.gear_ratios) + 1)])
+        c0_tab = np.array([full[k][1] for k in range(1, len(specs.gear_ratios) + 1)])
+        eta, c0 = eta_tab[g - 1], c0_tab[g - 1]
     else:
         eta, c0 = np.ones_like(ig), np.zeros_like(ig)
         reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
