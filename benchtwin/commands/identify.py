@@ -35,6 +35,9 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     p.add_argument("--methods", default=None,
                    help="comma-separated methods (default: all whose channels are present); "
                         "e.g. battery_map_free,shifts")
+    p.add_argument("--option", "-O", action="append", default=[], metavar="METHOD.KEY=VALUE",
+                   help="a method's keyword option, value as a TOML literal, e.g. "
+                        "torque_converter.max_pump_accel_rpm_s=300 or shifts.min_events=4 (repeatable)")
     p.add_argument("--no-figures", action="store_true", help="write params.json only")
     p.set_defaults(func=run)
     return p
@@ -53,6 +56,29 @@ def _load_specs(path: Path) -> Any:
     if "specs" in data and isinstance(data["specs"], dict):
         data = data["specs"]
     return validate_data(VehicleSpecs, data, str(path))
+
+
+def _parse_options(items: list[str], options: dict[str, dict[str, Any]]) -> None:
+    """Parse ``METHOD.KEY=VALUE`` items into ``options`` (values as TOML literals); ConfigError on a bad one."""
+    from benchtwin.identification.run import method_options
+
+    for item in items:
+        head, sep, raw = item.partition("=")
+        method, dot, key = head.strip().partition(".")
+        if not sep or not dot or not key:
+            raise ConfigError(f"--option {item!r}: write METHOD.KEY=VALUE, e.g. shifts.min_events=4")
+        try:
+            allowed = method_options(method)
+        except DataError as exc:
+            raise ConfigError(f"--option {item!r}: {exc}") from None
+        if allowed is not None and key not in allowed:
+            raise ConfigError(f"--option {item!r}: {method} has no option {key!r}; options: "
+                              f"{', '.join(sorted(allowed))}")
+        try:
+            value = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw.strip()  # a bare word: take it as a string
+        options.setdefault(method, {})[key] = value
 
 
 def _write_tables(result: Any, out: Path) -> list[Path]:
@@ -119,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
         rec = Recording.load(args.recording)
     if args.specs is not None:
         specs = _load_specs(args.specs)
+    _parse_options(args.option, options)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     result = identify_all(rec, specs, methods=methods, options=options)
     result.meta["recording"] = str(args.recording)

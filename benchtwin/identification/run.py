@@ -40,7 +40,7 @@ from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.recording import Recording
 
-__all__ = ["METHODS", "Method", "identify_all", "transmission_table"]
+__all__ = ["METHODS", "Method", "identify_all", "method_options", "transmission_table"]
 
 log = logging.getLogger(__name__)
 
@@ -188,6 +188,53 @@ METHODS: tuple[Method, ...] = (
 #: methods run by default; battery_map_free is for logs whose chemistry the literature maps do not fit
 DEFAULT_METHODS: tuple[str, ...] = ("transmission", "motor", "engine", "road_load", "brakes", "battery",
                                     "torque_converter", "shifts")
+
+
+#: where each method's keyword options go (module, function); part A modules are looked up at run time
+_TARGETS: dict[str, tuple[str, str]] = {
+    "transmission": ("transmission", "identify_transmission"),
+    "motor": ("motor", "identify_motor"),
+    "engine": ("engine", "identify_engine"),
+    "road_load": ("road_load", "identify_road_load"),
+    "brakes": ("brakes", "identify_brakes"),
+    "battery": ("battery", "identify_battery"),
+    "battery_map_free": ("battery", "identify_battery_map_free"),
+    "torque_converter": ("torque_converter", "identify_torque_converter"),
+    "shifts": ("shifts", "identify_shift_thresholds"),
+}
+
+
+def method_options(name: str) -> set[str] | None:
+    """Keyword options a method accepts (``None``: any, the function takes ``**kwargs``).
+
+    Parameters
+    ----------
+    name:
+        Method name (see :data:`METHODS`).
+
+    Raises
+    ------
+    DataError
+        Unknown method, or its module is not installed.
+    """
+    import inspect
+
+    if name not in _TARGETS:
+        raise DataError(f"unknown identification method {name!r}; known: {', '.join(_TARGETS)}")
+    module, func = _TARGETS[name]
+    try:
+        fn = getattr(importlib.import_module(f"benchtwin.identification.{module}"), func)
+    except (ImportError, AttributeError) as exc:
+        raise DataError(f"method {name!r} is not available ({exc})") from None
+    params = inspect.signature(fn).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return None
+    names = {n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    if name == "battery_map_free":
+        names |= {"min_rest_s"}  # also passed to identify_battery_ocv_rest by the orchestrator
+    if name == "torque_converter":
+        names.discard("transmission")  # filled from the transmission result (a gear-keyed table: code only)
+    return names
 
 
 def _merge(result: IdentificationResult, name: str, out: Any) -> None:

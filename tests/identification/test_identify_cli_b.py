@@ -219,3 +219,31 @@ def test_public_functions_document_every_argument(module):
             if p not in doc:
                 missing.append(f"{name}({p})")
     assert not missing, f"{module}: arguments not documented: {', '.join(missing)}"
+
+
+def test_a_method_that_breaks_unexpectedly_is_recorded(monkeypatch, combined):
+    import benchtwin.identification.run as run_mod
+
+    def broken(rec, specs, res, opts):
+        return 1 / 0
+
+    methods = (run_mod.Method("battery", ("battery_voltage_v",), broken), *[m for m in run_mod.METHODS
+                                                                         if m.name == "shifts"])
+    monkeypatch.setattr(run_mod, "METHODS", methods)
+    res = run_mod.identify_all(combined[0], SPECS, methods=["battery", "shifts"])
+    assert "ZeroDivisionError" in res.errors["battery"]
+    assert "shifts.up_1_2" in res.fits  # the next method still ran
+
+
+def test_cli_method_options(tmp_path, capsys):
+    rec, _ = shift_recording()
+    mf4 = rec.save(tmp_path / "shifts.mf4")
+    out = tmp_path / "o"
+    assert main(["identify", str(mf4), "--out", str(out), "--no-figures", "-O", "shifts.min_events=7"]) == 0
+    fits = json.loads((out / "params.json").read_text(encoding="utf-8"))["fits"]
+    assert fits["shifts.up_1_2"]["status"] == "flagged"  # 6 events < 7
+    assert main(["identify", str(mf4), "--out", str(out), "-O", "shifts.min_event=7"]) == 2
+    err = capsys.readouterr().err
+    assert "has no option 'min_event'" in err and "min_events" in err
+    assert main(["identify", str(mf4), "--out", str(out), "-O", "gearbox.x=1"]) == 2
+    assert "unknown identification method" in capsys.readouterr().err
