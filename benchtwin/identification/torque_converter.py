@@ -30,7 +30,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from benchtwin.errors import InsufficientDataError, MissingChannelError
-from benchtwin.identification._fit import FitResult, derived, linear_fit, r_squared
+from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
 from benchtwin.identification.battery import strict_resample
 from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.recording import Recording
@@ -169,11 +169,13 @@ def fit_torque_converter(
     Returns
     -------
     dict
-        ``converter`` (a0..a5 and ``gamma_coupling``), ``coupling`` (a6..a8; missing when the data
-        have fewer than ``min_points`` coupling points, see ``converter.reasons``), ``torque_ratio``
-        (R^2 of TR over all points; data ``sr``, ``tr``, ``tr_model``), ``capacity_factor`` (R^2 of
-        CF in converter mode; data ``sr``, ``cf``, ``cf_model``, ``coupling``) and
-        ``capacity_factor_coupling`` (R^2 of CF in coupling mode) when it exists.
+        ``converter`` (a0..a5, ``J_pump_kgm2`` with ``dw_p``, and ``gamma_coupling``), ``coupling``
+        (a6..a8 plus the well-determined ``k_at_gamma`` = T/w_p^2 at Gamma and ``sr_zero_torque``;
+        missing when the data have fewer than ``min_points`` coupling points, see
+        ``converter.reasons``), ``torque_ratio`` (R^2 of TR over the points kept by the fits; data
+        ``sr``, ``tr``, ``tr_model``, ``inlier``), ``capacity_factor`` (R^2 of CF in converter mode;
+        data ``cf``, ``cf_model``, ``coupling``) and ``capacity_factor_coupling`` (R^2 of CF in
+        coupling mode) when it exists.
 
     Raises
     ------
@@ -393,7 +395,7 @@ def identify_torque_converter(
     Returns
     -------
     dict
-        As :func:`fit_torque_converter`.
+        As :func:`fit_torque_converter`; ``converter`` also carries ``turbine_speed_scale``.
 
     Raises
     ------
@@ -463,8 +465,6 @@ def identify_torque_converter(
     res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], d["em_torque_nm"][use], t_t[use], gamma=gamma,
                                min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()),
                                dw_p=dn[use] / RPM_PER_RADS if pump_inertia else None, outlier_sigma=outlier_sigma)
-    from benchtwin.identification._fit import ParameterEstimate
-
     res["converter"].add(ParameterEstimate(
         "turbine_speed_scale", scale, scale_se, (scale - 1.96 * scale_se, scale + 1.96 * scale_se), float("nan"),
         n_cal, "", segs))
