@@ -14,7 +14,12 @@ Two ways to describe a pack from a Recording of its terminal voltage ``V`` and c
    functions of SOC (hat basis on SOC nodes), all fitted at once by linear least squares
    (``V = OCV(s) - I R(s)``); with one node (or no SOC signal) this is the plain OCV/R fit.
    :func:`identify_battery_r0_steps` gives the ohmic resistance ``R0`` from current steps
-   (HPPC pulse edges): ``R0 = -dV/dI`` across one sample.
+   (HPPC pulse edges): ``R0 = -dV/dI`` across one sample, and :func:`identify_battery_ocv_rest`
+   the OCV at the end of long rests (the HPPC definition of OCV).
+
+A displayed SOC quantised on the CAN is refined by coulomb counting (:func:`refine_soc`) before
+eq. 30 is fitted; logs without any SOC signal are coulomb-counted from a given capacity
+(:func:`coulomb_soc`).
 
 Every result is a :class:`~benchtwin.identification._fit.FitResult` whose ``data`` carries the
 arrays the figures need (time, measured and modelled voltage, corrected maps).
