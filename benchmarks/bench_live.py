@@ -168,7 +168,7 @@ def main() -> int:
             head = ("\n## Live delivery (benchmarks/bench_live.py)\n\n"
                     "Server and socketcand endpoint in one process, recorder (LiveRecorder) in another, loopback.\n"
                     "Pacing error = time the delivery call returned minus the item's deadline (all streams).\n\n"
-                    "| date (UTC) | machine | speed-up | pacing thread | plant time | frames/s (plant) | "
+                    "| date (UTC) | machine | speed-up | priority | plant time | frames/s (plant) | "
                     "bus load (500k) | frames/s (wall) | p50 ms | p99 ms | max ms | frames received | "
                     "Modbus polls ok | PDOs |\n"
                     "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
