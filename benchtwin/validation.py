@@ -499,10 +499,13 @@ def _bsfc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: 
                  budget: dict[str, float]) -> list[Check]:
     fit = result.fits.get("engine.bsfc")
     tol_min = {"ideal": 1e-2, "realistic": 3e-2}[profile]
-    tol_map = {"ideal": 3e-2, "realistic": 6e-2}[profile]
+    tol_map = {"ideal": 1.5e-2, "realistic": 6e-2}[profile]
+    map_bmep_min = 4.0  # bar: below ~20 % load BSFC = fuel MEP / BMEP amplifies every fuel-flow error
     if profile == "realistic":
         extra = budget["engine_torque_gain"] + budget["fuel_gain"]
-        tol_min, tol_map = tol_min + extra, tol_map + extra
+        t_low = map_bmep_min * 1e5 * vehicle.specs.engine_displacement_m3 / (vehicle.specs.engine_strokes * np.pi)
+        tol_min += extra
+        tol_map += extra + budget["engine_torque_offset"] / t_low
     if fit is None or "bsfc_min" not in fit.params:
         why = result.errors.get("engine.bsfc", result.errors.get("engine", "not identified"))
         return [Check("engine", "engine.bsfc.bsfc_min", float("nan"), float("nan"), float("nan"), tol_min, "rel",
@@ -512,14 +515,14 @@ def _bsfc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: 
     d = fit.data
     sg, bg, mapv = (np.asarray(d.get(k)) for k in ("map_speed_rpm", "map_bmep_bar", "map_bsfc"))
     extrap = np.asarray(d.get("map_extrapolated", np.zeros(np.shape(mapv), bool)), dtype=bool)
-    if mapv.ndim == 2 and sg.ndim == 1:
-        S, B = np.meshgrid(sg, bg, indexing="ij") if mapv.shape == (sg.size, bg.size) else np.meshgrid(sg, bg)
-    else:
-        S, B = sg, bg
-    inside = (~extrap) & np.isfinite(mapv) & (B >= 2.0)
-    # the true minimum over the part of the map the data cover (above 2 bar, as identification searches)
+    # the map is laid out BMEP x speed (rows follow map_bmep_bar)
+    S, B = np.meshgrid(sg, bg) if sg.ndim == 1 else (sg, bg)
+    covered = (~extrap) & np.isfinite(mapv)
     truth_map = true_bsfc(S, B)
-    true_min = float(np.min(truth_map[inside])) if inside.any() else float("nan")
+    # the true minimum over the part of the map the data cover (above 2 bar, as identification searches)
+    search = covered & (B >= 2.0)
+    true_min = float(np.min(truth_map[search])) if search.any() else float("nan")
+    inside = covered & (map_bmep_min <= B)
     checks.append(_rel_check("engine", "engine.bsfc.bsfc_min", fit.value("bsfc_min"), true_min, "rel", tol_min,
                              "g/kWh", "minimum over the speed x BMEP area the data cover (BMEP >= 2 bar)"))
     if inside.any():
@@ -528,8 +531,9 @@ def _bsfc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: 
         checks.append(Check("engine", "engine.bsfc.map", float(mapv[inside][k]), float(truth_map[inside][k]),
                             float(rel[k]), tol_map, "rel", "g/kWh", bool(rel[k] <= tol_map),
                             f"worst node of the identified map inside the data's hull (of {int(inside.sum())}), "
-                            f"at {S[inside][k]:.0f} rpm / {B[inside][k]:.1f} bar; the true map is bilinear between "
-                            f"its nodes, the identified one a smooth interpolation of scattered points"))
+                            f"at {S[inside][k]:.0f} rpm / {B[inside][k]:.1f} bar, BMEP >= {map_bmep_min:.0f} bar; the "
+                            f"true map is bilinear between its nodes, the identified one a smooth interpolation of "
+                            f"scattered points"))
     return checks
 
 
