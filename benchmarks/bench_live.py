@@ -135,6 +135,32 @@ def serve(args: argparse.Namespace) -> dict:
             "lost_server": report.lost, "endpoint": stats.get("transport", {}), "recorder": res}
 
 
+_HEADER = ("## Live delivery (benchmarks/bench_live.py)\n\n"
+           "Server and socketcand endpoint in one process, recorder (LiveRecorder) in another, loopback.\n"
+           "Pacing error = time the delivery call returned minus the item's deadline (all streams).\n\n"
+           "| date (UTC) | machine | speed-up | priority | plant time | frames/s (plant) | "
+           "bus load (500k) | frames/s (wall) | p50 ms | p99 ms | max ms | frames received | "
+           "Modbus polls ok | PDOs |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+
+
+def _append_row(path: Path, summary: str) -> None:
+    """Add a row to the live table of RESULTS.md (after its last row; the section is made if missing)."""
+    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M")
+    row = f"| {stamp} | {platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f} " + summary
+    text = path.read_text() if path.exists() else ""
+    if "## Live delivery (benchmarks/bench_live.py)" not in text:
+        path.write_text(text.rstrip("\n") + "\n\n" + _HEADER + row + "\n")
+        return
+    lines = text.split("\n")
+    head = lines.index("## Live delivery (benchmarks/bench_live.py)")
+    i = next(k for k in range(head, len(lines)) if lines[k].startswith("|---"))
+    while i + 1 < len(lines) and lines[i + 1].startswith("| "):
+        i += 1
+    lines.insert(i + 1, row)
+    path.write_text("\n".join(lines))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("mode", nargs="?", default="serve", choices=["serve", "child"])
@@ -162,21 +188,7 @@ def main() -> int:
                f"{rec['polls_ok']}/{rec['polls']} | {rec['pdos']} |")
     print(summary)
     if args.results:
-        p = Path(args.results)
-        head = ""
-        if not p.exists() or "## Live delivery" not in p.read_text():
-            head = ("\n## Live delivery (benchmarks/bench_live.py)\n\n"
-                    "Server and socketcand endpoint in one process, recorder (LiveRecorder) in another, loopback.\n"
-                    "Pacing error = time the delivery call returned minus the item's deadline (all streams).\n\n"
-                    "| date (UTC) | machine | speed-up | priority | plant time | frames/s (plant) | "
-                    "bus load (500k) | frames/s (wall) | p50 ms | p99 ms | max ms | frames received | "
-                    "Modbus polls ok | PDOs |\n"
-                    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
-        stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M")
-        load = os.getloadavg()[0]
-        with p.open("a") as fh:
-            fh.write(head + f"| {stamp} | {platform.machine()}, {os.cpu_count()} cores, load {load:.1f} "
-                     + summary + "\n")
+        _append_row(Path(args.results), summary)
     return 0 if lost == 0 and rec["in_order_and_exact"] else 1
 
 
