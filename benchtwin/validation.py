@@ -49,7 +49,7 @@ __all__ = [
 
 #: the paper's coefficients of determination, which the realistic profile must reach or beat
 PAPER_R2: dict[str, tuple[str, float, str]] = {
-    "transmission.gear5": ("r2", 0.95, "AT efficiency, 5th gear at 2500 rpm (Figure 8)"),
+    "transmission.gear5": ("r2", 0.95, "AT efficiency, one 5th-gear Hybrid ramp-up near 2500 rpm (Figure 8)"),
     "motor.motoring": ("r2", 0.85, "EM Willans line (Figure 10)"),
     "battery": ("adj_r2", 0.995, "battery voltage model, adjusted (Figure 16)"),
     "torque_converter.torque_ratio": ("r2", 0.81, "torque ratio vs speed ratio (Figure 18)"),
@@ -358,7 +358,8 @@ def _budget(setup: SetupConfig | None) -> dict[str, float]:
 
 
 def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, profile: str = "ideal",
-                       gears: Iterable[int] | None = None, setup: SetupConfig | None = None) -> list[Check]:
+                       gears: Iterable[int] | None = None, setup: SetupConfig | None = None,
+                       paper_sets: dict[str, Any] | None = None) -> list[Check]:
     """Compare an identification result with the vehicle file.
 
     Parameters
@@ -375,6 +376,9 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
         The bench; with the ``realistic`` profile the systematic errors it declares (gain errors and
         offsets of the sensors a parameter depends on) widen that parameter's tolerance, so a failure
         means identification did worse than the chain allows, not that the chain is imperfect.
+    paper_sets:
+        Fits made on the paper's own estimation sets (see :func:`paper_estimation_fits`), whose R^2 is
+        compared with the paper's instead of the all-data fit of the same name.
 
     Returns
     -------
@@ -411,7 +415,7 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
     checks += _bsfc_checks(result, vehicle, profile, budget)
     if profile == "realistic":
         for fit_name, (attr, minimum, what) in PAPER_R2.items():
-            fit = result.fits.get(fit_name)
+            fit = (paper_sets or {}).get(fit_name) or result.fits.get(fit_name)
             val = float(getattr(fit, attr)) if fit is not None else float("nan")
             ok = bool(math.isfinite(val) and val >= minimum)
             checks.append(Check("r2", f"{fit_name}.{attr}", val, minimum, val, minimum, "min", "-", ok,
@@ -535,6 +539,50 @@ def _bsfc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: 
                             f"true map is bilinear between its nodes, the identified one a smooth interpolation of "
                             f"scattered points"))
     return checks
+
+
+def _slice_recording(rec: Recording, start_s: float, end_s: float) -> Recording:
+    out = Recording(segments=[s for s in rec.segments if s.end_s > start_s and s.start_s < end_s],
+                    meta=dict(rec.meta))
+    for ch in rec.channels.values():
+        m = (ch.timestamps >= start_s) & (ch.timestamps < end_s)
+        out.add(Channel(ch.name, ch.unit, ch.timestamps[m], ch.values[m], ch.flags[m], ch.source))
+    return out
+
+
+def paper_estimation_fits(rec: Recording, vehicle: VehicleConfig, trace: Trace) -> dict[str, Any]:
+    """Fits on the paper's own estimation sets, for comparing R^2 like with like.
+
+    The paper's transmission R^2 of 0.95 is that of one ramp-up: 5th gear, Hybrid mode, about 2500 rpm
+    (Figure 8). Over every ramp-up of a gear the points mix Hybrid and Electric operation, whose input
+    torques carry different ECU errors, so the all-data R^2 is lower and not comparable. This fits the
+    5th-gear Hybrid ramp-up whose motor speed is nearest 2500 rpm.
+
+    Returns
+    -------
+    dict
+        ``{"transmission.gear5": FitResult}`` when such a ramp-up exists and can be fitted.
+    """
+    from benchtwin.errors import IdentificationError
+    from benchtwin.identification.transmission import identify_transmission
+
+    best = None
+    for seg in trace.segments:
+        if seg.kind != "ramp_up" or seg.settings.get("gear") != 5 or seg.settings.get("mode") != "hybrid":
+            continue
+        sl = trace.segment(seg.name)
+        rpm = float(np.median(sl["em_speed_radps"])) * 30.0 / np.pi
+        if best is None or abs(rpm - 2500.0) < best[0]:
+            best = (abs(rpm - 2500.0), seg)
+    if best is None:
+        return {}
+    seg = best[1]
+    try:
+        res = identify_transmission(_slice_recording(rec, seg.start_s, seg.end_s), vehicle.specs, gears=[5])
+    except IdentificationError:
+        return {}
+    fit = res.fits.get("transmission.gear5")
+    return {"transmission.gear5": fit} if fit is not None else {}
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -739,7 +787,9 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     }
     gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings})
     report.checks = chain_checks(trace, rec, setup, profile=prof)
-    report.checks += compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup)
+    paper_sets = paper_estimation_fits(rec, vehicle, trace) if prof == "realistic" else {}
+    report.checks += compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup,
+                                        paper_sets=paper_sets)
     if out_dir is not None:
         import json
 
