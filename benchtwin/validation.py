@@ -248,8 +248,9 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
         _Expect("motor", "motor.generating.W_loss_gen", m.willans_w_loss_gen_w, "W",
                 {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss"),
         _Expect("motor", "motor.motoring.eta_dcdc", vehicle.low_voltage.dcdc_efficiency, "-",
-                {"ideal": ("rel", 5e-3), "realistic": ("rel", 3e-2)},
-                "the DC/DC power is ~1 % of the HPCU power: its efficiency is a second-order term"),
+                {"ideal": ("rel", 1.5e-2), "realistic": ("rel", 3e-2)},
+                "the DC/DC draws 0.3-0.5 kW beside 5-90 kW of motor power through the HPCU shunt: a 0.01 % "
+                "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %"),
     ]
     rl = vehicle.road_load
     for name, val, unit in (("F0", rl.f0_n, "N"), ("F1", rl.f1_n_per_kmh, "N/(km/h)"), ("F2", rl.f2_n_per_kmh2,
