@@ -119,7 +119,9 @@ C_END_KIND = 11  # 0 none, 1 speed >=, 2 displayed SOC <=, 3 displayed SOC >=, 4
 C_END_VAL = 12
 C_SEG = 13
 C_LVLOAD = 14  # W
-NC = 15
+C_VPRE = 15  # target speed at the driver's preview (m/s)
+C_AREF = 16  # reference acceleration around the preview (m/s^2)
+NC = 17
 
 # ---- loop outputs (columns) ----
 O_V = 0

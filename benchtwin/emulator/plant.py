@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from benchtwin.emulator.params import (
+    C_AREF,
     C_BRAKE,
     C_DRV_MODE,
     C_DYNO_MODE,
@@ -30,6 +31,7 @@ from benchtwin.emulator.params import (
     C_LVLOAD,
     C_PEDAL,
     C_SEG,
+    C_VPRE,
     C_VTGT,
     L_BRAKES,
     L_DCDC,
@@ -306,7 +308,6 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
     widle_m = p[P_M_IDLE]
     kidle = p[P_IDLE_K]
     npre = int(p[P_DRV_NPRE])
-    nhalf = max(1, int(0.5 / dt))
     vramp = 0.5 / 3.6  # road load fades in below 0.5 km/h (no force at standstill)
 
     v = st[S_V]
@@ -382,18 +383,8 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
                 aref = -p[P_DRV_STOP] if vt_pre > 0.0 else 0.0
             else:
                 vt = cmd[C_VTGT, i]
-                # preview only within the part of the protocol where the driver follows a target
-                j = i
-                while j < min(i + npre, n - 1) and cmd[C_DRV_MODE, j + 1] == 1:
-                    j += 1
-                j1 = j
-                while j1 > max(j - nhalf, 0) and cmd[C_DRV_MODE, j1 - 1] == 1:
-                    j1 -= 1
-                j2 = j
-                while j2 < min(j + nhalf, n - 1) and cmd[C_DRV_MODE, j2 + 1] == 1:
-                    j2 += 1
-                vt_pre = cmd[C_VTGT, j]
-                aref = (cmd[C_VTGT, j2] - cmd[C_VTGT, j1]) / ((j2 - j1) * dt) if j2 > j1 else 0.0
+                vt_pre = cmd[C_VPRE, i]  # previewed target and reference acceleration (protocols.py)
+                aref = cmd[C_AREF, i]
             ff = mass * aref + (p[P_F0] + p[P_F1] * vt_pre + p[P_F2] * vt_pre * vt_pre) * min(vt_pre / vramp, 1.0)
             e = vt - v
             drv_u = drv_u + p[P_DRV_B0] * e + p[P_DRV_B1] * drv_e

@@ -28,6 +28,7 @@ from benchtwin.config.campaign import (
     RampUpTest,
 )
 from benchtwin.emulator.params import (
+    C_AREF,
     C_BRAKE,
     C_DRV_MODE,
     C_DYNO_MODE,
@@ -39,8 +40,10 @@ from benchtwin.emulator.params import (
     C_HMODE,
     C_K0,
     C_LU,
+    C_LVLOAD,
     C_PEDAL,
     C_SEG,
+    C_VPRE,
     C_VTGT,
     KMH,
     NC,
@@ -119,7 +122,9 @@ class _Builder:
         b[C_END_KIND] = end_kind
         b[C_END_VAL] = end_val
         b[C_SEG] = seg
-        b[NC - 1] = 0.0  # 12 V load row, filled in by the emulator
+        b[C_LVLOAD] = 0.0  # filled in by the emulator
+        b[C_VPRE] = b[C_VTGT]
+        b[C_AREF] = 0.0
         self.blocks.append(b)
         self.n += n
 
@@ -273,5 +278,30 @@ def build_protocol(campaign: CampaignConfig) -> Protocol:
         settings["mode"] = test.mode
         settings["protocol"] = test.kind
         segments.append(Segment(start_s=t0, end_s=b.t, kind=SEGMENT_KIND[test.kind], name=name, settings=settings))
-        blocks.append(np.ascontiguousarray(np.concatenate(b.blocks, axis=1)))
+        block = np.ascontiguousarray(np.concatenate(b.blocks, axis=1))
+        _driver_preview(block, dt, campaign.driver.preview_s)
+        blocks.append(block)
     return Protocol(blocks=blocks, segments=segments)
+
+
+def _driver_preview(block: np.ndarray, dt: float, preview_s: float, half_window_s: float = 0.5) -> None:
+    """Fill the previewed target speed and reference acceleration of every follow-mode run of a block.
+
+    The driver looks ``preview_s`` ahead, never past the end of the run in which it follows a target; the
+    reference acceleration is the slope of the target over +-``half_window_s`` around the preview point.
+    """
+    follow = block[C_DRV_MODE] == 1
+    if not follow.any():
+        return
+    npre = round(preview_s / dt)
+    nh = max(1, int(half_window_s / dt))
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], follow.astype(np.int8), [0]])))
+    vt = block[C_VTGT]
+    for a, b in zip(edges[0::2], edges[1::2], strict=True):
+        i = np.arange(a, b)
+        j = np.minimum(i + npre, b - 1)
+        j1 = np.maximum(j - nh, a)
+        j2 = np.minimum(j + nh, b - 1)
+        block[C_VPRE, a:b] = vt[j]
+        span = (j2 - j1) * dt
+        block[C_AREF, a:b] = np.where(j2 > j1, (vt[j2] - vt[j1]) / np.where(span > 0, span, 1.0), 0.0)
