@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from benchtwin.errors import ConfigError
+from benchtwin.errors import ConfigError, DataError
 
 __all__ = ["add_subparser", "run"]
 
@@ -59,7 +59,12 @@ def run(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".mf4":
         raise ConfigError(f"--out {out}: the Recording is written as MF4; use a .mf4 name")
     setup = load_setup(args.setup)
-    segments = load_segments(args.segments) if args.segments else []
+    segments = []
+    if args.segments:
+        try:
+            segments = load_segments(args.segments)
+        except OSError as exc:
+            raise ConfigError(f"--segments {args.segments}: cannot read the segment table ({exc.strerror})") from exc
     cmap = {}
     for part in filter(None, (s.strip() for s in args.channel_map.split(","))):
         bus, sep, iface = part.partition("=")
@@ -91,16 +96,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"benchtwin: warning: {e.source} dropped at t = {e.time_s:.3f} s ({e.detail}); "
               "samples after it are flagged", file=sys.stderr, flush=True)
     raw_dir = out.with_name(out.stem + "_raw")
-    raw_dir.mkdir(parents=True, exist_ok=True)
-    for bus, table in capture.can.items():
-        if len(table):
-            write_mf4(table, raw_dir / f"{bus}.mf4")
-    for dev, plog in capture.polls.items():
-        write_poll_log(plog, raw_dir / f"{dev}.polls.npz")
-    recording = acquire(capture_to_input(capture, segments, {"transport": args.transport, "stop_reason": reason}),
-                        setup)
-    recording.save(out)
-    (raw_dir / "capture.json").write_text(json.dumps(
-        {"stats": capture.stats, "events": recording.meta.get("transport_events", [])}, indent=1, default=float))
+    try:
+        raw_dir.mkdir(parents=True, exist_ok=True)
+        for bus, table in capture.can.items():
+            if len(table):
+                write_mf4(table, raw_dir / f"{bus}.mf4")
+        for dev, plog in capture.polls.items():
+            write_poll_log(plog, raw_dir / f"{dev}.polls.npz")
+        recording = acquire(capture_to_input(capture, segments, {"transport": args.transport,
+                                                                 "stop_reason": reason}), setup)
+        recording.save(out)
+        (raw_dir / "capture.json").write_text(json.dumps(
+            {"stats": capture.stats, "events": recording.meta.get("transport_events", [])}, indent=1,
+            default=float))
+    except OSError as exc:
+        raise DataError(f"cannot write {out} or its raw logs ({exc}); everything received is kept in "
+                        f"{spool}") from exc
     print(f"wrote {out} ({len(recording.channels)} channels) and raw logs in {raw_dir}", flush=True)
     return 0

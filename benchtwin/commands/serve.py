@@ -60,7 +60,10 @@ def _load_trace(args: argparse.Namespace) -> tuple[Any, int]:
     if args.trace is not None:
         from benchtwin.trace import Trace
 
-        return Trace.load(args.trace), seed
+        try:
+            return Trace.load(args.trace), seed
+        except OSError as exc:
+            raise ConfigError(f"--trace {args.trace}: cannot read the trace ({exc.strerror or exc})") from exc
     if args.synthetic is not None:
         from benchtwin.sensors.synthetic import synthetic_trace
 
@@ -71,7 +74,10 @@ def _load_trace(args: argparse.Namespace) -> tuple[Any, int]:
     from benchtwin.config.vehicle import load_vehicle
     from benchtwin.emulator import simulate_campaign
 
-    campaign = load_campaign(args.campaign)
+    name = args.campaign
+    if not Path(name).suffix and not Path(name).exists():
+        name = f"{name}.toml"  # a shipped campaign by its bare name (quick, paper, wltc)
+    campaign = load_campaign(name)
     vehicle = load_vehicle(args.vehicle)
     seed = int(getattr(campaign, "seed", 0) or 0)
     print(f"simulating {args.campaign} ...", flush=True)
@@ -109,7 +115,10 @@ def run(args: argparse.Namespace) -> int:
     if args.segments_out:
         from benchtwin.segments import save_segments
 
-        save_segments(list(trace.segments), args.segments_out)
+        try:
+            save_segments(list(trace.segments), args.segments_out)
+        except OSError as exc:
+            raise ConfigError(f"--segments-out {args.segments_out}: {exc.strerror}") from exc
     session = session_from_setup(outputs, setup, transport=args.transport, speedup=args.speedup,
                                  can_port=args.port, modbus_port=args.modbus_port,
                                  channel_map=_channel_map(args.channel_map), start_s=args.start, end_s=args.end,

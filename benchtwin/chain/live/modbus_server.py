@@ -215,7 +215,9 @@ class ModbusDeviceServer:
         """Start serving in a background thread; return once the port accepts connections."""
         from pymodbus.server import ModbusTcpServer
 
-        logging.getLogger("pymodbus").setLevel(max(logging.getLogger().level, logging.WARNING))
+        if logging.getLogger().level > logging.DEBUG:
+            # pymodbus logs every client that leaves mid-request with a frame dump; our stats say it once
+            logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
         devices = [self._device(s) for s in self.stores.values()]
         ready = threading.Event()
 
@@ -232,6 +234,11 @@ class ModbusDeviceServer:
                 self._error = exc
                 ready.set()
             finally:
+                pending = asyncio.all_tasks(self._loop)  # requests still waiting (a no-answer fault)
+                for task in pending:
+                    task.cancel()
+                with contextlib.suppress(Exception):
+                    self._loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
                 self._loop.close()
 
         self._thread = threading.Thread(target=run, name="modbus-server", daemon=True)

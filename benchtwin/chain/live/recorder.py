@@ -221,7 +221,7 @@ class _Poller:
         return ModbusTcpClient(self.spec.host, port=self.spec.port, timeout=self.spec.timeout_s, retries=0)
 
     def _run(self) -> None:
-        from pymodbus.exceptions import ModbusException
+        from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
         if logging.getLogger().level > logging.DEBUG:
             logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # our own events say it once
@@ -250,8 +250,13 @@ class _Poller:
                 if was_down:
                     was_down = False
                     self.recorder._event(spec.device, "reconnect", "")
-            except (ModbusException, ConnectionError, OSError) as exc:
+            except ModbusIOException:
+                # no answer in time: a timeout, logged in the poll log only (not a transport drop); reconnect
+                # so that a late answer cannot be taken for the next poll's
                 self.counts["timeout"] += 1
+                client.close()
+            except (ConnectionException, ModbusException, ConnectionError, OSError) as exc:
+                self.counts["timeout"] += 1  # the connection is gone: a transport drop until it is back
                 if not was_down:
                     was_down = True
                     self.recorder._event(spec.device, "drop", str(exc))

@@ -41,7 +41,7 @@ def test_items_delivered_once_in_order_and_on_time():
     # the bounds leave room for a loaded CI machine; benchmarks/bench_live.py measures the real figures
     assert rep.streams["a"].pacing_p50_ms < 2.0 and rep.streams["a"].pacing_p99_ms < 25.0
     assert rep.streams["a"].sent == len(t_a)
-    assert rep.achieved_speedup == pytest.approx(4.0, rel=0.05)
+    assert rep.achieved_speedup == pytest.approx(4.0, rel=0.2)
 
 
 def test_batching_groups_items_within_the_window():
