@@ -18,13 +18,15 @@ pressure module's uptime registers). ``meta["clock_offsets_s"]`` reports the off
 sources detected by cross-correlation: key ``"a->b"`` is the time to add to ``a``'s timestamps to
 line them up with ``b``'s (vehicle speed on the vehicle CAN vs the dyno roller speed; CAN motor
 power vs the HPCU shunt's power), and ``"pressure->acquisition"`` the median of poll time minus
-module uptime.
+module uptime. On recordings of an hour or more, ``meta["clock_drift_ppm"]`` gives the relative
+drift of the same pairs: the slope of the offsets found in consecutive 15-minute windows.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -456,19 +458,22 @@ def _decode_polls(log_: PollLog, setup: SetupConfig, sink: _Sink, drops: np.ndar
 
 
 def detect_lag(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarray, *, rate_hz: float = 100.0,
-               max_lag_s: float = 2.0, min_correlation: float = 0.6) -> float | None:
+               max_lag_s: float = 2.0, min_correlation: float = 0.6,
+               window: tuple[float, float] | None = None) -> float | None:
     """Time to add to ``a``'s timestamps to line signal ``a`` up with ``b``.
 
     Normalised cross-correlation (Pearson coefficient per lag) of ``a`` over the common span
-    against ``b`` shifted by up to ``+-max_lag_s`` on a ``rate_hz`` grid, refined by a parabola
-    through the peak. Returns None if the signals do not overlap enough, are flat, or the best
-    correlation is below ``min_correlation`` (they are not the same quantity).
+    (or ``window`` of ``a``'s time) against ``b`` shifted by up to ``+-max_lag_s`` on a ``rate_hz``
+    grid, refined by a parabola through the peak. Returns None if the signals do not overlap
+    enough, are flat, or the best correlation is below ``min_correlation`` (not the same quantity).
     """
     good_a, good_b = np.isfinite(x_a), np.isfinite(x_b)
     t_a, x_a, t_b, x_b = t_a[good_a], x_a[good_a], t_b[good_b], x_b[good_b]
     if t_a.size < 10 or t_b.size < 10:
         return None
     lo, hi = max(t_a[0], t_b[0]) + max_lag_s, min(t_a[-1], t_b[-1]) - max_lag_s
+    if window is not None:
+        lo, hi = max(lo, window[0]), min(hi, window[1])
     if hi - lo < 4 * max_lag_s:
         return None
     if hi - lo > 3600.0:  # the central hour of a long recording is plenty
@@ -503,22 +508,44 @@ def detect_lag(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarra
     return float((k - m + frac) / rate_hz)
 
 
-def _clock_offsets(rec: Recording) -> dict[str, float]:
-    out: dict[str, float] = {}
+#: window (s) at each end of a long recording used to estimate the relative clock drift
+DRIFT_WINDOW_S = 900.0
+
+
+def _pairs(rec: Recording) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Signal pairs that measure one quantity on two sources: (key, t_a, x_a, t_b, x_b)."""
+    out = []
     if "vehicle_speed_kmh" in rec and "dyno_speed_kmh" in rec:
         a, b = rec["vehicle_speed_kmh"], rec["dyno_speed_kmh"]
-        lag = detect_lag(a.timestamps, a.values, b.timestamps, b.values)
-        if lag is not None:
-            out["vehicle_can->dyno"] = lag
+        out.append(("vehicle_can->dyno", a.timestamps, a.values, b.timestamps, b.values))
     if "em_torque_nm" in rec and "em_speed_rpm" in rec:
         power_name = "hpcu_power_w" if "hpcu_power_w" in rec else "battery_power_w"
         if power_name in rec:
             tq, sp, p = rec["em_torque_nm"], rec["em_speed_rpm"], rec[power_name]
             mech = tq.values * np.interp(tq.timestamps, sp.timestamps, sp.values) * (2 * np.pi / 60.0)
-            lag = detect_lag(tq.timestamps, mech, p.timestamps, p.values)
-            if lag is not None:
-                out[f"vehicle_can->{p.source}"] = lag
+            out.append((f"vehicle_can->{p.source}", tq.timestamps, mech, p.timestamps, p.values))
     return out
+
+
+def _clock_offsets(rec: Recording) -> tuple[dict[str, float], dict[str, float]]:
+    """Offsets (s) and, on recordings long enough, relative drifts (ppm) between sources."""
+    offsets: dict[str, float] = {}
+    drifts: dict[str, float] = {}
+    for key, t_a, x_a, t_b, x_b in _pairs(rec):
+        lag = detect_lag(t_a, x_a, t_b, x_b)
+        if lag is None:
+            continue
+        offsets[key] = lag
+        t0, t1 = max(t_a[0], t_b[0]), min(t_a[-1], t_b[-1])
+        n_win = int((t1 - t0) // DRIFT_WINDOW_S)
+        if n_win >= 4:  # offset per window, drift = slope of a straight line through them
+            edges = np.linspace(t0, t1, n_win + 1)
+            pts = [(0.5 * (a + b), detect_lag(t_a, x_a, t_b, x_b, window=(a, b))) for a, b in pairwise(edges)]
+            pts = [(c, lag_w) for c, lag_w in pts if lag_w is not None]
+            if len(pts) >= 3 and pts[-1][0] - pts[0][0] >= 2 * DRIFT_WINDOW_S:
+                c, lw = np.array(pts).T
+                drifts[key] = float(np.polyfit(c, lw, 1)[0] * 1e6)
+    return offsets, drifts
 
 
 # ---------------------------------------------------------------------------------------------- entry
@@ -594,9 +621,12 @@ def acquire(data: AcquisitionInput | Any, setup: SetupConfig, *, segments: list[
     m["setup"] = setup.name
     m["sources"] = rec.sources()
     offsets = dict(sink.counts.pop("clock_offsets_s", {}))
+    drifts: dict[str, float] = {}
     if align:
-        offsets.update(_clock_offsets(rec))
+        found, drifts = _clock_offsets(rec)
+        offsets.update(found)
     m["clock_offsets_s"] = offsets
+    m["clock_drift_ppm"] = drifts
     flagged = {}
     for name, ch in rec.channels.items():
         for fl in (Flag.LOST_FRAME, Flag.DUPLICATE, Flag.OUT_OF_ORDER):

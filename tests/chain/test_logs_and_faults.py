@@ -354,3 +354,14 @@ def test_ivt_over_current_detection_is_counted_not_flagged() -> None:
     assert expected > 0
     assert rec.meta["ivt_ocs_frames"]["ivt_battery"] >= expected
     assert not np.any(cur.flags)
+
+
+def test_clock_drift_between_sources_is_estimated() -> None:
+    setup = load_setup("ideal").model_copy(deep=True, update={"ivt": {}, "telemetry": None, "thermo": None,
+                                                               "pressure": None})
+    setup.dyno.link.clock_drift_ppm = 100.0
+    setup.dyno.link.clock_offset_s = 0.05
+    trace = synthetic_trace(4000.0, 20.0, seed=9)
+    rec = run_batch(trace, setup, seed=3)
+    assert rec.meta["clock_drift_ppm"]["vehicle_can->dyno"] == pytest.approx(100.0, abs=10.0)
+    assert rec.meta["clock_offsets_s"]["vehicle_can->dyno"] == pytest.approx(0.05 + 100e-6 * 2000, abs=0.02)
