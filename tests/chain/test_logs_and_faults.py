@@ -365,3 +365,19 @@ def test_clock_drift_between_sources_is_estimated() -> None:
     rec = run_batch(trace, setup, seed=3)
     assert rec.meta["clock_drift_ppm"]["vehicle_can->dyno"] == pytest.approx(100.0, abs=10.0)
     assert rec.meta["clock_offsets_s"]["vehicle_can->dyno"] == pytest.approx(0.05 + 100e-6 * 2000, abs=0.02)
+
+
+def test_cli_acquire_from_a_saved_trace(tmp_path: Path) -> None:
+    trace = synthetic_trace(10.0, 100.0, seed=2)
+    trace.save(tmp_path / "trace")
+    out = tmp_path / "rec.mf4"
+    rc = main(["acquire", "--trace", str(tmp_path / "trace"), "--setup", "paper", "--logs", str(tmp_path / "logs"),
+               "--blf", "--out", str(out)])
+    assert rc == 0
+    names = {p.name for p in (tmp_path / "logs").iterdir()}
+    assert {"instrument.mf4", "vehicle.mf4", "dyno.mf4", "instrument.blf", "brake_pressure.polls.npz",
+            "instrument.dbc", "thermo_module.eds", "setup.json", "segments.json"} <= names
+    rec = Recording.load(out)
+    assert rec["vehicle_speed_kmh"].unit == "km/h" and len(rec.segments) == 2
+    with pytest.raises(SystemExit):
+        main(["acquire", "--trace", str(tmp_path / "trace")])  # --out is required: argparse usage error
