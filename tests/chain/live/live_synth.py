@@ -55,3 +55,9 @@ def make_small_outputs() -> DeviceOutputs:
     image = ProcessImage("thermo", 5, t_pi, ents, vals)
     return DeviceOutputs(can={"powertrain": pt, "instrument": inst}, modbus={"brake_pressure": snap},
                          canopen={"thermo": image})
+
+
+#: pacing bounds (p50, p99 in ms) of the timing tests: tight when the test could take the real-time
+#: policy (root or CAP_SYS_NICE), loose at normal priority on a loaded CI machine (a single stall of
+#: another process spoils the p99 of a run this short); benchmarks/bench_live.py measures the real figures
+PACING_BOUNDS_MS = {True: (1.0, 5.0), False: (2.0, 100.0)}

@@ -12,7 +12,7 @@ import time
 import can
 import numpy as np
 import pytest
-from live_synth import MIN_EDS
+from live_synth import MIN_EDS, PACING_BOUNDS_MS
 
 from benchtwin.chain.live.canopen_node import ThermoAcquisition
 from benchtwin.chain.live.session import LiveSession
@@ -67,11 +67,16 @@ class _Back2Back:
     def _session(self, outputs, **kw) -> LiveSession:
         return LiveSession(outputs, transport=self.TRANSPORT, speedup=self.SPEEDUP, eds=MIN_EDS, **kw).start()
 
+    def _timed_session(self, outputs) -> LiveSession:
+        # real-time policy where the test may take it (see live_synth.PACING_BOUNDS_MS)
+        return self._session(outputs, realtime_priority=10)
+
     def _wait(self, session: LiveSession, n: int) -> None:
         assert session.wait_for_clients(n, 5.0)
 
     def test_frames_complete_in_order_and_paced(self, small_outputs):
-        with self._session(small_outputs) as s:
+        with self._timed_session(small_outputs) as s:
+            p50_max, p99_max = PACING_BOUNDS_MS[s.realtime_active]
             tr = s.transport
             cols = {b: _Collector(tr.open_client(b)) for b in ("powertrain", "instrument")}
             self._wait(s, 2)
@@ -91,10 +96,8 @@ class _Back2Back:
                 lag = (t_rx - t_rx[0]) - expect
                 assert np.percentile(np.abs(lag - np.median(lag)), 99) < 0.02
         assert rep.completed and rep.lost == 0
-        # bounds a loaded 2-core CI machine keeps at normal priority; the sub-millisecond figures are
-        # measured by benchmarks/bench_live.py (see benchmarks/RESULTS.md)
-        assert rep.pacing_p50_ms < 2.0
-        assert rep.pacing_p99_ms < 25.0
+        assert rep.pacing_p50_ms < p50_max
+        assert rep.pacing_p99_ms < p99_max
         load = rep.streams["can:powertrain"].bus_load
         assert load == pytest.approx(small_outputs.can["powertrain"].bus_load(2.0 - 0.001), rel=0.01)
 

@@ -7,10 +7,16 @@ import time
 
 import numpy as np
 import pytest
-from live_synth import synthetic_frames
+from live_synth import PACING_BOUNDS_MS, synthetic_frames
 
 from benchtwin.chain.frames import FrameTable
-from benchtwin.chain.live.scheduler import LiveScheduler, Stream, bus_load_fraction
+from benchtwin.chain.live.scheduler import (
+    LiveScheduler,
+    Stream,
+    bus_load_fraction,
+    restore_policy,
+    use_realtime_priority,
+)
 from benchtwin.errors import ConfigError, DataError
 
 
@@ -29,17 +35,21 @@ def test_items_delivered_once_in_order_and_on_time():
     got_a: list = []
     got_b: list = []
     sch = LiveScheduler([_recording_stream("a", t_a, got_a), _recording_stream("b", t_b, got_b)], speedup=4.0)
-    wall0 = time.perf_counter()
-    rep = sch.run()
+    previous = use_realtime_priority(10)
+    try:
+        wall0 = time.perf_counter()
+        rep = sch.run()
+    finally:
+        restore_policy(previous)
+    p50_max, p99_max = PACING_BOUNDS_MS[previous is not None]
     assert rep.completed and rep.lost == 0
     assert [i for _, i in got_a] == list(range(len(t_a)))
     assert [i for _, i in got_b] == list(range(len(t_b)))
-    # every item left within a few ms of its deadline (the scheduler's own figures agree)
+    # every item left close to its deadline (the scheduler's own figures agree)
     deadline = wall0 + (t_a - t_a[0]) / 4.0
     err = np.array([w for w, _ in got_a]) - deadline
-    assert np.percentile(np.abs(err), 50) < 2e-3
-    # the bounds leave room for a loaded CI machine; benchmarks/bench_live.py measures the real figures
-    assert rep.streams["a"].pacing_p50_ms < 2.0 and rep.streams["a"].pacing_p99_ms < 25.0
+    assert np.percentile(np.abs(err), 50) < p50_max * 1e-3
+    assert rep.streams["a"].pacing_p50_ms < p50_max and rep.streams["a"].pacing_p99_ms < p99_max
     assert rep.streams["a"].sent == len(t_a)
     assert rep.achieved_speedup == pytest.approx(4.0, rel=0.2)
 
@@ -106,3 +116,16 @@ def test_as_fast_as_possible():
     n = []
     rep = LiveScheduler([Stream("fast", t, lambda i0, i1: n.append(i1 - i0) or (i1 - i0))], speedup=np.inf).run()
     assert sum(n) == len(t) and rep.completed and rep.wall_s < 5.0
+
+
+def test_realtime_priority_is_validated_and_restored():
+    import os
+
+    with pytest.raises(ConfigError):
+        use_realtime_priority(0)
+    before = os.sched_getscheduler(0)
+    previous = use_realtime_priority(5)  # None (and a warning) without the privilege
+    if previous is not None:
+        assert os.sched_getscheduler(0) == os.SCHED_FIFO
+    restore_policy(previous)
+    assert os.sched_getscheduler(0) == before
