@@ -181,7 +181,7 @@ METHODS: tuple[Method, ...] = (
     Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _battery),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
     Method("torque_converter", ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm",
-                                "gear_actual", "lockup_closed"), _torque_converter),
+                                "gear_actual"), _torque_converter),
     Method("shifts", ("gear_target", "vehicle_speed_kmh", "pedal_pct"), _shifts, needs_specs=False),
 )
 

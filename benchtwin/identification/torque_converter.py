@@ -347,14 +347,15 @@ def identify_torque_converter(
     calibrate_turbine_speed: bool = True,
     min_calibration_points: int = 50,
     outlier_sigma: float | None = 5.0,
+    lockup_slip_tol: float = 0.01,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
     Parameters
     ----------
     rec:
-        Needs ``vehicle_speed_kmh``, ``em_speed_rpm``, ``em_torque_nm``, ``shaft_torque_nm``,
-        ``gear_actual``, ``lockup_closed``; uses ``gear_target``, ``k0_closed`` (else ``engine_on``)
+        Needs ``vehicle_speed_kmh``, ``em_speed_rpm``, ``em_torque_nm``, ``shaft_torque_nm`` and
+        ``gear_actual``; uses ``lockup_closed``, ``gear_target``, ``k0_closed`` (else ``engine_on``)
         when present.
     specs:
         Gear ratios, final drive, wheel radius.
@@ -391,6 +392,9 @@ def identify_torque_converter(
         ``min_calibration_points`` such samples, else eq. 31 is used as is.
     outlier_sigma:
         Robust rejection of transients, see :func:`fit_torque_converter`.
+    lockup_slip_tol:
+        Without a ``lockup_closed`` channel, samples with ``|1 - w_t / w_p|`` below this count as
+        lock-up closed (flagged: the converter's own near-1 speed ratios are then cut off).
 
     Returns
     -------
@@ -401,11 +405,11 @@ def identify_torque_converter(
     ------
     MissingChannelError, InsufficientDataError
     """
-    need = ["vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm", "gear_actual", "lockup_closed"]
+    need = ["vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm", "gear_actual"]
     missing = [n for n in need if n not in rec]
     if missing:
         raise MissingChannelError(f"torque converter identification needs channel(s) {', '.join(missing)}")
-    opt = [n for n in ("gear_target", "k0_closed", "engine_on") if n in rec]
+    opt = [n for n in ("lockup_closed", "gear_target", "k0_closed", "engine_on") if n in rec]
     states = {"gear_actual", "lockup_closed", "gear_target", "k0_closed", "engine_on"}
     t, d, bad = strict_resample(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)))
     gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
@@ -413,24 +417,32 @@ def identify_torque_converter(
     if "gear_target" in d:
         tgt = np.rint(np.nan_to_num(d["gear_target"])).astype(int)
         change |= np.r_[False, np.diff(tgt) != 0] | (tgt != gear)
+    reasons = []
+    n_p = d["em_speed_rpm"]
+    g = np.clip(gear, 1, len(specs.gear_ratios))
+    ig = np.asarray(specs.gear_ratios)[g - 1]
+    w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
+    if "lockup_closed" not in d:
+        # many cars do not broadcast the lock-up state: take it as closed where there is no slip
+        with np.errstate(invalid="ignore", divide="ignore"):
+            slip = np.abs(1.0 - w_t / (n_p / RPM_PER_RADS))
+        d["lockup_closed"] = (slip < lockup_slip_tol).astype(float)
+        reasons.append(f"no lock-up state in the recording: closed where the slip is below {lockup_slip_tol:g} "
+                       "(turbine speed not calibrated)")
+        calibrate_turbine_speed = False
     use = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz))
     use &= (gear >= 1) & (gear <= len(specs.gear_ratios))
     use &= np.nan_to_num(d["lockup_closed"]) < 0.5
-    reasons = []
     if "k0_closed" in d:
         use &= np.nan_to_num(d["k0_closed"], nan=1.0) < 0.5
     elif "engine_on" in d:
         use &= np.nan_to_num(d["engine_on"], nan=1.0) < 0.5
     else:
         reasons.append("no K0 or engine state in the recording: pump torque taken as motor torque everywhere")
-    n_p = d["em_speed_rpm"]
     dn = _central_derivative(n_p, t, derivative_window_s)
     use &= np.abs(dn) <= max_pump_accel_rpm_s
     use &= (n_p >= min_pump_speed_rpm) & (d["em_torque_nm"] >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
     segs = sorted({s.name for s in rec.segments if np.any(s.contains(t[use]))}) if rec.segments else []
-    g = np.clip(gear, 1, len(specs.gear_ratios))
-    ig = np.asarray(specs.gear_ratios)[g - 1]
-    w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
     scale, scale_se, n_cal = 1.0, float("nan"), 0
     if calibrate_turbine_speed:
         cal = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz)) & (gear >= 1) \

@@ -159,3 +159,14 @@ def test_saturated_shaft_torque_is_excluded_and_counted(ideal):
     r.add(Channel("shaft_torque_nm", "Nm", sh.timestamps, values, None, sh.source))
     unflagged = identify_torque_converter(r, SPECS, transmission=TRANSMISSION_TRUTH, outlier_sigma=None)
     assert abs(unflagged["converter"].value("a3") / TC_TRUTH["a3"] - 1) > 1e-3
+
+
+def test_lockup_state_inferred_from_slip_when_not_logged():
+    rec, truth = tc_recording(lockup_closed_s=120.0)
+    r = Recording({k: v for k, v in rec.channels.items() if k != "lockup_closed"}, rec.segments)
+    res = identify_torque_converter(r, SPECS, transmission=TRANSMISSION_TRUTH)
+    conv = res["converter"]
+    assert conv.status == "flagged" and any("slip" in x for x in conv.reasons)
+    np.testing.assert_allclose([conv.value(f"a{k}") for k in range(6)], tc_truth_vector()[:6], rtol=1e-3,
+                               atol=1e-6)
+    np.testing.assert_allclose(conv.value("gamma_coupling"), truth["gamma"], rtol=1e-3)
