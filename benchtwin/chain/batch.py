@@ -20,7 +20,15 @@ from typing import Any
 import numpy as np
 
 from benchtwin.chain.acquisition import AcquisitionInput, acquire
-from benchtwin.chain.buslog import read_mf4, read_poll_log, write_blf, write_mf4, write_poll_csv, write_poll_log
+from benchtwin.chain.buslog import (
+    read_blf,
+    read_mf4,
+    read_poll_log,
+    write_blf,
+    write_mf4,
+    write_poll_csv,
+    write_poll_log,
+)
 from benchtwin.chain.canopen_pdo import EDS_PATH, pdo_layout
 from benchtwin.chain.dbc import write_bus_dbcs
 from benchtwin.chain.frames import FRAME_DTYPE, DeviceOutputs, FrameTable
@@ -112,7 +120,7 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
     Parameters
     ----------
     directory:
-        Folder with ``<bus>.mf4`` and ``<device>.polls.npz`` files.
+        Folder with ``<bus>.mf4`` (or ``<bus>.blf``) bus logs and ``<device>.polls.npz`` poll logs.
     setup:
         The bench; defaults to the ``setup.json`` in the folder.
 
@@ -150,6 +158,10 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
                 raise res
             else:
                 skipped.append(f"{p.name}: {res}")  # e.g. a Recording saved next to the logs
+    for p in sorted(d.glob("*.blf")):  # BLF-only buses (a logger that writes BLF)
+        if p.stem not in received.can:
+            bitrate = setup.buses[p.stem].bitrate if p.stem in setup.buses else 500_000
+            received.can[p.stem] = read_blf(p, p.stem, bitrate)
     for p in sorted(d.glob("*.polls.npz")):
         plog = read_poll_log(p)
         received.polls[plog.device] = plog

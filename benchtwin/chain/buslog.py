@@ -7,12 +7,13 @@ the CAN bus-event type, the structure python-can's ``MF4Writer`` writes), append
 time (the device clocks as seen by the logger). Data bytes are stored 8 wide (classic CAN).
 
 BLF: exported through python-can's ``BLFWriter`` (per message; for hand-over to Vector tools, not
-for speed). Poll logs: ``.npz`` (bulk) and optional CSV.
+for speed), with a ``.blf.json`` sidecar holding the exact first timestamp. Poll logs: ``.npz`` (bulk) and optional CSV.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -96,6 +97,10 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
 def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -> FrameTable:
     """Read every CAN data frame of an MF4 bus log into a frame table (bulk, no per-frame objects).
 
+    Timestamps are seconds since :data:`DEFAULT_START` (the logs benchtwin writes start there, so
+    they come back unchanged; a file of another logger, e.g. python-can's ``MF4Writer``, is shifted
+    by its header start time, as ``can.MF4Reader`` does).
+
     Raises
     ------
     DataError
@@ -112,7 +117,9 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
         raise DataError(f"{path}: not a readable MF4 file ({exc})") from exc
     parts = []
     with mdf:
-        start = mdf.header.start_time
+        # timestamps are relative to the header start: bring them to seconds since DEFAULT_START (the
+        # campaign's t = 0 for the logs benchtwin writes; any other logger's file keeps its real time)
+        shift = mdf.header.start_time.timestamp() - DEFAULT_START.timestamp()
         for gi, group in enumerate(mdf.groups):
             names = [ch.name for ch in group.channels]
             if "CAN_DataFrame" not in names:
@@ -120,7 +127,7 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
             sig = mdf.get("CAN_DataFrame", group=gi)
             s = sig.samples
             fr = np.zeros(len(s), dtype=FRAME_DTYPE)
-            fr["timestamp"] = sig.timestamps
+            fr["timestamp"] = sig.timestamps + shift if shift else sig.timestamps
             ids = s["CAN_DataFrame.ID"].astype(np.uint32)
             fr["arbitration_id"] = ids & np.uint32(0x1FFFFFFF)
             fr["is_extended"] = (s["CAN_DataFrame.IDE"] != 0) | ((ids & np.uint32(0x80000000)) != 0)
@@ -132,7 +139,6 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
             parts.append(fr)
     if not parts:
         raise DataError(f"{path}: no CAN_DataFrame group (not a CAN bus log)")
-    del start
     return FrameTable(bus or path.stem, merge_frames(parts), bitrate)
 
 
@@ -154,11 +160,22 @@ def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:
             writer.on_message_received(can.Message(timestamp=ts[k], arbitration_id=ids[k], is_extended_id=ext[k],
                                                    dlc=dlc[k], data=data[8 * k:8 * k + n], channel=channel,
                                                    check=False))
+    # BLF keeps times relative to its start (stored to the millisecond): remember the exact first time
+    _blf_sidecar(path).write_text(json.dumps({"first_timestamp_s": ts[0] if ts else 0.0, "bus": table.bus}),
+                                  encoding="utf-8")
     return path
 
 
+def _blf_sidecar(path: Path) -> Path:
+    return path.with_name(path.name + ".json")
+
+
 def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -> FrameTable:
-    """Read a BLF log with python-can into a frame table."""
+    """Read a BLF log with python-can into a frame table.
+
+    python-can gives BLF times relative to the file start; the ``<file>.blf.json`` that
+    :func:`write_blf` leaves next to the file restores the exact time base.
+    """
     import can
 
     path = Path(path)
@@ -171,6 +188,13 @@ def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
         d = bytes(msg.data)[:8].ljust(8, b"\x00")
         rows.append((msg.timestamp, msg.arbitration_id, msg.is_extended_id, msg.dlc, tuple(d)))
     fr = np.array(rows, dtype=FRAME_DTYPE) if rows else np.zeros(0, FRAME_DTYPE)
+    side = _blf_sidecar(path)
+    if side.exists() and len(fr):
+        try:
+            first = float(json.loads(side.read_text(encoding="utf-8"))["first_timestamp_s"])
+            fr["timestamp"] += first - fr["timestamp"][0]
+        except (ValueError, KeyError, TypeError):
+            pass  # a foreign sidecar: keep the reader's times
     return FrameTable.concat(bus or path.stem, [fr], bitrate)
 
 

@@ -381,3 +381,34 @@ def test_cli_acquire_from_a_saved_trace(tmp_path: Path) -> None:
     assert rec["vehicle_speed_kmh"].unit == "km/h" and len(rec.segments) == 2
     with pytest.raises(SystemExit):
         main(["acquire", "--trace", str(tmp_path / "trace")])  # --out is required: argparse usage error
+
+
+def test_read_mf4_written_by_python_can(tmp_path: Path) -> None:
+    path = tmp_path / "pc.mf4"
+    writer = can.MF4Writer(str(path))
+    t0 = DEFAULT_START.timestamp() + 100.0
+    for k in range(5):
+        writer.on_message_received(can.Message(timestamp=t0 + 0.01 * k, arbitration_id=0x521,
+                                               data=bytes([0, k, 0, 0, 1, 2]), is_extended_id=False))
+    writer.on_message_received(can.Message(timestamp=t0 + 0.1, arbitration_id=0x18FF0001, data=b"\x01\x02\x03",
+                                           is_extended_id=True))
+    writer.stop()
+    table = read_mf4(path)
+    np.testing.assert_allclose(table.frames["timestamp"], [100.0, 100.01, 100.02, 100.03, 100.04, 100.1], atol=1e-5)
+    assert table.frames["is_extended"].tolist() == [False] * 5 + [True]
+    assert table.frames["arbitration_id"][-1] == 0x18FF0001
+    np.testing.assert_array_equal(table.frames["data"][:5, 1], np.arange(5))
+    assert table.frames["dlc"].tolist() == [6] * 5 + [3]
+
+
+def test_blf_only_logs_decode_like_mf4(received: AcquisitionInput, logdir: Path, tmp_path: Path) -> None:
+    import shutil
+
+    for p in logdir.iterdir():
+        if p.suffix != ".mf4":
+            shutil.copy(p, tmp_path / p.name)
+    from_blf, _ = read_logs(tmp_path)
+    a, b = acquire(received, IDEAL), acquire(from_blf, IDEAL)
+    for name in ("battery_current_a", "vehicle_speed_kmh", "engine_coolant_in_degc", "shaft_torque_nm"):
+        np.testing.assert_array_equal(a[name].values, b[name].values)
+        np.testing.assert_allclose(a[name].timestamps, b[name].timestamps, atol=2e-5)
