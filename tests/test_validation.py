@@ -52,10 +52,13 @@ def test_ideal_chain_recovers_every_parameter(paper_trace: Trace) -> None:
                 "brakes.distribution.k_f", "battery.beta_charge", "torque_converter.capacity_factor_curve",
                 "chain.shaft_torque_nm", "chain.engine_coolant_out_degc"):
         assert key in names
-    rel = [c for c in report.checks if c.mode == "rel" and c.group not in ("chain", "torque_converter", "engine")
-           and c.name.rsplit(".", 1)[-1] in ("eta_m", "e", "e_gen", "m_f", "m_r", "k_f", "alpha", "beta_charge",
+    # the 0.1 % bound holds for every gain and efficiency except where the check states a reason
+    rel = [c for c in report.checks if c.mode == "rel" and c.group in ("motor", "brakes", "battery")
+           and c.name.rsplit(".", 1)[-1] in ("e", "e_gen", "m_f", "m_r", "k_f", "alpha", "beta_charge",
                                               "beta_discharge")]
-    assert rel and all(c.tolerance <= 1e-3 for c in rel)
+    assert len(rel) == 8 and all(c.tolerance <= 1e-3 for c in rel)
+    looser = [c for c in report.checks if c.group not in ("chain", "r2") and c.mode == "rel" and c.tolerance > 1e-3]
+    assert all(c.note for c in looser)
 
 
 def test_realistic_bench_within_tolerance_and_paper_r2(paper_trace: Trace) -> None:
