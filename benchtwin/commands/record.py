@@ -11,12 +11,11 @@ batch mode and saved as MF4; the raw bus logs are also written as MF4 bus logs n
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
-from benchtwin.errors import ConfigError, DataError
+from benchtwin.errors import ConfigError
 
 __all__ = ["add_subparser", "run"]
 
@@ -47,9 +46,7 @@ def add_subparser(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``benchtwin record``."""
-    from benchtwin.chain.acquisition import acquire
-    from benchtwin.chain.buslog import write_mf4, write_poll_log
-    from benchtwin.chain.live.bench import capture_to_input, recorder_from_setup
+    from benchtwin.chain.live.bench import recorder_from_setup, save_capture
     from benchtwin.config.setup import load_setup
     from benchtwin.segments import load_segments
 
@@ -95,22 +92,8 @@ def run(args: argparse.Namespace) -> int:
     for e in drops:
         print(f"benchtwin: warning: {e.source} dropped at t = {e.time_s:.3f} s ({e.detail}); "
               "samples after it are flagged", file=sys.stderr, flush=True)
+    recording = save_capture(capture, setup, out, segments=segments,
+                             meta={"transport": args.transport, "stop_reason": reason}, spool_dir=spool)
     raw_dir = out.with_name(out.stem + "_raw")
-    try:
-        raw_dir.mkdir(parents=True, exist_ok=True)
-        for bus, table in capture.can.items():
-            if len(table):
-                write_mf4(table, raw_dir / f"{bus}.mf4")
-        for dev, plog in capture.polls.items():
-            write_poll_log(plog, raw_dir / f"{dev}.polls.npz")
-        recording = acquire(capture_to_input(capture, segments, {"transport": args.transport,
-                                                                 "stop_reason": reason}), setup)
-        recording.save(out)
-        (raw_dir / "capture.json").write_text(json.dumps(
-            {"stats": capture.stats, "events": recording.meta.get("transport_events", [])}, indent=1,
-            default=float))
-    except OSError as exc:
-        raise DataError(f"cannot write {out} or its raw logs ({exc}); everything received is kept in "
-                        f"{spool}") from exc
     print(f"wrote {out} ({len(recording.channels)} channels) and raw logs in {raw_dir}", flush=True)
     return 0

@@ -47,6 +47,9 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--realtime", type=int, default=None, metavar="PRIO",
                    help="run the pacing loop and servers under SCHED_FIFO at this priority (1..99; needs root or "
                         "CAP_SYS_NICE): keeps the pacing error below 1 ms on a loaded machine")
+    p.add_argument("--record", metavar="OUT.mf4",
+                   help="also record in this process (works with the embedded virtual transport): the same "
+                        "Recording as benchtwin record")
     p.add_argument("--report", help="write the pacing report as JSON here")
     p.add_argument("--segments-out", help="write the run's segment table (JSON) here for benchtwin record")
     p.set_defaults(func=run)
@@ -119,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
             save_segments(list(trace.segments), args.segments_out)
         except OSError as exc:
             raise ConfigError(f"--segments-out {args.segments_out}: {exc.strerror}") from exc
+    recorder = capture = spool = None
     session = session_from_setup(outputs, setup, transport=args.transport, speedup=args.speedup,
                                  can_port=args.port, modbus_port=args.modbus_port,
                                  channel_map=_channel_map(args.channel_map), start_s=args.start, end_s=args.end,
@@ -130,8 +134,16 @@ def run(args: argparse.Namespace) -> int:
         print("endpoints:", flush=True)
         for line in session.endpoints():
             print(f"  {line}", flush=True)
-        if args.transport == "virtual":
-            print("  (virtual transport: only acquisitions in this process can connect)", flush=True)
+        if args.record:
+            from benchtwin.chain.live.bench import embedded_recorder
+
+            if Path(args.record).suffix.lower() != ".mf4":
+                raise ConfigError(f"--record {args.record}: the Recording is written as MF4; use a .mf4 name")
+            spool = Path(args.record).with_name(Path(args.record).name + ".spool")
+            recorder = embedded_recorder(session, setup, spool).start()
+            print(f"  recording in this process to {args.record}", flush=True)
+        elif args.transport == "virtual":
+            print("  (virtual transport: only acquisitions in this process can connect; see --record)", flush=True)
         if args.wait_clients and not session.wait_for_clients(args.wait_clients, args.wait_timeout):
             print(f"benchtwin: warning: fewer than {args.wait_clients} clients after {args.wait_timeout} s; "
                   "playing anyway", file=sys.stderr, flush=True)
@@ -144,8 +156,13 @@ def run(args: argparse.Namespace) -> int:
         report = session.run(progress=lambda t: print(f"  t = {t:.1f} s", flush=True))
         if args.linger > 0:
             time.sleep(args.linger)
+        if recorder is not None:
+            time.sleep(0.3)  # the last frames are on their way through the notifier threads
+            capture = recorder.stop("end of run" if report.completed else "stopped")
         stats = session.stats()
     finally:
+        if recorder is not None and capture is None:
+            recorder.stop("error")  # flushes the spool: nothing received is lost
         session.close()
         signal.signal(signal.SIGTERM, previous)
     print(report.format(), flush=True)
@@ -154,6 +171,13 @@ def run(args: argparse.Namespace) -> int:
         flush=True)
     if stats.get("transport"):
         print(f"transport: {stats['transport']}", flush=True)
+    if recorder is not None:
+        from benchtwin.chain.live.bench import save_capture
+
+        rec = save_capture(capture, setup, args.record, segments=list(trace.segments),
+                           meta={"transport": args.transport, "embedded": True}, spool_dir=spool)
+        print(f"wrote {args.record} ({len(rec.channels)} channels, "
+              + ", ".join(f"{b} {len(t)} frames" for b, t in capture.can.items()) + ")", flush=True)
     if args.report:
         Path(args.report).write_text(json.dumps({"pacing": report.to_dict(), "stats": stats}, indent=1,
                                                 default=float))

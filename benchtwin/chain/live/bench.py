@@ -23,9 +23,10 @@ from benchtwin.chain.live.recorder import (
 )
 from benchtwin.chain.live.session import LiveSession
 from benchtwin.config.setup import SetupConfig
+from benchtwin.errors import ConfigError, DataError
 from benchtwin.segments import Segment
 
-__all__ = ["capture_to_input", "recorder_from_setup", "session_from_setup"]
+__all__ = ["capture_to_input", "embedded_recorder", "recorder_from_setup", "save_capture", "session_from_setup"]
 
 
 def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport: str = "virtual",
@@ -125,3 +126,64 @@ def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None
     m.update(meta or {})
     return AcquisitionInput(can=dict(capture.can), polls=dict(capture.polls), events=list(capture.events),
                             segments=list(segments or []), meta=m)
+
+
+def embedded_recorder(session: LiveSession, setup: SetupConfig, spool_dir: str | Path) -> LiveRecorder:
+    """A recorder in the serving process: one client per bus on the session's own transport (the embedded
+    ``virtual`` bus works), the session's Modbus server, the thermo module's PDOs, IVT-S triggers."""
+    from benchtwin.chain.canopen_pdo import EDS_PATH
+    from benchtwin.chain.modbus_map import INPUT_COUNT
+    from benchtwin.sensors.ivt import RESULT_NAMES
+
+    if session.transport is None or session.scheduler is None:
+        raise ConfigError("start the session before attaching a recorder")
+    buses = {b: session.transport.open_client(b) for b in session.transport.bitrates}
+    polls = []
+    if setup.pressure is not None and session.modbus is not None:
+        p = setup.pressure
+        polls.append(ModbusPollSpec(p.device, "127.0.0.1", session.modbus.port, p.unit_id, 4, 0, INPUT_COUNT,
+                                    p.poll_hz))
+    nodes = {}
+    if setup.thermo is not None and setup.thermo.bus in buses:
+        nodes["thermo"] = (setup.thermo.node_id, EDS_PATH, setup.thermo.bus)
+    triggers = [IvtTriggerSpec(cfg.bus, cfg.command_id, sum(1 << RESULT_NAMES.index(r) for r in cfg.results),
+                               cfg.trigger_period_ms / 1000.0)
+                for cfg in setup.ivt.values() if cfg.mode == "triggered" and cfg.bus in buses]
+    return LiveRecorder(buses, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=session.speedup)
+
+
+def save_capture(capture: LiveCapture, setup: SetupConfig, out: str | Path, *, segments: list[Segment] | None = None,
+                 meta: Mapping[str, Any] | None = None, spool_dir: str | Path | None = None) -> Any:
+    """Decode a live capture into the Recording ``out`` (MF4) and write the raw logs next to it.
+
+    Raw logs: ``<out stem>_raw/<bus>.mf4`` (MF4 bus logging), ``<device>.polls.npz`` and ``capture.json``
+    (counters and transport events). Returns the Recording.
+
+    Raises
+    ------
+    DataError
+        Something cannot be written (the spool, if given, still holds everything received).
+    """
+    import json
+
+    from benchtwin.chain.acquisition import acquire
+    from benchtwin.chain.buslog import write_mf4, write_poll_log
+
+    out = Path(out)
+    raw_dir = out.with_name(out.stem + "_raw")
+    try:
+        raw_dir.mkdir(parents=True, exist_ok=True)
+        for bus, table in capture.can.items():
+            if len(table):
+                write_mf4(table, raw_dir / f"{bus}.mf4")
+        for dev, plog in capture.polls.items():
+            write_poll_log(plog, raw_dir / f"{dev}.polls.npz")
+        recording = acquire(capture_to_input(capture, segments, meta), setup)
+        recording.save(out)
+        (raw_dir / "capture.json").write_text(json.dumps(
+            {"stats": capture.stats, "events": recording.meta.get("transport_events", [])}, indent=1,
+            default=float))
+    except OSError as exc:
+        kept = f"; everything received is kept in {spool_dir}" if spool_dir is not None else ""
+        raise DataError(f"cannot write {out} or its raw logs ({exc}){kept}") from exc
+    return recording

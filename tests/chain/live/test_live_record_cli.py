@@ -82,3 +82,15 @@ def test_record_without_a_server_ends_cleanly(capsys, tmp_path):
                  "--out", str(tmp_path / "x.mf4")]) == 2
     err = capsys.readouterr().err
     assert "cannot connect" in err and "Traceback" not in err
+
+
+def test_serve_records_in_process_on_the_embedded_virtual_bus(tmp_path, capsys):
+    out = tmp_path / "embedded.mf4"
+    assert main(["serve", "--synthetic", "2", "--setup", "ideal", "--transport", "virtual", "--speedup", "4",
+                 "--modbus-port", "0", "--record", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    live = Recording.load(out)
+    setup = load_setup("ideal")
+    batch = acquire(encode(synthetic_trace(2.0), setup, seed=0), setup)
+    for name in ("battery_current_a", "vehicle_speed_kmh", "engine_coolant_in_degc", "shaft_torque_nm"):
+        np.testing.assert_array_equal(live[name].values, batch[name].values, err_msg=name)
