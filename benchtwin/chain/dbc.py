@@ -22,7 +22,9 @@ Four layouts, one file each:
     The AD module digitising the telemetry output of the propeller-shaft torque: 12-bit two's
     complement over +-10 V (LSB 20 V / 4096), a 4-bit counter and a clip bit.
 
-The CANopen thermo module is described by its EDS (``thermo_module.eds``), not a DBC.
+The CANopen thermo module is described by its EDS (``thermo_module.eds``); :func:`bus_database` adds
+its TPDOs as DBC messages derived from the EDS mapping, so the per-bus DBC written next to the logs
+decodes every frame of the bus.
 
 Run ``python -m benchtwin.chain.dbc`` to regenerate the shipped files from the definitions below.
 """
@@ -50,6 +52,7 @@ __all__ = [
     "build_ad_module",
     "build_dyno",
     "build_ivt",
+    "build_thermo_pdos",
     "build_vehicle",
     "bus_database",
     "ivt_node_name",
@@ -237,7 +240,7 @@ def bus_database(setup: SetupConfig, bus: str) -> Database:
     """Every CAN layout on one bus of a setup, as one cantools Database (what a user loads to decode a log).
 
     IVT-S messages are renamed per place (``IVT_Hpcu_Result_I``) and moved to the shunt's ids; the
-    thermo module's PDOs are not in it (they are described by the EDS).
+    thermo module's TPDOs come from its EDS mapping (:func:`build_thermo_pdos`).
 
     Parameters
     ----------
@@ -265,7 +268,38 @@ def bus_database(setup: SetupConfig, bus: str) -> Database:
     tel = setup.telemetry
     if tel is not None and tel.bus == bus:
         take(build_ad_module("AD_Torque", tel.can_id, max(1, round(1000.0 / tel.rate_hz))))
+    th = setup.thermo
+    if th is not None and th.bus == bus:
+        take(build_thermo_pdos(th.node_id, th.places))
     return Database(messages, list(nodes.values()), version=f"benchtwin-{setup.name}-{bus}")
+
+
+def build_thermo_pdos(node_id: int, places: list[str] | tuple[str, ...] = ()) -> Database:
+    """The thermo module's TPDOs as DBC messages, derived from its EDS mapping (for CAN tools).
+
+    The EDS stays the description of the node; this view lets ``cantools decode`` or a CAN tool
+    read the temperatures from a bus log. Inputs are named after ``places`` (in input order).
+    """
+    from benchtwin.chain.canopen_pdo import pdo_layout
+
+    layout = pdo_layout(node_id)
+    msgs = []
+    for tp in layout.tpdos:
+        sigs = []
+        for (index, sub), dt, off in zip(tp.entries, tp.dtypes, tp.offsets):
+            if index == 0x9130:
+                name = places[sub - 1] if sub <= len(places) else f"AI_Input_{sub}"
+                comment = f"0x9130 sub {sub}; 0x7FFF above range, -0x8000 below range or open"
+            elif index == 0x2100:
+                name, comment = "Cold_Junction", "0x2100 cold-junction temperature"
+            else:
+                name, comment = f"Obj_{index:04X}_{sub}", ""
+            bits = 8 * int(dt[1:])
+            sigs.append(_sig(f"Thermo_{name}", 8 * off, bits, signed=dt.startswith("i"),
+                             scale=layout.scale((index, sub)), unit="degC", comment=comment))
+        msgs.append(_msg(tp.cob_id, f"THERMO_TPDO{tp.number}", tp.length, sigs, tp.event_ms or None, "THMM",
+                         f"CANopen TPDO{tp.number} of node {node_id} (from thermo_module.eds)"))
+    return Database(msgs, [Node("THMM"), Node("BENCH")], version="benchtwin-thermo-pdo-1")
 
 
 def write_bus_dbcs(setup: SetupConfig, directory: str | Path) -> dict[str, Path]:

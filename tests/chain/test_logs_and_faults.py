@@ -105,6 +105,14 @@ def test_cantools_decodes_logged_frames(received: AcquisitionInput, logdir: Path
     k = int(np.flatnonzero(inst["arbitration_id"] == 0x531)[3])
     dec = ivt.decode_message(0x531, inst["data"][k, :6].tobytes())
     assert dec["IVT_Hpcu_I"] / 1000.0 == pytest.approx(rec["hpcu_current_a"].values[3])
+    # the thermo module's TPDOs are in the bus DBC too (derived from the EDS mapping)
+    k = int(np.flatnonzero(inst["arbitration_id"] == 0x185)[7])
+    dec = ivt.decode_message(0x185, inst["data"][k, :8].tobytes())
+    assert dec["Thermo_engine_coolant_in_degc"] == pytest.approx(rec["engine_coolant_in_degc"].values[7])
+    k = int(np.flatnonzero(inst["arbitration_id"] == 0x385)[2])
+    dec = ivt.decode_message(0x385, inst["data"][k, :4].tobytes())
+    assert dec["Thermo_motor_coolant_out_degc"] == pytest.approx(rec["motor_coolant_out_degc"].values[2])
+    assert dec["Thermo_Cold_Junction"] == pytest.approx(IDEAL.thermo.cold_junction_degc)
 
 
 def test_poll_log_files(received: AcquisitionInput, logdir: Path) -> None:
