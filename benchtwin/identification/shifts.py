@@ -15,8 +15,9 @@ midpoint is unbiased); on an event-driven channel it is the sample's own time.
 
 At each event the vehicle speed and pedal at the event time are recorded;
 per pair and direction, ``v = c0 + c1 pedal`` is fitted by least squares. A pair with too few
-events or too little pedal spread gets a *flagged* result (no confident line): with events at one
-pedal position only, the speed is reported as ``c0`` and the slope as NaN.
+events or too little pedal spread gets a *flagged* result without a line (``c0``, ``c1`` NaN) that
+reports the mean speed and pedal of its events instead (e.g. the downshift speed at zero pedal when
+every downshift of a cycle happened while coasting).
 """
 
 from __future__ import annotations
@@ -106,17 +107,24 @@ def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None =
             "crossing": crossing}
 
 
+def _est(name: str, x: np.ndarray, unit: str, segs: list[str]) -> ParameterEstimate:
+    n = int(x.size)
+    m = float(np.mean(x)) if n else float("nan")
+    se = float(np.std(x, ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+    return ParameterEstimate(name, m, se, (m - 1.96 * se, m + 1.96 * se), float("nan"), n, unit, segs)
+
+
 def _flagged(name: str, v: np.ndarray, p: np.ndarray, reason: str, segs: list[str]) -> FitResult:
+    """A pair without a confident line: no c0/c1, only the mean speed and pedal of its events."""
     n = int(v.size)
-    c0 = float(np.mean(v)) if n else float("nan")
-    se = float(np.std(v, ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+    nan = float("nan")
     params = {
-        "c0_kmh": ParameterEstimate("c0_kmh", c0, se, (c0 - 2 * se, c0 + 2 * se), float("nan"), n, "km/h", segs),
-        "c1_kmh_per_pct": ParameterEstimate("c1_kmh_per_pct", float("nan"), float("nan"),
-                                            (float("nan"), float("nan")), float("nan"), n, "km/h/%", segs),
+        "c0_kmh": ParameterEstimate("c0_kmh", nan, nan, (nan, nan), nan, n, "km/h", segs),
+        "c1_kmh_per_pct": ParameterEstimate("c1_kmh_per_pct", nan, nan, (nan, nan), nan, n, "km/h/%", segs),
+        "mean_speed_kmh": _est("mean_speed_kmh", v, "km/h", segs),
+        "mean_pedal_pct": _est("mean_pedal_pct", p, "%", segs),
     }
-    fit = FitResult(params, float("nan"), float("nan"), float("nan"), n, segments=segs,
-                    data={"pedal": p, "speed": v})
+    fit = FitResult(params, nan, nan, nan, n, segments=segs, data={"pedal": p, "speed": v})
     fit.flag(f"{name}: {reason}")
     return fit
 
@@ -149,7 +157,8 @@ def identify_shift_thresholds(
     -------
     dict
         ``up_1_2``, ``down_2_1``, ... -> :class:`FitResult` with ``c0_kmh`` and ``c1_kmh_per_pct``
-        (``v = c0 + c1 pedal``); ``data`` holds ``pedal`` and ``speed`` of the events. Events that
+        (``v = c0 + c1 pedal``; NaN in a flagged result, which has ``mean_speed_kmh`` and
+        ``mean_pedal_pct`` instead); ``data`` holds ``pedal`` and ``speed`` of the events. Events that
         skip a gear (3 -> 5) or involve neutral are not used; events whose speed or pedal is flagged,
         and events that are no speed crossing (pedal steps), are counted in the pair's ``n_excluded``.
     """

@@ -46,7 +46,10 @@ def test_few_events_and_small_spread_are_flagged():
     rec2, _ = shift_recording(up_pedals=(50.0, 52.0, 54.0, 51.0), down_pedals=(20.0, 30.0))
     res2 = identify_shift_thresholds(rec2)
     assert res2["up_3_4"].status == "flagged" and "pedal spread" in res2["up_3_4"].reasons[0]
-    assert np.isfinite(res2["up_3_4"].value("c0_kmh"))
+    assert np.isnan(res2["up_3_4"].value("c0_kmh"))
+    np.testing.assert_allclose(res2["up_3_4"].value("mean_pedal_pct"), 51.75)
+    np.testing.assert_allclose(res2["up_3_4"].value("mean_speed_kmh"),
+                               np.mean([41.0 + 0.33 * p for p in (50.0, 52.0, 54.0, 51.0)]), rtol=1e-3)
 
 
 def test_missing_pairs_are_reported_flagged(ideal):
