@@ -159,6 +159,7 @@ class PressureConfig(StrictModel):
     update_hz: float = Field(200.0, gt=0, description="module register update rate")
     poll_hz: float = Field(100.0, gt=0, description="acquisition poll rate")
     poll_latency_s: float = Field(0.002, ge=0, description="request-to-answer time of a poll")
+    poll_timeout_s: float = Field(0.05, gt=0, description="client timeout: a lost answer blocks polling this long")
     timeout_prob: float = Field(0.0, ge=0, lt=1, description="probability a poll times out")
     exception_prob: float = Field(0.0, ge=0, lt=1, description="probability a poll answers an exception")
     exception_code: int = Field(6, ge=1, le=11, description="exception code answered (6: device busy)")

@@ -65,7 +65,9 @@ def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.
     """Batch polling: what a Modbus client polling at ``poll_hz`` from ``start_s`` to ``end_s`` would log.
 
     Each request is sent at ``k / poll_hz`` (acquisition clock = plant clock), reaches the module
-    half a round trip later, and is logged when the answer arrives (``+ poll_latency_s``).
+    half a round trip later, and is logged when the answer arrives (``+ poll_latency_s``). A request
+    that times out is logged ``poll_timeout_s`` after it was sent, and the poll slots that fall in
+    that wait are skipped (a Modbus client waits for one answer at a time).
     """
     clock = DeviceClock.of(cfg.link)
     t_req = np.arange(np.ceil(start_s * cfg.poll_hz), np.ceil(end_s * cfg.poll_hz)) / cfg.poll_hz
@@ -77,9 +79,21 @@ def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.
     r = rng.random(n)
     status[r < cfg.timeout_prob] = POLL_TIMEOUT
     status[(r >= cfg.timeout_prob) & (r < cfg.timeout_prob + cfg.exception_prob)] = cfg.exception_code
+    t_log = t_req + cfg.poll_latency_s
+    keep = np.ones(n, dtype=bool)
+    timed_out = np.flatnonzero((status == POLL_TIMEOUT) & (idx >= 0))
+    busy_until = -np.inf
+    for i in timed_out:  # timeouts are rare: a short loop
+        if t_req[i] < busy_until:
+            keep[i] = False  # this slot fell inside an earlier wait
+            continue
+        busy_until = t_req[i] + cfg.poll_timeout_s
+        t_log[i] = busy_until
+        hi = np.searchsorted(t_req, busy_until, side="left")
+        keep[i + 1:hi] = False
     values = snap.registers[np.clip(idx, 0, None)].copy()
     values[status != POLL_OK] = 0
-    return PollLog(snap.device, snap.unit_id, 4, snap.first_register, t_req + cfg.poll_latency_s, values, status)
+    return PollLog(snap.device, snap.unit_id, 4, snap.first_register, t_log[keep], values[keep], status[keep])
 
 
 def pressure_from_counts(counts: np.ndarray, cfg: PressureConfig) -> np.ndarray:

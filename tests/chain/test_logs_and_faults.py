@@ -420,3 +420,24 @@ def test_blf_only_logs_decode_like_mf4(received: AcquisitionInput, logdir: Path,
     for name in ("battery_current_a", "vehicle_speed_kmh", "engine_coolant_in_degc", "shaft_torque_nm"):
         np.testing.assert_array_equal(a[name].values, b[name].values)
         np.testing.assert_allclose(a[name].timestamps, b[name].timestamps, atol=2e-5)
+
+
+def test_poll_timeouts_block_the_poller() -> None:
+    from benchtwin.sensors.imperfections import device_rng
+    from benchtwin.sensors.pressure import encode_pressure, poll_snapshots
+
+    setup = load_setup("ideal").model_copy(deep=True)
+    cfg = setup.pressure
+    cfg.timeout_prob = 0.01
+    trace = synthetic_trace(60.0, 100.0, seed=1)
+    snap = encode_pressure(trace, cfg, device_rng(0, "p"))
+    log = poll_snapshots(snap, cfg, device_rng(0, "poll"), 0.0, 60.0)
+    to = np.flatnonzero(log.status == POLL_TIMEOUT)
+    assert to.size > 20
+    # the answer after a timeout comes no earlier than the timeout, and the skipped slots are gone
+    nxt = to[to + 1 < len(log)] + 1
+    assert np.all(log.times[nxt] - log.times[nxt - 1] > 0.0)
+    slots = np.round((log.times[nxt] - cfg.poll_latency_s) * cfg.poll_hz)
+    starts = np.round((log.times[to[to + 1 < len(log)]] - cfg.poll_timeout_s) * cfg.poll_hz)
+    assert np.all(slots - starts >= cfg.poll_timeout_s * cfg.poll_hz)
+    assert len(log) < 60.0 * cfg.poll_hz - to.size * (cfg.poll_timeout_s * cfg.poll_hz - 1) + 5
