@@ -254,6 +254,7 @@ class SocketcandServer:
                     log.error("socketcand endpoint: client %s is %d bytes behind; disconnecting it", c.peer,
                               len(c.outbuf))
                     self.counters["frames_dropped_bytes"] += len(c.outbuf)
+                    self.counters["clients_dropped"] += 1
                     c.outbuf.clear()
                     c.alive = False
                     need_wake = True

@@ -192,3 +192,36 @@ class TestSocketcand(_Back2Back):
 
 class TestSocketcan(_Back2Back):
     TRANSPORT = "socketcan"
+
+
+def test_socketcand_endpoint_disconnects_a_client_that_falls_too_far_behind():
+    import socket as _socket
+
+    from live_synth import synthetic_frames
+
+    from benchtwin.chain.transports.socketcand import SocketcandServer, format_frames
+
+    srv = SocketcandServer(["bus"], max_backlog_bytes=200_000, arm_delay_s=0.0).start()
+    try:
+        lazy = _socket.create_connection(srv.address)
+        lazy.setsockopt(_socket.SOL_SOCKET, _socket.SO_RCVBUF, 4096)
+        lazy.sendall(b"< open bus >< rawmode >")
+        good = can.Bus(interface="socketcand", host="127.0.0.1", port=srv.address[1], channel="bus")
+        assert srv.wait_for_clients(2, 5.0)
+        payload = format_frames(synthetic_frames(1.0, 20000.0, [0x123]), 1.0)
+        got = 0
+        for _ in range(10):  # ~7 MB; the lazy client never reads
+            srv.broadcast("bus", payload)
+            while good.recv(0.0) is not None:
+                got += 1
+        end = time.monotonic() + 10
+        while got < 200000 and time.monotonic() < end:
+            if good.recv(0.5) is not None:
+                got += 1
+        stats = srv.stats()
+        assert stats["clients_dropped"] == 1 and stats["frames_dropped_bytes"] > 0
+        assert got == 200000  # the client that keeps up got everything
+        good.shutdown()
+        lazy.close()
+    finally:
+        srv.close()

@@ -43,3 +43,36 @@ def test_triggered_shunt_answers_the_recorders_triggers(tmp_path):
     lo, hi = batch.values.min(), batch.values.max()
     assert np.all((cur.values >= lo) & (cur.values <= hi))
     assert set(np.round(cur.values, 6)) <= set(np.round(batch.values, 6))
+
+
+def test_gate_follows_the_shunts_state():
+    import can
+
+    from benchtwin.chain.frames import FRAME_DTYPE
+    from benchtwin.chain.live.ivt_commands import IvtCommandResponder
+    from benchtwin.config.setup import IvtConfig
+    from benchtwin.sensors.ivt import IvtDevice
+
+    dev = IvtDevice(IvtConfig(cycle_ms=20))
+    with can.Bus(interface="virtual", channel="bt-gate-test") as bus, \
+            can.Bus(interface="virtual", channel="bt-gate-test") as tester:
+        resp = IvtCommandResponder({"ivt_battery": dev}, bus)
+        f = np.zeros(50, dtype=FRAME_DTYPE)
+        f["timestamp"] = np.arange(50) * 0.02
+        f["arbitration_id"] = 0x521
+        f["dlc"] = 6
+        assert len(resp.gate(f)) == 50  # cyclic as encoded
+        for cmd in (b"\x34\x00", b"\x20\x02\x00\x64", b"\x34\x01"):  # stop, I cyclic every 100 ms, run
+            resp(can.Message(arbitration_id=0x411, is_extended_id=False, data=cmd))
+            answer = tester.recv(1.0)
+            assert answer.arbitration_id == 0x511 and answer.data[0] == cmd[0] | 0x80
+        kept = resp.gate(f)
+        np.testing.assert_allclose(np.diff(kept["timestamp"]), 0.1)  # decimated to the new cycle
+        resp(can.Message(arbitration_id=0x411, is_extended_id=False, data=b"\x34\x00"))  # stop
+        tester.recv(1.0)
+        assert len(resp.gate(f)) == 0
+        other = f.copy()
+        other["arbitration_id"] = 0x100  # not the shunt's: untouched
+        assert len(resp.gate(other)) == 50
+        resp(can.Message(arbitration_id=0x411, is_extended_id=False, data=b""))  # empty command
+        assert resp.counters["malformed"] == 1
