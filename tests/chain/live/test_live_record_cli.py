@@ -94,3 +94,34 @@ def test_serve_records_in_process_on_the_embedded_virtual_bus(tmp_path, capsys):
     batch = acquire(encode(synthetic_trace(2.0), setup, seed=0), setup)
     for name in ("battery_current_a", "vehicle_speed_kmh", "engine_coolant_in_degc", "shaft_torque_nm"):
         np.testing.assert_array_equal(live[name].values, batch[name].values, err_msg=name)
+
+
+def test_record_stopped_with_ctrl_c_keeps_and_decodes_what_it_received(tmp_path):
+    import signal
+    import time
+
+    port, mb_port = free_port(), free_port()
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "benchtwin.cli", "serve", "--synthetic", "20", "--setup", "ideal", "--port", str(port),
+         "--modbus-port", str(mb_port), "--speedup", "2", "--wait-clients", "3", "--wait-timeout", "30"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    out = tmp_path / "cut.mf4"
+    rec = subprocess.Popen(
+        [sys.executable, "-m", "benchtwin.cli", "record", "--setup", "ideal", "--port", str(port), "--modbus-port",
+         str(mb_port), "--speedup", "2", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert rec.stdout.readline().startswith("recording")
+        time.sleep(2.0)
+        rec.send_signal(signal.SIGINT)
+        r_out, r_err = rec.communicate(timeout=60)
+    finally:
+        for p in (rec, serve):
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    assert rec.returncode == 0, r_err
+    assert "stopped (interrupted)" in r_out and "Traceback" not in r_err
+    live = Recording.load(out)
+    assert live.meta["stop_reason"] == "interrupted"
+    speed = live["vehicle_speed_kmh"]
+    assert 20 < len(speed) < 200  # about 2 s at 2x of a 10 Hz signal, not the whole 20 s run
