@@ -47,6 +47,7 @@ def test_same_seed_identical_different_seed_different_12v_loads(vehicle) -> None
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
     assert a.meta == b.meta
     assert not np.array_equal(a["dcdc_lv_current_a"], c["dcdc_lv_current_a"])
+
     # the 12 V loads draw from the seed; the drive itself follows the same protocol
     n = min(len(a), len(c))
     assert np.max(np.abs(a["vehicle_speed_mps"][:n] - c["vehicle_speed_mps"][:n])) < 0.5
@@ -180,3 +181,13 @@ def test_controller_coefficients_are_the_tustin_discretisation_of_the_designed_p
     b0, b1 = _pi_coefficients(mass, bw, zeta, dt)
     kp, ki = 2 * zeta * bw * mass, bw**2 * mass
     np.testing.assert_allclose([b0, b1], [kp + ki * dt / 2, -kp + ki * dt / 2], rtol=1e-12)
+
+
+def test_12v_loads_vary_over_time_and_the_12v_battery_buffers_them(quick_trace) -> None:
+    i_dcdc = quick_trace["dcdc_lv_current_a"]
+    assert len(np.unique(np.round(i_dcdc, 0))) >= 5  # fan duty levels and pump on/off
+    i_lv = quick_trace["lv_battery_current_a"]
+    assert i_lv.min() < 0 < i_lv.max()  # charged at light load, discharging at heavy load (DC/DC droop)
+    v_lv = quick_trace["dcdc_lv_voltage_v"]
+    assert v_lv.min() > 13.5 and v_lv.max() < 14.5
+    np.testing.assert_array_equal(v_lv, quick_trace["lv_battery_voltage_v"])
