@@ -73,7 +73,9 @@ def run(args: argparse.Namespace) -> int:
     n_samples = sum(len(c) for c in rec.channels.values())
     print(f"decoded {n_frames} frames and {sum(v['polls'] for v in rec.meta.get('modbus', {}).values())} polls "
           f"into {len(rec.channels)} channels ({n_samples} samples) in {wall:.1f} s")
-    for key in ("protocol_errors", "unknown_ids", "modbus", "clock_offsets_s"):
+    if rec.meta.get("bus_load"):
+        print("  bus load: " + ", ".join(f"{b} {100 * v:.1f} %" for b, v in rec.meta["bus_load"].items()))
+    for key in ("protocol_errors", "unknown_ids", "modbus", "clock_offsets_s", "clock_drift_ppm"):
         if rec.meta.get(key):
             print(f"  {key}: {rec.meta[key]}")
     flagged = rec.meta.get("flagged_samples", {})
