@@ -633,7 +633,7 @@ def acquire(data: AcquisitionInput | Any, setup: SetupConfig, *, segments: list[
             k = int(np.count_nonzero(ch.flags & int(fl)))
             if k:
                 flagged.setdefault(name, {})[fl.name.lower()] = k
-        bad = int(np.count_nonzero(~ch.good))
+        bad = int(np.count_nonzero(ch.flags & int(Flag.bad())))
         if bad:
             flagged.setdefault(name, {})["bad"] = bad
     sink.counts["flagged_samples"] = flagged
