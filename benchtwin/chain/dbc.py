@@ -63,9 +63,10 @@ __all__ = [
 
 DBC_DIR = Path(__file__).resolve().parent / "dbc"
 
-#: IVT-S results in mux order: (short name, unit, raw unit scale to SI-ish unit)
-IVT_RESULTS: tuple[tuple[str, str], ...] = (
-    ("I", "mA"), ("U1", "mV"), ("U2", "mV"), ("U3", "mV"), ("T", "0.1degC"), ("W", "W"), ("As", "As"), ("Wh", "Wh"),
+#: IVT-S results in mux order: (short name, DBC unit, DBC scale of the int32): I in mA, U in mV, T in 0.1 degC
+IVT_RESULTS: tuple[tuple[str, str, float], ...] = (
+    ("I", "mA", 1.0), ("U1", "mV", 1.0), ("U2", "mV", 1.0), ("U3", "mV", 1.0), ("T", "degC", 0.1), ("W", "W", 1.0),
+    ("As", "As", 1.0), ("Wh", "Wh", 1.0),
 )
 
 #: telemetry AD module: 12 bits over +-10 V
@@ -162,13 +163,13 @@ def build_ivt(name: str = "IVT", result_base_id: int = 0x521, command_id: int = 
         Cycle time written to the DBC (GenMsgCycleTime).
     """
     msgs = []
-    for mux, (res, unit) in enumerate(IVT_RESULTS):
+    for mux, (res, unit, scale) in enumerate(IVT_RESULTS):
         msgs.append(_msg(result_base_id + mux, f"{name}_Result_{res}", 6, [
             _sig(f"{name}_{res}_MuxID", 7, 8, big=True, comment=f"mux byte, always 0x{mux:02X}"),
             _sig(f"{name}_{res}_Status", 15, 4, big=True,
                  comment="bit0 OCS, bit1 out of range / channel error, bit2 measurement error, bit3 system error"),
             _sig(f"{name}_{res}_Counter", 11, 4, big=True, comment="cyclic message counter"),
-            _sig(f"{name}_{res}", 23, 32, big=True, signed=True, unit=unit),
+            _sig(f"{name}_{res}", 23, 32, big=True, signed=True, scale=scale, unit=unit),
         ], cycle_ms, name, f"IVT-S result {res}"))
     msgs.append(_msg(command_id, f"{name}_Msg_Command", 8, [
         _sig(f"{name}_Cmd", 7, 8, big=True, comment="0x2n configure channel n, 0x30 reset errors, 0x31 trigger, "
