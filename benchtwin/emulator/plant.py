@@ -543,7 +543,8 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
         elif luf == 0:
             lu_req = False
         else:
-            lu_req = gear >= p[P_LU_GEAR] and v >= p[P_LU_V]
+            # closed above its speed, and kept closed while braking down to the regen cut-off
+            lu_req = gear >= p[P_LU_GEAR] and (v >= p[P_LU_V] or (brake > 0.0 and v > p[P_B_VCUT]))
         if not lu_req:
             lu = False
             lut = 0.0
@@ -573,9 +574,12 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
         # brakes and blending
         bdem = brake * 0.01 * p[P_B_TMAX]
         bhyd = bdem
-        if bdem > 0.0 and lu_ok and v > p[P_B_VCUT]:
+        if bdem > 0.0 and gear > 0 and (lu or lu_req) and v > p[P_B_VCUT]:
+            # regeneration first (also through a converter opened only for a shift), hydraulic for the rest
             kgr = ratios[gear] * ifd
-            t_in_need = eta_m[gear] * (c0[gear] - bdem / kgr)
+            # the regenerative share fades out over the last 8 km/h above the cut-off speed
+            fade = min((v - p[P_B_VCUT]) / (8.0 / 3.6), 1.0)
+            t_in_need = eta_m[gear] * (c0[gear] - fade * bdem / kgr)
             tm_r = max(t_in_need - te, -tm_gen)
             tm = min(tm, tm_r)
             tm = max(tm, -tm_gen)

@@ -166,3 +166,33 @@ def test_shift_schedule_events_lie_on_the_lines_and_actual_gear_lags(quick_trace
     for k in auto[:50]:
         lag = np.argmax(ga[k:] == gt[k]) * tr.dt_s
         assert lag >= delay - 1.5 * tr.dt_s
+
+
+def test_regenerative_braking_comes_first_up_to_the_motor_limit(quick_trace, vehicle) -> None:
+    tr = quick_trace
+    seg = next(s for s in tr.segments if s.kind == "deceleration" and s.settings["protocol"] == "deceleration")
+    part = tr.slice_time(seg.settings["decel_start_s"], seg.end_s)
+    settled = _settled(part, vehicle)
+    # above the fade-out zone (cut-off + 8 km/h) the motor takes all it can
+    braking = (part["brake_pedal_pct"] > 0) & (3.6 * part["vehicle_speed_mps"] > 18.5) & settled
+    braking &= part["lockup_closed"] == 1
+    assert braking.sum() > 100
+    w = part["em_speed_radps"][braking]
+    limit = np.interp(w * 30 / np.pi, vehicle.motor.full_load_speed_rpm, vehicle.motor.full_load_torque_nm)
+    limit = np.minimum(limit, (vehicle.battery.max_charge_power_w + vehicle.motor.willans_w_loss_gen_w)
+                       / (vehicle.motor.willans_e_gen * w))
+    hyd = part["brake_torque_front_nm"][braking] + part["brake_torque_rear_nm"][braking]
+    tm = part["em_torque_nm"][braking]
+    below = tm > -limit + 1.0
+    assert below.sum() > 50 and np.all(hyd[below] < 1e-6)  # below the motor's limit: all regenerative
+    assert (tm < 0).all()
+    # in the fade-out zone the regenerative share falls towards the cut-off speed, then braking is hydraulic only
+    fade = (part["brake_pedal_pct"] > 5) & (part["gear_actual"] > 0)
+    vk = 3.6 * part["vehicle_speed_mps"]
+    hi = fade & (vk > 16.5) & (vk < 18.0)
+    lo = fade & (vk > 10.5) & (vk < 13.0)
+    regen = np.maximum(-part["shaft_torque_nm"] * vehicle.specs.final_drive_ratio, 0.0)
+    share = regen / (regen + part["brake_torque_front_nm"] + part["brake_torque_rear_nm"] + 1e-9)
+    assert hi.sum() > 5 and lo.sum() > 5 and np.mean(share[hi]) > np.mean(share[lo])
+    slow = (part["brake_pedal_pct"] > 0) & (3.6 * part["vehicle_speed_mps"] < vehicle.brakes.regen_cutoff_speed_kmh)
+    assert slow.sum() > 20 and np.all(part["em_torque_nm"][slow] >= 0)
