@@ -106,7 +106,7 @@ def _counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
     step = (c8[1:] - c8[:-1]) & np.uint8((1 << bits) - 1)
     if np.all(step == 1):  # the usual case: nothing lost, doubled or reordered
         return flags
-    c_all = counter.astype(np.int64)
+    c_all = counter.astype(np.int16)
     dup = np.zeros(n, bool)
     dup[1:] = step == 0
     if dup.any():
@@ -115,26 +115,24 @@ def _counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
         flags[dup] |= _F["DUPLICATE"]
         return flags
     m = 1 << bits
+    mask = np.int16(m - 1)
     c = c_all
-    d1 = np.zeros(n, dtype=np.int64)
-    d1[1:] = (c[1:] - c[:-1]) % m
-    dup = np.zeros(n, bool)
-    dup[1:] = d1[1:] == 0
+    d1 = np.zeros(n, dtype=np.int16)
+    d1[1:] = (c[1:] - c[:-1]) & mask
     ooo = np.zeros(n, bool)
     ooo[1:] = d1[1:] > m // 2
     gap = (d1 >= 2) & (d1 <= m // 2)
     gap[0] = False
     # a reorder looks like "skip one, go back one, skip one": do not call those losses
     nxt_back = np.zeros(n, bool)
-    nxt_back[:-1] = ooo[1:] & (((c[:-1] - c[1:]) % m) == 1)
-    d2 = np.zeros(n, dtype=np.int64)
-    d2[2:] = (c[2:] - c[:-2]) % m
+    nxt_back[:-1] = ooo[1:] & (((c[:-1] - c[1:]) & mask) == 1)
+    d2 = np.zeros(n, dtype=np.int16)
+    d2[2:] = (c[2:] - c[:-2]) & mask
     prev_ooo = np.zeros(n, bool)
     prev_ooo[1:] = ooo[:-1]
     reordered_gap = gap & nxt_back
     lost = gap & ~nxt_back & ~(prev_ooo & (d2 == 1))
     flags[lost] |= _F["LOST_FRAME"]
-    flags[dup] |= _F["DUPLICATE"]
     flags[ooo | reordered_gap] |= _F["OUT_OF_ORDER"]
     return flags
 
@@ -467,6 +465,10 @@ def detect_lag(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarra
     grid, refined by a parabola through the peak. Returns None if the signals do not overlap
     enough, are flat, or the best correlation is below ``min_correlation`` (not the same quantity).
     """
+    if window is not None:  # cut to the window first: the rest of the work is then small
+        a0, a1 = np.searchsorted(t_a, [window[0] - max_lag_s, window[1] + max_lag_s])
+        b0, b1 = np.searchsorted(t_b, [window[0] - 2 * max_lag_s, window[1] + 2 * max_lag_s])
+        t_a, x_a, t_b, x_b = t_a[a0:a1], x_a[a0:a1], t_b[b0:b1], x_b[b0:b1]
     good_a, good_b = np.isfinite(x_a), np.isfinite(x_b)
     t_a, x_a, t_b, x_b = t_a[good_a], x_a[good_a], t_b[good_b], x_b[good_b]
     if t_a.size < 10 or t_b.size < 10:
@@ -540,7 +542,8 @@ def _clock_offsets(rec: Recording) -> tuple[dict[str, float], dict[str, float]]:
         n_win = int((t1 - t0) // DRIFT_WINDOW_S)
         if n_win >= 4:  # offset per window, drift = slope of a straight line through them
             edges = np.linspace(t0, t1, n_win + 1)
-            pts = [(0.5 * (a + b), detect_lag(t_a, x_a, t_b, x_b, window=(a, b))) for a, b in pairwise(edges)]
+            pts = [(0.5 * (a + b), detect_lag(t_a, x_a, t_b, x_b, window=(a, b), rate_hz=20.0))
+                   for a, b in pairwise(edges)]
             pts = [(c, lag_w) for c, lag_w in pts if lag_w is not None]
             if len(pts) >= 3 and pts[-1][0] - pts[0][0] >= 2 * DRIFT_WINDOW_S:
                 c, lw = np.array(pts).T
@@ -559,7 +562,7 @@ def _bus_load(table: FrameTable) -> float:
     span = float(f["timestamp"][-1] - f["timestamp"][0])
     if span <= 0:
         return float("nan")
-    key = np.minimum(f["dlc"], 15).astype(np.int64) * 2 + f["is_extended"].astype(np.int64)
+    key = (np.minimum(f["dlc"], 15).astype(np.uint8) << 1) | f["is_extended"].view(np.uint8)
     hist = np.bincount(key, minlength=32)
     dlc = np.arange(32) // 2
     ext = np.arange(32) % 2 == 1

@@ -172,3 +172,20 @@ def test_codec_any_single_signal_layout_matches_cantools(start: int, length: int
     assert packed[0].tobytes() == msg.encode({"S": raw}, scaling=False)
     assert int(codec.unpack(packed)["S"][0]) == raw
     assert msg.decode(packed[0].tobytes(), scaling=False)["S"] == raw
+
+
+def test_counter_flags_patterns() -> None:
+    from benchtwin.chain.acquisition import _counter_flags
+    from benchtwin.recording import Flag
+
+    def fl(seq: list[int]) -> list[str]:
+        f = _counter_flags(np.array(seq), 4)
+        return ["L" if v & Flag.LOST_FRAME else "D" if v & Flag.DUPLICATE else "O" if v & Flag.OUT_OF_ORDER else "."
+                for v in f]
+
+    assert fl([14, 15, 0, 1, 2]) == list(".....")  # wrap-around
+    assert fl([1, 2, 4, 5]) == list("..L.")  # one lost
+    assert fl([1, 2, 2, 3]) == list("..D.")  # duplicate
+    assert fl([1, 3, 2, 4]) == list(".OO.")  # reorder: not a loss
+    assert fl([1, 3, 3, 2, 4]) == list(".ODO.")  # reorder with a duplicate
+    assert fl([5, 9, 10]) == list(".L.")  # three lost
