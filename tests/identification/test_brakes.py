@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import SPECS, blending_true_split, neutral_braking_plant, to_recording
+from _synth_a import SPECS, blending_true_split, neutral_braking_plant, to_recording
 
 from benchtwin.errors import InsufficientDataError, MissingChannelError, NoExcitationError
 from benchtwin.identification.brakes import fit_brake_gain, identify_brake_blending, identify_brake_gains

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import SPECS, ramp_up_plant, to_recording
+from _synth_a import SPECS, ramp_up_plant, to_recording
 
 from benchtwin.errors import CollinearError, InsufficientDataError, MissingChannelError, NoExcitationError
 from benchtwin.identification.motor import fit_willans_motoring, identify_motor

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import SPECS, coastdown_plant, to_recording
+from _synth_a import SPECS, coastdown_plant, to_recording
 
 from benchtwin.errors import InsufficientDataError, NoExcitationError
 from benchtwin.identification.road_load import fit_road_load, identify_road_load

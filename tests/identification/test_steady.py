@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from conftest import to_recording
+from _synth_a import to_recording
 
 from benchtwin.identification.steady import Tolerance, detect_steady, find_steady_windows
 from benchtwin.recording import Flag

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import SPECS, Truth, ramp_up_plant, to_recording
+from _synth_a import SPECS, Truth, ramp_up_plant, to_recording
 
 from benchtwin.errors import CollinearError, InsufficientDataError, NoExcitationError
 from benchtwin.identification.transmission import fit_transmission_efficiency, identify_transmission
