@@ -1,8 +1,9 @@
 """``benchtwin demo``: run the WLTC class 3b campaign on the embedded default vehicle and print a summary.
 
-Until validation exists this is the main job of ``make demo``: it simulates WLTC 3b in road-load mode
-(driver following the trace) and prints distance, speed tracking, fuel, battery energy, SOC and the
-closure of the energy ledger.
+A quick look at the plant alone: it simulates WLTC 3b in road-load mode (driver following the trace)
+and prints distance, speed tracking, fuel, battery energy, SOC and the closure of the energy ledger.
+The main job (``make demo``) is ``benchtwin validate``: the whole campaign through the sensor chain and
+identification, judged against the truth.
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
             ("simulated", f"{trace.duration_s:.0f} s at {trace.meta['plant_rate_hz']:.0f} Hz in {wall:.2f} s "
                           f"(incl. compile on first run)"), *summary_rows(trace)]
     width = max(len(k) for k, _ in rows)
-    print("benchtwin demo: WLTC on the emulated P2 PHEV (truth, no sensors yet)")
+    print("benchtwin demo: WLTC on the emulated P2 PHEV (the plant's truth, before any sensor)")
     for k, val in rows:
         print(f"  {k:<{width}}  {val}")
     return 0
