@@ -551,6 +551,36 @@ def _clock_offsets(rec: Recording) -> tuple[dict[str, float], dict[str, float]]:
     return offsets, drifts
 
 
+# ---------------------------------------------------------------------------------------------- saturation
+
+
+def _saturation_limits(setup: SetupConfig) -> dict[str, tuple[float | None, float | None]]:
+    """Recording role -> (min, max) of the output saturations configured in the setup."""
+    out: dict[str, tuple[float | None, float | None]] = {}
+
+    def take(role: str, err: Any) -> None:
+        if err is not None and (err.saturation_min is not None or err.saturation_max is not None):
+            out[role] = (err.saturation_min, err.saturation_max)
+
+    for place, cfg in setup.ivt.items():
+        _, _, role_i, role_u = IVT_PLACES[place]
+        take(role_i, cfg.current_errors)
+        take(role_u, cfg.voltage_errors)
+    if setup.pressure is not None:
+        for _trace, role in CHANNELS:
+            take(role, setup.pressure.errors)
+    if setup.telemetry is not None:
+        take("shaft_torque_nm", setup.telemetry.errors)
+    if setup.thermo is not None:
+        for place in setup.thermo.places:
+            take(place, setup.thermo.errors)
+    for dev in (setup.vehicle_can, setup.dyno):
+        if dev is not None:
+            for role, err in dev.errors.items():
+                take(role, err)
+    return out
+
+
 # ---------------------------------------------------------------------------------------------- entry
 
 
@@ -618,6 +648,17 @@ def acquire(data: AcquisitionInput | Any, setup: SetupConfig, *, segments: list[
             log.error("poll log %s could not be decoded: %s", device, exc)
             sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
     rec = sink.rec
+    for role, (lo, hi) in _saturation_limits(setup).items():
+        if role in rec:
+            ch = rec[role]
+            span = (hi - lo) if lo is not None and hi is not None else max(abs(lo or 0.0), abs(hi or 0.0), 1.0)
+            tol = 1e-3 * span
+            at = np.zeros(len(ch), dtype=bool)
+            if hi is not None:
+                at |= ch.values >= hi - tol
+            if lo is not None:
+                at |= ch.values <= lo + tol
+            ch.flags[at] |= _F["SATURATED"]
     rec.segments = list(segments if segments is not None else data.segments)
     m = dict(data.meta)
     m.update(meta or {})

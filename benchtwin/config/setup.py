@@ -75,7 +75,9 @@ class ChannelErrors(StrictModel):
     """Errors of one measured quantity, in the unit the sensor measures (A, V, bar, Nm, degC, ...).
 
     The measured value is ``(1 + gain_error_frac) * filtered(true) + offset + noise``, then
-    quantised to ``quantisation_step`` (on top of the wire's own resolution) and clipped to range.
+    quantised to ``quantisation_step`` (on top of the wire's own resolution), clipped to
+    ``saturation_min``/``saturation_max`` if set (an output stage that saturates before the device's
+    range; the acquisition flags readings at these limits SATURATED) and then to the device's range.
     """
 
     noise_std: float = Field(0.0, ge=0, description="white noise standard deviation")
@@ -86,12 +88,22 @@ class ChannelErrors(StrictModel):
     filter_order: Literal[1, 2] = Field(1, description="1: first-order lag, 2: second-order low-pass")
     damping: float = Field(0.707, gt=0, description="damping ratio of the second-order filter")
     stuck: list[StuckInterval] = Field(default_factory=list, description="intervals where the output freezes")
+    saturation_min: float | None = Field(None, description="the sensor output clips here (below its range)")
+    saturation_max: float | None = Field(None, description="the sensor output clips here (below its range)")
+
+    @model_validator(mode="after")
+    def _saturation(self) -> ChannelErrors:
+        if self.saturation_min is not None and self.saturation_max is not None and \
+                not self.saturation_max > self.saturation_min:
+            raise ValueError("saturation_max must be above saturation_min")
+        return self
 
     @property
     def ideal(self) -> bool:
         """True when the channel adds no error."""
         return (self.noise_std == 0 and self.offset == 0 and self.gain_error_frac == 0 and self.quantisation_step == 0
-                and self.bandwidth_hz == 0 and not self.stuck)
+                and self.bandwidth_hz == 0 and not self.stuck and self.saturation_min is None
+                and self.saturation_max is None)
 
 
 class LinkErrors(StrictModel):

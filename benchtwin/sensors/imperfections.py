@@ -7,6 +7,7 @@ Measured value (:func:`measure`), in the unit the sensor measures::
     x_s   = x_f(t_true - latency)                 sampled when the device samples (its own clock)
     x_m   = (1 + gain_error) x_s + offset + N(0, noise_std)
     x_q   = quantisation_step * round(x_m / step) (the wire's own resolution comes after, per device)
+    x_q   = clipped to [saturation_min, saturation_max] if set (an output stage that saturates early)
     x_q   = frozen at its first reading over each stuck interval (noise included: a stuck-at output)
 
 Clocks (:class:`DeviceClock`): a device clock reads ``t_dev = (1 + drift) * t_plant + offset``;
@@ -155,6 +156,8 @@ def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, error
         y = y + rng.normal(0.0, errors.noise_std, y.shape)
     if errors.quantisation_step > 0:
         y = np.rint(y / errors.quantisation_step) * errors.quantisation_step
+    if errors.saturation_min is not None or errors.saturation_max is not None:
+        y = np.clip(y, errors.saturation_min, errors.saturation_max)
     for iv in errors.stuck:  # the output freezes at its first reading in the interval
         inside = np.flatnonzero((ts >= iv.start_s) & (ts < iv.end_s))
         if inside.size:

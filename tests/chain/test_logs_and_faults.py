@@ -25,6 +25,7 @@ from benchtwin.chain.buslog import (
 from benchtwin.chain.frames import FRAME_DTYPE, POLL_TIMEOUT, FrameTable, PollLog, TransportEvent
 from benchtwin.cli import main
 from benchtwin.config import load_setup
+from benchtwin.config.setup import ChannelErrors
 from benchtwin.errors import DataError
 from benchtwin.recording import Flag, Recording
 from benchtwin.sensors import encode
@@ -441,3 +442,19 @@ def test_poll_timeouts_block_the_poller() -> None:
     starts = np.round((log.times[to[to + 1 < len(log)]] - cfg.poll_timeout_s) * cfg.poll_hz)
     assert np.all(slots - starts >= cfg.poll_timeout_s * cfg.poll_hz)
     assert len(log) < 60.0 * cfg.poll_hz - to.size * (cfg.poll_timeout_s * cfg.poll_hz - 1) + 5
+
+
+def test_configured_output_saturation_is_applied_and_flagged() -> None:
+    setup = load_setup("ideal").model_copy(deep=True)
+    setup.ivt["battery"].current_errors.saturation_max = 150.0
+    setup.vehicle_can.errors["engine_torque_nm"] = ChannelErrors(saturation_min=-50.0, saturation_max=300.0)
+    trace = synthetic_trace(30.0, 100.0, seed=4)
+    rec = run_batch(trace, setup, seed=1)
+    cur = rec["battery_current_a"]
+    truth = np.interp(cur.timestamps, trace.time_s, trace["battery_current_a"])
+    sat = (cur.flags & Flag.SATURATED) != 0
+    assert cur.values.max() <= 150.0 + 0.02 and np.all(sat[truth > 150.2]) and not np.any(sat[truth < 149.0])
+    tq = rec["engine_torque_nm"]
+    t_truth = np.interp(tq.timestamps, trace.time_s, trace["engine_torque_nm"])
+    tsat = (tq.flags & Flag.SATURATED) != 0
+    assert np.all(tsat[(t_truth > 300.5) | (t_truth < -50.5)]) and not np.any(tsat[(t_truth < 299) & (t_truth > -49)])
