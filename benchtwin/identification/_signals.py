@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs
 
 from benchtwin.errors import (
     DataError,
@@ -98,11 +98,18 @@ class Grid:
 def time_ordered(ch: Channel, shift_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Timestamps (plus ``shift_s``), values and flags of a channel in time order (samples delivered out
     of order are sorted, stably; interpolation and window sums need increasing time)."""
+    ts, vs, fl = _in_order(ch)
+    return (ts + shift_s if shift_s else ts), vs, fl
+
+
+def _in_order(ch: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Timestamps, values and flags of a channel in time order (stable sort when delivered out of order)."""
     ts, vs, fl = ch.timestamps, ch.values, ch.flags
-    if ts.size > 1 and np.any(np.diff(ts) < 0):
+    # checked on every call: a channel's arrays may be changed in place between calls
+    if ts.size > 1 and bool(np.any(ts[1:] < ts[:-1])):
         order = np.argsort(ts, kind="stable")
         ts, vs, fl = ts[order], vs[order], fl[order]
-    return (ts + shift_s if shift_s else ts), vs, fl
+    return ts, vs, fl
 
 
 def source_shifts(rec: Recording) -> dict[str, float]:
@@ -150,16 +157,17 @@ class _IndexCache:
 
     def __init__(self, t: np.ndarray) -> None:
         self.t = t
-        self._cache: list[tuple[np.ndarray, np.ndarray]] = []
+        self._cache: list[tuple[np.ndarray, float, np.ndarray]] = []
 
-    def fidx(self, ts: np.ndarray) -> np.ndarray:
-        for ts0, f in self._cache:
-            if ts0 is ts or (ts0.shape == ts.shape and ts0[0] == ts[0] and ts0[-1] == ts[-1]
-                             and np.array_equal(ts0, ts)):
+    def fidx(self, ts: np.ndarray, shift_s: float = 0.0) -> np.ndarray:
+        """Fractional index into ``ts + shift_s`` of every grid time (``ts`` in time order)."""
+        for ts0, s0, f in self._cache:
+            if s0 == shift_s and (ts0 is ts or (ts0.shape == ts.shape and ts0[0] == ts[0] and ts0[-1] == ts[-1]
+                                                and np.array_equal(ts0, ts))):
                 return f
         # np.interp walks sorted queries in one pass (a binary search per query costs more on long logs)
-        f = np.interp(self.t, ts, np.arange(ts.size, dtype=float))
-        self._cache.append((ts, f))
+        f = np.interp(self.t, ts + shift_s if shift_s else ts, np.arange(ts.size, dtype=float))
+        self._cache.append((ts, shift_s, f))
         return f
 
 
@@ -168,24 +176,26 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
     """Values of ``ch`` at ``t`` (linear, or zero-order hold; NaN outside its span) and a mask of grid
     samples touched by a flagged or non-finite source sample."""
     n = len(ch)
-    ts, vs, fl = time_ordered(ch, shift_s)
-    raw_bad = ((fl & _BAD) != 0) | ~np.isfinite(vs)
-    fidx = cache.fidx(ts) if cache is not None else np.interp(t, ts, np.arange(n, dtype=float))
+    ts, vs, fl = _in_order(ch)
+    fidx = (cache if cache is not None else _IndexCache(t)).fidx(ts, shift_s)
+    first, last = ts[0] + shift_s, ts[-1] + shift_s
     idx = np.floor(fidx).astype(np.int64)
-    idx[t < ts[0]] = -1
+    idx[t < first] = -1
     i0 = np.clip(idx, 0, n - 1)
     i1 = np.clip(idx + 1, 0, n - 1)
+    v0 = vs[i0]
+    # flags and finiteness looked up at the samples used only (not over the whole channel)
+    flagged = ((fl[i0] & _BAD) != 0) | ~np.isfinite(v0)
     if hold:
-        v = vs[i0].astype(float)
+        v = v0.astype(float)
     else:
+        v1 = vs[i1]
         frac = fidx - np.clip(idx, 0, None)
-        v = vs[i0] + frac * (vs[i1] - vs[i0])
-    outside = (idx < 0) | (t > ts[-1])
-    v[outside] = np.nan
-    flagged = raw_bad[i0].copy()
-    if not hold:
+        v = v0 + frac * (v1 - v0)
         # a linearly interpolated value depends on the sample after as well
-        flagged |= raw_bad[i1] & (ts[i1] > t)
+        flagged |= (((fl[i1] & _BAD) != 0) | ~np.isfinite(v1)) & ((ts[i1] + shift_s) > t)
+    outside = (idx < 0) | (t > last)
+    v[outside] = np.nan
     flagged &= ~outside
     return v, flagged
 
@@ -320,16 +330,72 @@ def smooth_derivative(x: np.ndarray, dt: float, window_s: float, *, valid: np.nd
     """Savitzky-Golay derivative of ``x`` (uniform step ``dt``), computed run by run over ``valid``.
 
     Samples outside ``valid`` and runs shorter than the window get NaN, so a derivative never
-    spans a flagged sample or a gap.
+    spans a flagged sample or a gap. Within a run the result is that of
+    ``scipy.signal.savgol_filter(run, w, polyorder, deriv=1, delta=dt, mode="interp")``: the
+    centred filter inside, the derivative of the polynomial fitted to the first and last ``w``
+    samples at the edges. The filter and the edge fits are linear in the data, so they are applied
+    to every run at once with the coefficients of :func:`scipy.signal.savgol_coeffs` (one
+    ``polyfit`` per run edge would cost far more on a long log with thousands of runs).
+
+    Parameters
+    ----------
+    x:
+        Samples on a uniform grid.
+    dt:
+        Grid step, s.
+    window_s:
+        Filter window, s (rounded to an odd number of samples, at least ``polyorder + 2``).
+    valid:
+        Samples that may be used (default: the finite ones).
+    polyorder:
+        Order of the fitted polynomial.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``dx/dt`` per sample, NaN outside the usable runs.
     """
     x = np.asarray(x, dtype=float)
     valid = np.isfinite(x) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(x))
     w = max(round(window_s / dt) | 1, polyorder + 2 | 1)
     out = np.full(x.shape, np.nan)
-    for i0, i1 in runs(valid):
-        if i1 - i0 >= w:
-            out[i0:i1] = savgol_filter(x[i0:i1], w, polyorder, deriv=1, delta=dt, mode="interp")
+    spans = np.array(runs(valid), dtype=np.int64).reshape(-1, 2)
+    spans = spans[spans[:, 1] - spans[:, 0] >= w]
+    if spans.size == 0:
+        return out
+    h = w // 2
+    coef = _savgol_dot_coeffs(w, polyorder, dt)
+    xf = np.where(valid, x, 0.0)
+    # centred filter over the whole grid: a window inside a run sees only that run's samples
+    inside = np.zeros(x.size + 1, dtype=np.int64)
+    np.add.at(inside, spans[:, 0] + h, 1)
+    np.add.at(inside, spans[:, 1] - h, -1)
+    inner = np.cumsum(inside[:-1]) > 0
+    centre = np.correlate(xf, coef[h], mode="valid")  # centre[m] belongs to sample m + h
+    idx = np.flatnonzero(inner)
+    out[idx] = centre[idx - h]
+    # edges: the polynomial through the first / last w samples of each run, evaluated at its h outer samples
+    k = np.arange(w)
+    head = xf[spans[:, 0, None] + k] @ coef[:h].T
+    tail = xf[spans[:, 1, None] - w + k] @ coef[w - h:].T
+    out[spans[:, 0, None] + np.arange(h)] = head
+    out[spans[:, 1, None] - h + np.arange(h)] = tail
     return out
+
+
+_SAVGOL_CACHE: dict[tuple[int, int, float], np.ndarray] = {}
+
+
+def _savgol_dot_coeffs(w: int, polyorder: int, dt: float) -> np.ndarray:
+    """Rows k = 0..w-1: coefficients giving the first derivative at position k of the degree-``polyorder``
+    least-squares polynomial through ``w`` samples (``coef[k] @ window``)."""
+    key = (w, polyorder, float(dt))
+    c = _SAVGOL_CACHE.get(key)
+    if c is None:
+        c = np.array([savgol_coeffs(w, polyorder, deriv=1, delta=dt, pos=k, use="dot") for k in range(w)])
+        if len(_SAVGOL_CACHE) < 64:
+            _SAVGOL_CACHE[key] = c
+    return c
 
 
 def check_spread(x: np.ndarray, min_spread: float, what: str, name: str, unit: str = "") -> None:

@@ -164,22 +164,40 @@ class SteadyWindows:
         the two means. Timestamps get the grid's clock shifts (:func:`source_shifts`).
         """
         shifts = self.grid.shifts
-        ts, vals, fl = time_ordered(rec[name], shifts.get(rec[name].source, 0.0))
-        good = ((fl & BAD_FLAGS) == 0) & np.isfinite(vals)
+        ch = rec[name]
+        shift = shifts.get(ch.source, 0.0)
+        ts, vals, fl = time_ordered(ch)
+        pair = None
         if other is not None:
-            ts2, vals2, fl2 = time_ordered(rec[other], shifts.get(rec[other].source, 0.0))
-            if ts2.shape == ts.shape and np.array_equal(ts2, ts):
-                good = good & ((fl2 & BAD_FLAGS) == 0) & np.isfinite(vals2)
-                vals = vals * vals2
-            else:
+            ch2 = rec[other]
+            ts2, vals2, fl2 = time_ordered(ch2)
+            if not (ts2 is ts or (ts2.shape == ts.shape and shifts.get(ch2.source, 0.0) == shift
+                                  and np.array_equal(ts2, ts))):
                 return self.raw_average(rec, name) * self.raw_average(rec, other)
-        lo = np.searchsorted(ts, [w.start_s for w in self.windows], side="left")
-        hi = np.searchsorted(ts, [w.end_s for w in self.windows], side="left")
-        cs = np.concatenate(([0.0], np.cumsum(np.where(good, vals, 0.0))))
+            pair = (vals2, fl2)
+        if not self.windows:
+            return np.array([])
+        # source samples inside each window [start, end) on the grid's clock, found on the shifted timestamps
+        # near the window edges only (shifting the whole channel would cost a pass over every sample)
+        starts = np.array([w.start_s for w in self.windows])
+        ends = np.array([w.end_s for w in self.windows])
+        lo = _edges(ts, shift, starts)
+        hi = _edges(ts, shift, ends)
+        # the samples of all windows, one after the other (windows may overlap: their samples then repeat)
+        cnt_all = np.maximum(hi - lo, 0)
+        off = np.concatenate(([0], np.cumsum(cnt_all)))
+        sel = np.repeat(lo - off[:-1], cnt_all) + np.arange(off[-1])
+        v = vals[sel]
+        good = ((fl[sel] & BAD_FLAGS) == 0) & np.isfinite(v)
+        if pair is not None:
+            v2 = pair[0][sel]
+            good &= ((pair[1][sel] & BAD_FLAGS) == 0) & np.isfinite(v2)
+            v = v * v2
+        cs = np.concatenate(([0.0], np.cumsum(np.where(good, v, 0.0))))
         cn = np.concatenate(([0], np.cumsum(good)))
-        cnt = cn[hi] - cn[lo]
+        cnt = cn[off[1:]] - cn[off[:-1]]
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(cnt > 0, (cs[hi] - cs[lo]) / np.maximum(cnt, 1), np.nan)
+            return np.where(cnt > 0, (cs[off[1:]] - cs[off[:-1]]) / np.maximum(cnt, 1), np.nan)
 
     def segments(self, keep: np.ndarray | None = None) -> list[str]:
         """Names of the segments the (kept) windows came from."""
@@ -190,6 +208,27 @@ class SteadyWindows:
         """A copy holding only the windows where ``keep`` is true."""
         return SteadyWindows([w for w, k in zip(self.windows, keep) if k], self.grid, self.n_excluded,
                              self.searched_s, list(self.reasons))
+
+
+def _edges(ts: np.ndarray, shift: float, times: np.ndarray) -> np.ndarray:
+    """``np.searchsorted(ts + shift, times, side="left")`` without shifting every sample of ``ts``: the search runs
+    on ``ts`` and is corrected near each hit, where ``ts + shift`` may round across ``times``."""
+    if not shift:
+        return np.searchsorted(ts, times, side="left")
+    i = np.searchsorted(ts, times - shift, side="left")
+    n = ts.size
+    # a step back while the sample before still lies at or after the time, a step on while the sample lies before it
+    while True:
+        back = (i > 0) & (ts[np.maximum(i - 1, 0)] + shift >= times)
+        if not back.any():
+            break
+        i = np.where(back, i - 1, i)
+    while True:
+        on = (i < n) & (ts[np.minimum(i, n - 1)] + shift < times)
+        if not on.any():
+            break
+        i = np.where(on, i + 1, i)
+    return i
 
 
 def detect_steady(dt: float, signals: Mapping[str, np.ndarray], tolerances: Mapping[str, Tolerance], *,
