@@ -169,6 +169,9 @@ class ValidationReport:
                 err, tol = f"{c.error:.4f}", f">= {c.tolerance:.3f}"
             out.append(f"  {c.name:42s} {_fmt(c.identified):>12s} {_fmt(c.truth):>12s} {err:>10s} {tol:>11s}  "
                        f"{'pass' if c.passed else 'FAIL'}")
+            if not c.passed and c.note:
+                note = c.note if len(c.note) <= 160 else c.note[:157] + "..."
+                out.append(f"      {note}")
         n_fail = len(self.failures())
         out.append(f"{len(self.checks)} checks, {len(self.checks) - n_fail} passed, {n_fail} failed")
         return "\n".join(out)

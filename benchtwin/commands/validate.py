@@ -13,7 +13,7 @@ from pathlib import Path
 
 from benchtwin.commands._common import add_scenario_args, load_scenario
 
-__all__ = ["add_subparser", "print_report", "run"]
+__all__ = ["HIGHLIGHTS", "add_subparser", "highlights", "print_report", "run"]
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -60,7 +60,37 @@ def print_report(report: object, *, show_all: bool) -> None:
         for k, v in sorted(report.identification.errors.items()):
             print(f"  not identified: {k}: {v}")
     print()
-    print(report.format_table(only_failed=not show_all))
+    if show_all:
+        print(report.format_table())
+        return
+    print(highlights(report))
+    if report.failures():
+        print()
+        print(report.format_table(only_failed=True))
+    else:
+        print(f"{len(report.checks)} checks, all passed (--all lists every one)")
+
+
+#: the parameters a test engineer looks at first, in the order of the paper
+HIGHLIGHTS: tuple[str, ...] = (
+    "transmission.gear5.eta_m", "transmission.gear5.C0", "motor.motoring.e", "motor.motoring.W_loss",
+    "motor.generating.e_gen", "engine.bsfc.bsfc_min", "battery.alpha", "battery.beta_discharge",
+    "battery.beta_charge", "torque_converter.converter.gamma_coupling", "torque_converter.capacity_factor_curve",
+    "shifts.up_1_2", "shifts.down_2_1", "brakes.distribution.k_f", "road_load.F0", "road_load.F1", "road_load.F2",
+)
+
+
+def highlights(report: object) -> str:
+    """The main parameters (identified, true, error, tolerance) and every R^2 check, as a short table."""
+    from benchtwin.validation import ValidationReport
+
+    if not isinstance(report, ValidationReport):  # pragma: no cover - typing aid
+        raise TypeError("expected a ValidationReport")
+    by_name = {c.name: c for c in report.checks}
+    picked = [by_name[n] for n in HIGHLIGHTS if n in by_name] + [c for c in report.checks if c.group == "r2"]
+    sub = type(report)(checks=picked)
+    lines = sub.format_table().splitlines()[:-1]
+    return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
