@@ -1,0 +1,39 @@
+"""The ``validate`` and ``gain`` commands as a user runs them."""
+
+from __future__ import annotations
+
+import json
+
+from benchtwin.cli import main
+
+
+def test_validate_quick_campaign_says_what_it_cannot_identify(tmp_path, capsys) -> None:
+    # the quick campaign is too short for some parameters: the command must say which and why, and fail
+    out = tmp_path / "v"
+    status = main(["validate", "--campaign", "quick", "--setup", "ideal", "--out", str(out)])
+    text = capsys.readouterr().out
+    assert status == 1
+    assert "profile ideal" in text and "bus load:" in text
+    assert "road_load.F0" in text  # the short table of main parameters
+    assert "need at least" in text or "need 3" in text  # the reason under a failed check
+    report = json.loads((out / "validation.json").read_text())
+    assert report["n_failed"] > 0 and not report["passed"]
+    assert any(c["name"] == "road_load.F2" and c["passed"] for c in report["checks"])
+    assert (out / "params.json").exists() and (out / "recording.mf4").exists()
+
+
+def test_validate_bad_setup_is_one_line(tmp_path, capsys) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "x"\n[telemetry]\nk_tel = 300\n')
+    status = main(["validate", "--campaign", "quick", "--setup", str(bad)])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.startswith("benchtwin: error: ") and "k_tel" in err and "Traceback" not in err
+
+
+def test_gain_recommends_a_switch_position(capsys) -> None:
+    assert main(["gain", "--campaign", "quick", "--setup", "paper"]) == 0
+    text = capsys.readouterr().out
+    rows = [ln for ln in text.splitlines() if ln.strip()[:4].strip().isdigit()]
+    assert len(rows) == 6 and sum("<- recommended" in r for r in rows) == 1
+    assert "clips in" in rows[-1]  # K_TEL 8000 (+-273 Nm) cannot carry the launches
