@@ -14,7 +14,6 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_coeffs
 
 from benchtwin.errors import (
     DataError,
@@ -334,8 +333,8 @@ def smooth_derivative(x: np.ndarray, dt: float, window_s: float, *, valid: np.nd
     ``scipy.signal.savgol_filter(run, w, polyorder, deriv=1, delta=dt, mode="interp")``: the
     centred filter inside, the derivative of the polynomial fitted to the first and last ``w``
     samples at the edges. The filter and the edge fits are linear in the data, so they are applied
-    to every run at once with the coefficients of :func:`scipy.signal.savgol_coeffs` (one
-    ``polyfit`` per run edge would cost far more on a long log with thousands of runs).
+    to every run at once as fixed coefficients (one ``polyfit`` per run edge would cost far more on
+    a long log with thousands of runs).
 
     Parameters
     ----------
@@ -388,11 +387,21 @@ _SAVGOL_CACHE: dict[tuple[int, int, float], np.ndarray] = {}
 
 def _savgol_dot_coeffs(w: int, polyorder: int, dt: float) -> np.ndarray:
     """Rows k = 0..w-1: coefficients giving the first derivative at position k of the degree-``polyorder``
-    least-squares polynomial through ``w`` samples (``coef[k] @ window``)."""
+    least-squares polynomial through ``w`` samples (``coef[k] @ window``).
+
+    The polynomial is written in the centred, scaled abscissa ``u = (k - c) / c``, ``c = (w - 1) / 2``, so the
+    Vandermonde matrix stays well conditioned for long windows (as in ``numpy.polynomial.Polynomial.fit``).
+    """
     key = (w, polyorder, float(dt))
     c = _SAVGOL_CACHE.get(key)
     if c is None:
-        c = np.array([savgol_coeffs(w, polyorder, deriv=1, delta=dt, pos=k, use="dot") for k in range(w)])
+        half = (w - 1) / 2.0
+        u = (np.arange(w) - half) / half
+        j = np.arange(polyorder + 1)
+        vander = u[:, None] ** j  # w x (p + 1)
+        deriv = np.zeros_like(vander)
+        deriv[:, 1:] = j[1:] * u[:, None] ** (j[1:] - 1)  # d/du of each basis function at every sample
+        c = deriv @ np.linalg.pinv(vander) / (half * dt)
         if len(_SAVGOL_CACHE) < 64:
             _SAVGOL_CACHE[key] = c
     return c
