@@ -118,7 +118,8 @@ def main() -> None:
         f"{os.cpu_count()} cores, Python {platform.python_version()}",
         f"- campaign paper.toml: {trace.time_s[-1] / 3600:.2f} h simulated, {len(trace.segments)} tests "
         f"(simulation {t_sim:.1f} s, not part of the timing)",
-        f"- timing: median of {args.runs} runs of identify_all after one warm-up run",
+        f"- timing: median of {args.runs} runs of identify_all after one warm-up run; BLAS threads: "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}",
         "",
         "| setup | samples in Recording | channels | identify_all wall median (s) | min..max (s) | CPU median (s) "
         "| part B wall (s) | vs goal 2 s | vs CO2MPAS 29 s | load average before/after |",
