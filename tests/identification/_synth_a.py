@@ -10,6 +10,7 @@ forms with the parameters in :class:`Truth`, so identification must give those b
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,7 +25,10 @@ from benchtwin.segments import Segment
 
 RPM = 2 * math.pi / 60
 PLANT_HZ = 100.0
-MERCEDES = Path("/work/shared/reference/data/engine_mercedes_1p7/Mercedes1pt7_engine_steady_state_points.txt")
+#: the reference data beside the project (../shared/reference/data), or BENCHTWIN_REFERENCE_DATA
+REFERENCE_DATA = Path(os.environ.get("BENCHTWIN_REFERENCE_DATA")
+                      or Path(__file__).resolve().parents[3] / "shared" / "reference" / "data")
+MERCEDES = REFERENCE_DATA / "engine_mercedes_1p7" / "Mercedes1pt7_engine_steady_state_points.txt"
 
 #: role -> (source, rate Hz)
 SOURCES: dict[str, tuple[str, float]] = {
