@@ -21,6 +21,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -100,6 +101,23 @@ def _check_form(form: str) -> None:
         raise IdentificationError(f"motor: form must be 'normalised' or 'power', got {form!r}")
 
 
+def _prepare(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray,
+             p_lv_w: np.ndarray | None, eta_dcdc: float | None, form: str, what: str, min_points: int,
+             loss_name: str) -> tuple[Any, ...]:
+    """The arrays both Willans fits start from (checked, normalised, with the DC/DC term)."""
+    _check_form(form)
+    t = np.asarray(torque_nm, dtype=float)
+    n = np.asarray(speed_rpm, dtype=float)
+    _check(t, n, what, min_points)
+    p_hpcu = np.asarray(p_hpcu_w, dtype=float)
+    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, p_hpcu)
+    p_lv, p_lv_n, reasons = _lv(specs, t, n, p_lv_w, loss_name)
+    with_eta = p_lv_w is not None and eta_dcdc is None
+    corr = 1.0 / eta_dcdc if eta_dcdc is not None else 0.0
+    return (t, n, p_hpcu, p_me, p_ma_hpcu, c_m, specs.em_rotor_volume_m3, specs.em_rotor_radius_m, p_lv, p_lv_n,
+            reasons, with_eta, corr, t * n * RPM)
+
+
 def fit_willans_motoring(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray,
                          p_lv_w: np.ndarray | None = None, *, eta_dcdc: float | None = None, min_points: int = 5,
                          segments: Iterable[str] = (), n_excluded: int = 0, form: str = "normalised") -> FitResult:
@@ -131,18 +149,9 @@ def fit_willans_motoring(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm: 
         highest efficiency of the map inside the envelope seen); data ``p_me``, ``p_ma`` (motor
         only), ``c_m``, ``p_me_fit``, the points and the map (:func:`efficiency_map`).
     """
-    _check_form(form)
     what = "motor.motoring"
-    t = np.asarray(torque_nm, dtype=float)
-    n = np.asarray(speed_rpm, dtype=float)
-    _check(t, n, what, min_points)
-    p_hpcu = np.asarray(p_hpcu_w, dtype=float)
-    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, p_hpcu)
-    V, r = specs.em_rotor_volume_m3, specs.em_rotor_radius_m
-    p_lv, p_lv_n, reasons = _lv(specs, t, n, p_lv_w, "W_loss")
-    with_eta = p_lv_w is not None and eta_dcdc is None
-    corr = 1.0 / eta_dcdc if eta_dcdc is not None else 0.0
-    pm = t * n * RPM
+    t, n, p_hpcu, p_me, p_ma_hpcu, c_m, V, r, p_lv, p_lv_n, reasons, with_eta, corr, pm = _prepare(
+        specs, torque_nm, speed_rpm, p_hpcu_w, p_lv_w, eta_dcdc, form, what, min_points, "W_loss")
     if form == "normalised":
         cols = [p_ma_hpcu - corr * p_lv_n, -1.0 / c_m] + ([-p_lv_n] if with_eta else [])
         names, units = ["C0", "C1"] + (["C0_over_eta_dcdc"] if with_eta else []), ["-", "Pa m/s", "-"]
@@ -200,18 +209,9 @@ def fit_willans_generating(specs: VehicleSpecs, torque_nm: np.ndarray, speed_rpm
     ``[T omega, 1, P_lv]`` (unknowns ``k_tw = e_gen``, ``k_1 = W_loss_gen``, ``k_lv = 1/eta_dcdc``).
     Derived: ``e_gen``, ``W_loss_gen`` (W), ``eta_dcdc``.
     """
-    _check_form(form)
     what = "motor.generating"
-    t = np.asarray(torque_nm, dtype=float)
-    n = np.asarray(speed_rpm, dtype=float)
-    _check(t, n, what, min_points)
-    p_hpcu = np.asarray(p_hpcu_w, dtype=float)
-    p_me, p_ma_hpcu, c_m = _norm(specs, t, n, p_hpcu)
-    V, r = specs.em_rotor_volume_m3, specs.em_rotor_radius_m
-    p_lv, p_lv_n, reasons = _lv(specs, t, n, p_lv_w, "W_loss_gen")
-    with_eta = p_lv_w is not None and eta_dcdc is None
-    corr = 1.0 / eta_dcdc if eta_dcdc is not None else 0.0
-    pm = t * n * RPM
+    t, n, p_hpcu, p_me, p_ma_hpcu, c_m, V, r, p_lv, p_lv_n, reasons, with_eta, corr, pm = _prepare(
+        specs, torque_nm, speed_rpm, p_hpcu_w, p_lv_w, eta_dcdc, form, what, min_points, "W_loss_gen")
     if form == "normalised":
         cols = [p_me, 1.0 / c_m] + ([p_lv_n] if with_eta else [])
         y = p_ma_hpcu - corr * p_lv_n
