@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, ProcessImage, RegisterSnapshots
+from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, ProcessImage, RegisterSnapshots
 
 
 def loaded_frames(duration_s: float, rate_hz: float) -> np.ndarray:
@@ -49,7 +49,7 @@ def loaded_frames(duration_s: float, rate_hz: float) -> np.ndarray:
 
 
 def build_outputs(duration_s: float, rate_hz: float) -> DeviceOutputs:
-    from benchtwin.chain.canopen_pdo import pdo_layout
+    from benchtwin.wire.canopen_pdo import pdo_layout
 
     t_mb = np.arange(0.0, duration_s, 1 / 500)
     regs = np.zeros((len(t_mb), 14), dtype=np.uint16)
@@ -70,8 +70,8 @@ def build_outputs(duration_s: float, rate_hz: float) -> DeviceOutputs:
 # ------------------------------------------------------------------------------------------------ child
 def child(args: argparse.Namespace) -> int:
     """The recorder process: record, then compare with the served table and print a JSON summary."""
-    from benchtwin.chain.canopen_pdo import EDS_PATH
     from benchtwin.chain.live.recorder import LiveRecorder, ModbusPollSpec, open_acquisition_bus
+    from benchtwin.wire.canopen_pdo import EDS_PATH
 
     buses = {b: open_acquisition_bus("socketcand", b, port=args.port) for b in ("loaded", "instrument")}
     with tempfile.TemporaryDirectory() as spool:
@@ -100,8 +100,8 @@ def child(args: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------------------------------------ server
 def serve(args: argparse.Namespace) -> dict:
-    from benchtwin.chain.canopen_pdo import EDS_PATH
     from benchtwin.chain.live.session import LiveSession
+    from benchtwin.wire.canopen_pdo import EDS_PATH
 
     outputs = build_outputs(args.duration, args.rate)
     session = LiveSession(outputs, transport="socketcand", speedup=args.speedup, eds=EDS_PATH,

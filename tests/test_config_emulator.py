@@ -10,8 +10,8 @@ import pytest
 from benchtwin.cli import main
 from benchtwin.config import load_campaign, load_vehicle, scenario_path
 from benchtwin.config.campaign import CampaignConfig
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import ConfigError
-from benchtwin.identification.specs import VehicleSpecs
 
 
 def _write_modified(tmp_path: Path, edit) -> Path:

@@ -19,11 +19,11 @@ from benchtwin.trace import Trace
 from benchtwin.validation import (
     PAPER_R2,
     ValidationReport,
-    _setup_is_ideal,
     compare_with_truth,
     select_gain,
     validate,
 )
+from benchtwin.validation.run import _setup_is_ideal
 
 VEHICLE = load_vehicle()
 CAMPAIGN = load_campaign("paper.toml")
@@ -38,10 +38,39 @@ def _fail_text(report: ValidationReport) -> str:
     return "\n" + report.format_table(only_failed=True) + f"\nerrors: {report.identification.errors}"
 
 
+def _worst_case_eta_bound(c_in: np.ndarray, ratio: float, k_tel: int) -> float:
+    """Largest relative error of eta_m that rounding every point's shaft torque by half a converter step can cause.
+
+    Independent of the code under test: the step follows from facts.md (K_TOT = 218,725 / K_TEL Nm/V, 12 bits
+    over +-10 V), each point's efficiency eta = T_out / (i C) moves by at most (q / 2) / (i C) (relative, eta ~ 1),
+    and a least-squares estimate x = (A^T W A)^-1 A^T W y of eq. 16 (eta = eta_m - eta_m C0 / C, weights C^2)
+    moves by at most sum_k |row_k| |dy_k| when every |dy_k| is at its bound.
+    """
+    q = 218_725.0 / k_tel * 20.0 / 4096
+    a = np.column_stack([np.ones_like(c_in), -1.0 / c_in])
+    w = c_in**2
+    gain = np.linalg.solve((a.T * w) @ a, a.T * w)  # rows: eta_m, eta_m C0
+    dy = 0.5 * q / (ratio * c_in) * 1.05  # 5 % for eta_m itself up to ~1.05 in coast (eta = i T_in / T_out)
+    return float(np.abs(gain[0]) @ dy)
+
+
 def test_ideal_chain_recovers_every_parameter(paper_trace: Trace) -> None:
-    report = validate(VEHICLE, load_setup("ideal"), CAMPAIGN, trace=paper_trace)
+    setup = load_setup("ideal")
+    report = validate(VEHICLE, setup, CAMPAIGN, trace=paper_trace)
     assert report.meta["profile"] == "ideal"
     assert report.passed, _fail_text(report)
+    # transmission: judged against a worst-case bound derived here, not the tolerance the report computed
+    fits = report.identification.fits
+    by_name = {c.name: c for c in report.checks}
+    for g in range(1, VEHICLE.n_gears + 1):
+        for suffix in ("", "_coast"):
+            fit = fits[f"transmission.gear{g}{suffix}"]
+            bound = max(1e-3, _worst_case_eta_bound(np.asarray(fit.data["c"], float), VEHICLE.specs.gear_ratios[g - 1],
+                                                    setup.telemetry.k_tel))
+            check = by_name[f"transmission.gear{g}{suffix}.eta_m"]
+            assert abs(check.error) <= bound, (check.name, check.error, bound)
+            # the report may not claim more room than the converter step can explain
+            assert check.tolerance <= max(bound, 8e-3), (check.name, check.tolerance, bound)
     names = {c.name for c in report.checks}
     # every subsystem of the paper was judged, every gear and every gear pair both ways
     for g in range(1, VEHICLE.n_gears + 1):

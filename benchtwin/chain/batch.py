@@ -1,6 +1,6 @@
 """Batch delivery: sensors' outputs -> what the bench's loggers record -> raw log files -> Recording.
 
-:func:`deliver` turns :class:`~benchtwin.chain.frames.DeviceOutputs` into what an acquisition
+:func:`deliver` turns :class:`~benchtwin.wire.frames.DeviceOutputs` into what an acquisition
 receives (the thermo module's TPDO frames merged into their bus, the Modbus module polled at the
 configured rate with the configured faults). :func:`write_logs` writes the raw logs of a run
 (``<bus>.mf4`` bus logs, ``<device>.polls.npz`` poll logs, ``<bus>.dbc`` and the EDS to decode
@@ -29,18 +29,14 @@ from benchtwin.chain.buslog import (
     write_poll_csv,
     write_poll_log,
 )
-from benchtwin.chain.canopen_pdo import EDS_PATH, pdo_layout
-from benchtwin.chain.dbc import write_bus_dbcs
-from benchtwin.chain.frames import FRAME_DTYPE, DeviceOutputs, FrameTable
-from benchtwin.chain.merge import insert_frames
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Recording
 from benchtwin.segments import load_segments, save_segments
-from benchtwin.sensors import encode
-from benchtwin.sensors.imperfections import device_rng, frame_faults
-from benchtwin.sensors.pressure import poll_snapshots
+from benchtwin.sensors import devices, encode, write_bus_dbcs
 from benchtwin.trace import Trace
+from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable
+from benchtwin.wire.merge import insert_frames
 
 __all__ = ["deliver", "read_logs", "run_batch", "write_logs"]
 
@@ -61,19 +57,19 @@ def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
         Acquisition span for polling; defaults to the span of the register snapshots.
     """
     can = {bus: FrameTable(bus, t.frames, t.bitrate) for bus, t in outputs.can.items()}
-    if setup.thermo is not None and "thermo" in outputs.canopen:
-        bus = setup.thermo.bus
-        pdo = pdo_layout(setup.thermo.node_id).pack(outputs.canopen["thermo"])
-        pdo = frame_faults(pdo, pdo["arbitration_id"].astype(np.int64), setup.thermo.link,
-                           device_rng(seed, "thermo_pdo"))
-        old = can.get(bus, FrameTable(bus, np.zeros(0, FRAME_DTYPE), setup.bitrate(bus)))
-        can[bus] = FrameTable(bus, insert_frames(old.frames, pdo), old.bitrate)
     polls = {}
-    if setup.pressure is not None and setup.pressure.device in outputs.modbus:
-        snap = outputs.modbus[setup.pressure.device]
-        if span_s is None:
-            span_s = (float(snap.times[0]), float(snap.times[-1])) if len(snap.times) else (0.0, 0.0)
-        polls[snap.device] = poll_snapshots(snap, setup.pressure, device_rng(seed, "modbus_poll"), *span_s)
+    for d in devices(setup):
+        if d.wire == "canopen" and d.name in outputs.canopen:
+            got = d.deliver(outputs.canopen[d.name], seed, span_s)
+        elif d.wire == "modbus" and d.poll_device in outputs.modbus:
+            got = d.deliver(outputs.modbus[d.poll_device], seed, span_s)
+        else:
+            continue
+        if got.frames is not None:
+            old = can.get(d.bus, FrameTable(d.bus, np.zeros(0, FRAME_DTYPE), setup.bitrate(d.bus)))
+            can[d.bus] = FrameTable(d.bus, insert_frames(old.frames, got.frames), old.bitrate)
+        if got.polls is not None:
+            polls[got.polls.device] = got.polls
     return AcquisitionInput(can=can, polls=polls)
 
 
@@ -103,8 +99,10 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
             paths[f"{dev}.polls.csv"] = write_poll_csv(plog, out / f"{dev}.polls.csv")
     for bus, p in write_bus_dbcs(setup, out).items():
         paths[f"{bus}.dbc"] = p
-    if setup.thermo is not None:
-        paths["thermo_module.eds"] = Path(shutil.copyfile(EDS_PATH, out / "thermo_module.eds"))
+    for d in devices(setup):  # the object dictionary of every CANopen node, to decode its PDOs
+        node = d.canopen_endpoint()
+        if node is not None:
+            paths[node.eds.name] = Path(shutil.copyfile(node.eds, out / node.eds.name))
     paths["setup.json"] = out / "setup.json"
     paths["setup.json"].write_text(setup.model_dump_json(indent=1), encoding="utf-8")
     paths["segments.json"] = save_segments(received.segments, out / "segments.json")
@@ -205,7 +203,7 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
     if out_dir is not None:
         write_logs(received, setup, out_dir, blf=blf)
         received, _ = read_logs(out_dir, setup)
-    rec = acquire(received, setup, seed=seed)
+    rec = acquire(received, setup)
     if out_dir is not None:
         rec.save(Path(out_dir) / "recording.mf4")
     return rec

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE, FrameTable, PollLog
-from benchtwin.chain.merge import merge_frames
 from benchtwin.errors import DataError
+from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog
+from benchtwin.wire.merge import merge_frames
 
 __all__ = [
     "MF4_FRAME_DTYPE",

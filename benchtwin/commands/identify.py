@@ -45,7 +45,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
 
 def _load_specs(path: Path) -> Any:
     from benchtwin.config._base import validate_data
-    from benchtwin.identification.specs import VehicleSpecs
+    from benchtwin.config.specs import VehicleSpecs
 
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))

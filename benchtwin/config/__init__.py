@@ -9,12 +9,14 @@ key, the value and what is allowed.
 
 from benchtwin.config._base import StrictModel, load_model, scenario_path, validate_data
 from benchtwin.config.campaign import CampaignConfig, load_campaign
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.config.vehicle import VehicleConfig, load_vehicle
 
 __all__ = [
     "CampaignConfig",
     "StrictModel",
     "VehicleConfig",
+    "VehicleSpecs",
     "load_campaign",
     "load_model",
     "load_vehicle",

@@ -246,7 +246,7 @@ class ThermoConfig(StrictModel):
 
 
 class VehicleCanConfig(StrictModel):
-    """The vehicle CAN tap (ECU signals, see ``benchtwin/chain/dbc/vehicle.dbc``)."""
+    """The vehicle CAN tap (ECU signals, see ``benchtwin/wire/dbc/vehicle.dbc``)."""
 
     bus: str = "vehicle"
     errors: dict[str, ChannelErrors] = Field(default_factory=dict,

@@ -1,7 +1,7 @@
 """The vehicle file: every true parameter of the emulated P2 PHEV.
 
 A vehicle file has a ``[specs]`` table with exactly the public specification that identification may
-know (:class:`~benchtwin.identification.specs.VehicleSpecs`) and one table per subsystem with the true
+know (:class:`~benchtwin.config.specs.VehicleSpecs`) and one table per subsystem with the true
 model parameters that identification must recover (or that only the plant needs). Every key carries
 its unit in its name (``f0_n``, ``f1_n_per_kmh``, ``idle_speed_rpm``); a key with the wrong unit suffix
 is an unknown key and the loader suggests the right one.
@@ -15,7 +15,7 @@ from pathlib import Path
 from pydantic import Field, field_validator, model_validator
 
 from benchtwin.config._base import StrictModel, load_model, scenario_path
-from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.config.specs import VehicleSpecs
 
 __all__ = [
     "BatteryConfig",

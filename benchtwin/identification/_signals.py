@@ -29,6 +29,7 @@ __all__ = [
     "STATE_ROLES",
     "Grid",
     "check_spread",
+    "gap_mask",
     "gather",
     "native_rate",
     "raise_all_failed",
@@ -38,6 +39,7 @@ __all__ = [
     "segments_span",
     "smooth_derivative",
     "source_shifts",
+    "strict_resample",
     "time_ordered",
 ]
 
@@ -446,3 +448,46 @@ def native_rate(ch: Channel, *, max_hz: float = 200.0) -> float:
         return 10.0
     d = float(np.median(np.diff(ch.timestamps)))
     return min(1.0 / d, max_hz) if d > 0 else 10.0
+
+
+def gap_mask(rec: Recording, names: list[str], t: np.ndarray, factor: float = 3.0) -> np.ndarray:
+    """Grid points that fall in a gap of any channel longer than ``factor`` times its median interval.
+
+    Interpolating across a pause in the log would invent samples; those grid points are left out.
+    """
+    out = np.zeros(t.shape, dtype=bool)
+    for n in names:
+        ts = rec[n].timestamps
+        if ts.size < 3:
+            continue
+        dt = np.diff(ts)
+        typical = np.median(dt[:: max(1, dt.size // 20000)])  # a strided sample is enough for the typical step
+        big = dt > factor * typical
+        if not big.any():
+            continue
+        idx = np.searchsorted(ts, t, side="right") - 1  # sample at or before each grid point
+        inside = (idx >= 0) & (idx < dt.size)
+        gap = np.zeros(t.shape, dtype=bool)
+        gap[inside] = big[idx[inside]] & (t[inside] > ts[idx[inside]])
+        out |= gap
+    return out
+
+
+def strict_resample(rec: Recording, names: list[str], rate_hz: float, *, hold: tuple[str, ...] = ()
+                    ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """:meth:`Recording.resample` that also drops grid points next to a bad sample or inside a gap.
+
+    A grid point interpolated between a good and a flagged sample carries part of the flagged value;
+    one inside a pause of the log carries an invented value. Both are marked bad here.
+    """
+    t, v, bad = rec.resample(names, rate_hz, hold=hold)
+    for n in names:
+        ch = rec[n]
+        if n in hold or len(ch) < 2:
+            continue
+        sbad = ~ch.good
+        if sbad.any():
+            nxt = np.clip(np.searchsorted(ch.timestamps, t, side="left"), 0, len(ch) - 1)
+            bad |= sbad[nxt] | ((ch.flags[nxt] & int(Flag.bad())) != 0)
+    bad |= gap_mask(rec, [n for n in names if n not in hold], t)
+    return t, v, bad

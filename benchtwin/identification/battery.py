@@ -1,5 +1,8 @@
 """HV battery identification (eq. 29-30 of the paper) and a map-free OCV/R mode for real logs.
 
+Kept whole: both ways share the sampling of V, I and SOC, the coulomb-counted SOC refinement and the result
+layout the figures read; sampling itself lives in ``_signals``.
+
 Two ways to describe a pack from a Recording of its terminal voltage ``V`` and current ``I``
 (positive discharge, IVT-S), with the displayed SOC ``s`` from the vehicle CAN:
 
@@ -33,9 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError, MissingChannelError, NoExcitationError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
-from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification._signals import native_rate, segment_mask, strict_resample
 from benchtwin.recording import Recording
 
 __all__ = [
@@ -148,73 +152,18 @@ def coulomb_soc(t_s: np.ndarray, current_a: np.ndarray, capacity_ah: float, *, s
 
 
 def _native_rate(rec: Recording, name: str, cap_hz: float = 10.0) -> float:
-    ts = rec[name].timestamps
-    if ts.size < 3:
-        raise InsufficientDataError(f"channel {name!r} has {ts.size} samples")
-    dt = float(np.median(np.diff(ts)))
-    return min(cap_hz, 1.0 / dt) if dt > 0 else cap_hz
+    if rec[name].timestamps.size < 3:
+        raise InsufficientDataError(f"channel {name!r} has {rec[name].timestamps.size} samples")
+    return native_rate(rec[name], max_hz=cap_hz)
 
 
 def _segment_mask(rec: Recording, t: np.ndarray, kinds: tuple[str, ...] | None) -> tuple[np.ndarray, list[str]]:
     """Mask of samples inside segments of the given kinds; all samples when none match or no table."""
-    if not kinds or not rec.segments:
-        return np.ones(t.shape, dtype=bool), []
-    mask = np.zeros(t.shape, dtype=bool)
-    names = []
-    for seg in rec.segments:
-        if seg.kind in kinds:
-            m = seg.contains(t)
-            if m.any():
-                mask |= m
-                names.append(seg.name)
+    mask = segment_mask(rec, t, kinds) if kinds else None
+    names = [s.name for s in rec.segments if s.kind in kinds and s.contains(t).any()] if mask is not None else []
     if not names:
         return np.ones(t.shape, dtype=bool), []
     return mask, names
-
-
-def _in_gaps(rec: Recording, names: list[str], t: np.ndarray, factor: float = 3.0) -> np.ndarray:
-    """Grid points that fall in a gap of any channel longer than ``factor`` times its median interval.
-
-    Interpolating across a pause in the log would invent samples; those grid points are left out.
-    """
-    out = np.zeros(t.shape, dtype=bool)
-    for n in names:
-        ts = rec[n].timestamps
-        if ts.size < 3:
-            continue
-        dt = np.diff(ts)
-        typical = np.median(dt[:: max(1, dt.size // 20000)])  # a strided sample is enough for the typical step
-        big = dt > factor * typical
-        if not big.any():
-            continue
-        idx = np.searchsorted(ts, t, side="right") - 1  # sample at or before each grid point
-        inside = (idx >= 0) & (idx < dt.size)
-        gap = np.zeros(t.shape, dtype=bool)
-        gap[inside] = big[idx[inside]] & (t[inside] > ts[idx[inside]])
-        out |= gap
-    return out
-
-
-def strict_resample(rec: Recording, names: list[str], rate_hz: float, *, hold: tuple[str, ...] = ()
-                    ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """:meth:`Recording.resample` that also drops grid points next to a bad sample or inside a gap.
-
-    A grid point interpolated between a good and a flagged sample carries part of the flagged value;
-    one inside a pause of the log carries an invented value. Both are marked bad here.
-    """
-    from benchtwin.recording import Flag
-
-    t, v, bad = rec.resample(names, rate_hz, hold=hold)
-    for n in names:
-        ch = rec[n]
-        if n in hold or len(ch) < 2:
-            continue
-        sbad = ~ch.good
-        if sbad.any():
-            nxt = np.clip(np.searchsorted(ch.timestamps, t, side="left"), 0, len(ch) - 1)
-            bad |= sbad[nxt] | ((ch.flags[nxt] & int(Flag.bad())) != 0)
-    bad |= _in_gaps(rec, [n for n in names if n not in hold], t)
-    return t, v, bad
 
 
 def _battery_samples(rec: Recording, *, soc: bool, rate_hz: float | None, kinds: tuple[str, ...] | None

@@ -22,6 +22,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from scipy import stats
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError, MissingChannelError
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate, linear_fit
 from benchtwin.identification._signals import (
@@ -32,7 +33,6 @@ from benchtwin.identification._signals import (
     segments_span,
     smooth_derivative,
 )
-from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.identification.steady import Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 from scipy.spatial import Delaunay, QhullError
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import CollinearError, IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import (
     FitResult,
@@ -35,7 +36,6 @@ from benchtwin.identification._fit import (
     r_squared,
 )
 from benchtwin.identification._signals import check_spread
-from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 

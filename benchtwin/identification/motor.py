@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, IdentificationResult, derived, linear_fit
 from benchtwin.identification._signals import check_spread, raise_all_failed
-from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 

@@ -20,6 +20,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, linear_fit
 from benchtwin.identification._signals import (
@@ -32,7 +33,6 @@ from benchtwin.identification._signals import (
     segments_span,
     smooth_derivative,
 )
-from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.recording import Recording
 
 __all__ = ["coastdown_runs", "fit_road_load", "identify_road_load"]

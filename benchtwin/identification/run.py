@@ -37,9 +37,10 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError, DataError
 from benchtwin.identification._fit import FitResult, IdentificationResult
-from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Recording
 
 __all__ = ["METHODS", "Method", "identify_all", "method_options", "transmission_table"]
@@ -81,13 +82,13 @@ def transmission_table(result: IdentificationResult) -> dict[int, tuple[float, f
         An identification result holding the transmission fits.
     """
     out: dict[int, tuple[float, float]] = {}
-    for key, fit in result.fits.items():
-        if not key.startswith("transmission.gear") or key.endswith("_coast") or fit.status != "ok":
+    for name, fit in result.fits.items():
+        key = FitKey.parse(name)
+        if key.subsystem != "transmission" or key.direction != "drive" or fit.status != "ok":
             continue
         try:
-            gear = int(key.removeprefix("transmission.gear"))
-            out[gear] = (fit.value("eta_m"), fit.value("C0"))
-        except (ValueError, KeyError):
+            out[key.gear] = (fit.value("eta_m"), fit.value("C0"))
+        except KeyError:
             continue
     return out
 

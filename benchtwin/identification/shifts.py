@@ -26,6 +26,7 @@ import numpy as np
 
 from benchtwin.errors import MissingChannelError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
+from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Recording
 
 __all__ = ["find_shift_events", "identify_shift_thresholds"]
@@ -169,7 +170,7 @@ def identify_shift_thresholds(
     out: dict[str, FitResult] = {}
     for g in range(1, max(n_gears, 1)):
         for direction, a, b in (("up", g, g + 1), ("down", g + 1, g)):
-            name = f"{direction}_{a}_{b}"
+            name = FitKey.shift(a, direction).local
             m = adjacent & (ev["from_gear"] == a) & (ev["to_gear"] == b)
             n_bad = int((m & ~(ev["good"] & ev["crossing"])).sum())
             m &= ev["good"] & ev["crossing"]

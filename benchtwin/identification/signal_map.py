@@ -17,7 +17,7 @@ A signal map is a TOML file::
     scale = 1.0                      # optional, applied after unit conversion (-1 flips a sign)
     offset = 0.0                     # optional, added after scaling
 
-    [specs]                          # optional: benchtwin.identification.specs.VehicleSpecs
+    [specs]                          # optional: benchtwin.config.specs.VehicleSpecs
     n_cells_series = 120
     ...
 
@@ -41,8 +41,8 @@ import numpy as np
 from pydantic import Field
 
 from benchtwin.config._base import StrictModel, load_model, validate_data
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import ConfigError
-from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.roles import ROLES
 
 __all__ = ["UNITS", "BatteryHints", "ChannelMap", "SignalMap", "SourceOptions", "convert_units", "load_signal_map",

@@ -29,10 +29,10 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import InsufficientDataError, MissingChannelError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
-from benchtwin.identification.battery import strict_resample
-from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification._signals import strict_resample
 from benchtwin.recording import Recording
 
 __all__ = [

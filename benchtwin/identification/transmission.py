@@ -21,10 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, IdentificationResult, derived, linear_fit
 from benchtwin.identification._signals import check_spread, raise_all_failed
-from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.identification.keys import FitKey
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
@@ -250,7 +251,7 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
         ig = ratios[gg - 1] if 1 <= gg <= ratios.size else float("nan")
         sel = pts.usable & (pts.gear == gg)
         for direction in ("drive", "coast"):
-            key = f"transmission.gear{gg}" + ("" if direction == "drive" else "_coast")
+            key = str(FitKey.transmission(gg, direction))
             if direction == "drive":
                 m = sel & (pts.p_out > 0) & (pts.p_in > 0)
                 c = pts.c_in[m]

@@ -1,45 +1,38 @@
 """Device models: what each instrument of the bench puts on its wire, from the Trace (the truth).
 
-:func:`encode` runs every sensor of a setup over a Trace and returns the
-:class:`~benchtwin.chain.frames.DeviceOutputs` (CAN frame tables per bus, Modbus register snapshots,
-CANopen process images), with the imperfections of the setup file and random draws from the
-campaign seed split per device. The per-device encoders (``encode_ivt``, ``encode_telemetry``,
-``encode_thermo``, ``encode_pressure``, ``encode_can_device``) are pure functions of
-(trace, device config, generator), so a live scheduler can encode a time slice at a time.
+Every device kind is a :class:`~benchtwin.sensors.base.Device` subclass in its own module, named in
+:data:`~benchtwin.sensors.registry.DEVICE_KINDS` by its setup section. :func:`encode` runs every device
+of a setup over a Trace and returns the :class:`~benchtwin.wire.frames.DeviceOutputs` (CAN frame tables
+per bus, Modbus register snapshots, CANopen process images), with the imperfections of the setup file and
+random draws from the campaign seed split per device. :func:`bus_database` is every CAN layout on one
+bus of a setup, as one cantools Database.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
-from typing import Any
+from pathlib import Path
 
+import cantools
 import numpy as np
+from cantools.database.can import Database, Message, Node
 
-from benchtwin.chain.frames import DeviceOutputs, FrameTable
-from benchtwin.chain.merge import merge_frames
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
+from benchtwin.sensors.base import Device
 from benchtwin.sensors.imperfections import device_rng
-from benchtwin.sensors.ivt import encode_ivt
-from benchtwin.sensors.pressure import encode_pressure
-from benchtwin.sensors.telemetry import encode_telemetry
-from benchtwin.sensors.thermocouple import encode_thermo
-from benchtwin.sensors.vehicle import encode_can_device
+from benchtwin.sensors.registry import devices
 from benchtwin.trace import Trace
+from benchtwin.wire.frames import DeviceOutputs, FrameTable
+from benchtwin.wire.merge import merge_frames
 
-__all__ = ["device_names", "encode"]
+__all__ = ["Device", "bus_database", "device_names", "devices", "encode", "write_bus_dbcs"]
 
 
 def device_names(setup: SetupConfig) -> list[str]:
     """Names of the devices of a setup (also the keys of the per-device random streams)."""
-    names = [f"ivt_{p}" for p in setup.ivt]
-    for key in ("pressure", "telemetry", "thermo", "vehicle_can", "dyno"):
-        if getattr(setup, key) is not None:
-            names.append(key)
-    return names
+    return [d.name for d in devices(setup)]
 
 
 def _workers(workers: int | None) -> int:
@@ -47,7 +40,7 @@ def _workers(workers: int | None) -> int:
 
 
 def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0, *, workers: int | None = None) -> DeviceOutputs:
-    """Encode every sensor of ``setup`` over ``trace``.
+    """Encode every device of ``setup`` over ``trace``.
 
     Parameters
     ----------
@@ -70,38 +63,63 @@ def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0, *, workers: i
     """
     if len(trace) < 2:
         raise DataError("trace needs at least two samples to encode")
-    jobs: list[tuple[str, str, Callable[[], Any]]] = []  # (kind, bus or name, job)
-    for place, cfg in setup.ivt.items():
-        jobs.append(("can", cfg.bus, partial(encode_ivt, trace, place, cfg, device_rng(seed, f"ivt_{place}"))))
-    if setup.telemetry is not None:
-        jobs.append(("can", setup.telemetry.bus,
-                     partial(encode_telemetry, trace, setup.telemetry, device_rng(seed, "telemetry"))))
-    if setup.vehicle_can is not None:
-        jobs.append(("can", setup.vehicle_can.bus, partial(encode_can_device, trace, "vehicle", setup.vehicle_can,
-                                                          device_rng(seed, "vehicle_can"))))
-    if setup.dyno is not None:
-        jobs.append(("can", setup.dyno.bus, partial(encode_can_device, trace, "dyno", setup.dyno,
-                                                   device_rng(seed, "dyno"))))
-    if setup.thermo is not None:
-        jobs.append(("canopen", "thermo", partial(encode_thermo, trace, setup.thermo, device_rng(seed, "thermo"))))
-    if setup.pressure is not None:
-        jobs.append(("modbus", setup.pressure.device,
-                     partial(encode_pressure, trace, setup.pressure, device_rng(seed, "pressure"))))
+    devs = devices(setup)
+
+    def run(d: Device):
+        return d.encode(trace, device_rng(seed, d.name))
+
     n = _workers(workers)
     if n == 1:
-        results = [job() for _, _, job in jobs]
+        results = [run(d) for d in devs]
     else:
         with ThreadPoolExecutor(max_workers=n, thread_name_prefix="encode") as pool:
-            results = list(pool.map(lambda j: j[2](), jobs))
+            results = list(pool.map(run, devs))
     out = DeviceOutputs()
     per_bus: dict[str, list[np.ndarray]] = {b: [] for b in setup.buses}
-    for (kind, key, _), res in zip(jobs, results):
-        if kind == "can":
-            per_bus[key].append(res)
-        elif kind == "canopen":
-            out.canopen[key] = res
+    for d, res in zip(devs, results):
+        if d.wire == "can":
+            per_bus[d.bus].append(res)
+        elif d.wire == "canopen":
+            out.canopen[d.name] = res
         else:
-            out.modbus[key] = res
+            out.modbus[res.device] = res
     for bus, parts in per_bus.items():
         out.can[bus] = FrameTable(bus, merge_frames(parts), setup.bitrate(bus))
+    return out
+
+
+def bus_database(setup: SetupConfig, bus: str) -> Database:
+    """Every CAN layout on one bus of a setup, as one cantools Database (what a user loads to decode a log).
+
+    IVT-S messages are renamed per place (``IVT_Hpcu_Result_I``) and moved to the shunt's ids; the
+    thermo module's TPDOs come from its EDS mapping.
+
+    Parameters
+    ----------
+    setup:
+        The bench.
+    bus:
+        Bus name.
+    """
+    messages: list[Message] = []
+    nodes: dict[str, Node] = {"BENCH": Node("BENCH")}
+    for d in devices(setup):
+        db = d.database() if d.bus == bus else None
+        if db is None:
+            continue
+        messages.extend(db.messages)
+        for node in db.nodes:
+            nodes.setdefault(node.name, node)
+    return Database(messages, list(nodes.values()), version=f"benchtwin-{setup.name}-{bus}")
+
+
+def write_bus_dbcs(setup: SetupConfig, directory: str | Path) -> dict[str, Path]:
+    """Write ``<bus>.dbc`` for every bus of the setup into ``directory``; return bus -> path."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for bus in setup.buses:
+        path = directory / f"{bus}.dbc"
+        cantools.database.dump_file(bus_database(setup, bus), str(path))
+        out[bus] = path
     return out

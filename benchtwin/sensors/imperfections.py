@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE
 from benchtwin.config.setup import ChannelErrors, LinkErrors
 from benchtwin.errors import DataError
+from benchtwin.wire.frames import FRAME_DTYPE
 
 __all__ = ["DeviceClock", "device_rng", "frame_faults", "hold_sample", "lti_filter", "measure", "sample"]
 
@@ -187,7 +187,7 @@ def frame_faults(frames: np.ndarray, stream: np.ndarray, link: LinkErrors, rng: 
     """
     if (link.drop_prob == 0 and link.duplicate_prob == 0 and link.reorder_prob == 0) or len(frames) == 0:
         return frames
-    from benchtwin.chain.merge import insert_frames, void_view
+    from benchtwin.wire.merge import insert_frames, void_view
 
     n = len(frames)
     out = frames

@@ -1,6 +1,6 @@
 """Isabellenhuette IVT-S current/voltage shunt: measurement model, result frames and command channel.
 
-Result frames (6 bytes, big-endian; see ``benchtwin/chain/dbc/ivt_s.dbc``)::
+Result frames (6 bytes, big-endian; see ``benchtwin/wire/dbc/ivt_s.dbc``)::
 
     byte 0      mux: 0x00 I, 0x01 U1, 0x02 U2, 0x03 U3, 0x04 T, 0x05 W, 0x06 As, 0x07 Wh
     byte 1      low nibble: cyclic message counter; high nibble: status
@@ -25,17 +25,25 @@ of results), 0x34 set mode (byte 1 bit 0: 1 run, 0 stop).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchtwin.chain.codec import MessageCodec
-from benchtwin.chain.dbc import build_ivt, ivt_node_name
-from benchtwin.chain.frames import FRAME_DTYPE
-from benchtwin.chain.merge import merge_frames
-from benchtwin.config.setup import IVT_PLACES, IvtConfig
+from benchtwin.config.setup import IVT_PLACES, ChannelErrors, IvtConfig, LinkErrors, SetupConfig
 from benchtwin.errors import FrameError
+from benchtwin.roles import unit_of_role
+from benchtwin.sensors.base import Device, FrameDecoder, TriggerSpec, TruthChannel
 from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
 from benchtwin.trace import Trace
+from benchtwin.wire.codec import MessageCodec
+from benchtwin.wire.dbc import build_ivt, ivt_node_name
+from benchtwin.wire.frames import FRAME_DTYPE
+from benchtwin.wire.merge import merge_frames
+from benchtwin.wire.quality import FLAG, DecodeSink, FrameStream, counter_flags, mark_after, split_bad
+
+if TYPE_CHECKING:
+    from cantools.database.can import Database
 
 __all__ = [
     "CMD_CONFIGURE",
@@ -51,11 +59,10 @@ __all__ = [
     "IvtAnswer",
     "IvtDevice",
     "IvtSamples",
+    "IvtShunt",
     "encode_ivt",
     "ivt_samples",
-    "pack_results",
-    "unpack_result",
-    "unpack_result_words",
+    "result_codecs",
 ]
 
 RESULT_NAMES: tuple[str, ...] = ("I", "U1", "U2", "U3", "T", "W", "As", "Wh")
@@ -73,36 +80,25 @@ TRIGGER_RESPONSE_S = 0.0002
 RESULT_SPACING_S = 0.0
 
 
-def pack_results(mux: np.ndarray, counter: np.ndarray, status: np.ndarray, value: np.ndarray) -> np.ndarray:
-    """Pack result frames column-wise into ``(n, 8)`` bytes (bytes 6, 7 zero)."""
-    n = np.size(value)
-    out = np.zeros((n, 8), dtype=np.uint8)
-    out[:, 0] = np.broadcast_to(np.asarray(mux, dtype=np.uint8), (n,))
-    out[:, 1] = (np.broadcast_to(np.asarray(counter, dtype=np.int64), (n,)) & 0xF) | (
-        (np.broadcast_to(np.asarray(status, dtype=np.int64), (n,)) & 0xF) << 4)
-    v = np.asarray(value, dtype=np.int64).astype(">i4")
-    out[:, 2:6] = v.view(np.uint8).reshape(n, 4)
-    return out
+@cache
+def result_codecs(result_base_id: int = 0x521, name: str = "IVT") -> tuple[MessageCodec, ...]:
+    """The compiled codecs of the eight result messages of a shunt (mux order), from its DBC messages.
+
+    Parameters
+    ----------
+    result_base_id:
+        Identifier of the current result.
+    name:
+        Node name of the shunt (signal-name prefix).
+    """
+    db = build_ivt(name, result_base_id)
+    return tuple(MessageCodec(db.get_message_by_frame_id(result_base_id + k)) for k in range(len(RESULT_NAMES)))
 
 
-def unpack_result(data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Inverse of :func:`pack_results`: mux, counter, status, int32 value (int64 arrays)."""
-    data = np.ascontiguousarray(data, dtype=np.uint8)
-    mux = data[:, 0].astype(np.int64)
-    counter = (data[:, 1] & 0xF).astype(np.int64)
-    status = (data[:, 1] >> 4).astype(np.int64)
-    value = np.ascontiguousarray(data[:, 2:6]).view(">i4")[:, 0].astype(np.int64)
-    return mux, counter, status, value
-
-
-def unpack_result_words(words_le: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`unpack_result` from the data as little-endian 64-bit words (no byte-array copies)."""
-    w = np.asarray(words_le, dtype=np.uint64)
-    mux = (w & np.uint64(0xFF)).astype(np.int64)
-    counter = ((w >> np.uint64(8)) & np.uint64(0xF)).astype(np.int64)
-    status = ((w >> np.uint64(12)) & np.uint64(0xF)).astype(np.int64)
-    value = ((w.byteswap() >> np.uint64(16)) & np.uint64(0xFFFFFFFF)).astype(np.uint32).view(np.int32)
-    return mux, counter, status, value.astype(np.int64)
+def _signal(codec: MessageCodec, suffix: str) -> str:
+    """The name of a result message's signal by role (``MuxID``, ``Status``, ``Counter`` or ``""`` for the value)."""
+    value = next(n for n in codec.signals if not n.endswith(("_MuxID", "_Counter", "_Status")))
+    return value if not suffix else f"{value}_{suffix}"
 
 
 @dataclass
@@ -212,16 +208,15 @@ def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generato
     counter = np.arange(n, dtype=np.int64) & 0xF
     # the results of one measurement follow each other in mux order: build them interleaved
     # packed with the codec compiled from the shunt's DBC messages (the layout's one source of truth)
-    db = build_ivt(ivt_node_name(place), cfg.result_base_id, cfg.command_id, cfg.response_id, cfg.cycle_ms)
+    codecs = result_codecs(cfg.result_base_id, ivt_node_name(place))
     res = np.zeros((n, len(enabled)), dtype=FRAME_DTYPE)
     for j, k in enumerate(enabled):
-        codec = MessageCodec(db.get_message_by_frame_id(cfg.result_base_id + k))
-        prefix = f"{ivt_node_name(place)}_{RESULT_NAMES[k]}"
+        codec = codecs[k]
         res["timestamp"][:, j] = s.t_device + RESULT_SPACING_S * k
         res["arbitration_id"][:, j] = cfg.result_base_id + k
         res["dlc"][:, j] = codec.length
-        res["data"][:, j] = codec.pack({f"{prefix}_MuxID": k, f"{prefix}_Counter": counter,
-                                        f"{prefix}_Status": s.status[k], prefix: s.values[k]}, n)
+        res["data"][:, j] = codec.pack({_signal(codec, "MuxID"): k, _signal(codec, "Counter"): counter,
+                                        _signal(codec, "Status"): s.status[k], _signal(codec, ""): s.values[k]}, n)
     parts.insert(0, res.reshape(-1))
     frames = merge_frames(parts)
     return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
@@ -302,5 +297,122 @@ class IvtDevice:
         c = self.counters[k]
         self.counters[k] = (c + 1) & 0xF
         st = (status | self.latched_status) & 0xF
-        data = pack_results(np.array([k]), np.array([c]), np.array([st]), np.array([value]))[0, :6].tobytes()
+        codec = result_codecs(self.cfg.result_base_id)[k]
+        data = codec.pack({_signal(codec, "MuxID"): k, _signal(codec, "Counter"): c, _signal(codec, "Status"): st,
+                           _signal(codec, ""): value}, 1)[0, :codec.length].tobytes()
         return self.cfg.result_base_id + k, data
+
+    def unpack_result(self, k: int, data: bytes) -> tuple[int, int]:
+        """Status nibble and int32 value of a result frame of result ``k`` (the inverse of :meth:`result_frame`)."""
+        codec = result_codecs(self.cfg.result_base_id)[k]
+        words = np.frombuffer(bytes(data).ljust(8, b"\0")[:8], dtype="<u8")
+        raw = codec.unpack_words(words, [_signal(codec, "Status"), _signal(codec, "")])
+        return int(raw[_signal(codec, "Status")][0]), int(raw[_signal(codec, "")][0])
+
+
+# ---------------------------------------------------------------------------------------------- the device
+
+
+def _result_channels(place: str) -> list[tuple[str, str, float]]:
+    """(role or name, unit, scale of the integer result) of the eight results of the shunt at ``place``."""
+    _, _, role_i, role_u = IVT_PLACES[place]
+    prefix = role_i[: -len("_current_a")]
+    return [(role_i, "A", 1e-3), (role_u, "V", 1e-3), (f"ivt_{place}_u2_v", "V", 1e-3),
+            (f"ivt_{place}_u3_v", "V", 1e-3), (f"ivt_{place}_temp_degc", "degC", 0.1),
+            (f"{prefix}_power_w", "W", 1.0), (f"ivt_{place}_charge_as", "As", 1.0),
+            (f"ivt_{place}_energy_wh", "Wh", 1.0)]
+
+
+class IvtShunt(Device):
+    """An IVT-S shunt at one place of the HV or LV system (setup section ``[ivt.<place>]``)."""
+
+    section = "ivt"
+    wire = "can"
+
+    def __init__(self, name: str, cfg: IvtConfig, setup: SetupConfig, place: str) -> None:
+        super().__init__(name, cfg, setup)
+        self.place = place
+
+    @classmethod
+    def from_setup(cls, setup: SetupConfig) -> list[Device]:
+        """One device per configured place."""
+        return [cls(f"ivt_{place}", cfg, setup, place) for place, cfg in setup.ivt.items()]
+
+    def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
+        """Result frames (and the bench's trigger commands in triggered mode)."""
+        return encode_ivt(trace, self.place, self.cfg, rng)
+
+    def database(self) -> Database:
+        """The shunt's result, command and answer messages on its own identifiers."""
+        c = self.cfg
+        return build_ivt(ivt_node_name(self.place), c.result_base_id, c.command_id, c.response_id,
+                         c.cycle_ms if c.mode == "cyclic" else None)
+
+    def frame_decoders(self) -> dict[int, FrameDecoder]:
+        """The eight results, the command channel and its answers."""
+        c = self.cfg
+        codecs = result_codecs(c.result_base_id, ivt_node_name(self.place))
+        channels = _result_channels(self.place)
+        out = {c.result_base_id + k: FrameDecoder(codecs[k].length, self._result_decoder(k, codecs[k], channels[k]))
+               for k in range(len(RESULT_NAMES))}
+        out[c.command_id] = FrameDecoder(0, lambda s, sink: sink.count("ivt_commands", self.name, s.t.shape[0]))
+        out[c.response_id] = FrameDecoder(0, self._decode_answers)
+        return out
+
+    def _result_decoder(self, k: int, codec: MessageCodec, channel: tuple[str, str, float]):
+        name, unit, scale = channel
+
+        def decode(s: FrameStream, sink: DecodeSink) -> None:
+            mux_bad = codec.unpack_words(s.words, [_signal(codec, "MuxID")])[_signal(codec, "MuxID")] != k
+            good, proto, nbad = split_bad(s.dlc, codec.length, mux_bad)
+            sink.protocol_error(s.where, nbad)
+            raw = codec.unpack_words(s.words[good] if nbad else s.words)
+            counter, status = raw[_signal(codec, "Counter")], raw[_signal(codec, "Status")]
+            value = raw[_signal(codec, "")]
+            flags = proto | counter_flags(counter, 4)
+            flags[(status & STATUS_OUT_OF_RANGE) != 0] |= FLAG["OUT_OF_RANGE"] | FLAG["SATURATED"]
+            flags[(status & (STATUS_MEAS_ERROR | STATUS_SYS_ERROR)) != 0] |= FLAG["STATUS_ERROR"]
+            n_ocs = int(np.count_nonzero(status & STATUS_OCS))
+            if n_ocs:  # over-current detection is an event of the circuit, not a measurement error
+                sink.count("ivt_ocs_frames", self.name, n_ocs)
+            t = s.t[good]
+            mark_after(flags, t, s.drops, FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"])
+            sink.add(name, unit_of_role(name) or unit, t, value * scale, flags, self.name)
+
+        return decode
+
+    def _decode_answers(self, s: FrameStream, sink: DecodeSink) -> None:
+        sink.count("ivt_answers", self.name, s.t.shape[0])
+        unk = int(np.sum((s.words & np.uint64(0xFF)) == 0xFF))
+        if unk:
+            sink.protocol_error(f"{s.where} unknown-command answers", unk)
+
+    def truth_channels(self) -> dict[str, TruthChannel]:
+        """Current and voltage: the shunt's converter step over +-range plus the 1 mA / 1 mV step of the result."""
+        ch_i, ch_u, role_i, role_u = IVT_PLACES[self.place]
+        c = self.cfg
+        return {role_i: TruthChannel(ch_i, 1.0, False, 2 * c.current_range_a / 2**c.adc_bits + 0.001),
+                role_u: TruthChannel(ch_u, 1.0, False, 2 * c.voltage_range_v / 2**c.adc_bits + 0.001)}
+
+    def error_budget(self) -> dict[str, tuple[ChannelErrors | None, LinkErrors, float]]:
+        """The current and voltage errors of the shunt."""
+        _, _, role_i, role_u = IVT_PLACES[self.place]
+        return {role_i: (self.cfg.current_errors, self.cfg.link, 0.0),
+                role_u: (self.cfg.voltage_errors, self.cfg.link, 0.0)}
+
+    def saturation(self) -> dict[str, ChannelErrors]:
+        """Current and voltage."""
+        _, _, role_i, role_u = IVT_PLACES[self.place]
+        return {role_i: self.cfg.current_errors, role_u: self.cfg.voltage_errors}
+
+    def command_device(self) -> IvtDevice:
+        """The shunt's command state machine."""
+        return IvtDevice(self.cfg)
+
+    def triggers(self) -> list[TriggerSpec]:
+        """In triggered mode, the bench triggers the enabled results every ``trigger_period_ms``."""
+        c = self.cfg
+        if c.mode != "triggered":
+            return []
+        return [TriggerSpec(c.bus, c.command_id, sum(1 << RESULT_NAMES.index(r) for r in c.results),
+                            c.trigger_period_ms / 1000.0)]

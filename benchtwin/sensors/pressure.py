@@ -1,5 +1,5 @@
 """SPA100 brake pressure transducers on a 16-bit Modbus TCP analogue module (register map:
-:mod:`benchtwin.chain.modbus_map`), and the acquisition's polling of it in batch mode.
+:mod:`benchtwin.wire.modbus_map`), and the acquisition's polling of it in batch mode.
 
 Transducer: 0..full_scale_bar -> 0..full_scale_v (SPA100: 0-100 bar -> 0-5 V), linear, with the
 configured errors (in bar); its output saturates at ``output_max_v`` (the acquisition flags readings
@@ -13,8 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchtwin.chain.frames import POLL_OK, POLL_TIMEOUT, PollLog, RegisterSnapshots
-from benchtwin.chain.modbus_map import (
+from benchtwin.config.setup import ChannelErrors, LinkErrors, PressureConfig
+from benchtwin.roles import unit_of_role
+from benchtwin.sensors.base import Delivered, Device, ModbusEndpoint, TruthChannel
+from benchtwin.sensors.imperfections import DeviceClock, device_rng, measure
+from benchtwin.trace import Trace
+from benchtwin.wire.frames import POLL_OK, POLL_TIMEOUT, PollLog, RegisterSnapshots
+from benchtwin.wire.modbus_map import (
+    ADC_FULL_SCALE_V,
     CHANNELS,
     INPUT_COUNT,
     REG_COUNTER,
@@ -24,13 +30,13 @@ from benchtwin.chain.modbus_map import (
     REG_UPTIME_HI,
     REG_UPTIME_LO,
     counts_to_volts,
+    holding_defaults,
     volts_to_counts,
 )
-from benchtwin.config.setup import PressureConfig
-from benchtwin.sensors.imperfections import DeviceClock, measure
-from benchtwin.trace import Trace
+from benchtwin.wire.quality import FLAG, DecodeSink, mark_after
 
-__all__ = ["PA_PER_BAR", "encode_pressure", "poll_snapshots", "pressure_from_counts"]
+__all__ = ["PA_PER_BAR", "PressureModule", "decode_pressure_polls", "encode_pressure", "poll_snapshots",
+           "pressure_from_counts"]
 
 PA_PER_BAR = 1e5
 
@@ -99,3 +105,118 @@ def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.
 def pressure_from_counts(counts: np.ndarray, cfg: PressureConfig) -> np.ndarray:
     """The acquisition's conversion: raw counts -> bar."""
     return counts_to_volts(counts) * cfg.full_scale_bar / cfg.full_scale_v
+
+
+def _unwrap_u32(raw: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Unwrap a uint32 millisecond counter (wraps every 49.7 days; a clock that starts before zero
+    starts near 2^32) over the good polls; failed polls keep whatever they hold."""
+    out = raw.astype(np.int64).copy()
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        return out
+    g = out[idx]
+    d = np.diff(g)
+    g = g + np.concatenate([[0], np.cumsum(np.where(d < -(1 << 31), 1 << 32, 0) - np.where(d > 1 << 31, 1 << 32, 0))])
+    if g[0] >= 1 << 31:  # read as a signed clock
+        g = g - (1 << 32)
+    out[idx] = g
+    return out
+
+
+def decode_pressure_polls(log_: PollLog, cfg: PressureConfig | None, sink: DecodeSink, drops: np.ndarray) -> None:
+    """Decode the poll log of the pressure module into the five brake-pressure channels (bar).
+
+    The time base is the module's uptime registers where polled, else the poll times; a failed poll
+    holds the last good values, flagged TIMEOUT or PROTOCOL_ERROR; status bits and the transducer's
+    output limit flag SATURATED. Counts go to ``sink.counts["modbus"]``.
+    """
+    n = len(log_)
+    ok = log_.status == POLL_OK
+    timeouts = int(np.sum(log_.status == POLL_TIMEOUT))
+    exc = log_.status[(log_.status != POLL_OK) & (log_.status != POLL_TIMEOUT)]
+    codes, cnt = np.unique(exc, return_counts=True)
+    sink.counts.setdefault("modbus", {})[log_.device] = {
+        "polls": n, "timeouts": timeouts, "exceptions": {int(c): int(k) for c, k in zip(codes, cnt)}}
+    if n == 0 or log_.first_register != 0 or log_.count <= REG_RAW + len(CHANNELS) - 1:
+        if n:
+            sink.protocol_error(f"modbus:{log_.device} unexpected register block", n)
+        return
+    # time base: the module's uptime registers where polled, else the poll times
+    if log_.count > REG_UPTIME_LO:
+        raw = log_.values[:, REG_UPTIME_HI].astype(np.int64) << 16 | log_.values[:, REG_UPTIME_LO]
+        up = _unwrap_u32(raw, ok) / 1000.0
+    else:
+        up = log_.times.copy()
+    last_good = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
+    has = last_good >= 0
+    lg = np.clip(last_good, 0, None)
+    t = np.where(ok, up, up[lg] + (log_.times - log_.times[lg]))
+    t = np.where(has, t, log_.times - (log_.times[ok][0] - up[ok][0] if ok.any() else 0.0))
+    flags = np.zeros(n, dtype=np.uint16)
+    flags[log_.status == POLL_TIMEOUT] |= FLAG["TIMEOUT"]
+    flags[(log_.status != POLL_OK) & (log_.status != POLL_TIMEOUT)] |= FLAG["PROTOCOL_ERROR"]
+    mark_after(flags, log_.times, drops, FLAG["TRANSPORT_DROP"])
+    # keep timestamps monotonic (a held sample never goes back in time)
+    t = np.maximum.accumulate(t)
+    status = log_.values[lg, REG_STATUS].astype(np.int64) if log_.count > REG_STATUS else np.zeros(n, np.int64)
+    for k, (_trace, role) in enumerate(CHANNELS):
+        counts = log_.values[lg, REG_RAW + k]
+        v = pressure_from_counts(counts, cfg) if cfg is not None else counts.astype(np.float64)
+        v = np.where(has, v, np.nan)
+        f = flags.copy()
+        f[((status >> k) & 1).astype(bool) | ((status >> (8 + k)) & 1).astype(bool)] |= FLAG["SATURATED"]
+        if cfg is not None:  # at the transducer's output limit
+            v_max = pressure_from_counts(volts_to_counts(np.array([cfg.output_max_v]))[0], cfg)[0]
+            f[v >= v_max - 1e-9] |= FLAG["SATURATED"]
+        sink.add(role, unit_of_role(role), t, v, f, log_.device)
+    if ok.any():
+        sink.counts.setdefault("clock_offsets_s", {})["pressure->acquisition"] = float(
+            np.median(log_.times[ok] - up[ok]))
+
+
+class PressureModule(Device):
+    """Five SPA100 transducers on the 16-bit Modbus TCP module (setup section ``[pressure]``)."""
+
+    section = "pressure"
+    wire = "modbus"
+
+    @property
+    def poll_device(self) -> str:
+        """The module's device name (its poll log's name)."""
+        return self.cfg.device
+
+    def encode(self, trace: Trace, rng: np.random.Generator) -> RegisterSnapshots:
+        """The module's input registers at every update."""
+        return encode_pressure(trace, self.cfg, rng)
+
+    def deliver(self, output: RegisterSnapshots, seed: int | None, span_s: tuple[float, float] | None
+                ) -> Delivered:
+        """The acquisition's polls over ``span_s`` (default: the snapshots' span), faults from ``modbus_poll``."""
+        if span_s is None:
+            span_s = (float(output.times[0]), float(output.times[-1])) if len(output.times) else (0.0, 0.0)
+        return Delivered(polls=poll_snapshots(output, self.cfg, device_rng(seed, "modbus_poll"), *span_s))
+
+    def decode_polls(self, log: PollLog, sink: DecodeSink, drops: np.ndarray) -> None:
+        """See :func:`decode_pressure_polls`."""
+        decode_pressure_polls(log, self.cfg, sink, drops)
+
+    def truth_channels(self) -> dict[str, TruthChannel]:
+        """The five pressures (Pa in the Trace, bar recorded), to one step of the module's converter."""
+        lsb_bar = ADC_FULL_SCALE_V / 65535 * self.cfg.full_scale_bar / self.cfg.full_scale_v
+        return {role: TruthChannel(trace_name, 1e-5, False, lsb_bar) for trace_name, role in CHANNELS}
+
+    def error_budget(self) -> dict[str, tuple[ChannelErrors | None, LinkErrors, float]]:
+        """The transducers' errors."""
+        return {role: (self.cfg.errors, self.cfg.link, 0.0) for _name, role in CHANNELS}
+
+    def saturation(self) -> dict[str, ChannelErrors]:
+        """The five pressures."""
+        return {role: self.cfg.errors for _name, role in CHANNELS}
+
+    def modbus_endpoint(self, seed: int | None) -> ModbusEndpoint:
+        """Input registers 0..13 (function 4), the configuration block, and the setup's poll faults."""
+        c = self.cfg
+        return ModbusEndpoint(c.device, c.unit_id, c.port, 4, 0, INPUT_COUNT, c.poll_hz,
+                              holding_defaults(c.full_scale_bar, c.full_scale_v),
+                              {"exception_prob": c.exception_prob, "exception_code": c.exception_code,
+                               "timeout_prob": c.timeout_prob, "seed": seed})

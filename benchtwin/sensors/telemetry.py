@@ -16,29 +16,38 @@ paper's shaft (steel, E 210 GPa, nu 0.3, K_SG 2.0, V_s 5 V, solid R_e ~20.5 mm) 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchtwin.chain.codec import MessageCodec
-from benchtwin.chain.dbc import AD_TORQUE_LSB_V, build_ad_module
-from benchtwin.chain.frames import FRAME_DTYPE
-from benchtwin.config.setup import K_TEL_STEPS, ShaftConfig, TelemetryConfig
+from benchtwin.config.setup import K_TEL_STEPS, ChannelErrors, LinkErrors, ShaftConfig, TelemetryConfig
 from benchtwin.errors import ConfigError
+from benchtwin.roles import unit_of_role
+from benchtwin.sensors.base import Device, FrameDecoder, TruthChannel
 from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
 from benchtwin.trace import Trace
+from benchtwin.wire.codec import MessageCodec
+from benchtwin.wire.dbc import AD_TORQUE_LSB_V, build_ad_module
+from benchtwin.wire.frames import FRAME_DTYPE
+from benchtwin.wire.quality import FLAG, DecodeSink, FrameStream, counter_flags, mark_after, split_bad
+
+if TYPE_CHECKING:
+    from cantools.database.can import Database
 
 __all__ = [
     "AD_BITS",
+    "ShaftTorqueTelemetry",
     "Table2Row",
+    "ad_codec",
     "bridge_voltage",
+    "decode_ad_frames",
     "encode_telemetry",
     "k_tel_for",
     "k_tot",
-    "pack_ad_frames",
     "table2",
     "torque_from_code",
-    "unpack_ad_frames",
-    "unpack_ad_words",
+    "torque_step_nm",
 ]
 
 AD_BITS = 12
@@ -56,6 +65,11 @@ def k_tot(shaft: ShaftConfig, k_tel: float) -> float:
     """K_TOT in Nm/V (eq. 12)."""
     return (shaft.youngs_modulus_pa * shaft.polar_moment_m4
             / (k_tel * shaft.supply_v * shaft.gauge_factor * (1.0 + shaft.poisson) * shaft.outer_radius_m))
+
+
+def torque_step_nm(shaft: ShaftConfig, k_tel: float) -> float:
+    """One step of the 12-bit AD module (20 V / 4096) in shaft torque: ``K_TOT * LSB`` (Table 2 before its floor)."""
+    return k_tot(shaft, k_tel) * AD_TORQUE_LSB_V
 
 
 def k_tel_for(shaft: ShaftConfig, torque_max_nm: float, vout_max_v: float = 10.0) -> int:
@@ -89,36 +103,20 @@ def table2(shaft: ShaftConfig, resolution_floor_nm: float = 0.3, vout_max_v: flo
     rows = []
     for k in K_TEL_STEPS:
         kt = k_tot(shaft, k)
-        rows.append(Table2Row(k, max(kt * 2 * vout_max_v / 2**AD_BITS, resolution_floor_nm), kt, kt * vout_max_v))
+        rows.append(Table2Row(k, max(torque_step_nm(shaft, k), resolution_floor_nm), kt, kt * vout_max_v))
     return rows
 
 
-def pack_ad_frames(code: np.ndarray, counter: np.ndarray, clip: np.ndarray) -> np.ndarray:
-    """AD module payload (see ``ad_module.dbc``): 12-bit code, 4-bit counter, clip bit -> (n, 8) bytes."""
-    c = np.asarray(code, dtype=np.int64) & 0xFFF
-    word = c | ((np.asarray(counter, dtype=np.int64) & 0xF) << 12) | (np.asarray(clip, dtype=np.int64) & 1) << 16
-    out = np.zeros((c.shape[0], 8), dtype=np.uint8)
-    out[:, 0] = word & 0xFF
-    out[:, 1] = (word >> 8) & 0xFF
-    out[:, 2] = (word >> 16) & 0xFF
-    return out
+@cache
+def ad_codec(can_id: int = 0x310) -> MessageCodec:
+    """The compiled codec of the AD module's frame (``ad_module.dbc``) on identifier ``can_id``."""
+    return MessageCodec(build_ad_module("AD_Torque", can_id).messages[0])
 
 
-def unpack_ad_frames(data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Inverse of :func:`pack_ad_frames`: signed code, counter, clip (int64)."""
-    d = np.asarray(data, dtype=np.int64)
-    word = d[:, 0] | (d[:, 1] << 8) | (d[:, 2] << 16)
-    code = word & 0xFFF
-    code = np.where(code > _CODE_MAX, code - 4096, code)
-    return code, (word >> 12) & 0xF, (word >> 16) & 1
-
-
-def unpack_ad_words(words_le: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`unpack_ad_frames` from the data as little-endian 64-bit words."""
-    word = (np.asarray(words_le, dtype=np.uint64) & np.uint64(0xFFFFFF)).astype(np.int64)
-    code = word & 0xFFF
-    code = np.where(code > _CODE_MAX, code - 4096, code)
-    return code, (word >> 12) & 0xF, (word >> 16) & 1
+def decode_ad_frames(words_le: np.ndarray, can_id: int = 0x310) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signed converter code, counter and clip bit of AD module frames (data as little-endian 64-bit words)."""
+    raw = ad_codec(can_id).unpack_words(words_le)
+    return raw["AD_Torque_Vout"], raw["AD_Torque_Counter"], raw["AD_Torque_Clip"]
 
 
 def torque_from_code(code: np.ndarray, cfg: TelemetryConfig) -> np.ndarray:
@@ -143,6 +141,49 @@ def encode_telemetry(trace: Trace, cfg: TelemetryConfig, rng: np.random.Generato
     frames["timestamp"] = t_dev
     frames["arbitration_id"] = cfg.can_id
     frames["dlc"] = 3
-    codec = MessageCodec(build_ad_module("AD_Torque", cfg.can_id).messages[0])
-    frames["data"] = codec.pack({"AD_Torque_Vout": code, "AD_Torque_Counter": np.arange(n), "AD_Torque_Clip": clip}, n)
+    frames["data"] = ad_codec(cfg.can_id).pack(
+        {"AD_Torque_Vout": code, "AD_Torque_Counter": np.arange(n), "AD_Torque_Clip": clip}, n)
     return frame_faults(frames, np.zeros(n, np.int64), cfg.link, rng)
+
+
+class ShaftTorqueTelemetry(Device):
+    """Strain-gauge bridge, telemetry and AD module of the propeller-shaft torque (setup section ``[telemetry]``)."""
+
+    section = "telemetry"
+    wire = "can"
+
+    def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
+        """AD module frames."""
+        return encode_telemetry(trace, self.cfg, rng)
+
+    def database(self) -> Database:
+        """The AD module's frame."""
+        return build_ad_module("AD_Torque", self.cfg.can_id, max(1, round(1000.0 / self.cfg.rate_hz)))
+
+    def frame_decoders(self) -> dict[int, FrameDecoder]:
+        """The AD module's frame: code -> torque with eq. 12, clip bit -> SATURATED."""
+        return {self.cfg.can_id: FrameDecoder(ad_codec(self.cfg.can_id).length, self._decode)}
+
+    def _decode(self, s: FrameStream, sink: DecodeSink) -> None:
+        good, proto, nbad = split_bad(s.dlc, ad_codec(self.cfg.can_id).length)
+        sink.protocol_error(s.where, nbad)
+        code, counter, clip = decode_ad_frames(s.words[good], self.cfg.can_id)
+        flags = proto | counter_flags(counter, 4)
+        flags[clip != 0] |= FLAG["SATURATED"]
+        t = s.t[good]
+        mark_after(flags, t, s.drops, FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"])
+        sink.add("shaft_torque_nm", unit_of_role("shaft_torque_nm"), t, torque_from_code(code, self.cfg), flags,
+                 self.name)
+
+    def truth_channels(self) -> dict[str, TruthChannel]:
+        """The shaft torque, to one converter step."""
+        return {"shaft_torque_nm": TruthChannel("shaft_torque_nm", 1.0, False,
+                                                torque_step_nm(self.cfg.shaft, self.cfg.k_tel))}
+
+    def error_budget(self) -> dict[str, tuple[ChannelErrors | None, LinkErrors, float]]:
+        """The torque errors plus the telemetry's resolution floor."""
+        return {"shaft_torque_nm": (self.cfg.errors, self.cfg.link, self.cfg.resolution_floor_nm)}
+
+    def saturation(self) -> dict[str, ChannelErrors]:
+        """The shaft torque."""
+        return {"shaft_torque_nm": self.cfg.errors}

@@ -11,16 +11,24 @@ steps) and publishes ``T`` in 0.1 degC in object 0x9130 (INTEGER16; 0x7FFF above
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from thermocouple_its90._data import TYPES as _ITS90
 
-from benchtwin.chain.canopen_pdo import AI_OVERLOAD_NEG, AI_OVERLOAD_POS, pdo_layout
-from benchtwin.chain.frames import ProcessImage
-from benchtwin.config.setup import ThermoConfig
-from benchtwin.sensors.imperfections import DeviceClock, measure
+from benchtwin.config.setup import ChannelErrors, LinkErrors, ThermoConfig
+from benchtwin.sensors.base import CanopenEndpoint, Delivered, Device, FrameDecoder, TruthChannel
+from benchtwin.sensors.imperfections import DeviceClock, device_rng, frame_faults, measure
 from benchtwin.trace import Trace
+from benchtwin.wire.canopen_pdo import AI_OVERLOAD_NEG, AI_OVERLOAD_POS, EDS_PATH, TpdoLayout, pdo_layout
+from benchtwin.wire.dbc import build_thermo_pdos
+from benchtwin.wire.frames import ProcessImage
+from benchtwin.wire.quality import FLAG, DecodeSink, FrameStream, mark_after, split_bad, timing_flags
 
-__all__ = ["emf_type_k", "encode_thermo", "seebeck_type_k", "temperature_type_k"]
+if TYPE_CHECKING:
+    from cantools.database.can import Database
+
+__all__ = ["ThermoModule", "emf_type_k", "encode_thermo", "seebeck_type_k", "temperature_type_k"]
 
 _K = _ITS90["K"]
 _T_MIN, _T_MAX = -270.0, 1372.0
@@ -105,3 +113,76 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator) -> 
     if (0x2100, 0) in entries:
         values[:, entries.index((0x2100, 0))] = round((t_cj + cfg.cold_junction_error_degc) * 10.0)
     return ProcessImage("thermo", cfg.node_id, t_dev, entries, values)
+
+
+class ThermoModule(Device):
+    """Type K thermocouples on the CANopen thermo module (setup section ``[thermo]``, ``thermo_module.eds``)."""
+
+    section = "thermo"
+    wire = "canopen"
+
+    def encode(self, trace: Trace, rng: np.random.Generator) -> ProcessImage:
+        """The object-dictionary values at each TPDO event."""
+        return encode_thermo(trace, self.cfg, rng)
+
+    def deliver(self, output: ProcessImage, seed: int | None, span_s: tuple[float, float] | None) -> Delivered:
+        """The TPDO frames on the module's bus, with its link's frame faults (stream ``thermo_pdo``)."""
+        pdo = pdo_layout(self.cfg.node_id).pack(output)
+        return Delivered(frames=frame_faults(pdo, pdo["arbitration_id"].astype(np.int64), self.cfg.link,
+                                             device_rng(seed, "thermo_pdo")))
+
+    def database(self) -> Database:
+        """The TPDOs as DBC messages derived from the EDS mapping."""
+        return build_thermo_pdos(self.cfg.node_id, self.cfg.places)
+
+    def frame_decoders(self) -> dict[int, FrameDecoder]:
+        """One decoder per TPDO of the EDS mapping."""
+        layout = pdo_layout(self.cfg.node_id)
+        return {tp.cob_id: FrameDecoder(tp.length, self._decoder(tp)) for tp in layout.tpdos}
+
+    def _decoder(self, tp: TpdoLayout):
+        layout = pdo_layout(self.cfg.node_id)
+        period = tp.event_ms / 1000.0
+        th = self.cfg
+
+        def decode(s: FrameStream, sink: DecodeSink) -> None:
+            good, proto, nbad = split_bad(s.dlc, tp.length)
+            sink.protocol_error(s.where, nbad)
+            t = s.t[good]
+            base = proto | timing_flags(t, period)
+            mark_after(base, t, s.drops, FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"])
+            vals = layout.unpack_words(tp, s.words[good])
+            for (index, sub), raw in vals.items():
+                if index == 0x9130:
+                    if sub > len(th.places):
+                        continue
+                    name = th.places[sub - 1]
+                elif index == 0x2100:
+                    name = "thermo_cold_junction_degc"
+                else:
+                    continue
+                v = raw * layout.scale((index, sub))
+                flags = base.copy()
+                hi, lo = raw == AI_OVERLOAD_POS, raw == AI_OVERLOAD_NEG
+                flags[hi | lo] |= FLAG["OUT_OF_RANGE"] | FLAG["SATURATED"]
+                v = np.where(hi, th.range_max_degc, np.where(lo, th.range_min_degc, v))
+                sink.add(name, "degC", t, v, flags, self.name)
+
+        return decode
+
+    def truth_channels(self) -> dict[str, TruthChannel]:
+        """Every place, to the 0.1 degC step of object 0x9130."""
+        return {place: TruthChannel(place, 1.0, False, 0.1) for place in self.cfg.places}
+
+    def error_budget(self) -> dict[str, tuple[ChannelErrors | None, LinkErrors, float]]:
+        """The probes' errors plus the cold-junction sensor's error."""
+        return {place: (self.cfg.errors, self.cfg.link, abs(self.cfg.cold_junction_error_degc))
+                for place in self.cfg.places}
+
+    def saturation(self) -> dict[str, ChannelErrors]:
+        """Every place."""
+        return {place: self.cfg.errors for place in self.cfg.places}
+
+    def canopen_endpoint(self) -> CanopenEndpoint:
+        """The module as a CANopen node on its bus."""
+        return CanopenEndpoint(self.name, self.cfg.node_id, EDS_PATH, self.cfg.bus)

@@ -10,18 +10,26 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
+from functools import cache
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from benchtwin.chain.codec import MessageCodec
-from benchtwin.chain.dbc import load_dbc
-from benchtwin.chain.frames import FRAME_DTYPE
-from benchtwin.chain.merge import merge_frames
-from benchtwin.config.setup import ChannelErrors, DynoConfig, VehicleCanConfig
+from benchtwin.config.setup import ChannelErrors, DynoConfig, LinkErrors, VehicleCanConfig
+from benchtwin.roles import unit_of_role
+from benchtwin.sensors.base import Device, FrameDecoder, TruthChannel
 from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
 from benchtwin.trace import Trace
+from benchtwin.wire.codec import MessageCodec
+from benchtwin.wire.dbc import load_dbc
+from benchtwin.wire.frames import FRAME_DTYPE
+from benchtwin.wire.merge import merge_frames
+from benchtwin.wire.quality import FLAG, DecodeSink, FrameStream, counter_flags, mark_after, split_bad, timing_flags
 
-__all__ = ["SIGNAL_MAP", "SignalSource", "encode_can_device", "message_codecs"]
+if TYPE_CHECKING:
+    from cantools.database.can import Database
+
+__all__ = ["SIGNAL_MAP", "DynoCan", "SignalSource", "VehicleCan", "encode_can_device", "message_codecs"]
 
 RADPS_TO_RPM = 60.0 / (2.0 * np.pi)
 MPS_TO_KMH = 3.6
@@ -80,9 +88,10 @@ SIGNAL_MAP: dict[str, dict[str, SignalSource]] = {
 }
 
 
-def message_codecs(stem: str) -> list[MessageCodec]:
+@cache
+def message_codecs(stem: str) -> tuple[MessageCodec, ...]:
     """Compiled codecs of every message of a shipped DBC."""
-    return [MessageCodec(m) for m in load_dbc(stem).messages]
+    return tuple(MessageCodec(m) for m in load_dbc(stem).messages)
 
 
 def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfig, rng: np.random.Generator
@@ -117,3 +126,92 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
         parts.append(fr)
     frames = merge_frames(parts)
     return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
+
+
+class _DbcDevice(Device):
+    """A device whose every message is described by a shipped DBC and fed from the Trace by :data:`SIGNAL_MAP`."""
+
+    wire = "can"
+    #: stem of the shipped DBC
+    stem: ClassVar[str]
+
+    def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
+        """Every message at its cycle time on the sender's clock."""
+        return encode_can_device(trace, self.stem, self.cfg, rng)
+
+    def database(self) -> Database:
+        """The shipped DBC."""
+        return load_dbc(self.stem)
+
+    def frame_decoders(self) -> dict[int, FrameDecoder]:
+        """One decoder per DBC message."""
+        return {c.frame_id: FrameDecoder(c.length, self._decoder(c)) for c in message_codecs(self.stem)}
+
+    def _decoder(self, codec: MessageCodec):
+        sources = SIGNAL_MAP[self.stem]
+        period = (codec.message.cycle_time or 0) / 1000.0
+        counters = [n for n in codec.signals if sources[n].trace is None]
+
+        def decode(s: FrameStream, sink: DecodeSink) -> None:
+            good, proto, nbad = split_bad(s.dlc, codec.length)
+            sink.protocol_error(s.where, nbad)
+            t = s.t[good]
+            raw = codec.unpack_words(s.words[good])
+            base = proto.copy()
+            if counters:
+                base |= counter_flags(raw[counters[0]], codec.signals[counters[0]].length)
+            else:
+                base |= timing_flags(t, period)
+            mark_after(base, t, s.drops, FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"])
+            for name, r in raw.items():
+                src = sources[name]
+                if src.role is None:
+                    continue
+                sig = codec.signals[name]
+                v = codec.to_physical(name, r)
+                flags = base.copy()
+                if src.nan_raw_max:
+                    v[r == sig.raw_max] = np.nan
+                elif not src.hold:
+                    at_limit = (r == sig.raw_max) | ((r == sig.raw_min) if sig.signed else False)
+                    flags[at_limit] |= FLAG["SATURATED"]
+                sink.add(src.role, unit_of_role(src.role), t, v, flags, self.name)
+
+        return decode
+
+    def truth_channels(self) -> dict[str, TruthChannel]:
+        """Every signal with a role, to one step of its DBC scaling."""
+        out = {}
+        sources = SIGNAL_MAP[self.stem]
+        for codec in message_codecs(self.stem):
+            for name, sig in codec.signals.items():
+                src = sources.get(name)
+                if src is not None and src.role is not None and src.trace is not None:
+                    out[src.role] = TruthChannel(src.trace, src.factor, src.hold, float(sig.scale))
+        return out
+
+    def error_budget(self) -> dict[str, tuple[ChannelErrors | None, LinkErrors, float]]:
+        """Every role: the errors the setup declares for it (None: ideal), and the bus link."""
+        out: dict[str, tuple[ChannelErrors | None, LinkErrors, float]] = {
+            role: (None, self.cfg.link, 0.0) for role in self.truth_channels()}
+        for role, err in self.cfg.errors.items():
+            out[role] = (err, self.cfg.link, 0.0)
+        return out
+
+    def saturation(self) -> dict[str, ChannelErrors]:
+        """Every role with declared errors."""
+        return dict(self.cfg.errors)
+
+
+class VehicleCan(_DbcDevice):
+    """The vehicle CAN tap: ECU signals (setup section ``[vehicle_can]``, ``vehicle.dbc``)."""
+
+    section = "vehicle_can"
+    stem = "vehicle"
+
+
+class DynoCan(_DbcDevice):
+    """The chassis dyno's CAN broadcast (setup section ``[dyno]``, ``dyno.dbc``)."""
+
+    section = "dyno"
+    stem = "dyno"

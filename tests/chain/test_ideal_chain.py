@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
+import cantools
 import numpy as np
 import pytest
 
 from benchtwin.chain.batch import run_batch
-from benchtwin.chain.dbc import load_dbc
-from benchtwin.chain.modbus_map import ADC_FULL_SCALE_V, CHANNELS
 from benchtwin.config import load_setup, scenario_path
 from benchtwin.config.setup import IVT_PLACES
 from benchtwin.recording import Flag, Recording
 from benchtwin.roles import ROLES
 from benchtwin.sensors.imperfections import hold_sample
 from benchtwin.sensors.synthetic import synthetic_trace
-from benchtwin.sensors.telemetry import k_tot
-from benchtwin.sensors.vehicle import SIGNAL_MAP
 from benchtwin.trace import Trace
+from benchtwin.wire.dbc import DBC_DIR
 
 SETUP = load_setup("ideal")
 
@@ -32,24 +30,56 @@ def recording(trace: Trace, tmp_path_factory: pytest.TempPathFactory) -> Recordi
     return run_batch(trace, SETUP, seed=11, out_dir=tmp_path_factory.mktemp("ideal"))
 
 
+RPM = 60.0 / (2.0 * np.pi)
+#: role -> (trace channel, factor to the role's unit, zero-order hold, DBC file, signal): written out here from
+#: docs/sensor_chain.md, so the test does not borrow the production signal map
+CAN_ROLES: dict[str, tuple[str, float, bool, str, str]] = {
+    "engine_speed_rpm": ("engine_speed_radps", RPM, False, "vehicle", "EngSpeed"),
+    "engine_torque_nm": ("engine_torque_nm", 1.0, False, "vehicle", "EngTorque"),
+    "engine_on": ("engine_on", 1.0, True, "vehicle", "EngOn"),
+    "em_speed_rpm": ("em_speed_radps", RPM, False, "vehicle", "EmSpeed"),
+    "em_torque_nm": ("em_torque_nm", 1.0, False, "vehicle", "EmTorque"),
+    "fuel_mass_flow_gps": ("fuel_mass_flow_kgps", 1000.0, False, "vehicle", "FuelMassFlow"),
+    "gear_target": ("gear_target", 1.0, True, "vehicle", "GearTarget"),
+    "gear_actual": ("gear_actual", 1.0, True, "vehicle", "GearActual"),
+    "lockup_closed": ("lockup_closed", 1.0, True, "vehicle", "LockupClosed"),
+    "k0_closed": ("k0_closed", 1.0, True, "vehicle", "K0Closed"),
+    "pedal_pct": ("pedal_pct", 1.0, False, "vehicle", "AccelPedal"),
+    "brake_pedal_pct": ("brake_pedal_pct", 1.0, False, "vehicle", "BrakePedal"),
+    "vehicle_speed_kmh": ("vehicle_speed_mps", 3.6, False, "vehicle", "VehicleSpeed"),
+    "displayed_soc_pct": ("displayed_soc_pct", 1.0, False, "vehicle", "DisplayedSOC"),
+    "hybrid_mode": ("hybrid_mode", 1.0, True, "vehicle", "HybridMode"),
+    "dyno_speed_kmh": ("dyno_speed_mps", 3.6, False, "dyno", "RollerSpeed"),
+    "dyno_set_speed_kmh": ("dyno_set_speed_mps", 3.6, False, "dyno", "SetSpeed"),
+    "dyno_force_front_n": ("dyno_force_front_n", 1.0, False, "dyno", "ForceFront"),
+    "dyno_force_rear_n": ("dyno_force_rear_n", 1.0, False, "dyno", "ForceRear"),
+}
+
+
+def _dbc_scale(stem: str, signal: str) -> float:
+    db = cantools.database.load_file(str(DBC_DIR / f"{stem}.dbc"))
+    return next(float(s.scale) for m in db.messages for s in m.signals if s.name == signal)
+
+
 def truth_and_tolerance(trace: Trace) -> dict[str, tuple[str, float, bool, float]]:
     """role -> (trace channel, factor to role unit, hold, tolerance in role unit)."""
     out: dict[str, tuple[str, float, bool, float]] = {}
-    for stem, sources in SIGNAL_MAP.items():
-        db = load_dbc(stem)
-        for msg in db.messages:
-            for sig in msg.signals:
-                src = sources[sig.name]
-                if src.role is not None:
-                    out[src.role] = (src.trace, src.factor, src.hold, 0.5 * sig.scale * (1 + 1e-9) + 1e-9)
+    for role, (name, factor, hold, stem, signal) in CAN_ROLES.items():
+        out[role] = (name, factor, hold, 0.5 * _dbc_scale(stem, signal) * (1 + 1e-9) + 1e-9)
     for place, cfg in SETUP.ivt.items():
         ch_i, ch_u, role_i, role_u = IVT_PLACES[place]
         out[role_i] = (ch_i, 1.0, False, cfg.current_range_a / 2**cfg.adc_bits + 0.0005 + 1e-9)
         out[role_u] = (ch_u, 1.0, False, cfg.voltage_range_v / 2**cfg.adc_bits + 0.0005 + 1e-9)
+    # eq. 12 with the paper's shaft (facts.md): K_TOT = 218,725 / K_TEL Nm/V; 12 bits over +-10 V
     tel = SETUP.telemetry
-    out["shaft_torque_nm"] = ("shaft_torque_nm", 1.0, False, 0.5 * k_tot(tel.shaft, tel.k_tel) * 20 / 4096 + 1e-9)
-    lsb_bar = ADC_FULL_SCALE_V / 65535 * SETUP.pressure.full_scale_bar / SETUP.pressure.full_scale_v
-    for trace_name, role in CHANNELS:
+    out["shaft_torque_nm"] = ("shaft_torque_nm", 1.0, False, 0.5 * 218_725.0 / tel.k_tel * 20 / 4096 * 1.0001)
+    # 16-bit module over 0-10 V, transducer full scale / output voltage
+    lsb_bar = 10.0 / 65535 * SETUP.pressure.full_scale_bar / SETUP.pressure.full_scale_v
+    for trace_name, role in (("brake_pressure_fl_pa", "brake_pressure_fl_bar"),
+                             ("brake_pressure_fr_pa", "brake_pressure_fr_bar"),
+                             ("brake_pressure_rl_pa", "brake_pressure_rl_bar"),
+                             ("brake_pressure_rr_pa", "brake_pressure_rr_bar"),
+                             ("master_cylinder_pa", "master_cylinder_bar")):
         out[role] = (trace_name, 1e-5, False, 0.5 * lsb_bar + 1e-9)
     for place in SETUP.thermo.places:
         # 0.1 degC output step, 0.5 uV input converter (~0.013 degC at 39 uV/degC)

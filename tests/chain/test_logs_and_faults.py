@@ -22,7 +22,6 @@ from benchtwin.chain.buslog import (
     write_poll_csv,
     write_poll_log,
 )
-from benchtwin.chain.frames import FRAME_DTYPE, POLL_TIMEOUT, FrameTable, PollLog, TransportEvent
 from benchtwin.cli import main
 from benchtwin.config import load_setup
 from benchtwin.config.setup import ChannelErrors
@@ -31,6 +30,7 @@ from benchtwin.recording import Flag, Recording
 from benchtwin.sensors import encode
 from benchtwin.sensors.synthetic import synthetic_trace
 from benchtwin.trace import Trace
+from benchtwin.wire.frames import FRAME_DTYPE, POLL_TIMEOUT, FrameTable, PollLog, TransportEvent
 
 IDEAL = load_setup("ideal")
 PAPER = load_setup("paper")

@@ -8,13 +8,14 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from benchtwin.chain.canopen_pdo import EDS_PATH, load_od, pdo_layout
-from benchtwin.chain.codec import MessageCodec
-from benchtwin.chain.dbc import DBC_DIR, build_ad_module, build_dyno, build_ivt, build_vehicle, bus_database, load_dbc
-from benchtwin.chain.frames import POLL_TIMEOUT, PollLog, ProcessImage
-from benchtwin.chain.modbus_map import INPUT_COUNT, counts_to_volts, volts_to_counts
 from benchtwin.config import load_setup
 from benchtwin.errors import DataError
+from benchtwin.sensors import bus_database
+from benchtwin.wire.canopen_pdo import EDS_PATH, load_od, pdo_layout
+from benchtwin.wire.codec import MessageCodec
+from benchtwin.wire.dbc import DBC_DIR, build_ad_module, build_dyno, build_ivt, build_vehicle, load_dbc
+from benchtwin.wire.frames import POLL_TIMEOUT, PollLog, ProcessImage
+from benchtwin.wire.modbus_map import INPUT_COUNT, counts_to_volts, volts_to_counts
 
 BUILDERS = {"vehicle": build_vehicle, "dyno": build_dyno, "ivt_s": build_ivt, "ad_module": build_ad_module}
 
@@ -120,7 +121,7 @@ def test_poll_log_validation_and_concat() -> None:
 
 def test_bus_load_matches_frame_table() -> None:
     from benchtwin.chain.acquisition import _bus_load
-    from benchtwin.chain.frames import FRAME_DTYPE, FrameTable
+    from benchtwin.wire.frames import FRAME_DTYPE, FrameTable
 
     rng = np.random.default_rng(0)
     f = np.zeros(5000, dtype=FRAME_DTYPE)
@@ -132,8 +133,8 @@ def test_bus_load_matches_frame_table() -> None:
 
 
 def test_merge_frames_equals_stable_sort() -> None:
-    from benchtwin.chain.frames import FRAME_DTYPE
-    from benchtwin.chain.merge import insert_frames, merge_frames
+    from benchtwin.wire.frames import FRAME_DTYPE
+    from benchtwin.wire.merge import insert_frames, merge_frames
 
     rng = np.random.default_rng(1)
     parts = []
@@ -175,8 +176,8 @@ def test_codec_any_single_signal_layout_matches_cantools(start: int, length: int
 
 
 def test_counter_flags_patterns() -> None:
-    from benchtwin.chain.acquisition import _counter_flags
     from benchtwin.recording import Flag
+    from benchtwin.wire.quality import counter_flags as _counter_flags
 
     def fl(seq: list[int]) -> list[str]:
         f = _counter_flags(np.array(seq), 4)

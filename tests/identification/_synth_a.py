@@ -18,7 +18,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.interpolate import RegularGridInterpolator
 
-from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
 from benchtwin.segments import Segment

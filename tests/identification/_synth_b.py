@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.identification.battery import load_literature_maps
-from benchtwin.identification.specs import VehicleSpecs
 from benchtwin.identification.torque_converter import tc_torques
 from benchtwin.recording import Channel, Recording
 from benchtwin.segments import Segment

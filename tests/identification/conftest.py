@@ -15,7 +15,7 @@ from _synth_a import (
     to_recording,
 )
 
-from benchtwin.identification.specs import VehicleSpecs
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.recording import Recording
 from benchtwin.segments import Segment
 

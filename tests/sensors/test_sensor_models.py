@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cantools
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -20,20 +21,20 @@ from benchtwin.sensors.ivt import (
     MODE_OFF,
     MODE_TRIGGERED,
     IvtDevice,
-    pack_results,
-    unpack_result,
+    result_codecs,
 )
 from benchtwin.sensors.synthetic import synthetic_trace
 from benchtwin.sensors.telemetry import (
     bridge_voltage,
+    encode_telemetry,
     k_tel_for,
     k_tot,
-    pack_ad_frames,
     table2,
     torque_from_code,
-    unpack_ad_frames,
 )
 from benchtwin.sensors.thermocouple import emf_type_k, temperature_type_k
+from benchtwin.trace import Trace
+from benchtwin.wire.dbc import DBC_DIR
 
 NIST = Path(__file__).resolve().parent / "data" / "type_k.tab"  # copy of reference/data/nist_its90/type_k.tab
 
@@ -89,21 +90,43 @@ def load_setup_with(**kw: object) -> SetupConfig:
     return validate_data(SetupConfig, kw, "<test>")
 
 
-@settings(max_examples=200, deadline=None)
+AD_DBC = cantools.database.load_file(str(DBC_DIR / "ad_module.dbc"))
+IVT_DBC = cantools.database.load_file(str(DBC_DIR / "ivt_s.dbc"))
+
+
+def _paper_vout(torque_nm: float, shaft: ShaftConfig, k_tel: int) -> float:
+    """Eq. 4-10 of the paper written out here: torque -> shear stress -> strain -> bridge -> telemetry output."""
+    i_p = np.pi * (shaft.outer_radius_m**4 - shaft.inner_radius_m**4) / 2.0
+    tau = torque_nm * shaft.outer_radius_m / i_p
+    eps = (1.0 + shaft.poisson) / shaft.youngs_modulus_pa * tau
+    return k_tel * shaft.supply_v * shaft.gauge_factor * eps
+
+
+@settings(max_examples=120, deadline=None)
 @given(st.floats(-5000, 5000), st.sampled_from([250, 500, 1000, 2000, 4000, 8000]))
 def test_telemetry_chain_round_trip(torque: float, k_tel: int) -> None:
+    """The frames the production encoder sends, decoded by cantools from the shipped DBC, carry the code the
+    paper's chain gives (computed here); the acquisition's conversion brings the torque back within half a step."""
     cfg = TelemetryConfig(k_tel=k_tel)
-    kt = k_tot(cfg.shaft, k_tel)
-    vout = k_tel * bridge_voltage(np.array([torque]), cfg.shaft)
-    code = int(np.clip(np.rint(np.clip(vout, -10, 10) / (20 / 4096)), -2048, 2047)[0])
-    data = pack_ad_frames(np.array([code]), np.array([7]), np.array([0]))
-    back_code, counter, _ = unpack_ad_frames(data)
-    assert counter[0] == 7
-    t_back = torque_from_code(back_code, cfg)[0]
+    t = np.arange(0.0, 0.1, 0.01)
+    trace = Trace(t, {"shaft_torque_nm": np.full(t.shape, torque)})
+    frames = encode_telemetry(trace, cfg, np.random.default_rng(0))
+    assert len(frames) > 0 and np.all(frames["arbitration_id"] == 0x310)
+    vout = _paper_vout(torque, cfg.shaft, k_tel)
+    code = int(np.clip(np.rint(np.clip(vout, -10.0, 10.0) / (20.0 / 4096)), -2048, 2047))
+    for k, fr in enumerate(frames):
+        msg = AD_DBC.decode_message(0x310, bytes(fr["data"][:fr["dlc"]]), decode_choices=False)
+        assert msg["AD_Torque_Vout"] == pytest.approx(code * 20.0 / 4096, abs=1e-12)
+        assert msg["AD_Torque_Counter"] == k % 16
+        assert msg["AD_Torque_Clip"] == int(abs(vout) >= 10.0 or not -2048 <= np.rint(vout / (20.0 / 4096)) <= 2047)
+    # eq. 12 by hand: K_TOT = E I_p / (K_TEL V_s K_SG (1 + nu) R_e)
+    sh = cfg.shaft
+    kt = (sh.youngs_modulus_pa * np.pi * (sh.outer_radius_m**4 - sh.inner_radius_m**4) / 2.0
+          / (k_tel * sh.supply_v * sh.gauge_factor * (1.0 + sh.poisson) * sh.outer_radius_m))
+    t_back = torque_from_code(np.array([code]), cfg)[0]
+    assert t_back == pytest.approx(kt * code * 20.0 / 4096, rel=1e-12)
     if abs(torque) < kt * 10 * (2047 / 2048):
         assert abs(t_back - torque) <= kt * 20 / 4096 / 2 + 1e-9
-    else:  # clipped at the range
-        assert abs(t_back) == pytest.approx(min(abs(kt * code * 20 / 4096), kt * 10), rel=1e-9)
 
 
 # ---------------------------------------------------------------- thermocouples
@@ -156,19 +179,30 @@ def test_type_k_agrees_with_thermocouple_its90() -> None:
 
 
 def test_ivt_example_frame() -> None:
-    data = pack_results(np.array([0]), np.array([5]), np.array([0]), np.array([-12345]))
-    assert data[0, :6].tobytes().hex() == "0005ffffcfc7"
-    mux, counter, status, value = unpack_result(data)
-    assert (mux[0], counter[0], status[0], value[0]) == (0, 5, 0, -12345)
+    """The data sheet's example (facts.md): I = -12345 mA with counter 5 is 00 05 FF FF CF C7."""
+    dev = IvtDevice(IvtConfig())
+    dev.counters[0] = 5
+    cid, data = dev.result_frame(0, -12345)
+    assert cid == 0x521 and data.hex() == "0005ffffcfc7"
+    assert dev.unpack_result(0, data) == (0, -12345)
 
 
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 7), st.integers(0, 15), st.integers(0, 15), st.integers(-(2**31), 2**31 - 1))
 def test_ivt_codec_round_trip(mux: int, counter: int, status: int, value: int) -> None:
-    data = pack_results(np.array([mux]), np.array([counter]), np.array([status]), np.array([value]))
-    assert data[0, 1] == (status << 4) | counter
-    m, c, s, v = unpack_result(data)
-    assert (int(m[0]), int(c[0]), int(s[0]), int(v[0])) == (mux, counter, status, value)
+    """Live result frames against the layout of facts.md (byte 0 mux, byte 1 status|counter nibbles, int32 BE)
+    and against cantools decoding the shipped ivt_s.dbc."""
+    dev = IvtDevice(IvtConfig())
+    dev.counters[mux] = counter
+    cid, data = dev.result_frame(mux, value, status)
+    assert cid == 0x521 + mux and len(data) == 6
+    assert data[0] == mux and data[1] == (status << 4) | counter
+    assert int.from_bytes(data[2:6], "big", signed=True) == value
+    name = IVT_DBC.get_message_by_frame_id(cid).name.removeprefix("IVT_Result_")
+    msg = IVT_DBC.decode_message(cid, data, decode_choices=False, scaling=False)
+    assert (msg[f"IVT_{name}_MuxID"], msg[f"IVT_{name}_Counter"], msg[f"IVT_{name}_Status"]) == (mux, counter, status)
+    assert msg[f"IVT_{name}"] == value
+    assert dev.unpack_result(mux, data) == (status, value)
 
 
 def test_ivt_command_answers() -> None:
@@ -209,7 +243,8 @@ def test_ivt_out_of_range_status_and_triggered_mode() -> None:
     assert np.all(frames[frames["arbitration_id"] == 0x511]["data"][:, 0] == 0xB1)
     cur = frames[frames["arbitration_id"] == 0x521]
     assert len(cur) == len(cmd)
-    _, _, status, value = unpack_result(cur["data"])
+    raw = result_codecs()[0].unpack(cur["data"])
+    status, value = raw["IVT_I_Status"], raw["IVT_I"]
     over = (status & 0x2) != 0
     assert over.any() and np.all(np.abs(value[over]) == 1_000_000)
     assert np.all(np.abs(value[~over]) <= 1_000_000)
@@ -263,7 +298,7 @@ def test_latency_stuck_and_clock() -> None:
 
 
 def test_frame_faults_counts() -> None:
-    from benchtwin.chain.frames import FRAME_DTYPE
+    from benchtwin.wire.frames import FRAME_DTYPE
 
     n = 20000
     fr = np.zeros(n, dtype=FRAME_DTYPE)

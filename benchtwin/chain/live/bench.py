@@ -13,7 +13,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from benchtwin.chain.frames import DeviceOutputs
+from benchtwin.chain.acquisition import AcquisitionInput, acquire
+from benchtwin.chain.buslog import write_mf4, write_poll_log
 from benchtwin.chain.live.recorder import (
     IvtTriggerSpec,
     LiveCapture,
@@ -25,6 +26,8 @@ from benchtwin.chain.live.session import LiveSession
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import ConfigError, DataError
 from benchtwin.segments import Segment
+from benchtwin.sensors import devices
+from benchtwin.wire.frames import DeviceOutputs
 
 __all__ = ["capture_to_input", "embedded_recorder", "recorder_from_setup", "save_capture", "session_from_setup"]
 
@@ -44,30 +47,50 @@ def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport:
     modbus_port:
         Port of the pressure module; default: the setup's (``pressure.port``); 0 picks a free one.
     """
-    from benchtwin.chain.canopen_pdo import EDS_PATH
-    from benchtwin.chain.modbus_map import holding_defaults
-    from benchtwin.sensors.ivt import IvtDevice
-
-    ivt: dict[str, dict[str, IvtDevice]] = {}
-    for place, cfg in setup.ivt.items():
-        ivt.setdefault(cfg.bus, {})[f"ivt_{place}"] = IvtDevice(cfg)
-    holding = {}
+    devs = devices(setup)
+    ivt: dict[str, dict[str, Any]] = {}
+    holding: dict[str, dict[int, int]] = {}
     faults: dict[str, dict[str, Any]] = {}
     port = 0
-    if setup.pressure is not None:
-        p = setup.pressure
-        holding[p.device] = holding_defaults(p.full_scale_bar, p.full_scale_v)
-        faults[p.device] = {"exception_prob": p.exception_prob, "exception_code": p.exception_code,
-                            "timeout_prob": p.timeout_prob, "seed": seed}
-        port = p.port
+    canopen_bus: dict[str, str] = {}
+    eds = None
+    for d in devs:
+        commands = d.command_device()
+        if commands is not None:
+            ivt.setdefault(d.bus, {})[d.name] = commands
+        ep = d.modbus_endpoint(seed)
+        if ep is not None:
+            holding[ep.device] = ep.holding
+            faults[ep.device] = ep.faults
+            port = port or ep.port  # one Modbus TCP server serves every device (by unit id)
+        node = d.canopen_endpoint()
+        if node is not None:
+            canopen_bus[node.name] = node.bus
+            eds = node.eds
     if modbus_port is not None:
         port = modbus_port
-    canopen_bus = {"thermo": setup.thermo.bus} if setup.thermo is not None else {}
     return LiveSession(outputs, transport=transport, speedup=speedup, can_port=can_port, modbus_port=port,
-                       eds=EDS_PATH, canopen_bus=canopen_bus, ivt=ivt, holding=holding, modbus_faults=faults,
+                       eds=eds, canopen_bus=canopen_bus, ivt=ivt, holding=holding, modbus_faults=faults,
                        bitrates={b: c.bitrate for b, c in setup.buses.items()}, channel_map=channel_map,
                        start_s=start_s, end_s=end_s, scheduler_options=scheduler_options,
                        realtime_priority=realtime_priority)
+
+
+def _acquisition_side(setup: SetupConfig, buses: Mapping[str, Any], *, modbus_host: str,
+                      modbus_port: int | None, modbus: bool = True, canopen: bool = True
+                      ) -> tuple[list[ModbusPollSpec], dict[str, tuple[int, Path, str]], list[IvtTriggerSpec]]:
+    """What the acquisition polls, which CANopen nodes it listens to and which triggers it sends."""
+    polls, nodes, triggers = [], {}, []
+    for d in devices(setup):
+        ep = d.modbus_endpoint(None) if modbus else None
+        if ep is not None:
+            polls.append(ModbusPollSpec(ep.device, modbus_host, modbus_port if modbus_port is not None else ep.port,
+                                        ep.unit_id, ep.function_code, ep.first_register, ep.count, ep.poll_hz))
+        node = d.canopen_endpoint() if canopen else None
+        if node is not None and node.bus in buses:
+            nodes[node.name] = (node.node_id, node.eds, node.bus)
+        triggers += [IvtTriggerSpec(t.bus, t.command_id, t.mask, t.period_s) for t in d.triggers() if t.bus in buses]
+    return polls, nodes, triggers
 
 
 def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport: str = "socketcand",
@@ -84,10 +107,6 @@ def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport:
     TransportError
         A bus cannot be reached (nothing is left open).
     """
-    from benchtwin.chain.canopen_pdo import EDS_PATH
-    from benchtwin.chain.modbus_map import INPUT_COUNT
-    from benchtwin.sensors.ivt import RESULT_NAMES
-
     names = list(buses) if buses is not None else list(setup.buses)
     opened = {}
     try:
@@ -98,29 +117,18 @@ def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport:
         for bus in opened.values():
             bus.shutdown()
         raise
-    polls = []
-    if modbus and setup.pressure is not None:
-        p = setup.pressure
-        polls.append(ModbusPollSpec(p.device, modbus_host or host, modbus_port if modbus_port is not None else p.port,
-                                    p.unit_id, 4, 0, INPUT_COUNT, p.poll_hz))
-    nodes = {}
-    if canopen and setup.thermo is not None and setup.thermo.bus in opened:
-        nodes["thermo"] = (setup.thermo.node_id, EDS_PATH, setup.thermo.bus)
-    triggers = [IvtTriggerSpec(cfg.bus, cfg.command_id, sum(1 << RESULT_NAMES.index(r) for r in cfg.results),
-                               cfg.trigger_period_ms / 1000.0)
-                for cfg in setup.ivt.values() if cfg.mode == "triggered" and cfg.bus in opened]
+    polls, nodes, triggers = _acquisition_side(setup, opened, modbus_host=modbus_host or host,
+                                               modbus_port=modbus_port, modbus=modbus, canopen=canopen)
     return LiveRecorder(opened, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=speedup)
 
 
 def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None,
-                     meta: Mapping[str, Any] | None = None) -> Any:
-    """The decoder's input (:class:`benchtwin.chain.acquisition.AcquisitionInput`) from a live capture.
+                     meta: Mapping[str, Any] | None = None) -> AcquisitionInput:
+    """The decoder's input from a live capture.
 
     The PDO frames are already in the thermo module's bus's frame table (they were recorded raw), so
     live and batch decode them the same way; the RemoteNode's own log goes into the metadata counts.
     """
-    from benchtwin.chain.acquisition import AcquisitionInput
-
     m = {"acquisition": "live", "live_start_unix_s": capture.start_wall, "live_speedup": capture.speedup,
          "live_stats": capture.stats}
     m.update(meta or {})
@@ -131,24 +139,12 @@ def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None
 def embedded_recorder(session: LiveSession, setup: SetupConfig, spool_dir: str | Path) -> LiveRecorder:
     """A recorder in the serving process: one client per bus on the session's own transport (the embedded
     ``virtual`` bus works), the session's Modbus server, the thermo module's PDOs, IVT-S triggers."""
-    from benchtwin.chain.canopen_pdo import EDS_PATH
-    from benchtwin.chain.modbus_map import INPUT_COUNT
-    from benchtwin.sensors.ivt import RESULT_NAMES
-
     if session.transport is None or session.scheduler is None:
         raise ConfigError("start the session before attaching a recorder")
     buses = {b: session.transport.open_client(b) for b in session.transport.bitrates}
-    polls = []
-    if setup.pressure is not None and session.modbus is not None:
-        p = setup.pressure
-        polls.append(ModbusPollSpec(p.device, "127.0.0.1", session.modbus.port, p.unit_id, 4, 0, INPUT_COUNT,
-                                    p.poll_hz))
-    nodes = {}
-    if setup.thermo is not None and setup.thermo.bus in buses:
-        nodes["thermo"] = (setup.thermo.node_id, EDS_PATH, setup.thermo.bus)
-    triggers = [IvtTriggerSpec(cfg.bus, cfg.command_id, sum(1 << RESULT_NAMES.index(r) for r in cfg.results),
-                               cfg.trigger_period_ms / 1000.0)
-                for cfg in setup.ivt.values() if cfg.mode == "triggered" and cfg.bus in buses]
+    modbus_port = session.modbus.port if session.modbus is not None else None
+    polls, nodes, triggers = _acquisition_side(setup, buses, modbus_host="127.0.0.1", modbus_port=modbus_port,
+                                               modbus=session.modbus is not None)
     return LiveRecorder(buses, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=session.speedup)
 
 
@@ -165,9 +161,6 @@ def save_capture(capture: LiveCapture, setup: SetupConfig, out: str | Path, *, s
         Something cannot be written (the spool, if given, still holds everything received).
     """
     import json
-
-    from benchtwin.chain.acquisition import acquire
-    from benchtwin.chain.buslog import write_mf4, write_poll_log
 
     out = Path(out)
     raw_dir = out.with_name(out.stem + "_raw")

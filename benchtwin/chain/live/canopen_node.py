@@ -1,7 +1,7 @@
 """The thermo module as a CANopen device (canopen LocalNode) and its acquisition (canopen RemoteNode).
 
 Both sides are built from one EDS (the device and the master mirror each other over one object
-dictionary). The device (:class:`ThermoNode`) takes a :class:`~benchtwin.chain.frames.ProcessImage`:
+dictionary). The device (:class:`ThermoNode`) takes a :class:`~benchtwin.wire.frames.ProcessImage`:
 at each row's time (the scheduler calls :meth:`ThermoNode.update`) it writes the values into the
 LocalNode's SDO data store (so an SDO upload returns the current value) and into every enabled TPDO
 that maps one of them, and transmits those TPDOs. The acquisition (:class:`ThermoAcquisition`) is a
@@ -24,9 +24,9 @@ import can
 import canopen
 import numpy as np
 
-from benchtwin.chain.frames import ProcessImage
 from benchtwin.chain.live.scheduler import Stream
 from benchtwin.errors import CanopenError, ConfigError, TransportTimeoutError
+from benchtwin.wire.frames import ProcessImage
 
 __all__ = ["PdoLog", "ThermoAcquisition", "ThermoNode"]
 

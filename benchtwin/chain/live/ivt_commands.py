@@ -23,7 +23,7 @@ import can
 import numpy as np
 
 from benchtwin.errors import ConfigError, FrameError
-from benchtwin.sensors.ivt import MODE_CYCLIC, IvtDevice, unpack_result
+from benchtwin.sensors.ivt import MODE_CYCLIC, IvtDevice
 
 __all__ = ["IvtCommandResponder"]
 
@@ -92,8 +92,8 @@ class IvtCommandResponder:
                 latest = self._latest.get((name, ch))
                 if latest is None:
                     continue  # nothing measured yet
-                _, _, status, value = unpack_result(np.frombuffer(latest.ljust(8, b"\0"), np.uint8)[None, :])
-                rid, payload = dev.result_frame(ch, int(value[0]), int(status[0]))
+                status, value = dev.unpack_result(ch, latest)
+                rid, payload = dev.result_frame(ch, value, status)
                 self.bus.send(can.Message(arbitration_id=rid, is_extended_id=False, data=payload))
                 self.counters["triggered_sent"] += 1
 

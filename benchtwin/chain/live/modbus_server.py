@@ -1,7 +1,7 @@
 """The pressure module's Modbus TCP server: pymodbus serving a register store the physics writes.
 
 The store owns the data (:class:`RegisterStore`, one per Modbus device); the scheduler writes each
-:class:`~benchtwin.chain.frames.RegisterSnapshots` row into it when its time comes; the pymodbus
+:class:`~benchtwin.wire.frames.RegisterSnapshots` row into it when its time comes; the pymodbus
 server only reads it: the device's pymodbus ``SimDevice`` action copies the store into the register
 block on every request. Registers outside the map answer exception code 2 (illegal data address),
 the register kind the device does not have (input vs holding) too; writes are refused (read-only).
@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from benchtwin.chain.frames import RegisterSnapshots
 from benchtwin.chain.live.scheduler import Stream
 from benchtwin.errors import ConfigError, TransportError
+from benchtwin.wire.frames import RegisterSnapshots
 
 __all__ = ["ModbusDeviceServer", "RegisterStore", "free_port"]
 

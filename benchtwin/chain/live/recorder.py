@@ -32,10 +32,10 @@ from typing import Any
 import can
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE, FrameTable, PollLog, TransportEvent
 from benchtwin.chain.live.canopen_node import EdsLike, PdoLog, ThermoAcquisition
 from benchtwin.chain.transports.socketcand import SocketcandClientBus
 from benchtwin.errors import ConfigError, DataError, TransportError
+from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog, TransportEvent
 
 __all__ = ["IvtTriggerSpec", "LiveCapture", "LiveRecorder", "ModbusPollSpec", "open_acquisition_bus",
            "read_frame_spool", "read_poll_spool"]
@@ -82,7 +82,7 @@ def read_frame_spool(path: str | Path, bus: str | None = None, bitrate: int = 50
 
 def read_poll_spool(path: str | Path, device: str, unit_id: int, function_code: int, first_register: int,
                     count: int) -> PollLog:
-    """Polls of a spool file as a :class:`~benchtwin.chain.frames.PollLog`."""
+    """Polls of a spool file as a :class:`~benchtwin.wire.frames.PollLog`."""
     dt = _poll_dtype(count)
     raw = Path(path).read_bytes()
     rec = np.frombuffer(raw[:len(raw) // dt.itemsize * dt.itemsize], dtype=dt)

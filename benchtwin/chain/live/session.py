@@ -1,6 +1,6 @@
 """A live run wired together: transports, Modbus server, CANopen node, IVT-S command channel, scheduler.
 
-:class:`LiveSession` takes the :class:`~benchtwin.chain.frames.DeviceOutputs` of a run (the same
+:class:`LiveSession` takes the :class:`~benchtwin.wire.frames.DeviceOutputs` of a run (the same
 arrays batch delivery writes to logs) and serves them: every CAN bus on the chosen transport, every
 Modbus device on one pymodbus TCP server, every CANopen node as a LocalNode on its bus, each IVT-S
 answering its command channel; then :meth:`LiveSession.run` paces it all on one clock.
@@ -18,7 +18,6 @@ from typing import Any
 import can
 import numpy as np
 
-from benchtwin.chain.frames import DeviceOutputs, FrameTable
 from benchtwin.chain.live.canopen_node import EdsLike, ThermoNode
 from benchtwin.chain.live.ivt_commands import IvtCommandResponder
 from benchtwin.chain.live.modbus_server import ModbusDeviceServer, RegisterStore
@@ -32,6 +31,7 @@ from benchtwin.chain.live.scheduler import (
 from benchtwin.chain.transports import Transport, get_transport
 from benchtwin.errors import ConfigError
 from benchtwin.sensors.ivt import IvtDevice
+from benchtwin.wire.frames import DeviceOutputs, FrameTable
 
 __all__ = ["LiveSession"]
 

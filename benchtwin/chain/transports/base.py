@@ -18,8 +18,8 @@ from typing import Any, ClassVar
 import can
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE
 from benchtwin.errors import ConfigError, TransportError
+from benchtwin.wire.frames import FRAME_DTYPE
 
 __all__ = ["Transport", "frames_to_messages", "message_to_frame", "messages_to_frames"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from live_synth import make_small_outputs
 
-from benchtwin.chain.frames import DeviceOutputs
+from benchtwin.wire.frames import DeviceOutputs
 
 
 @pytest.fixture(scope="session")

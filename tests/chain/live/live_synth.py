@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, ProcessImage, RegisterSnapshots
+from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, ProcessImage, RegisterSnapshots
 
 DATA = Path(__file__).parent / "data"
 MIN_EDS = DATA / "thermo_min.eds"

@@ -17,14 +17,15 @@ import numpy as np
 import pytest
 
 from benchtwin.chain.acquisition import acquire
-from benchtwin.chain.canopen_pdo import EDS_PATH
+from benchtwin.chain.batch import deliver
 from benchtwin.chain.live.bench import capture_to_input, session_from_setup
 from benchtwin.chain.live.recorder import LiveRecorder, ModbusPollSpec, open_acquisition_bus, read_frame_spool
-from benchtwin.chain.modbus_map import INPUT_COUNT
 from benchtwin.config.setup import load_setup
 from benchtwin.recording import Flag
 from benchtwin.sensors import encode
 from benchtwin.sensors.synthetic import synthetic_trace
+from benchtwin.wire.canopen_pdo import EDS_PATH
+from benchtwin.wire.modbus_map import INPUT_COUNT
 
 pytestmark = pytest.mark.live
 
@@ -83,7 +84,7 @@ def test_malformed_frames_and_garbage_are_flagged_and_the_rest_is_kept(run_input
     n_served = len(outputs.can["instrument"]) + cap.stats["pdos"]["thermo"]
     assert cap.stats["frames"]["instrument"] == n_served + len(bad)
     live = acquire(capture_to_input(cap), setup)
-    batch = acquire(outputs, setup)
+    batch = acquire(deliver(outputs, setup), setup)
     # ... and are counted as protocol errors / unknown ids, without losing a good sample
     assert live.meta["protocol_errors"].get("instrument:0x521", 0) == 2  # wrong DLC, bad mux byte
     assert live.meta["unknown_ids"].get("instrument", {}).get("0x6AB") == 1

@@ -21,14 +21,13 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from benchtwin.chain.canopen_pdo import EDS_PATH
-from benchtwin.chain.dbc import write_bus_dbcs
 from benchtwin.chain.live.canopen_node import ThermoAcquisition
 from benchtwin.chain.live.modbus_server import free_port
-from benchtwin.chain.modbus_map import INPUT_COUNT, REG_COUNTER, holding_defaults
 from benchtwin.config.setup import load_setup
-from benchtwin.sensors import encode
+from benchtwin.sensors import encode, write_bus_dbcs
 from benchtwin.sensors.synthetic import synthetic_trace
+from benchtwin.wire.canopen_pdo import EDS_PATH
+from benchtwin.wire.modbus_map import INPUT_COUNT, REG_COUNTER, holding_defaults
 
 pytestmark = pytest.mark.live
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from benchtwin.chain.acquisition import acquire
+from benchtwin.chain.batch import deliver
 from benchtwin.chain.live.bench import capture_to_input, recorder_from_setup, session_from_setup
 from benchtwin.config.setup import load_setup
 from benchtwin.sensors import encode
@@ -39,7 +40,7 @@ def test_triggered_shunt_answers_the_recorders_triggers(tmp_path):
     cur = live["battery_current_a"]
     assert len(cur) == pytest.approx(counters["triggered_sent"] / 2, abs=2)
     # values: answers carry the newest encoded result, so they lie on the encoded current
-    batch = acquire(outputs, setup)["battery_current_a"]
+    batch = acquire(deliver(outputs, setup), setup)["battery_current_a"]
     lo, hi = batch.values.min(), batch.values.max()
     assert np.all((cur.values >= lo) & (cur.values <= hi))
     assert set(np.round(cur.values, 6)) <= set(np.round(batch.values, 6))
@@ -48,10 +49,10 @@ def test_triggered_shunt_answers_the_recorders_triggers(tmp_path):
 def test_gate_follows_the_shunts_state():
     import can
 
-    from benchtwin.chain.frames import FRAME_DTYPE
     from benchtwin.chain.live.ivt_commands import IvtCommandResponder
     from benchtwin.config.setup import IvtConfig
     from benchtwin.sensors.ivt import IvtDevice
+    from benchtwin.wire.frames import FRAME_DTYPE
 
     dev = IvtDevice(IvtConfig(cycle_ms=20))
     with can.Bus(interface="virtual", channel="bt-gate-test") as bus, \

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from benchtwin.chain.frames import DeviceOutputs, RegisterSnapshots
 from benchtwin.chain.live.modbus_server import ModbusDeviceServer, RegisterStore
 from benchtwin.chain.live.session import LiveSession
 from benchtwin.errors import ConfigError
+from benchtwin.wire.frames import DeviceOutputs, RegisterSnapshots
 
 pytestmark = pytest.mark.live
 

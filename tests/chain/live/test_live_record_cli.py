@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from benchtwin.chain.acquisition import acquire
+from benchtwin.chain.batch import deliver
 from benchtwin.chain.live.modbus_server import free_port
 from benchtwin.cli import main
 from benchtwin.config.setup import load_setup
@@ -49,7 +50,7 @@ def test_serve_and_record_in_two_processes(tmp_path):
     live = Recording.load(out)
     setup = load_setup("ideal")
     outputs = encode(synthetic_trace(2.0), setup, seed=0)
-    batch = acquire(outputs, setup)
+    batch = acquire(deliver(outputs, setup), setup)
     assert set(live.channels) == set(batch.channels)
     for name in ("battery_current_a", "shaft_torque_nm", "vehicle_speed_kmh", "engine_coolant_in_degc"):
         np.testing.assert_array_equal(live[name].values, batch[name].values, err_msg=name)
@@ -91,7 +92,7 @@ def test_serve_records_in_process_on_the_embedded_virtual_bus(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
     live = Recording.load(out)
     setup = load_setup("ideal")
-    batch = acquire(encode(synthetic_trace(2.0), setup, seed=0), setup)
+    batch = acquire(deliver(encode(synthetic_trace(2.0), setup, seed=0), setup), setup)
     for name in ("battery_current_a", "vehicle_speed_kmh", "engine_coolant_in_degc", "shaft_torque_nm"):
         np.testing.assert_array_equal(live[name].values, batch[name].values, err_msg=name)
 

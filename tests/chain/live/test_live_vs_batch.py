@@ -16,12 +16,13 @@ import numpy as np
 import pytest
 
 from benchtwin.chain.acquisition import acquire
+from benchtwin.chain.batch import deliver
 from benchtwin.chain.live.bench import capture_to_input, session_from_setup
 from benchtwin.chain.live.recorder import LiveRecorder, ModbusPollSpec, open_acquisition_bus
-from benchtwin.chain.modbus_map import INPUT_COUNT
 from benchtwin.config.setup import load_setup
 from benchtwin.sensors import encode
 from benchtwin.sensors.synthetic import synthetic_trace
+from benchtwin.wire.modbus_map import INPUT_COUNT
 
 pytestmark = pytest.mark.live
 
@@ -34,11 +35,11 @@ def ideal_run():
     setup = load_setup("ideal")
     trace = synthetic_trace(DURATION_S)
     outputs = encode(trace, setup, seed=0)
-    return setup, outputs, acquire(outputs, setup)
+    return setup, outputs, acquire(deliver(outputs, setup), setup)
 
 
 def _record_live(setup, outputs, transport: str):
-    from benchtwin.chain.canopen_pdo import EDS_PATH
+    from benchtwin.wire.canopen_pdo import EDS_PATH
 
     with session_from_setup(outputs, setup, transport=transport, speedup=SPEEDUP, modbus_port=0) as s:
         if transport == "virtual":

@@ -1,4 +1,4 @@
-"""The CAN layouts of the bench as DBC files (built with cantools, shipped in ``benchtwin/chain/dbc/``).
+"""The CAN layouts of the bench as DBC files (built with cantools, shipped in ``benchtwin/wire/dbc/``).
 
 Four layouts, one file each:
 
@@ -16,17 +16,17 @@ Four layouts, one file each:
 ``ivt_s.dbc`` (instrument CAN)
     One Isabellenhuette IVT-S with the factory identifiers (results 0x521..0x528, commands 0x411,
     answers 0x511): mux byte, 4-bit counter and status nibble, big-endian int32 in mA/mV/0.1 degC/
-    W/As/Wh. Each shunt of a setup gets its own identifiers; :func:`bus_database` renames and moves
-    the messages per shunt.
+    W/As/Wh. Each shunt of a setup gets its own identifiers; ``benchtwin.sensors.bus_database`` renames
+    and moves the messages per shunt.
 ``ad_module.dbc`` (instrument CAN)
     The AD module digitising the telemetry output of the propeller-shaft torque: 12-bit two's
     complement over +-10 V (LSB 20 V / 4096), a 4-bit counter and a clip bit.
 
-The CANopen thermo module is described by its EDS (``thermo_module.eds``); :func:`bus_database` adds
-its TPDOs as DBC messages derived from the EDS mapping, so the per-bus DBC written next to the logs
+The CANopen thermo module is described by its EDS (``thermo_module.eds``); :func:`build_thermo_pdos`
+gives its TPDOs as DBC messages derived from the EDS mapping, so the per-bus DBC written next to the logs
 decodes every frame of the bus.
 
-Run ``python -m benchtwin.chain.dbc`` to regenerate the shipped files from the definitions below.
+Run ``python -m benchtwin.wire.dbc`` to regenerate the shipped files from the definitions below.
 """
 
 from __future__ import annotations
@@ -34,16 +34,14 @@ from __future__ import annotations
 import functools
 from collections import OrderedDict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import cantools
 from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
 
 from benchtwin.errors import ConfigError
-
-if TYPE_CHECKING:
-    from benchtwin.config.setup import SetupConfig
+from benchtwin.wire.canopen_pdo import pdo_layout
 
 __all__ = [
     "AD_TORQUE_LSB_V",
@@ -54,10 +52,8 @@ __all__ = [
     "build_ivt",
     "build_thermo_pdos",
     "build_vehicle",
-    "bus_database",
     "ivt_node_name",
     "load_dbc",
-    "write_bus_dbcs",
     "write_shipped",
 ]
 
@@ -237,52 +233,12 @@ def ivt_node_name(place: str) -> str:
     return "IVT_" + "".join(w.capitalize() for w in place.split("_"))
 
 
-def bus_database(setup: SetupConfig, bus: str) -> Database:
-    """Every CAN layout on one bus of a setup, as one cantools Database (what a user loads to decode a log).
-
-    IVT-S messages are renamed per place (``IVT_Hpcu_Result_I``) and moved to the shunt's ids; the
-    thermo module's TPDOs come from its EDS mapping (:func:`build_thermo_pdos`).
-
-    Parameters
-    ----------
-    setup:
-        A :class:`~benchtwin.config.setup.SetupConfig`.
-    bus:
-        Bus name.
-    """
-    messages: list[Message] = []
-    nodes: dict[str, Node] = {"BENCH": Node("BENCH")}
-
-    def take(db: Database) -> None:
-        messages.extend(db.messages)
-        for node in db.nodes:
-            nodes.setdefault(node.name, node)
-
-    if setup.vehicle_can is not None and setup.vehicle_can.bus == bus:
-        take(load_dbc("vehicle"))
-    if setup.dyno is not None and setup.dyno.bus == bus:
-        take(load_dbc("dyno"))
-    for place, cfg in setup.ivt.items():
-        if cfg.bus == bus:
-            take(build_ivt(ivt_node_name(place), cfg.result_base_id, cfg.command_id, cfg.response_id,
-                           cfg.cycle_ms if cfg.mode == "cyclic" else None))
-    tel = setup.telemetry
-    if tel is not None and tel.bus == bus:
-        take(build_ad_module("AD_Torque", tel.can_id, max(1, round(1000.0 / tel.rate_hz))))
-    th = setup.thermo
-    if th is not None and th.bus == bus:
-        take(build_thermo_pdos(th.node_id, th.places))
-    return Database(messages, list(nodes.values()), version=f"benchtwin-{setup.name}-{bus}")
-
-
 def build_thermo_pdos(node_id: int, places: list[str] | tuple[str, ...] = ()) -> Database:
     """The thermo module's TPDOs as DBC messages, derived from its EDS mapping (for CAN tools).
 
     The EDS stays the description of the node; this view lets ``cantools decode`` or a CAN tool
     read the temperatures from a bus log. Inputs are named after ``places`` (in input order).
     """
-    from benchtwin.chain.canopen_pdo import pdo_layout
-
     layout = pdo_layout(node_id)
     msgs = []
     for tp in layout.tpdos:
@@ -301,18 +257,6 @@ def build_thermo_pdos(node_id: int, places: list[str] | tuple[str, ...] = ()) ->
         msgs.append(_msg(tp.cob_id, f"THERMO_TPDO{tp.number}", tp.length, sigs, tp.event_ms or None, "THMM",
                          f"CANopen TPDO{tp.number} of node {node_id} (from thermo_module.eds)"))
     return Database(msgs, [Node("THMM"), Node("BENCH")], version="benchtwin-thermo-pdo-1")
-
-
-def write_bus_dbcs(setup: SetupConfig, directory: str | Path) -> dict[str, Path]:
-    """Write ``<bus>.dbc`` for every bus of the setup into ``directory``; return bus -> path."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    out = {}
-    for bus in setup.buses:
-        path = directory / f"{bus}.dbc"
-        cantools.database.dump_file(bus_database(setup, bus), str(path))
-        out[bus] = path
-    return out
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE
+from benchtwin.wire.frames import FRAME_DTYPE
 
 __all__ = ["insert_frames", "merge_frames", "take_frames", "void_view"]
 

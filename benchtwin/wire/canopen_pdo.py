@@ -2,7 +2,7 @@
 
 The EDS shipped in the package (``thermo_module.eds``) is read with canopen's own
 ``import_od``; the TPDO communication (0x1800+n: COB-ID, event timer) and mapping (0x1A00+n)
-parameters give the frame layout. Batch delivery packs a :class:`~benchtwin.chain.frames.ProcessImage`
+parameters give the frame layout. Batch delivery packs a :class:`~benchtwin.wire.frames.ProcessImage`
 into PDO frames with it, the acquisition unpacks them, and the live CANopen node (canopen
 ``LocalNode``) uses the same object dictionary, so batch and live share one layout.
 
@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchtwin.chain.frames import FRAME_DTYPE, ProcessImage
 from benchtwin.errors import CanopenError
+from benchtwin.wire.frames import FRAME_DTYPE, ProcessImage
 
 if TYPE_CHECKING:
     from canopen import ObjectDictionary

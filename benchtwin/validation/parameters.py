@@ -1,0 +1,479 @@
+"""Identified parameters against the truth: expectations, tolerances and the comparisons.
+
+Tolerances come in two profiles. ``ideal`` (every imperfection off) aims at 0.1 % and states a
+different bound, with its reason, where the measurement chain itself cannot do better (quantisation of
+a CAN signal, the intercept of a regression). ``realistic`` (the paper's bench, with noise, offsets,
+bandwidths and frame faults) uses engineering tolerances, widened by the systematic errors the setup
+declares, and requires an R^2 at or above the paper's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.interpolate import RegularGridInterpolator
+
+from benchtwin.config.setup import SetupConfig
+from benchtwin.config.vehicle import VehicleConfig
+from benchtwin.errors import ConfigError, IdentificationError
+from benchtwin.identification._fit import IdentificationResult
+from benchtwin.identification.keys import FitKey, param_key, split_param
+from benchtwin.identification.transmission import identify_transmission
+from benchtwin.recording import Channel, Recording
+from benchtwin.sensors.telemetry import torque_step_nm
+from benchtwin.trace import Trace
+from benchtwin.validation.report import Check
+
+__all__ = ["PAPER_R2", "compare_with_truth", "paper_estimation_fits", "truth_expectations"]
+
+#: the paper's coefficients of determination, which the realistic profile must reach or beat
+PAPER_R2: dict[str, tuple[str, float, str]] = {
+    "transmission.gear5": ("r2", 0.95, "AT efficiency, one 5th-gear Hybrid ramp-up near 2500 rpm (Figure 8)"),
+    "motor.motoring": ("r2", 0.85, "EM Willans line (Figure 10)"),
+    "battery": ("adj_r2", 0.995, "battery voltage model, adjusted (Figure 16)"),
+    "torque_converter.torque_ratio": ("r2", 0.81, "torque ratio vs speed ratio (Figure 18)"),
+    "torque_converter.capacity_factor": ("r2", 0.89, "capacity factor, converter mode (Figure 19)"),
+    "torque_converter.capacity_factor_coupling": ("r2", 0.75, "capacity factor, coupling mode"),
+}
+
+
+@dataclass(frozen=True)
+class _Expect:
+    group: str
+    key: str  # "<fit>.<param>"
+    truth: float
+    unit: str
+    tol: dict[str, tuple[str, float]]  # profile -> (mode, tolerance)
+    note: str = ""
+    #: realistic profile: extra tolerance from the setup's declared systematic errors (see _budget)
+    systematic: Callable[[dict[str, float]], float] | None = None
+
+
+def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
+    """The scalar parameters identification must recover, with their truth and tolerances.
+
+    Parameters
+    ----------
+    vehicle:
+        The vehicle file (the truth).
+
+    Returns
+    -------
+    list
+        One expectation per parameter; curve-like results (torque converter, shift lines, BSFC map)
+        are compared by :func:`compare_with_truth` separately.
+    """
+    exp: list[_Expect] = []
+    tx = vehicle.transmission
+    quant_note = ("without noise to dither it, the 12-bit telemetry converter's step (1.07 Nm at K_TEL 1000) "
+                  "biases each steady point by up to half a step; at the lowest points (~20 Nm at the shaft) that is "
+                  "2-3 % of the torque; a coast fit rests on 3-4 regenerative steps per ramp-up, too few for "
+                  "those roundings to average out, so the bound is the one that step allows, not 0.1 %. "
+                  "Where the propagated step (3 sigma through the fit) is larger, that is the bound")
+    for g in range(vehicle.n_gears):
+        for direction in ("drive", "coast"):
+            fit = FitKey.transmission(g + 1, direction)
+            coast = direction == "coast"
+            exp.append(_Expect("transmission", param_key(fit, "eta_m"), tx.eta_m[g], "-",
+                               {"ideal": ("rel", 8e-3 if coast else 1.5e-3), "realistic": ("rel", 8e-3)},
+                               (quant_note if coast else "drive points reach 100-400 Nm: the converter step is "
+                                "below 0.15 %") + "; realistic: plus the gain errors of the shaft torque and of "
+                               "the CAN input torques",
+                               lambda b: b["shaft_gain"] + max(b["engine_torque_gain"], b["em_torque_gain"])))
+            exp.append(_Expect("transmission", param_key(fit, "C0"), tx.c0_nm[g], "Nm",
+                               {"ideal": ("abs", 1.5 if coast else 0.3), "realistic": ("abs", 2.0)},
+                               "C0 is the intercept of eq. 16, a 3-7 Nm drag under 15-400 Nm inputs"
+                               + ("; " + quant_note if coast else ": 0.3 Nm is 0.1 % of the ~300 Nm mean input")
+                               + "; realistic: plus the offsets of the input torques and the shaft torque",
+                               lambda b: b["engine_torque_offset"] + b["em_torque_offset"] + b["shaft_offset"]))
+    m = vehicle.motor
+    exp += [
+        _Expect("motor", "motor.motoring.e", m.willans_e, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
+                "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
+                lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
+        _Expect("motor", "motor.motoring.W_loss", m.willans_w_loss_w, "W",
+                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)},
+                "W_loss is the intercept of the Willans line: 1 % of 650 W is 0.1 % of the ~6.5 kW mean "
+                "electrical power of the points"),
+        _Expect("motor", "motor.generating.e_gen", m.willans_e_gen, "-",
+                {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
+                "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
+                lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
+        _Expect("motor", "motor.generating.W_loss_gen", m.willans_w_loss_gen_w, "W",
+                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss"),
+        _Expect("motor", "motor.motoring.eta_dcdc", vehicle.low_voltage.dcdc_efficiency, "-",
+                {"ideal": ("rel", 1.5e-2), "realistic": ("rel", 3e-2)},
+                "the DC/DC draws 0.3-0.5 kW beside 5-90 kW of motor power through the HPCU shunt: a 0.01 % "
+                "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %"),
+    ]
+    rl = vehicle.road_load
+    for name, val, unit in (("F0", rl.f0_n, "N"), ("F1", rl.f1_n_per_kmh, "N/(km/h)"), ("F2", rl.f2_n_per_kmh2,
+                                                                                          "N/(km/h)^2")):
+        exp.append(_Expect("road_load", f"road_load.{name}", val, unit,
+                           {"ideal": ("rel", 1e-2), "realistic": ("rel", 3e-2)},
+                           "the coastdown bound of GTR 15 practice (issue: within 1 %)"))
+    b = vehicle.brakes
+    kf = b.gain_front_nm_per_bar / (b.gain_front_nm_per_bar + b.gain_rear_nm_per_bar)
+    exp += [
+        _Expect("brakes", "brakes.front.m_f", b.gain_front_nm_per_bar, "Nm/bar",
+                {"ideal": ("rel", 1e-3), "realistic": ("rel", 2e-2)},
+                "realistic: plus the pressure transducers' gain error", lambda b_: b_["pressure_gain"]),
+        _Expect("brakes", "brakes.rear.m_r", b.gain_rear_nm_per_bar, "Nm/bar",
+                {"ideal": ("rel", 1e-3), "realistic": ("rel", 2e-2)},
+                "realistic: plus the pressure transducers' gain error", lambda b_: b_["pressure_gain"]),
+        _Expect("brakes", "brakes.distribution.k_f", kf, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)}),
+    ]
+    bat = vehicle.battery
+    exp += [
+        _Expect("battery", "battery.alpha", bat.alpha, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 2e-3)},
+                "realistic: plus the voltage gain error of the battery shunt", lambda b_: b_["battery_voltage_gain"]),
+        _Expect("battery", "battery.beta_discharge", bat.beta_discharge, "-",
+                {"ideal": ("rel", 1e-3), "realistic": ("rel", 3e-2)},
+                "realistic: plus the shunt's gain errors",
+                lambda b_: b_["battery_voltage_gain"] + b_["battery_current_gain"]),
+        _Expect("battery", "battery.beta_charge", bat.beta_charge, "-",
+                {"ideal": ("rel", 1e-3), "realistic": ("rel", 3e-2)},
+                "realistic: plus the shunt's gain errors",
+                lambda b_: b_["battery_voltage_gain"] + b_["battery_current_gain"]),
+    ]
+    exp.append(_Expect("torque_converter", "torque_converter.converter.gamma_coupling",
+                       vehicle.torque_converter.coupling_speed_ratio, "-",
+                       {"ideal": ("abs", 0.01), "realistic": ("abs", 0.03)},
+                       "the speed ratio where TR reaches 1: located between sampled speed ratios"))
+    return exp
+
+
+def _true_bsfc(vehicle: VehicleConfig) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    en = vehicle.engine
+    f = RegularGridInterpolator((np.asarray(en.bsfc_speed_rpm, float), np.asarray(en.bsfc_bmep_bar, float)),
+                                np.asarray(en.bsfc_g_per_kwh, float), bounds_error=False, fill_value=None)
+
+    def bsfc(n_rpm: np.ndarray, bmep_bar: np.ndarray) -> np.ndarray:
+        n = np.clip(n_rpm, en.bsfc_speed_rpm[0], en.bsfc_speed_rpm[-1])
+        b = np.clip(bmep_bar, en.bsfc_bmep_bar[0], en.bsfc_bmep_bar[-1])
+        return f(np.column_stack([np.ravel(n), np.ravel(b)])).reshape(np.shape(n_rpm))
+
+    return bsfc
+
+
+def _tc_curves(a: list[float] | np.ndarray, sr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Converter-mode torque ratio and capacity factor (rad/s / sqrt(Nm)) from a0..a5 (eq. 35)."""
+    tp = a[0] + a[1] * sr + a[2] * sr**2
+    tt = a[3] + a[4] * sr + a[5] * sr**2
+    return tt / tp, 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan))
+
+
+def _coupling_cf(a678: list[float] | np.ndarray, sr: np.ndarray) -> np.ndarray:
+    tp = a678[0] + a678[1] * sr + a678[2] * sr**2
+    return 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan))
+
+
+def _rel_check(group: str, name: str, ident: float, truth: float, mode: str, tol: float, unit: str,
+               note: str = "") -> Check:
+    if mode == "rel":
+        err = (ident - truth) / truth if truth != 0 else float("inf")
+    else:
+        err = ident - truth
+    ok = bool(math.isfinite(err) and abs(err) <= tol)
+    return Check(group, name, ident, truth, err, tol, mode, unit, ok, note)
+
+
+def _budget(setup: SetupConfig | None) -> dict[str, float]:
+    """Systematic errors the setup declares, by quantity (gain errors as fractions, offsets in units)."""
+    b: dict[str, float] = {k: 0.0 for k in (
+        "shaft_gain", "shaft_offset", "engine_torque_gain", "engine_torque_offset", "em_torque_gain",
+        "em_torque_offset", "hpcu_gain", "battery_voltage_gain", "battery_current_gain", "pressure_gain",
+        "fuel_gain")}
+    if setup is None:
+        return b
+    if setup.telemetry is not None:
+        b["shaft_gain"] = abs(setup.telemetry.errors.gain_error_frac)
+        b["shaft_offset"] = abs(setup.telemetry.errors.offset)
+    if setup.vehicle_can is not None:
+        for role, key in (("engine_torque_nm", "engine_torque"), ("em_torque_nm", "em_torque")):
+            e = setup.vehicle_can.errors.get(role)
+            if e is not None:
+                b[f"{key}_gain"] = abs(e.gain_error_frac)
+                b[f"{key}_offset"] = abs(e.offset)
+        e = setup.vehicle_can.errors.get("fuel_mass_flow_gps")
+        if e is not None:
+            b["fuel_gain"] = abs(e.gain_error_frac)
+    if "hpcu" in setup.ivt:
+        cfg = setup.ivt["hpcu"]
+        b["hpcu_gain"] = abs(cfg.current_errors.gain_error_frac) + abs(cfg.voltage_errors.gain_error_frac)
+    if "battery" in setup.ivt:
+        cfg = setup.ivt["battery"]
+        b["battery_voltage_gain"] = abs(cfg.voltage_errors.gain_error_frac)
+        b["battery_current_gain"] = abs(cfg.current_errors.gain_error_frac)
+    if setup.pressure is not None:
+        b["pressure_gain"] = abs(setup.pressure.errors.gain_error_frac)
+    return b
+
+
+def _quantisation_bound(fit: Any, param: str, setup: SetupConfig) -> float:
+    """Three standard deviations of ``eta_m`` (relative) or ``C0`` (Nm) due to the shaft-torque converter step.
+
+    Each steady point's shaft torque is rounded to the 12-bit converter's step ``q``; over points at
+    different torques the rounding errors behave as independent, uniform in ``+-q/2``
+    (sigma ``q / sqrt(12)``). Propagated through the fit's own weighted least squares (eq. 15-17) they
+    give the spread a perfect identification would still show. NaN-safe: 0 when the fit lacks its points.
+    """
+    if fit is None or "c" not in fit.data or "gear_ratio" not in fit.data or "eta_m" not in fit.params:
+        return 0.0
+    tel = setup.telemetry
+    step = torque_step_nm(tel.shaft, tel.k_tel)
+    c = np.asarray(fit.data["c"], dtype=float)
+    ratio = float(np.asarray(fit.data["gear_ratio"]).ravel()[0])
+    eta_m, c0 = fit.value("eta_m"), fit.value("C0")
+    if c.size < 3 or not np.isfinite(ratio):
+        return 0.0
+    eta = eta_m * (1.0 - c0 / c)
+    # drive: eta = T_out / (i C_in); coast: eta = i T_in / T_out with |T_out| = i C: both give d eta = eta q / (i C)
+    # for coast and q / (i C) for drive; the coast form is used for both (eta ~ 1, a conservative upper bound)
+    sig = step / np.sqrt(12.0) / (ratio * c) * np.maximum(eta, 1.0)
+    A = np.column_stack([np.ones_like(c), -1.0 / c])
+    w = c**2 / np.mean(c**2)
+    AtW = A.T * w
+    try:
+        inv = np.linalg.inv(AtW @ A)
+    except np.linalg.LinAlgError:
+        return 0.0
+    cov = inv @ (AtW * sig**2) @ AtW.T @ inv
+    x0, x1 = eta_m, eta_m * c0
+    if param == "eta_m":
+        return float(3.0 * np.sqrt(cov[0, 0]) / eta_m)
+    if param == "C0":
+        g = np.array([-x1 / x0**2, 1.0 / x0])
+        return float(3.0 * np.sqrt(g @ cov @ g))
+    return 0.0
+
+
+def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, profile: str = "ideal",
+                       gears: Iterable[int] | None = None, setup: SetupConfig | None = None,
+                       paper_sets: dict[str, Any] | None = None) -> list[Check]:
+    """Compare an identification result with the vehicle file.
+
+    Parameters
+    ----------
+    result:
+        The identification result.
+    vehicle:
+        The truth.
+    profile:
+        ``ideal`` or ``realistic`` (see the module docstring).
+    gears:
+        Gears whose transmission fits are expected (default: all).
+    setup:
+        The bench; with the ``realistic`` profile the systematic errors it declares (gain errors and
+        offsets of the sensors a parameter depends on) widen that parameter's tolerance, so a failure
+        means identification did worse than the chain allows, not that the chain is imperfect.
+    paper_sets:
+        Fits made on the paper's own estimation sets (see :func:`paper_estimation_fits`), whose R^2 is
+        compared with the paper's instead of the all-data fit of the same name.
+
+    Returns
+    -------
+    list of Check
+        Scalar parameters, torque-converter curves, shift lines, the BSFC map and (realistic) R^2.
+    """
+    if profile not in ("ideal", "realistic"):
+        raise ConfigError(f"validation profile {profile!r}: allowed are 'ideal' and 'realistic'")
+    params = result.parameters()
+    budget = _budget(setup)
+    checks: list[Check] = []
+    gear_set = set(gears) if gears is not None else set(range(1, vehicle.n_gears + 1))
+    for e in truth_expectations(vehicle):
+        fit_key, param = split_param(e.key)
+        if fit_key.subsystem == "transmission" and fit_key.gear not in gear_set:
+            continue
+        mode, tol = e.tol[profile]
+        if profile == "realistic" and e.systematic is not None:
+            tol += e.systematic(budget)
+        if e.group == "transmission" and setup is not None and setup.telemetry is not None:
+            q = _quantisation_bound(result.fits.get(str(fit_key)), param, setup)
+            if q > tol:
+                tol = q
+        p = params.get(e.key)
+        if p is None:
+            why = result.errors.get(str(fit_key)) or result.errors.get(fit_key.subsystem) or "not identified"
+            checks.append(Check(e.group, e.key, float("nan"), e.truth, float("nan"), tol, mode, e.unit, False, why))
+            continue
+        c = _rel_check(e.group, e.key, p.value, e.truth, mode, tol, e.unit, e.note)
+        if p.status != "ok":
+            c.note = (c.note + "; " if c.note else "") + f"flagged: {p.reason}"
+        checks.append(c)
+
+    checks += _tc_checks(result, vehicle, profile)
+    checks += _shift_checks(result, vehicle, profile)
+    checks += _bsfc_checks(result, vehicle, profile, budget)
+    if profile == "realistic":
+        for fit_name, (attr, minimum, what) in PAPER_R2.items():
+            fit = (paper_sets or {}).get(fit_name) or result.fits.get(fit_name)
+            val = float(getattr(fit, attr)) if fit is not None else float("nan")
+            ok = bool(math.isfinite(val) and val >= minimum)
+            checks.append(Check("r2", f"{fit_name}.{attr}", val, minimum, val, minimum, "min", "-", ok,
+                                f"paper: {what}"))
+    return checks
+
+
+def _tc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: str) -> list[Check]:
+    a_true = list(vehicle.torque_converter.a_nm_per_radps2)
+    gamma = vehicle.torque_converter.coupling_speed_ratio
+    conv = result.fits.get("torque_converter.converter")
+    coup = result.fits.get("torque_converter.coupling")
+    tol_conv = {"ideal": 5e-3, "realistic": 3e-2}[profile]
+    tol_coup = {"ideal": 2e-2, "realistic": 8e-2}[profile]
+    checks: list[Check] = []
+    note = ("a0..a8 are not separable one by one (the three regressors of each quadratic are strongly "
+            "correlated); the curves they define are compared instead, max relative error over the speed "
+            "ratios covered")
+    if conv is None or not all(f"a{i}" in conv.params for i in range(6)):
+        why = result.errors.get("torque_converter", "not identified")
+        checks.append(Check("torque_converter", "torque_converter.torque_ratio_curve", float("nan"), float("nan"),
+                            float("nan"), tol_conv, "rel", "-", False, why))
+    else:
+        a_id = [conv.value(f"a{i}") for i in range(6)]
+        sr = np.linspace(0.0, gamma * 0.98, 50)
+        tr_t, cf_t = _tc_curves(a_true, sr)
+        tr_i, cf_i = _tc_curves(a_id, sr)
+        for nm, ident, truth in (("torque_ratio_curve", tr_i, tr_t), ("capacity_factor_curve", cf_i, cf_t)):
+            rel = np.abs(ident / truth - 1.0)
+            k = int(np.nanargmax(rel)) if np.any(np.isfinite(rel)) else 0
+            err = float(np.nanmax(rel)) if np.any(np.isfinite(rel)) else float("inf")
+            checks.append(Check("torque_converter", f"torque_converter.{nm}", float(ident[k]), float(truth[k]),
+                                err, tol_conv, "rel", "-", err <= tol_conv,
+                                note + f" (worst at SR {sr[k]:.2f})"))
+    if coup is None or not all(f"a{i}" in coup.params for i in (6, 7, 8)):
+        why = result.errors.get("torque_converter", "not identified")
+        checks.append(Check("torque_converter", "torque_converter.coupling_cf_curve", float("nan"), float("nan"),
+                            float("nan"), tol_coup, "rel", "-", False, why))
+    else:
+        sr = np.linspace(gamma, 0.95, 30)
+        cf_t = _coupling_cf(a_true[6:9], sr)
+        cf_i = _coupling_cf([coup.value(f"a{i}") for i in (6, 7, 8)], sr)
+        rel = np.abs(cf_i / cf_t - 1.0)
+        ok_pts = np.isfinite(rel)
+        err = float(np.max(rel[ok_pts])) if ok_pts.any() else float("inf")
+        k = int(np.nanargmax(np.where(ok_pts, rel, -1)))
+        checks.append(Check("torque_converter", "torque_converter.coupling_cf_curve", float(cf_i[k]), float(cf_t[k]),
+                            err, tol_coup, "rel", "-", err <= tol_coup,
+                            "coupling mode up to SR 0.95 (CF tends to infinity at SR 1, as the paper notes)"))
+    return checks
+
+
+def _shift_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: str) -> list[Check]:
+    s = vehicle.shift_schedule
+    tol = {"ideal": 0.5, "realistic": 2.0}[profile]
+    pedal = np.linspace(0.0, 100.0, 21)
+    checks: list[Check] = []
+    for g in range(vehicle.n_gears - 1):
+        for fit_key, v0, slope in ((FitKey.shift(g + 1, "up"), s.up_v0_kmh[g], s.up_slope_kmh_per_pct[g]),
+                                   (FitKey.shift(g + 2, "down"), s.down_v0_kmh[g], s.down_slope_kmh_per_pct[g])):
+            key = str(fit_key)
+            fit = result.fits.get(key)
+            if fit is None or fit.status != "ok" or "c0_kmh" not in fit.params or "c1_kmh_per_pct" not in fit.params:
+                why = "; ".join(fit.reasons) if fit is not None else result.errors.get("shifts", "not identified")
+                checks.append(Check("shifts", key, float("nan"), float("nan"), float("nan"), tol, "abs", "km/h",
+                                    False, why))
+                continue
+            seen = np.asarray(fit.data.get("pedal", pedal), dtype=float)
+            pp = pedal[(pedal >= np.min(seen) - 1e-9) & (pedal <= np.max(seen) + 1e-9)]
+            if pp.size == 0:
+                pp = pedal
+            ident = fit.value("c0_kmh") + fit.value("c1_kmh_per_pct") * pp
+            truth = v0 + slope * pp
+            err = ident - truth
+            k = int(np.argmax(np.abs(err)))
+            checks.append(Check("shifts", key, float(ident[k]), float(truth[k]), float(err[k]), tol, "abs", "km/h",
+                                bool(abs(err[k]) <= tol),
+                                f"line speed at pedal {pp[k]:.0f} %, worst over the pedal range covered; events are "
+                                f"caught at the first sample past the line"))
+    return checks
+
+
+def _bsfc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: str,
+                 budget: dict[str, float]) -> list[Check]:
+    fit = result.fits.get("engine.bsfc")
+    tol_min = {"ideal": 1e-2, "realistic": 3e-2}[profile]
+    tol_map = {"ideal": 1.5e-2, "realistic": 6e-2}[profile]
+    map_bmep_min = 4.0  # bar: below ~20 % load BSFC = fuel MEP / BMEP amplifies every fuel-flow error
+    if profile == "realistic":
+        extra = budget["engine_torque_gain"] + budget["fuel_gain"]
+        t_low = map_bmep_min * 1e5 * vehicle.specs.engine_displacement_m3 / (vehicle.specs.engine_strokes * np.pi)
+        tol_min += extra
+        tol_map += extra + budget["engine_torque_offset"] / t_low
+    if fit is None or "bsfc_min" not in fit.params:
+        why = result.errors.get("engine.bsfc", result.errors.get("engine", "not identified"))
+        return [Check("engine", "engine.bsfc.bsfc_min", float("nan"), float("nan"), float("nan"), tol_min, "rel",
+                      "g/kWh", False, why)]
+    true_bsfc = _true_bsfc(vehicle)
+    checks: list[Check] = []
+    d = fit.data
+    sg, bg, mapv = (np.asarray(d.get(k)) for k in ("map_speed_rpm", "map_bmep_bar", "map_bsfc"))
+    extrap = np.asarray(d.get("map_extrapolated", np.zeros(np.shape(mapv), bool)), dtype=bool)
+    # the map is laid out BMEP x speed (rows follow map_bmep_bar)
+    S, B = np.meshgrid(sg, bg) if sg.ndim == 1 else (sg, bg)
+    covered = (~extrap) & np.isfinite(mapv)
+    truth_map = true_bsfc(S, B)
+    # the true minimum over the part of the map the data cover (above 2 bar, as identification searches)
+    search = covered & (B >= 2.0)
+    true_min = float(np.min(truth_map[search])) if search.any() else float("nan")
+    inside = covered & (map_bmep_min <= B)
+    checks.append(_rel_check("engine", "engine.bsfc.bsfc_min", fit.value("bsfc_min"), true_min, "rel", tol_min,
+                             "g/kWh", "minimum over the speed x BMEP area the data cover (BMEP >= 2 bar)"))
+    if inside.any():
+        rel = np.abs(mapv[inside] / truth_map[inside] - 1.0)
+        k = int(np.argmax(rel))
+        checks.append(Check("engine", "engine.bsfc.map", float(mapv[inside][k]), float(truth_map[inside][k]),
+                            float(rel[k]), tol_map, "rel", "g/kWh", bool(rel[k] <= tol_map),
+                            f"worst node of the identified map inside the data's hull (of {int(inside.sum())}), "
+                            f"at {S[inside][k]:.0f} rpm / {B[inside][k]:.1f} bar, BMEP >= {map_bmep_min:.0f} bar; the "
+                            f"true map is bilinear between its nodes, the identified one a smooth interpolation of "
+                            f"scattered points"))
+    return checks
+
+
+def _slice_recording(rec: Recording, start_s: float, end_s: float) -> Recording:
+    out = Recording(segments=[s for s in rec.segments if s.end_s > start_s and s.start_s < end_s],
+                    meta=dict(rec.meta))
+    for ch in rec.channels.values():
+        m = (ch.timestamps >= start_s) & (ch.timestamps < end_s)
+        out.add(Channel(ch.name, ch.unit, ch.timestamps[m], ch.values[m], ch.flags[m], ch.source))
+    return out
+
+
+def paper_estimation_fits(rec: Recording, vehicle: VehicleConfig, trace: Trace) -> dict[str, Any]:
+    """Fits on the paper's own estimation sets, for comparing R^2 like with like.
+
+    The paper's transmission R^2 of 0.95 is that of one ramp-up: 5th gear, Hybrid mode, about 2500 rpm
+    (Figure 8). Over every ramp-up of a gear the points mix Hybrid and Electric operation, whose input
+    torques carry different ECU errors, so the all-data R^2 is lower and not comparable. This fits the
+    5th-gear Hybrid ramp-up whose motor speed is nearest 2500 rpm.
+
+    Returns
+    -------
+    dict
+        ``{"transmission.gear5": FitResult}`` when such a ramp-up exists and can be fitted.
+    """
+    best = None
+    for seg in trace.segments:
+        if seg.kind != "ramp_up" or seg.settings.get("gear") != 5 or seg.settings.get("mode") != "hybrid":
+            continue
+        sl = trace.segment(seg.name)
+        rpm = float(np.median(sl["em_speed_radps"])) * 30.0 / np.pi
+        if best is None or abs(rpm - 2500.0) < best[0]:
+            best = (abs(rpm - 2500.0), seg)
+    if best is None:
+        return {}
+    seg = best[1]
+    try:
+        res = identify_transmission(_slice_recording(rec, seg.start_s, seg.end_s), vehicle.specs, gears=[5])
+    except IdentificationError:
+        return {}
+    key = str(FitKey.transmission(5))
+    fit = res.fits.get(key)
+    return {key: fit} if fit is not None else {}

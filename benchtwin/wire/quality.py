@@ -1,0 +1,175 @@
+"""Quality of a received stream, judged from the wire alone, and the sink decoders write into.
+
+Every device's decoder (``benchtwin/sensors/<kind>.py``) uses these, so a lost, doubled or reordered
+frame is judged the same way on every bus: :func:`counter_flags` from a cyclic message counter,
+:func:`timing_flags` from the spacing of a stream without one, :func:`split_bad` for frames of the
+wrong length or content, and :func:`mark_after` for the sample after a transport drop. Decoded
+channels and the counts of what went wrong go into a :class:`DecodeSink`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from benchtwin.recording import Channel, Flag, Recording
+
+__all__ = ["FLAG", "DecodeSink", "FrameStream", "counter_flags", "mark_after", "split_bad", "timing_flags"]
+
+#: flag name -> bit (plain ints for numpy in-place ors)
+FLAG: dict[str, int] = {f.name: int(f) for f in Flag}
+
+
+def counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
+    """LOST_FRAME / DUPLICATE / OUT_OF_ORDER from a cyclic counter (per sample, arrival order).
+
+    A repeated counter is a duplicate; the other samples are then judged without the duplicates.
+
+    Parameters
+    ----------
+    counter:
+        Counter values in arrival order.
+    bits:
+        Width of the counter (it wraps at ``2**bits``).
+    """
+    n = counter.shape[0]
+    flags = np.zeros(n, dtype=np.uint16)
+    if n < 2:
+        return flags
+    c8 = counter.astype(np.uint8)
+    step = (c8[1:] - c8[:-1]) & np.uint8((1 << bits) - 1)
+    if np.all(step == 1):  # the usual case: nothing lost, doubled or reordered
+        return flags
+    c_all = counter.astype(np.int16)
+    dup = np.zeros(n, bool)
+    dup[1:] = step == 0
+    if dup.any():
+        keep = np.flatnonzero(~dup)
+        flags[keep] = counter_flags(c_all[keep], bits)
+        flags[dup] |= FLAG["DUPLICATE"]
+        return flags
+    m = 1 << bits
+    mask = np.int16(m - 1)
+    c = c_all
+    d1 = np.zeros(n, dtype=np.int16)
+    d1[1:] = (c[1:] - c[:-1]) & mask
+    ooo = np.zeros(n, bool)
+    ooo[1:] = d1[1:] > m // 2
+    gap = (d1 >= 2) & (d1 <= m // 2)
+    gap[0] = False
+    # a reorder looks like "skip one, go back one, skip one": do not call those losses
+    nxt_back = np.zeros(n, bool)
+    nxt_back[:-1] = ooo[1:] & (((c[:-1] - c[1:]) & mask) == 1)
+    d2 = np.zeros(n, dtype=np.int16)
+    d2[2:] = (c[2:] - c[:-2]) & mask
+    prev_ooo = np.zeros(n, bool)
+    prev_ooo[1:] = ooo[:-1]
+    reordered_gap = gap & nxt_back
+    lost = gap & ~nxt_back & ~(prev_ooo & (d2 == 1))
+    flags[lost] |= FLAG["LOST_FRAME"]
+    flags[ooo | reordered_gap] |= FLAG["OUT_OF_ORDER"]
+    return flags
+
+
+def timing_flags(t: np.ndarray, period_s: float) -> np.ndarray:
+    """LOST_FRAME where the spacing exceeds 1.5 periods (streams without a counter)."""
+    flags = np.zeros(t.shape[0], dtype=np.uint16)
+    if t.shape[0] > 1 and period_s > 0:
+        late = np.diff(t) > 1.5 * period_s
+        flags[1:][late] |= FLAG["LOST_FRAME"]
+    return flags
+
+
+def mark_after(flags: np.ndarray, t: np.ndarray, bad_times: np.ndarray, bit: int) -> None:
+    """Flag the first sample at or after each of ``bad_times`` with ``bit`` (in place)."""
+    if bad_times.size == 0 or t.size == 0:
+        return
+    idx = np.searchsorted(t, bad_times, side="left")
+    idx = idx[idx < t.size]
+    flags[idx] |= bit
+
+
+def split_bad(dlc: np.ndarray, length: int, extra_bad: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Split a stream into its good frames and the PROTOCOL_ERROR flag of the good frame after each bad one.
+
+    Parameters
+    ----------
+    dlc:
+        Data length of each frame of the stream.
+    length:
+        The layout's length (0: any length is good).
+    extra_bad:
+        Frames bad for another reason (e.g. a wrong multiplexer byte).
+
+    Returns
+    -------
+    good, proto, n_bad
+        Boolean mask of the good frames, the flag column of the good frames, and the count of bad ones.
+    """
+    bad = dlc != length if length else np.zeros(dlc.shape[0], bool)
+    if extra_bad is not None:
+        bad = bad | extra_bad
+    proto = np.zeros(int(dlc.shape[0] - np.count_nonzero(bad)), dtype=np.uint16)
+    nbad = int(bad.sum())
+    if nbad:
+        before = np.cumsum(bad)[~bad]
+        prev = np.concatenate([[0], before[:-1]])
+        proto[before > prev] = FLAG["PROTOCOL_ERROR"]
+    return ~bad, proto, nbad
+
+
+@dataclass
+class FrameStream:
+    """The frames of one identifier on one bus, in arrival order, as columns.
+
+    Attributes
+    ----------
+    bus, frame_id:
+        Where the frames came from.
+    t:
+        Timestamps (s).
+    dlc:
+        Data lengths.
+    words:
+        The eight data bytes as little-endian 64-bit words (what :class:`~benchtwin.wire.codec.MessageCodec`
+        unpacks).
+    drops:
+        Times at which the transport dropped (the next sample gets TRANSPORT_DROP).
+    """
+
+    bus: str
+    frame_id: int
+    t: np.ndarray
+    dlc: np.ndarray
+    words: np.ndarray
+    drops: np.ndarray
+
+    @property
+    def where(self) -> str:
+        """``bus:0xID``, the key of this stream's protocol-error counts."""
+        return f"{self.bus}:0x{self.frame_id:X}"
+
+
+@dataclass
+class DecodeSink:
+    """Collects decoded channels and counts of what the decoders saw, for the Recording."""
+
+    rec: Recording = field(default_factory=Recording)
+    counts: dict[str, Any] = field(default_factory=lambda: {"protocol_errors": {}, "unknown_ids": {}, "frames": {}})
+
+    def add(self, name: str, unit: str, t: np.ndarray, v: np.ndarray, flags: np.ndarray, source: str) -> None:
+        """Add one decoded channel."""
+        self.rec.add(Channel(name, unit, t, v, flags, source))
+
+    def protocol_error(self, where: str, n: int) -> None:
+        """Count ``n`` malformed frames or answers at ``where``."""
+        if n:
+            self.counts["protocol_errors"][where] = self.counts["protocol_errors"].get(where, 0) + int(n)
+
+    def count(self, key: str, name: str, n: int) -> None:
+        """Add ``n`` to the count ``counts[key][name]``."""
+        d = self.counts.setdefault(key, {})
+        d[name] = d.get(name, 0) + int(n)
