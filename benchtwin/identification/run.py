@@ -21,14 +21,12 @@ shifts             target gear, speed, pedal                    ``shifts.up_1_2`
 
 A method whose roles are missing is *skipped* (listed in ``meta['skipped']`` with the missing roles);
 a method that runs but cannot give trustworthy numbers records its error message in ``errors``
-instead of stopping the run. The methods of identification part A (transmission, motor, engine,
-road load, brakes) are looked up by module name at run time, so the orchestrator works whether or not
-they are installed.
+instead of stopping the run.
 """
 
 from __future__ import annotations
 
-import importlib
+import inspect
 import logging
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -38,9 +36,22 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from benchtwin.config.specs import VehicleSpecs
-from benchtwin.errors import BenchtwinError, DataError
+from benchtwin.errors import BenchtwinError, DataError, IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
+from benchtwin.identification.battery import (
+    identify_battery,
+    identify_battery_map_free,
+    identify_battery_ocv_rest,
+    identify_battery_r0_steps,
+)
+from benchtwin.identification.brakes import identify_brakes
+from benchtwin.identification.engine import identify_engine
 from benchtwin.identification.keys import FitKey
+from benchtwin.identification.motor import identify_motor
+from benchtwin.identification.road_load import identify_road_load
+from benchtwin.identification.shifts import identify_shift_thresholds
+from benchtwin.identification.torque_converter import identify_torque_converter
+from benchtwin.identification.transmission import identify_transmission
 from benchtwin.recording import Recording
 
 __all__ = ["METHODS", "Method", "identify_all", "method_options", "transmission_table"]
@@ -93,39 +104,16 @@ def transmission_table(result: IdentificationResult) -> dict[int, tuple[float, f
     return out
 
 
-def _part_a(module: str, func: str) -> Callable[..., Any]:
+def _direct(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """A method that takes ``(rec, specs, **options)``."""
     def run(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
-        try:
-            mod = importlib.import_module(f"benchtwin.identification.{module}")
-        except ModuleNotFoundError as exc:
-            raise _UnavailableError(f"benchtwin.identification.{module} is not available ({exc})") from None
-        fn = getattr(mod, func, None)
-        if fn is None:
-            raise _UnavailableError(f"benchtwin.identification.{module} has no {func}()")
         return fn(rec, specs, **dict(opts))
 
     return run
 
 
-class _UnavailableError(Exception):
-    """A method's module is not installed."""
-
-
-def _battery(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
-    from benchtwin.identification.battery import identify_battery
-
-    return identify_battery(rec, specs, **dict(opts))
-
-
 def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult,
                       opts: Mapping[str, Any]) -> Any:
-    from benchtwin.errors import IdentificationError
-    from benchtwin.identification.battery import (
-        identify_battery_map_free,
-        identify_battery_ocv_rest,
-        identify_battery_r0_steps,
-    )
-
     o = dict(opts)
     n_cells = int(o.pop("n_cells", 1))
     cap = o.pop("capacity_ah", None)
@@ -152,16 +140,12 @@ def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: Identifi
 
 def _torque_converter(rec: Recording, specs: VehicleSpecs | None, res: IdentificationResult,
                       opts: Mapping[str, Any]) -> Any:
-    from benchtwin.identification.torque_converter import identify_torque_converter
-
     o = dict(opts)
     table = o.pop("transmission", None) or transmission_table(res) or None
     return identify_torque_converter(rec, specs, transmission=table, **o)  # type: ignore[arg-type]
 
 
 def _shifts(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
-    from benchtwin.identification.shifts import identify_shift_thresholds
-
     o = dict(opts)
     if specs is not None:
         o.setdefault("n_gears", len(specs.gear_ratios))
@@ -172,16 +156,16 @@ _TX = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "engine_torque_nm", 
 
 #: every method in run order (transmission before the torque converter, which uses it)
 METHODS: tuple[Method, ...] = (
-    Method("transmission", _TX, _part_a("transmission", "identify_transmission")),
+    Method("transmission", _TX, _direct(identify_transmission)),
     Method("motor", ("em_speed_rpm", "em_torque_nm", "hpcu_current_a", "hpcu_voltage_v"),
-           _part_a("motor", "identify_motor")),
+           _direct(identify_motor)),
     Method("engine", ("engine_speed_rpm", "engine_torque_nm", "fuel_mass_flow_gps"),
-           _part_a("engine", "identify_engine")),
-    Method("road_load", ("vehicle_speed_kmh",), _part_a("road_load", "identify_road_load"),
+           _direct(identify_engine)),
+    Method("road_load", ("vehicle_speed_kmh",), _direct(identify_road_load),
            any_roles=("dyno_speed_kmh", "dyno_force_front_n")),
     Method("brakes", ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",
-                      "brake_pressure_rr_bar"), _part_a("brakes", "identify_brakes")),
-    Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _battery),
+                      "brake_pressure_rr_bar"), _direct(identify_brakes)),
+    Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _direct(identify_battery)),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
     Method("torque_converter", ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm",
                                 "gear_actual"), _torque_converter),
@@ -193,17 +177,17 @@ DEFAULT_METHODS: tuple[str, ...] = ("transmission", "motor", "engine", "road_loa
                                     "torque_converter", "shifts")
 
 
-#: where each method's keyword options go (module, function); part A modules are looked up at run time
-_TARGETS: dict[str, tuple[str, str]] = {
-    "transmission": ("transmission", "identify_transmission"),
-    "motor": ("motor", "identify_motor"),
-    "engine": ("engine", "identify_engine"),
-    "road_load": ("road_load", "identify_road_load"),
-    "brakes": ("brakes", "identify_brakes"),
-    "battery": ("battery", "identify_battery"),
-    "battery_map_free": ("battery", "identify_battery_map_free"),
-    "torque_converter": ("torque_converter", "identify_torque_converter"),
-    "shifts": ("shifts", "identify_shift_thresholds"),
+#: the function that takes each method's keyword options
+_TARGETS: dict[str, Callable[..., Any]] = {
+    "transmission": identify_transmission,
+    "motor": identify_motor,
+    "engine": identify_engine,
+    "road_load": identify_road_load,
+    "brakes": identify_brakes,
+    "battery": identify_battery,
+    "battery_map_free": identify_battery_map_free,
+    "torque_converter": identify_torque_converter,
+    "shifts": identify_shift_thresholds,
 }
 
 
@@ -220,16 +204,9 @@ def method_options(name: str) -> set[str] | None:
     DataError
         Unknown method, or its module is not installed.
     """
-    import inspect
-
     if name not in _TARGETS:
         raise DataError(f"unknown identification method {name!r}; known: {', '.join(_TARGETS)}")
-    module, func = _TARGETS[name]
-    try:
-        fn = getattr(importlib.import_module(f"benchtwin.identification.{module}"), func)
-    except (ImportError, AttributeError) as exc:
-        raise DataError(f"method {name!r} is not available ({exc})") from None
-    params = inspect.signature(fn).parameters
+    params = inspect.signature(_TARGETS[name]).parameters
     if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
         return None
     names = {n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY}
@@ -329,8 +306,6 @@ def _run_method(m: Method, recording: Recording, specs: VehicleSpecs | None, res
         out = m.run(recording, specs, result, options.get(m.name, {}))
         _merge(result, m.name, out)
         result.meta["ran"].append(m.name)
-    except _UnavailableError as exc:
-        result.meta["skipped"][m.name] = str(exc)
     except BenchtwinError as exc:
         result.errors[m.name] = f"{type(exc).__name__}: {exc}"
         result.meta["ran"].append(m.name)
