@@ -237,7 +237,13 @@ class SocketcandServer:
                 else:
                     client: _Client = key.data
                     if mask & selectors.EVENT_READ:
-                        self._read(client)
+                        try:
+                            self._read(client)
+                        except Exception:  # one client's garbage never stops the endpoint for the others
+                            log.exception("socketcand endpoint: closing client %s after an error", client.peer)
+                            self.counters["malformed_commands"] += 1
+                            self._close_client(client)
+                            continue
                     if mask & selectors.EVENT_WRITE and client.alive:
                         self._flush(client)
 
@@ -259,7 +265,7 @@ class SocketcandServer:
     def _reply(self, c: _Client, text: str) -> None:
         with c.lock:
             try:
-                c.sock.sendall(text.encode("ascii"))
+                c.sock.sendall(text.encode("ascii", "replace"))
             except OSError:
                 c.alive = False
 

@@ -162,3 +162,27 @@ def test_endpoint_closed_mid_run_loses_nothing_already_recorded(run_inputs, tmp_
     live = acquire(capture_to_input(cap), setup)
     assert {e["source"] for e in live.meta["transport_events"] if e["kind"] == "drop"} >= set(setup.buses)
     assert len(live["vehicle_speed_kmh"]) > 0
+
+
+@pytest.mark.parametrize("garbage", [b"< open \xff\xfe >", b"< \xc3\xa9t\xc3\xa9 >", b"\x00\x01\x02 < send 1 1 \xff >",
+                                     b"<" + b"x" * 10_000])
+def test_socketcand_endpoint_survives_non_ascii_and_garbage(garbage: bytes) -> None:
+    """A client sending bytes outside ASCII gets an error answer or is closed; the endpoint keeps serving others."""
+    import socket as _socket
+
+    from benchtwin.chain.transports.socketcand import SocketcandServer
+
+    srv = SocketcandServer(["bus"], arm_delay_s=0.0).start()
+    try:
+        bad = _socket.create_connection(srv.address, timeout=5)
+        assert bad.recv(64) == b"< hi >"
+        bad.sendall(garbage)
+        for _ in range(3):  # a later client is greeted and can open the bus
+            good = _socket.create_connection(srv.address, timeout=5)
+            assert good.recv(64) == b"< hi >"
+            good.sendall(b"< open bus >")
+            assert good.recv(64) == b"< ok >"
+            good.close()
+        bad.close()
+    finally:
+        srv.close()
