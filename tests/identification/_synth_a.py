@@ -10,7 +10,6 @@ forms with the parameters in :class:`Truth`, so identification must give those b
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,9 +24,8 @@ from benchtwin.segments import Segment
 
 RPM = 2 * math.pi / 60
 PLANT_HZ = 100.0
-#: the reference data beside the project (../shared/reference/data), or BENCHTWIN_REFERENCE_DATA
-REFERENCE_DATA = Path(os.environ.get("BENCHTWIN_REFERENCE_DATA")
-                      or Path(__file__).resolve().parents[3] / "shared" / "reference" / "data")
+#: the reference data shipped with the tests, each licence beside its data (tests/data/reference/README.md)
+REFERENCE_DATA = Path(__file__).resolve().parents[1] / "data" / "reference"
 MERCEDES = REFERENCE_DATA / "engine_mercedes_1p7" / "Mercedes1pt7_engine_steady_state_points.txt"
 
 #: role -> (source, rate Hz)

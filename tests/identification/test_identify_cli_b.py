@@ -119,8 +119,6 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
 def test_cli_on_the_insight_log(tmp_path, capsys):
     ref = _reference_dir()
     log = ref / "advisor_insight_hev" / "Hwy2x_Insight_test_data_69soc_hot.txt"
-    if not log.exists():
-        pytest.skip(f"reference data {log} is absent")
     out = tmp_path / "insight"
     smap = scenario_path("signal_maps", "insight_hwy.toml")
     assert main(["identify", str(log), "--signal-map", str(smap), "--out", str(out)]) == 0
@@ -185,8 +183,6 @@ def test_quick_campaign_through_the_batch_chain(quick_chain):
 
 def test_cli_on_the_leaf_hppc(tmp_path):
     log = _reference_dir() / "ornl_leaf_cell" / "NissanLeaf-cell-Low-Current-HPPC-25C-2.csv"
-    if not log.exists():
-        pytest.skip(f"reference data {log} is absent")
     out = tmp_path / "leaf"
     smap = scenario_path("signal_maps", "leaf_cell_hppc.toml")
     assert main(["identify", str(log), "--signal-map", str(smap), "--out", str(out), "--no-figures"]) == 0

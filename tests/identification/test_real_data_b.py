@@ -29,7 +29,6 @@ JDMA torque converter curve (ADVISOR TX_AUTO4): pump/turbine points are built fr
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -45,20 +44,17 @@ from benchtwin.identification.importers import import_log
 from benchtwin.identification.signal_map import load_signal_map
 from benchtwin.identification.torque_converter import RPM_PER_RADS, fit_torque_converter
 
+REFERENCE_DATA = Path(__file__).resolve().parents[1] / "data" / "reference"
+
 
 def _reference_dir() -> Path:
-    env = os.environ.get("BENCHTWIN_REFERENCE_DATA")
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[3] / "shared" / "reference" / "data"
+    """The reference data shipped with the tests (tests/data/reference, each licence beside its data)."""
+    return REFERENCE_DATA
 
 
 @pytest.fixture(scope="module")
 def ref() -> Path:
-    d = _reference_dir()
-    if not d.is_dir():
-        pytest.skip(f"reference data folder {d} is absent (set BENCHTWIN_REFERENCE_DATA)")
-    return d
+    return _reference_dir()
 
 
 @pytest.fixture(scope="module")
