@@ -7,7 +7,7 @@ runs unchanged on it. Units are engineering units as a test engineer reads them 
 
 from __future__ import annotations
 
-__all__ = ["ROLES", "unit_of_role"]
+__all__ = ["PLAUSIBLE", "ROLES", "plausible_range", "unit_of_role"]
 
 #: role name -> (unit, description)
 ROLES: dict[str, tuple[str, str]] = {
@@ -61,6 +61,22 @@ ROLES: dict[str, tuple[str, str]] = {
     "motor_coolant_in_degc": ("degC", "motor coolant inlet"),
     "motor_coolant_out_degc": ("degC", "motor coolant outlet"),
 }
+
+
+#: unit -> (lowest, highest) value any vehicle on a chassis dyno can show: beyond it a sample is a corrupt cell,
+#: a wrong scaling or a sensor fault, never a measurement (states: the range of their codes)
+PLAUSIBLE: dict[str, tuple[float, float]] = {
+    "km/h": (-100.0, 600.0), "rpm": (-30_000.0, 30_000.0), "Nm": (-20_000.0, 20_000.0), "g/s": (-1.0, 200.0),
+    "%": (-10.0, 110.0), "A": (-10_000.0, 10_000.0), "V": (-100.0, 2_000.0), "W": (-2e6, 2e6),
+    "bar": (-10.0, 1_000.0), "N": (-1e6, 1e6), "degC": (-273.15, 2_000.0), "": (-1.0, 100.0),
+}
+
+
+def plausible_range(role: str) -> tuple[float, float]:
+    """The plausible range of a role's values (from its unit; unbounded for an unknown role)."""
+    if role not in ROLES:
+        return (-float("inf"), float("inf"))
+    return PLAUSIBLE.get(ROLES[role][0], (-float("inf"), float("inf")))
 
 
 def unit_of_role(role: str) -> str:

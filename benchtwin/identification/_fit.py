@@ -27,6 +27,7 @@ __all__ = [
     "linear_fit",
     "nonlinear_fit",
     "r_squared",
+    "serial_inflation",
 ]
 
 
@@ -209,6 +210,30 @@ def _check_design(A: np.ndarray, names: Sequence[str], min_points: int, cond_max
         )
 
 
+def serial_inflation(resid: np.ndarray) -> tuple[float, float]:
+    """Lag-1 autocorrelation of time-ordered residuals and the variance inflation it implies.
+
+    Residuals of a fit over consecutive samples of a time series are not independent: with an AR(1)
+    correlation ``rho`` the variance of a mean (and, to first order, of least-squares estimates) grows by
+    ``(1 + rho) / (1 - rho)`` over the independent-samples formula, i.e. the data hold
+    ``n_eff = n (1 - rho) / (1 + rho)`` independent points. ``rho`` is clipped to ``[0, 0.999]``.
+
+    Returns
+    -------
+    rho, factor
+        The lag-1 autocorrelation and the variance inflation factor (>= 1).
+    """
+    r = np.asarray(resid, dtype=float)
+    r = r[np.isfinite(r)]
+    if r.size < 3:
+        return 0.0, 1.0
+    r = r - r.mean()
+    den = float(r @ r)
+    rho = float(r[1:] @ r[:-1]) / den if den > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.999)
+    return rho, (1.0 + rho) / (1.0 - rho)
+
+
 def linear_fit(
     A: np.ndarray,
     b: np.ndarray,
@@ -221,6 +246,7 @@ def linear_fit(
     n_excluded: int = 0,
     what: str = "fit",
     weights: np.ndarray | None = None,
+    serial: bool = False,
 ) -> FitResult:
     """Ordinary (or weighted) least squares ``A x = b`` with full statistics.
 
@@ -244,6 +270,11 @@ def linear_fit(
         Name of the fit, for messages.
     weights:
         Optional per-row weights (1/variance).
+    serial:
+        The rows are consecutive samples of a time series (in time order): the covariance is inflated
+        for the residuals' serial correlation (:func:`serial_inflation`) and the Student-t quantile uses
+        the effective number of points, so the intervals do not claim the precision of independent
+        samples that the data do not have.
 
     Returns
     -------
@@ -278,8 +309,11 @@ def linear_fit(
         cov = s2 * np.linalg.inv(Aw.T @ Aw)
     except np.linalg.LinAlgError:
         cov = np.full((p, p), np.nan)
+    rho, inflation = serial_inflation(resid) if serial else (0.0, 1.0)
+    cov = cov * inflation
+    dof_t = max(int(n / inflation) - p, 1) if serial else dof
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    tq = float(stats.t.ppf(0.975, dof)) if dof > 0 else float("nan")
+    tq = float(stats.t.ppf(0.975, dof_t)) if dof > 0 else float("nan")
     r2, adj = r_squared(b, y_fit, p)
     rmse = float(np.sqrt(np.mean((b - y_fit) ** 2)))
     units = list(units) if units is not None else [""] * p
@@ -291,6 +325,9 @@ def linear_fit(
     res = FitResult(params, r2, adj, rmse, n, n_excluded + n_nonfinite, list(segments),
                     data={"A": A, "y": b, "y_fit": y_fit})
     res.data["cov"] = cov
+    if serial:
+        res.data["serial_rho"] = np.array([rho])
+        res.data["n_effective"] = np.array([n / inflation])
     return res
 
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError, MissingChannelError, NoExcitationError
-from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
+from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit, serial_inflation
 from benchtwin.identification._signals import native_rate, segment_mask, strict_resample
 from benchtwin.recording import Recording
 
@@ -192,6 +192,9 @@ def identify_battery(
     min_points: int = 20,
     min_direction_points: int = 10,
     refine_displayed_soc: bool = True,
+    min_span_s: float = 60.0,
+    min_current_span_a: float = 10.0,
+    min_soc_span_pct: float = 2.0,
 ) -> FitResult:
     """Identify ``alpha``, ``beta_discharge`` and ``beta_charge`` of eq. 30.
 
@@ -212,6 +215,11 @@ def identify_battery(
         has no such segment.
     min_points, min_direction_points:
         Minimum usable samples overall and per current direction.
+    min_span_s, min_current_span_a, min_soc_span_pct:
+        Excitation the fit needs before it is reported ``ok``: usable data spanning at least
+        ``min_span_s``, the current of each direction spanning ``min_current_span_a`` (a beta rests on
+        the voltage drop changing with the current), and the displayed SOC moving ``min_soc_span_pct``
+        for ``soc_per_ah``. Less is fitted and flagged, with the reason.
     refine_displayed_soc:
         Use the displayed SOC refined by coulomb counting (:func:`refine_soc`) instead of its
         quantised values; the slope is reported as ``soc_per_ah`` (% per Ah, 100 / usable capacity).
@@ -254,17 +262,30 @@ def identify_battery(
         if int(m.sum()) < min_direction_points:
             reasons.append(f"only {int(m.sum())} {what} samples: {name} not identified")
             cols.pop(name)
+        elif np.ptp(i[m]) < min_current_span_a:
+            reasons.append(f"{what} current spans {np.ptp(i[m]):.3g} A (< {min_current_span_a:g} A): {name} is not "
+                           "separable from the OCV term on these data")
+    t_use = d["t"][use]
+    span = float(t_use[-1] - t_use[0]) if t_use.size else 0.0
+    if span < min_span_s:
+        reasons.append(f"usable data span {span:.3g} s (< {min_span_s:g} s): too short to identify eq. 30")
     if "beta_discharge" not in cols and "beta_charge" not in cols:
         raise NoExcitationError("battery: no current through the pack in the data; alpha and beta are not separable")
     names = list(cols)
     A = np.column_stack([cols[n] for n in names])
     fit = linear_fit(A, v_cell, names, units=[""] * len(names), segments=segs, min_points=min_points,
-                     n_excluded=n_bad, what="battery eq. 30")
+                     n_excluded=n_bad, what="battery eq. 30", serial=True)
     for r in reasons:
         fit.flag(r)
     if refine_displayed_soc:
-        fit.add(ParameterEstimate("soc_per_ah", k_soc, k_se, (k_soc - 1.96 * k_se, k_soc + 1.96 * k_se),
-                                  float("nan"), n_blocks, "%/Ah", segs))
+        est = ParameterEstimate("soc_per_ah", k_soc, k_se, (k_soc - 1.96 * k_se, k_soc + 1.96 * k_se),
+                                float("nan"), n_blocks, "%/Ah", segs)
+        fit.add(est)
+        soc_span = float(np.ptp(d["displayed_soc_pct"][use])) if use.any() else 0.0
+        if est.status == "ok" and np.isfinite(k_soc) and soc_span < min_soc_span_pct:
+            est.status = "flagged"
+            est.reason = (f"displayed SOC moved {soc_span:.3g} % (< {min_soc_span_pct:g} %): a few display steps do "
+                          "not fix the capacity")
         if not np.isfinite(k_soc):
             fit.reasons.append("displayed SOC used as is: it does not change within any block of usable samples")
     # the paper's statistics are on the pack voltage (same R^2, RMSE in volts of the pack)
@@ -336,7 +357,10 @@ def refine_soc(t_s: np.ndarray, current_a: np.ndarray, soc_pct: np.ndarray, use:
         ss_res += float(np.sum((sb - out[a:b]) ** 2))
         n += b - a
     dof = max(n - len(blocks) - 1, 1)
-    k_se = float(np.sqrt(ss_res / dof / sxx))
+    # the staircase residuals of one block follow each other: inflate for their serial correlation
+    resid = np.concatenate([soc_pct[a:b] - out[a:b] for a, b in blocks])
+    _rho, inflation = serial_inflation(resid)
+    k_se = float(np.sqrt(ss_res / dof / sxx * inflation))
     return out, k, k_se, len(blocks)
 
 

@@ -10,14 +10,17 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import logging
 from pathlib import Path
 
 import numpy as np
 
 from benchtwin.errors import ConfigError, DataError, MissingChannelError
 from benchtwin.identification.signal_map import SignalMap, convert_units, load_signal_map
-from benchtwin.recording import Channel, Recording
-from benchtwin.roles import ROLES
+from benchtwin.recording import Channel, Flag, Recording
+from benchtwin.roles import ROLES, plausible_range
+
+log = logging.getLogger(__name__)
 
 __all__ = ["import_csv", "import_log", "import_mf4", "read_csv_table"]
 
@@ -145,9 +148,21 @@ def _to_recording(table_time: np.ndarray, columns: dict[str, tuple[np.ndarray, n
         conv = convert_units(values, unit, ROLES[role][0], key=f"channels.{role}.unit")
         conv = conv * cm.scale + cm.offset
         keep = np.isfinite(t)
-        ts = t[keep]
-        order = np.argsort(ts, kind="stable")
-        rec.add(Channel(role, ROLES[role][0], ts[order], conv[keep][order], source=smap.source.source_name))
+        ts, vs = t[keep], np.asarray(conv, dtype=float)[keep]
+        back = np.flatnonzero(np.diff(ts) < 0)
+        if back.size:
+            k = int(back[0])
+            raise DataError(f"{origin}: time of {role} ({cm.column}) goes back from {ts[k]:.6g} s to {ts[k + 1]:.6g} s "
+                            f"at sample {k + 1} ({back.size} such step(s)): a clock restart or logs joined together; "
+                            "split the log at the restart or give a monotonic time column")
+        lo, hi = plausible_range(role)
+        bad = (vs < lo) | (vs > hi)
+        flags = np.where(bad | ~np.isfinite(vs), int(Flag.OUT_OF_RANGE), 0).astype(np.uint16)
+        if bad.any():
+            rec.meta.setdefault("implausible_samples", {})[role] = int(bad.sum())
+            log.warning("%s: %d sample(s) of %s outside %g..%g %s flagged OUT_OF_RANGE", origin, int(bad.sum()), role,
+                        lo, hi, ROLES[role][0])
+        rec.add(Channel(role, ROLES[role][0], ts, vs, flags, source=smap.source.source_name))
     return rec
 
 

@@ -165,3 +165,16 @@ def test_quantised_displayed_soc_is_refined_by_coulomb_counting():
     err_raw = max(abs(raw.value(n) / truth[n] - 1) for n in ("alpha", "beta_discharge", "beta_charge"))
     err_ref = max(abs(fit.value(n) / truth[n] - 1) for n in ("alpha", "beta_discharge", "beta_charge"))
     assert err_ref < err_raw / 3
+
+
+def test_a_short_window_is_flagged_not_ok(ideal):
+    """Eq. 30 on a few tens of seconds: fitted, but flagged with the span, never reported ok."""
+    rec, _ = ideal
+    a = rec["battery_voltage_v"].timestamps[0]
+    short = Recording(meta=dict(rec.meta))
+    for ch in rec.channels.values():
+        m = ch.timestamps < a + 30.0
+        short.add(Channel(ch.name, ch.unit, ch.timestamps[m], ch.values[m], ch.flags[m], ch.source))
+    fit = identify_battery(short, SPECS)
+    assert fit.status == "flagged" and any("span" in r for r in fit.reasons)
+    assert all(p.status == "flagged" for p in fit.params.values())
