@@ -262,12 +262,13 @@ def test_engine_fuel_bsfc() -> None:
 
 def test_k0_locks_within_3_radps_keeping_momentum() -> None:
     p = _params()
+    p[P_ENGINE_SPIN_RADPS2] = 50.0
     led = np.zeros(NL)
-    # engine free at 150 rad/s, pump at 152: K0 requested (auto, engine on) -> the clutch locks
+    # engine free at 150 rad/s, pump at 152: K0 requested (auto, engine on); the engine first spins towards
+    # the pump speed by P_ENGINE_SPIN_RADPS2 * dt, to 150.5 rad/s, within 3 rad/s: the clutch locks
     k0, we, wp, v, wt, _ke = k0_step(p, led, -1, True, False, 150.0, 152.0, 5.0, 100.0, False, 1, 20.0, 2000.0)
     assert k0
-    # while open, the engine first spins towards the pump speed by P_ENGINE_SPIN_RADPS2 * dt
-    we0 = min(150.0 + 400.0 * 0.01, 152.0)
+    we0 = 150.0 + 50.0 * 0.01
     je, jm = 0.2, 0.1
     w = (je * we0 + jm * 152.0) / (je + jm)
     assert wp == pytest.approx(w, rel=1e-12) and we == wp
@@ -276,7 +277,10 @@ def test_k0_locks_within_3_radps_keeping_momentum() -> None:
     assert (v, wt) == (5.0, 100.0)  # lock-up open: the vehicle is not part of the merge
     # far from synchronous: stays open
     k0, we, wp, *_ = k0_step(p, np.zeros(NL), -1, True, False, 50.0, 152.0, 5.0, 100.0, False, 1, 20.0, 2000.0)
-    assert not k0 and we == pytest.approx(54.0) and wp == 152.0
+    assert not k0 and we == pytest.approx(50.5) and wp == 152.0
+    # 3.5 rad/s apart after the spin step: still open
+    k0, *_ = k0_step(p, np.zeros(NL), -1, True, False, 148.0, 152.0, 5.0, 100.0, False, 1, 20.0, 2000.0)
+    assert not k0
 
 
 @pytest.mark.parametrize(("gear", "v_kmh", "brake", "want"),
