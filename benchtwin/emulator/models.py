@@ -20,6 +20,7 @@ __all__ = [
     "motor_elec_power_w",
     "pack_current_a",
     "road_load_force_n",
+    "torque_converter_curves_nm",
     "torque_converter_torques_nm",
     "transmission_output_torque_nm",
 ]
@@ -146,6 +147,36 @@ def torque_converter_torques_nm(a_nm_per_radps2: np.ndarray, coupling_speed_rati
         tt = tp
         dtp = 2.0 * a[6] * wp + a[7] * wt
     return tp, tt, max(dtp, 0.0)
+
+
+@njit(cache=True)
+def torque_converter_curves_nm(a_nm_per_radps2: np.ndarray, coupling_speed_ratio: float,
+                               pump_speed_radps: np.ndarray,
+                               turbine_speed_radps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 35-36 over arrays of operating points: :func:`torque_converter_torques_nm` point by point.
+
+    Parameters
+    ----------
+    a_nm_per_radps2, coupling_speed_ratio:
+        As for :func:`torque_converter_torques_nm`.
+    pump_speed_radps, turbine_speed_radps:
+        1-D arrays of the same length, rad/s. With ``pump_speed_radps = 1`` and ``turbine_speed_radps = SR``
+        the results are the curves T_p / omega_p^2 and T_t / omega_p^2 over the speed ratio.
+
+    Returns
+    -------
+    pump_torque_nm, turbine_torque_nm
+        Arrays, Nm (the very numbers the plant computes at those points).
+    """
+    n = pump_speed_radps.shape[0]
+    tp = np.empty(n)
+    tt = np.empty(n)
+    for k in range(n):
+        tp_k, tt_k, _d = torque_converter_torques_nm(a_nm_per_radps2, coupling_speed_ratio, pump_speed_radps[k],
+                                                     turbine_speed_radps[k])
+        tp[k] = tp_k
+        tt[k] = tt_k
+    return tp, tt
 
 
 @njit(cache=True)

@@ -10,6 +10,7 @@ from benchtwin.emulator.models import (
     interp_1d,
     motor_elec_power_w,
     pack_current_a,
+    torque_converter_curves_nm,
     torque_converter_torques_nm,
     transmission_output_torque_nm,
 )
@@ -175,6 +176,18 @@ def test_converter_eq35_36(sr: float) -> None:
     assert dtp == pytest.approx(max(d_num, 0.0), rel=1e-5, abs=1e-9)
     # plain-Python body gives the same numbers (shared with validation)
     assert torque_converter_torques_nm.py_func(TC_A, GAMMA, wp, wt) == (tp, tt, dtp)
+
+
+def test_converter_curves_match_the_plant_pointwise() -> None:
+    sr = np.linspace(0.0, 0.95, 40)
+    ones = np.ones_like(sr)
+    tp, tt = torque_converter_curves_nm(TC_A, GAMMA, ones, sr)
+    for k in range(sr.size):
+        tp_k, tt_k, _d = torque_converter_torques_nm(TC_A, GAMMA, 1.0, sr[k])
+        assert (tp[k], tt[k]) == (tp_k, tt_k)
+    conv = sr < GAMMA  # eq. 35 in the speed-ratio form: T / w_p^2 = a0 + a1 SR + a2 SR^2
+    np.testing.assert_allclose(tp[conv], TC_A[0] + TC_A[1] * sr[conv] + TC_A[2] * sr[conv] ** 2, rtol=1e-12)
+    np.testing.assert_allclose(tt[~conv], TC_A[6] + TC_A[7] * sr[~conv] + TC_A[8] * sr[~conv] ** 2, rtol=1e-12)
 
 
 @pytest.mark.parametrize("t_in", [100.0, 6.0, 5.8, 5.5, -40.0])
