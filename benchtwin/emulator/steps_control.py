@@ -54,6 +54,7 @@ from benchtwin.emulator.params import (
     P_WILLANS_E_GEN,
     P_WILLANS_LOSS_GEN_W,
     P_WILLANS_LOSS_W,
+    PlantTables,
 )
 
 #: road load (and the driver's feed-forward of it) fades in below 0.5 km/h: no force at standstill
@@ -101,7 +102,7 @@ def protocol_step(p: np.ndarray, led: np.ndarray, time_s: float, speed_mps: floa
 
 
 @njit(cache=True, _nrt=False)
-def driver_step(tab, time_s: float, speed_mps: float, gear: int, hybrid_mode: int, drive_mode: int,
+def driver_step(tab: PlantTables, time_s: float, speed_mps: float, gear: int, hybrid_mode: int, drive_mode: int,
                 pedal_cmd_pct: float, brake_cmd_pct: float, target_mps: float, preview_mps: float,
                 ref_accel_mps2: float, end_latched: bool, latch_time_s: float, latch_speed_mps: float,
                 driver_force_n: float, driver_error_mps: float) -> tuple[float, float, float, float]:
@@ -163,7 +164,7 @@ def driver_step(tab, time_s: float, speed_mps: float, gear: int, hybrid_mode: in
 
 
 @njit(cache=True, _nrt=False)
-def shift_step(tab, speed_mps: float, pedal_pct: float, gear_cmd: int, gear_target: int, gear: int,
+def shift_step(tab: PlantTables, speed_mps: float, pedal_pct: float, gear_cmd: int, gear_target: int, gear: int,
                shift_timer_s: float, lockup_closed: bool, lockup_engage_time_s: float,
                inertia_phase_left_s: float, old_gain_rad_per_m: float) -> tuple:
     """Shift schedule and actuation: target gear from the shift lines, actual gear after the delay.
@@ -214,15 +215,17 @@ def shift_step(tab, speed_mps: float, pedal_pct: float, gear_cmd: int, gear_targ
 
 
 @njit(cache=True, _nrt=False)
-def gear_gains(tab, gear: int, inertia_phase_left_s: float, old_gain_rad_per_m: float, speed_mps: float,
-               pump_speed_radps: float) -> tuple[float, float, float, float]:
+def gear_gains(tab: PlantTables, gear: int, inertia_phase_left_s: float, old_gain_rad_per_m: float, speed_mps: float,
+               pump_speed_radps: float) -> tuple[float, float, float, float, float]:
     """Speed gains of the gear: turbine speed per vehicle speed, blended from the old gear over the inertia phase.
 
     Returns
     -------
     tuple
-        ``(inertia_phase_left_s, gain_rad_per_m, eff_gain_rad_per_m, eff_ratio)`` and, last,
-        ``turbine_speed_radps`` (the pump speed in neutral). ``gain`` is i_g i_fd / r_w of the actual gear.
+        ``(inertia_phase_left_s, gain_rad_per_m, eff_gain_rad_per_m, eff_ratio, turbine_speed_radps)``:
+        the inertia phase ends in neutral; ``gain`` is i_g i_fd / r_w of the actual gear, ``eff_gain`` the
+        gain blended from the old gear's over the inertia phase and ``eff_ratio`` its gear ratio; the
+        turbine speed is the pump speed in neutral.
     """
     p = tab.p
     rw = p[P_WHEEL_RADIUS_M]
@@ -238,8 +241,8 @@ def gear_gains(tab, gear: int, inertia_phase_left_s: float, old_gain_rad_per_m: 
 
 
 @njit(cache=True, _nrt=False)
-def torque_demand(tab, pump_speed_radps: float, turbine_speed_radps: float, speed_mps: float, pedal_pct: float,
-                  hybrid_mode: int, engine_cmd: int, gear: int, lockup_closed: bool) -> tuple:
+def torque_demand(tab: PlantTables, pump_speed_radps: float, turbine_speed_radps: float, speed_mps: float,
+                  pedal_pct: float, hybrid_mode: int, engine_cmd: int, gear: int, lockup_closed: bool) -> tuple:
     """Machine limits and the driver's torque demand at the pump (eq. 18-24 power limits, eq. 35-36 limiter).
 
     The motor is limited by its full-load curve and the battery's discharge / charge power through the

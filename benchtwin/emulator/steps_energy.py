@@ -52,12 +52,13 @@ from benchtwin.emulator.params import (
     P_PARASITIC_F2_N_PER_MPS2,
     P_SOC_MAX_FRAC,
     P_SOC_MIN_FRAC,
+    PlantTables,
 )
 from benchtwin.emulator.steps_control import ROAD_LOAD_FADE_MPS
 
 
 @njit(cache=True, _nrt=False)
-def engine_fuel(tab, engine_on: bool, k0_closed: bool, engine_torque_nm: float, pump_speed_radps: float,
+def engine_fuel(tab: PlantTables, engine_on: bool, k0_closed: bool, engine_torque_nm: float, pump_speed_radps: float,
                 engine_speed_radps: float, start_fuel_kg: float) -> tuple[float, float]:
     """Engine fuel (eq. 26-28): BSFC(omega, BMEP = 4 pi T / V_d) T omega when driving through K0, the map's
     lowest-BMEP flow when motoring or idling free, nothing when off, plus the start's fuel mass.
@@ -146,7 +147,7 @@ def lv_system(p: np.ndarray, lv_soc_frac: float, lv_load_w: float) -> tuple:
 
 
 @njit(cache=True, _nrt=False)
-def hv_battery(tab, soc_frac: float, hv_power_w: float) -> tuple[float, float, float, float]:
+def hv_battery(tab: PlantTables, soc_frac: float, hv_power_w: float) -> tuple[float, float, float, float]:
     """HV pack (eq. 29-30): U_oc = n alpha OCV_lit(s), R = n beta R_lit(s) (discharge or charge map and beta
     by the sign of the power), current from the terminal power, terminal voltage U_oc - R I.
 

@@ -41,6 +41,7 @@ from benchtwin.emulator.params import (
     P_SHIFT_INERTIA_PHASE_S,
     P_TC_COUPLING_SPEED_RATIO,
     P_WHEEL_RADIUS_M,
+    PlantTables,
 )
 
 
@@ -173,8 +174,9 @@ def torque_split(p: np.ndarray, hybrid_mode: int, displayed_soc_pct: float, esav
 
 
 @njit(cache=True, _nrt=False)
-def brake_blending(tab, brake_pct: float, gear: int, lockup_closed: bool, lockup_request: bool, speed_mps: float,
-                   engine_torque_nm: float, motor_torque_nm: float, motor_gen_max_nm: float) -> tuple:
+def brake_blending(tab: PlantTables, brake_pct: float, gear: int, lockup_closed: bool, lockup_request: bool,
+                   speed_mps: float, engine_torque_nm: float, motor_torque_nm: float,
+                   motor_gen_max_nm: float) -> tuple:
     """Brakes: pedal to demanded wheel torque; regeneration first (fading out over the last 8 km/h above the
     cut-off), through the gearbox (eq. 13-14 in coast), the hydraulic brakes for the rest.
 
@@ -277,7 +279,7 @@ def brake_split(p: np.ndarray, brake_demand_nm: float, hydraulic_brake_nm: float
 
 
 @njit(cache=True, _nrt=False)
-def lockup_engagement(tab, led: np.ndarray, lockup_request: bool, lockup_closed: bool, gear: int,
+def lockup_engagement(tab: PlantTables, led: np.ndarray, lockup_request: bool, lockup_closed: bool, gear: int,
                       inertia_phase_left_s: float, lockup_engage_time_s: float, k0_closed: bool,
                       source_torque_nm: float, pump_inertia_kgm2: float, gain_rad_per_m: float, eff_mass_kg: float,
                       speed_mps: float, pump_speed_radps: float, turbine_speed_radps: float,
@@ -322,7 +324,7 @@ def lockup_engagement(tab, led: np.ndarray, lockup_request: bool, lockup_closed:
 
 
 @njit(cache=True, _nrt=False)
-def driveline_step(tab, gear: int, lockup_closed: bool, speed_mps: float, pump_speed_radps: float,
+def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: float, pump_speed_radps: float,
                    turbine_speed_radps: float, source_torque_nm: float, pump_inertia_kgm2: float,
                    gain_rad_per_m: float, eff_ratio: float, old_gain_rad_per_m: float, inertia_phase_left_s: float,
                    lockup_capacity_nm: float, idle_gain_nm_per_radps: float, eff_mass_kg: float,
