@@ -14,6 +14,7 @@ Measured:
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
 import statistics
@@ -74,8 +75,9 @@ def _wltc_metrics(trace) -> str:
             f"energy residual {100 * bal['residual_frac']:.4f} %")
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print the results section."""
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     vehicle = load_vehicle()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     lines = [f"## Plant (bench_plant.py), {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}", "",

@@ -8,9 +8,10 @@ Public API::
 
 How it is built
 ---------------
-- The stepping loop (:mod:`benchtwin.emulator.plant`) is one numba-compiled function over preallocated
-  arrays; tests run block by block (:mod:`benchtwin.emulator.protocols` precomputes per-step commands) and
-  may end early on an in-loop condition (speed reached, displayed SOC reached).
+- The stepping loop (:mod:`benchtwin.emulator.plant`) runs numba-compiled steps over preallocated arrays,
+  each step a fixed order of pure sub-steps (``steps_*`` modules) over the model forms of
+  :mod:`benchtwin.emulator.models`; tests run block by block (:mod:`benchtwin.emulator.protocols`
+  precomputes per-step commands) and may end early on an in-loop condition (speed reached, displayed SOC reached).
 - Controllers (driver PI on force with feed-forward, dyno speed PI) are designed for a pure mass and
   discretised with python-control (``c2d``, Tustin); their coefficients feed the loop
   (:mod:`benchtwin.emulator.params`).
@@ -94,10 +95,11 @@ from benchtwin.emulator.params import (
     O_WT,
     O_WW,
     O_X,
+    P_MASS_KG,
     PlantTables,
     build_tables,
 )
-from benchtwin.emulator.plant import N_STATE, S_STEP, S_T, kinetic_energy, run_plant
+from benchtwin.emulator.plant import N_STATE, S_STEP, S_TIME_S, kinetic_energy, run_plant
 from benchtwin.emulator.protocols import build_protocol
 from benchtwin.emulator.thermal import simulate_thermal
 from benchtwin.errors import ConfigError, SimulationError
@@ -168,13 +170,14 @@ def _initial_state(tables: PlantTables, vehicle: VehicleConfig, campaign: Campai
 
     st = np.zeros(N_STATE)
     b = vehicle.battery
-    st[pl.S_SOC] = b.soc_min_frac + campaign.initial_displayed_soc_pct / 100.0 * (b.soc_max_frac - b.soc_min_frac)
-    st[pl.S_SOCLV] = vehicle.low_voltage.battery_initial_soc_frac
+    st[pl.S_SOC_FRAC] = (b.soc_min_frac
+                         + campaign.initial_displayed_soc_pct / 100.0 * (b.soc_max_frac - b.soc_min_frac))
+    st[pl.S_LV_SOC_FRAC] = vehicle.low_voltage.battery_initial_soc_frac
     st[pl.S_GEAR] = 1
-    st[pl.S_GT] = 1
-    st[pl.S_SEG] = -1
-    st[pl.S_MEFF] = tables.p[1]
-    st[pl.S_ESAVE] = campaign.initial_displayed_soc_pct
+    st[pl.S_GEAR_TARGET] = 1
+    st[pl.S_SEGMENT] = -1
+    st[pl.S_EFF_MASS_KG] = tables.p[P_MASS_KG]
+    st[pl.S_ESAVE_SOC_PCT] = campaign.initial_displayed_soc_pct
     return st
 
 
@@ -242,10 +245,6 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     led = np.zeros(NL)
     st = _initial_state(tables, vehicle, campaign)
     led[L_KE0] = kinetic_energy(tables.p, st)
-    args = (tables.p, tables.ratios, tables.eta_m, tables.c0, tables.up_v0, tables.up_s, tables.dn_v0,
-            tables.dn_s, tables.e_fl_w, tables.e_fl_t, tables.bsfc_w, tables.bsfc_b, tables.bsfc_kgpj,
-            tables.m_fl_w, tables.m_fl_t, tables.cell_soc, tables.cell_ocv, tables.cell_rd, tables.cell_rc,
-            tables.tc_a)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -257,8 +256,8 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
         for block, seg in zip(proto.blocks, proto.segments, strict=True):
             k0 = int(st[S_STEP])
             block[C_LVLOAD] = lv_load[k0:k0 + block.shape[1]]
-            t_start = st[S_T]
-            written, steps = run_plant(*args, block, decim, st, out, rows, led)
+            t_start = st[S_TIME_S]
+            written, steps = run_plant(tables, block, decim, st, out, rows, led)
             rows += written
             settings = {k: (float(v + t_start) if k.endswith("_s") and k not in _DURATION_KEYS else v)
                         for k, v in seg.settings.items()}

@@ -7,8 +7,8 @@ rad/s, Nm, W, m/s, kg/J for fuel.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from importlib import resources
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,86 +21,86 @@ RPM = np.pi / 30.0
 KMH = 1.0 / 3.6
 
 # ---- scalar parameter indices (module constants: frozen into the compiled loop) ----
-P_DT = 0
-P_MASS = 1
-P_RW = 2
-P_IFD = 3
-P_NG = 4
-P_F0 = 5
-P_F1 = 6  # N per m/s
-P_F2 = 7  # N per (m/s)^2
-P_PF0 = 8
-P_PF1 = 9
-P_PF2 = 10
-P_MSC = 11  # equivalent mass in speed-controlled mode (rollers + wheels)
-P_E_IDLE = 12
-P_E_MAX = 13
-P_E_J = 14
-P_E_FR0 = 15
-P_E_FR1 = 16  # Nm per rad/s
-P_E_START_KG = 17
-P_E_SPIN = 18
-P_VD = 19
-P_LHV = 20
-P_M_MAX = 21
-P_M_J = 22
-P_W_E = 23
-P_W_LOSS = 24
-P_W_EG = 25
-P_W_LOSSG = 26
-P_M_IDLE = 27
-P_IDLE_K = 28
-P_TC_GAMMA = 29
-P_LU_GEAR = 30
-P_LU_V = 31
-P_LU_CAP = 32
-P_LU_TENG = 33
-P_SHIFT_DELAY = 34
-P_B_GF = 35  # Nm per bar
-P_B_GR = 36
-P_B_TMAX = 37
-P_B_VCUT = 38
-P_B_FS0 = 39
-P_B_FS1 = 40
-P_B_FSMAX = 41
-P_COAST_T = 42
-P_CAP_AS = 43
-P_ALPHA = 44
-P_BETA_D = 45
-P_BETA_C = 46
-P_SOC_MIN = 47
-P_SOC_MAX = 48
-P_PDCH = 49
-P_PCH = 50
-P_NCELL = 51
-P_DCDC_ETA = 52
-P_DCDC_V = 53
-P_LV_CAP_AS = 54
-P_LV_OCV0 = 55
-P_LV_OCV1 = 56
-P_LV_R = 57
-P_LV_DROOP = 58
-P_H_PON = 59
-P_H_POFF = 60
-P_H_VON = 61
-P_H_TMIN = 62
-P_H_SUS = 63
-P_H_SUSK = 64
-P_H_SUSMAX = 65
-P_H_KICK = 66
-P_H_CHG = 67
-P_H_ESAVE = 68
-P_DRV_B0 = 69
-P_DRV_B1 = 70
-P_DRV_NPRE = 71
-P_DRV_STOP = 72
-P_DYN_B0 = 73
-P_DYN_B1 = 74
-P_DYN_FMAX = 75
-P_DYN_PMAX = 76
-P_DRV_FBMAX = 77
-P_H_FMAX = 78
-P_SHIFT_INERTIA = 79
+P_DT_S = 0
+P_MASS_KG = 1
+P_WHEEL_RADIUS_M = 2
+P_FINAL_DRIVE_RATIO = 3
+P_N_GEARS = 4
+P_F0_N = 5
+P_F1_N_PER_MPS = 6  # N per m/s
+P_F2_N_PER_MPS2 = 7  # N per (m/s)^2
+P_PARASITIC_F0_N = 8
+P_PARASITIC_F1_N_PER_MPS = 9
+P_PARASITIC_F2_N_PER_MPS2 = 10
+P_SPEED_CTRL_MASS_KG = 11  # equivalent mass in speed-controlled mode (rollers + wheels)
+P_ENGINE_IDLE_RADPS = 12
+P_ENGINE_MAX_RADPS = 13
+P_ENGINE_INERTIA_KGM2 = 14
+P_ENGINE_FRICTION_NM = 15
+P_ENGINE_FRICTION_NM_PER_RADPS = 16  # Nm per rad/s
+P_ENGINE_START_FUEL_KG = 17
+P_ENGINE_SPIN_RADPS2 = 18
+P_DISPLACEMENT_M3 = 19
+P_FUEL_LHV_J_PER_KG = 20
+P_MOTOR_MAX_RADPS = 21
+P_MOTOR_INERTIA_KGM2 = 22
+P_WILLANS_E = 23
+P_WILLANS_LOSS_W = 24
+P_WILLANS_E_GEN = 25
+P_WILLANS_LOSS_GEN_W = 26
+P_MOTOR_IDLE_RADPS = 27
+P_IDLE_GAIN_NM_PER_RADPS = 28
+P_TC_COUPLING_SPEED_RATIO = 29
+P_LOCKUP_MIN_GEAR = 30
+P_LOCKUP_MIN_SPEED_MPS = 31
+P_LOCKUP_CAPACITY_NM = 32
+P_LOCKUP_ENGAGE_S = 33
+P_SHIFT_DELAY_S = 34
+P_BRAKE_GAIN_FRONT_NM_PER_BAR = 35  # Nm per bar
+P_BRAKE_GAIN_REAR_NM_PER_BAR = 36
+P_BRAKE_MAX_TORQUE_NM = 37
+P_REGEN_CUTOFF_MPS = 38
+P_BRAKE_FRONT_SHARE_BASE = 39
+P_BRAKE_FRONT_SHARE_PER_MPS2 = 40
+P_BRAKE_FRONT_SHARE_MAX = 41
+P_COAST_REGEN_TORQUE_NM = 42
+P_BATT_CAPACITY_AS = 43
+P_BATT_ALPHA = 44
+P_BATT_BETA_DISCHARGE = 45
+P_BATT_BETA_CHARGE = 46
+P_SOC_MIN_FRAC = 47
+P_SOC_MAX_FRAC = 48
+P_BATT_MAX_DISCHARGE_W = 49
+P_BATT_MAX_CHARGE_W = 50
+P_N_CELLS_SERIES = 51
+P_DCDC_EFFICIENCY = 52
+P_DCDC_SET_V = 53
+P_LV_CAPACITY_AS = 54
+P_LV_OCV_EMPTY_V = 55
+P_LV_OCV_FULL_V = 56
+P_LV_RESISTANCE_OHM = 57
+P_DCDC_DROOP_OHM = 58
+P_HYB_ENGINE_ON_W = 59
+P_HYB_ENGINE_OFF_W = 60
+P_HYB_ENGINE_ON_MPS = 61
+P_HYB_MIN_ON_S = 62
+P_HYB_SUSTAIN_SOC_PCT = 63
+P_HYB_SUSTAIN_W_PER_PCT = 64
+P_HYB_SUSTAIN_MAX_W = 65
+P_HYB_KICKDOWN_PEDAL_PCT = 66
+P_HYB_CHARGE_W = 67
+P_HYB_ESAVE_ON_W = 68
+P_DRIVER_B0_N_PER_MPS = 69
+P_DRIVER_B1_N_PER_MPS = 70
+P_DRIVER_PREVIEW_STEPS = 71
+P_DRIVER_STOP_DECEL_MPS2 = 72
+P_DYNO_B0_N_PER_MPS = 73
+P_DYNO_B1_N_PER_MPS = 74
+P_DYNO_MAX_FORCE_N = 75
+P_DYNO_MAX_POWER_W = 76
+P_DRIVER_FEEDBACK_MAX_N = 77
+P_HYB_MAX_WHEEL_FORCE_N = 78
+P_SHIFT_INERTIA_PHASE_S = 79
 NP = 80
 
 # ---- command rows (one value per plant step) ----
@@ -203,30 +203,33 @@ LEDGER_NAMES: tuple[str, ...] = (
 LEDGER_INPUTS: tuple[str, ...] = ("fuel_chemical", "hv_battery_chemical", "lv_battery_chemical")
 
 
-@dataclass
-class PlantTables:
-    """Everything the compiled loop needs about the vehicle and the bench, as float64 arrays."""
+class PlantTables(NamedTuple):
+    """The plant's parameter record: scalars ``p`` plus the lookup tables, all float64 arrays in SI units.
 
-    p: np.ndarray
+    A named tuple so that the compiled loop takes it as one argument and reads its fields by name
+    (numba unboxes it once per call).
+    """
+
+    p: np.ndarray  # scalars, indexed by the P_* constants
     ratios: np.ndarray  # index 0 = neutral (0), 1..n
-    eta_m: np.ndarray
-    c0: np.ndarray
+    eta_m: np.ndarray  # eq. 14 eta_m per gear (index 0 = neutral: 1)
+    c0: np.ndarray  # eq. 14 C0 per gear, Nm
     up_v0: np.ndarray  # m/s, pair g -> g+1 at index g-1
     up_s: np.ndarray  # m/s per pedal %
     dn_v0: np.ndarray
     dn_s: np.ndarray
-    e_fl_w: np.ndarray
-    e_fl_t: np.ndarray
+    e_fl_w: np.ndarray  # engine full load: rad/s
+    e_fl_t: np.ndarray  # Nm
     bsfc_w: np.ndarray  # rad/s
     bsfc_b: np.ndarray  # Pa
     bsfc_kgpj: np.ndarray  # kg/J
-    m_fl_w: np.ndarray
-    m_fl_t: np.ndarray
+    m_fl_w: np.ndarray  # motor full load: rad/s
+    m_fl_t: np.ndarray  # Nm
     cell_soc: np.ndarray  # displayed SOC fraction 0..1
-    cell_ocv: np.ndarray
-    cell_rd: np.ndarray
-    cell_rc: np.ndarray
-    tc_a: np.ndarray
+    cell_ocv: np.ndarray  # V
+    cell_rd: np.ndarray  # ohm, discharge
+    cell_rc: np.ndarray  # ohm, charge
+    tc_a: np.ndarray  # torque converter a0..a8, Nm/(rad/s)^2
 
 
 def cell_maps() -> np.ndarray:
@@ -273,66 +276,75 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     ba, lv, hy = vehicle.battery, vehicle.low_voltage, vehicle.hybrid
     dt = 1.0 / campaign.plant_rate_hz
     p = np.zeros(NP)
-    p[P_DT] = dt
-    p[P_MASS] = s.test_mass_kg
-    p[P_RW] = s.wheel_radius_m
-    p[P_IFD] = s.final_drive_ratio
-    p[P_NG] = len(s.gear_ratios)
-    p[P_F0], p[P_F1], p[P_F2] = rl.f0_n, rl.f1_n_per_kmh * 3.6, rl.f2_n_per_kmh2 * 3.6**2
-    p[P_PF0], p[P_PF1] = rl.parasitic_f0_n, rl.parasitic_f1_n_per_kmh * 3.6
-    p[P_PF2] = rl.parasitic_f2_n_per_kmh2 * 3.6**2
-    p[P_MSC] = campaign.dyno.roller_equivalent_mass_kg + rl.wheel_equivalent_mass_kg
-    p[P_E_IDLE] = en.idle_speed_rpm * RPM
-    p[P_E_MAX] = en.max_speed_rpm * RPM
-    p[P_E_J] = en.inertia_kgm2
-    p[P_E_FR0] = en.friction_torque_nm
-    p[P_E_FR1] = en.friction_torque_nm_per_krpm / (1000.0 * RPM)
-    p[P_E_START_KG] = en.start_fuel_g * 1e-3
-    p[P_E_SPIN] = en.spin_rate_radps2
-    p[P_VD] = s.engine_displacement_m3
-    p[P_LHV] = s.fuel_lhv_j_per_kg
-    p[P_M_MAX] = mo.max_speed_rpm * RPM
-    p[P_M_J] = mo.inertia_kgm2
-    p[P_W_E], p[P_W_LOSS] = mo.willans_e, mo.willans_w_loss_w
-    p[P_W_EG], p[P_W_LOSSG] = mo.willans_e_gen, mo.willans_w_loss_gen_w
-    p[P_M_IDLE] = mo.idle_speed_rpm * RPM
-    p[P_IDLE_K] = mo.idle_gain_nm_per_radps
-    p[P_TC_GAMMA] = tc.coupling_speed_ratio
-    p[P_LU_GEAR] = tc.lockup_min_gear
-    p[P_LU_V] = tc.lockup_min_speed_kmh * KMH
-    p[P_LU_CAP] = tc.lockup_capacity_nm
-    p[P_LU_TENG] = tc.lockup_engage_time_s
-    p[P_SHIFT_DELAY] = tr.shift_delay_s
-    p[P_SHIFT_INERTIA] = tr.shift_inertia_phase_s
-    p[P_B_GF], p[P_B_GR] = br.gain_front_nm_per_bar, br.gain_rear_nm_per_bar
-    p[P_B_TMAX] = br.max_brake_torque_nm
-    p[P_B_VCUT] = br.regen_cutoff_speed_kmh * KMH
-    p[P_B_FS0], p[P_B_FS1], p[P_B_FSMAX] = br.front_share_base, br.front_share_per_mps2, br.front_share_max
-    p[P_COAST_T] = br.coast_regen_torque_nm
-    p[P_CAP_AS] = ba.capacity_ah * 3600.0
-    p[P_ALPHA], p[P_BETA_D], p[P_BETA_C] = ba.alpha, ba.beta_discharge, ba.beta_charge
-    p[P_SOC_MIN], p[P_SOC_MAX] = ba.soc_min_frac, ba.soc_max_frac
-    p[P_PDCH], p[P_PCH] = ba.max_discharge_power_w, ba.max_charge_power_w
-    p[P_NCELL] = s.n_cells_series
-    p[P_DCDC_ETA], p[P_DCDC_V] = lv.dcdc_efficiency, lv.dcdc_voltage_v
-    p[P_LV_CAP_AS] = lv.battery_capacity_ah * 3600.0
-    p[P_LV_OCV0], p[P_LV_OCV1] = lv.battery_ocv_empty_v, lv.battery_ocv_full_v
-    p[P_LV_R] = lv.battery_resistance_ohm
-    p[P_LV_DROOP] = lv.dcdc_droop_ohm
-    p[P_H_PON], p[P_H_POFF], p[P_H_VON] = hy.engine_on_power_w, hy.engine_off_power_w, hy.engine_on_speed_kmh * KMH
-    p[P_H_TMIN] = hy.engine_min_on_time_s
-    p[P_H_SUS], p[P_H_SUSK], p[P_H_SUSMAX] = hy.sustain_soc_pct, hy.sustain_gain_w_per_pct, hy.max_sustain_power_w
-    p[P_H_KICK] = hy.electric_kickdown_pedal_pct
-    p[P_H_CHG] = hy.charge_power_w
-    p[P_H_ESAVE] = hy.esave_on_power_w
-    p[P_H_FMAX] = hy.max_wheel_force_n
+    p[P_DT_S] = dt
+    p[P_MASS_KG] = s.test_mass_kg
+    p[P_WHEEL_RADIUS_M] = s.wheel_radius_m
+    p[P_FINAL_DRIVE_RATIO] = s.final_drive_ratio
+    p[P_N_GEARS] = len(s.gear_ratios)
+    p[P_F0_N], p[P_F1_N_PER_MPS], p[P_F2_N_PER_MPS2] = rl.f0_n, rl.f1_n_per_kmh * 3.6, rl.f2_n_per_kmh2 * 3.6**2
+    p[P_PARASITIC_F0_N], p[P_PARASITIC_F1_N_PER_MPS] = rl.parasitic_f0_n, rl.parasitic_f1_n_per_kmh * 3.6
+    p[P_PARASITIC_F2_N_PER_MPS2] = rl.parasitic_f2_n_per_kmh2 * 3.6**2
+    p[P_SPEED_CTRL_MASS_KG] = campaign.dyno.roller_equivalent_mass_kg + rl.wheel_equivalent_mass_kg
+    p[P_ENGINE_IDLE_RADPS] = en.idle_speed_rpm * RPM
+    p[P_ENGINE_MAX_RADPS] = en.max_speed_rpm * RPM
+    p[P_ENGINE_INERTIA_KGM2] = en.inertia_kgm2
+    p[P_ENGINE_FRICTION_NM] = en.friction_torque_nm
+    p[P_ENGINE_FRICTION_NM_PER_RADPS] = en.friction_torque_nm_per_krpm / (1000.0 * RPM)
+    p[P_ENGINE_START_FUEL_KG] = en.start_fuel_g * 1e-3
+    p[P_ENGINE_SPIN_RADPS2] = en.spin_rate_radps2
+    p[P_DISPLACEMENT_M3] = s.engine_displacement_m3
+    p[P_FUEL_LHV_J_PER_KG] = s.fuel_lhv_j_per_kg
+    p[P_MOTOR_MAX_RADPS] = mo.max_speed_rpm * RPM
+    p[P_MOTOR_INERTIA_KGM2] = mo.inertia_kgm2
+    p[P_WILLANS_E], p[P_WILLANS_LOSS_W] = mo.willans_e, mo.willans_w_loss_w
+    p[P_WILLANS_E_GEN], p[P_WILLANS_LOSS_GEN_W] = mo.willans_e_gen, mo.willans_w_loss_gen_w
+    p[P_MOTOR_IDLE_RADPS] = mo.idle_speed_rpm * RPM
+    p[P_IDLE_GAIN_NM_PER_RADPS] = mo.idle_gain_nm_per_radps
+    p[P_TC_COUPLING_SPEED_RATIO] = tc.coupling_speed_ratio
+    p[P_LOCKUP_MIN_GEAR] = tc.lockup_min_gear
+    p[P_LOCKUP_MIN_SPEED_MPS] = tc.lockup_min_speed_kmh * KMH
+    p[P_LOCKUP_CAPACITY_NM] = tc.lockup_capacity_nm
+    p[P_LOCKUP_ENGAGE_S] = tc.lockup_engage_time_s
+    p[P_SHIFT_DELAY_S] = tr.shift_delay_s
+    p[P_SHIFT_INERTIA_PHASE_S] = tr.shift_inertia_phase_s
+    p[P_BRAKE_GAIN_FRONT_NM_PER_BAR] = br.gain_front_nm_per_bar
+    p[P_BRAKE_GAIN_REAR_NM_PER_BAR] = br.gain_rear_nm_per_bar
+    p[P_BRAKE_MAX_TORQUE_NM] = br.max_brake_torque_nm
+    p[P_REGEN_CUTOFF_MPS] = br.regen_cutoff_speed_kmh * KMH
+    p[P_BRAKE_FRONT_SHARE_BASE] = br.front_share_base
+    p[P_BRAKE_FRONT_SHARE_PER_MPS2] = br.front_share_per_mps2
+    p[P_BRAKE_FRONT_SHARE_MAX] = br.front_share_max
+    p[P_COAST_REGEN_TORQUE_NM] = br.coast_regen_torque_nm
+    p[P_BATT_CAPACITY_AS] = ba.capacity_ah * 3600.0
+    p[P_BATT_ALPHA], p[P_BATT_BETA_DISCHARGE], p[P_BATT_BETA_CHARGE] = ba.alpha, ba.beta_discharge, ba.beta_charge
+    p[P_SOC_MIN_FRAC], p[P_SOC_MAX_FRAC] = ba.soc_min_frac, ba.soc_max_frac
+    p[P_BATT_MAX_DISCHARGE_W], p[P_BATT_MAX_CHARGE_W] = ba.max_discharge_power_w, ba.max_charge_power_w
+    p[P_N_CELLS_SERIES] = s.n_cells_series
+    p[P_DCDC_EFFICIENCY], p[P_DCDC_SET_V] = lv.dcdc_efficiency, lv.dcdc_voltage_v
+    p[P_LV_CAPACITY_AS] = lv.battery_capacity_ah * 3600.0
+    p[P_LV_OCV_EMPTY_V], p[P_LV_OCV_FULL_V] = lv.battery_ocv_empty_v, lv.battery_ocv_full_v
+    p[P_LV_RESISTANCE_OHM] = lv.battery_resistance_ohm
+    p[P_DCDC_DROOP_OHM] = lv.dcdc_droop_ohm
+    p[P_HYB_ENGINE_ON_W] = hy.engine_on_power_w
+    p[P_HYB_ENGINE_OFF_W] = hy.engine_off_power_w
+    p[P_HYB_ENGINE_ON_MPS] = hy.engine_on_speed_kmh * KMH
+    p[P_HYB_MIN_ON_S] = hy.engine_min_on_time_s
+    p[P_HYB_SUSTAIN_SOC_PCT] = hy.sustain_soc_pct
+    p[P_HYB_SUSTAIN_W_PER_PCT] = hy.sustain_gain_w_per_pct
+    p[P_HYB_SUSTAIN_MAX_W] = hy.max_sustain_power_w
+    p[P_HYB_KICKDOWN_PEDAL_PCT] = hy.electric_kickdown_pedal_pct
+    p[P_HYB_CHARGE_W] = hy.charge_power_w
+    p[P_HYB_ESAVE_ON_W] = hy.esave_on_power_w
+    p[P_HYB_MAX_WHEEL_FORCE_N] = hy.max_wheel_force_n
     drv, dyn = campaign.driver, campaign.dyno
-    p[P_DRV_B0], p[P_DRV_B1] = _pi_coefficients(s.test_mass_kg, drv.bandwidth_radps, drv.damping, dt)
-    p[P_DRV_NPRE] = round(drv.preview_s / dt)
-    p[P_DRV_STOP] = drv.stop_decel_mps2
-    p[P_DRV_FBMAX] = 0.5 * s.test_mass_kg * 9.81
-    p[P_DYN_B0], p[P_DYN_B1] = _pi_coefficients(p[P_MSC], dyn.speed_loop_bandwidth_radps, dyn.speed_loop_damping, dt)
-    p[P_DYN_FMAX], p[P_DYN_PMAX] = dyn.max_force_n, dyn.max_power_w
+    p[P_DRIVER_B0_N_PER_MPS], p[P_DRIVER_B1_N_PER_MPS] = _pi_coefficients(s.test_mass_kg, drv.bandwidth_radps,
+                                                                          drv.damping, dt)
+    p[P_DRIVER_PREVIEW_STEPS] = round(drv.preview_s / dt)
+    p[P_DRIVER_STOP_DECEL_MPS2] = drv.stop_decel_mps2
+    p[P_DRIVER_FEEDBACK_MAX_N] = 0.5 * s.test_mass_kg * 9.81
+    p[P_DYNO_B0_N_PER_MPS], p[P_DYNO_B1_N_PER_MPS] = _pi_coefficients(
+        p[P_SPEED_CTRL_MASS_KG], dyn.speed_loop_bandwidth_radps, dyn.speed_loop_damping, dt)
+    p[P_DYNO_MAX_FORCE_N], p[P_DYNO_MAX_POWER_W] = dyn.max_force_n, dyn.max_power_w
 
     cells = cell_maps()
     bsfc = np.asarray(en.bsfc_g_per_kwh, dtype=np.float64) / 3.6e9  # g/kWh -> kg/J

@@ -1,13 +1,23 @@
-"""The compiled plant loop: one ordered step per plant tick over preallocated arrays.
+"""The compiled plant: ``run_plant`` -> ``plant_step`` -> ordered sub-steps, over preallocated arrays.
 
-Order of a step (FASTSim-like run -> step -> ordered sub-steps):
-driver -> hybrid strategy (engine on/off, K0) -> shift schedule and actual gear -> torque split, brakes and
-blending -> driveline (rigid with lock-up closed, torque converter eq. 35-36 with it open, or neutral) ->
-vehicle on the dyno (road-load or speed-controlled mode) -> HV battery (eq. 29-30) -> DC/DC and 12 V ->
-energy ledger. Speeds in rad/s and m/s, torques in Nm, powers in W.
+Order of a step (FASTSim-like run -> step -> ordered sub-steps), each sub-step a pure ``@njit`` function
+of :mod:`benchtwin.emulator.steps_control`, :mod:`~benchtwin.emulator.steps_powertrain` or
+:mod:`~benchtwin.emulator.steps_energy` over the model forms of :mod:`benchtwin.emulator.models`:
 
-Every power term of the ledger is evaluated at the mid-point speeds of the step, the same rule that
-advances the speed states, so that the ledger closes up to what the model really loses or stores.
+1. protocol (new test, dyno mode, end condition) -> driver -> shift logic (target and actual gear, gear gains);
+2. torque demand and machine limits -> hybrid strategy (engine on/off) -> K0 clutch -> lock-up command ->
+   torque split -> brakes and blending -> inertia-phase intervention and idle holding -> brake split;
+3. engine fuel -> dyno forces -> lock-up engagement -> driveline (rigid with the lock-up closed, torque
+   converter eq. 35-36 with it open, or neutral) -> vehicle (speed states, mid-point speeds);
+4. motor power (Willans) -> 12 V system and DC/DC -> HV battery (eq. 29-30) -> energy ledger -> outputs ->
+   advance the states.
+
+Parameters travel as one record, :class:`~benchtwin.emulator.params.PlantTables` (scalars ``p`` with
+named ``P_*`` indices, lookup tables); the state between steps and calls is ``st`` (``S_*`` below).
+The step and its sub-steps are compiled without numba's reference counting (``_nrt=False``): array
+arguments cost nothing per call and any allocation inside a step is a compile error. Every power term
+of the ledger is taken at the step's mid-point speeds, the rule that advances the speed states, so that
+the ledger closes up to what the model really loses or stores. Units: rad/s, m/s, Nm, N, W.
 """
 
 from __future__ import annotations
@@ -15,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from benchtwin.emulator.models import motor_elec_power_w, road_load_force_n
 from benchtwin.emulator.params import (
     C_AREF,
     C_BRAKE,
@@ -33,23 +44,6 @@ from benchtwin.emulator.params import (
     C_SEG,
     C_VPRE,
     C_VTGT,
-    L_BRAKES,
-    L_DCDC,
-    L_DYNO,
-    L_ENGINE,
-    L_FUEL,
-    L_HV_CHEM,
-    L_HV_R,
-    L_K0,
-    L_LOCKUP,
-    L_LV_CHEM,
-    L_LV_LOADS,
-    L_LV_R,
-    L_MOTOR,
-    L_ROAD,
-    L_SHIFT,
-    L_TC,
-    L_TRANS,
     O_A,
     O_BRAKE,
     O_DSET,
@@ -95,184 +89,124 @@ from benchtwin.emulator.params import (
     O_WT,
     O_WW,
     O_X,
-    P_ALPHA,
-    P_B_FS0,
-    P_B_FS1,
-    P_B_FSMAX,
-    P_B_GF,
-    P_B_GR,
-    P_B_TMAX,
-    P_B_VCUT,
-    P_BETA_C,
-    P_BETA_D,
-    P_CAP_AS,
-    P_COAST_T,
-    P_DCDC_ETA,
-    P_DCDC_V,
-    P_DRV_B0,
-    P_DRV_B1,
-    P_DRV_FBMAX,
-    P_DRV_NPRE,
-    P_DRV_STOP,
-    P_DT,
-    P_DYN_B0,
-    P_DYN_B1,
-    P_DYN_FMAX,
-    P_DYN_PMAX,
-    P_E_FR0,
-    P_E_FR1,
-    P_E_IDLE,
-    P_E_J,
-    P_E_SPIN,
-    P_E_START_KG,
-    P_F0,
-    P_F1,
-    P_F2,
-    P_H_CHG,
-    P_H_ESAVE,
-    P_H_FMAX,
-    P_H_KICK,
-    P_H_POFF,
-    P_H_PON,
-    P_H_SUS,
-    P_H_SUSK,
-    P_H_SUSMAX,
-    P_H_TMIN,
-    P_H_VON,
-    P_IDLE_K,
-    P_IFD,
-    P_LHV,
-    P_LU_CAP,
-    P_LU_GEAR,
-    P_LU_TENG,
-    P_LU_V,
-    P_LV_CAP_AS,
-    P_LV_DROOP,
-    P_LV_OCV0,
-    P_LV_OCV1,
-    P_LV_R,
-    P_M_IDLE,
-    P_M_J,
-    P_MASS,
-    P_MSC,
-    P_NCELL,
-    P_NG,
-    P_PCH,
-    P_PDCH,
-    P_PF0,
-    P_PF1,
-    P_PF2,
-    P_RW,
-    P_SHIFT_DELAY,
-    P_SHIFT_INERTIA,
-    P_SOC_MAX,
-    P_SOC_MIN,
-    P_TC_GAMMA,
-    P_VD,
-    P_W_E,
-    P_W_EG,
-    P_W_LOSS,
-    P_W_LOSSG,
+    P_BATT_CAPACITY_AS,
+    P_BRAKE_GAIN_FRONT_NM_PER_BAR,
+    P_BRAKE_GAIN_REAR_NM_PER_BAR,
+    P_DRIVER_STOP_DECEL_MPS2,
+    P_DT_S,
+    P_ENGINE_INERTIA_KGM2,
+    P_F0_N,
+    P_F1_N_PER_MPS,
+    P_F2_N_PER_MPS2,
+    P_FINAL_DRIVE_RATIO,
+    P_FUEL_LHV_J_PER_KG,
+    P_LV_CAPACITY_AS,
+    P_MOTOR_INERTIA_KGM2,
+    P_SOC_MAX_FRAC,
+    P_SOC_MIN_FRAC,
+    P_WHEEL_RADIUS_M,
+    P_WILLANS_E,
+    P_WILLANS_E_GEN,
+    P_WILLANS_LOSS_GEN_W,
+    P_WILLANS_LOSS_W,
+    PlantTables,
+)
+from benchtwin.emulator.steps_control import (
+    driver_step,
+    engine_on_off,
+    gear_gains,
+    protocol_step,
+    shift_step,
+    torque_demand,
+)
+from benchtwin.emulator.steps_energy import (
+    dyno_forces,
+    engine_fuel,
+    hv_battery,
+    ledger_driveline,
+    ledger_electrical,
+    ledger_machines,
+    lv_system,
+)
+from benchtwin.emulator.steps_powertrain import (
+    brake_blending,
+    brake_split,
+    driveline_step,
+    k0_step,
+    lockup_command,
+    lockup_engagement,
+    pump_torque_control,
+    torque_split,
+    vehicle_step,
 )
 
-__all__ = ["N_STATE", "kinetic_energy", "run_plant", "tc_torques", "willans_power"]
+__all__ = ["N_STATE", "kinetic_energy", "plant_step", "run_plant"]
 
-#: state vector layout (carried between calls so a campaign may be run in pieces)
-S_V, S_X, S_WP, S_WE, S_EON, S_K0, S_LU, S_GEAR, S_GT, S_SHT, S_SOC, S_SOCLV = range(12)
-S_DRV_U, S_DRV_E, S_DYN_U, S_DYN_E, S_LATCH, S_LATCH_T, S_LATCH_V, S_SEG, S_EON_T, S_ESAVE, S_MEFF, S_T = range(12, 24)
-S_STEP, S_LUT, S_RAMP, S_KOLD = 24, 25, 26, 27
+#: state vector layout (carried between steps and between calls so a campaign may be run in pieces)
+S_SPEED_MPS = 0
+S_DISTANCE_M = 1
+S_PUMP_SPEED_RADPS = 2
+S_ENGINE_SPEED_RADPS = 3
+S_ENGINE_ON = 4  # 0/1
+S_K0_CLOSED = 5  # 0/1
+S_LOCKUP_CLOSED = 6  # 0/1
+S_GEAR = 7  # actual gear, 0 = neutral
+S_GEAR_TARGET = 8
+S_SHIFT_TIMER_S = 9
+S_SOC_FRAC = 10
+S_LV_SOC_FRAC = 11
+S_DRIVER_FORCE_N = 12  # driver PI output
+S_DRIVER_ERROR_MPS = 13
+S_DYNO_FORCE_N = 14  # dyno speed PI output
+S_DYNO_ERROR_MPS = 15
+S_END_LATCHED = 16  # 0/1: the test's end condition fired
+S_LATCH_TIME_S = 17
+S_LATCH_SPEED_MPS = 18
+S_SEGMENT = 19  # segment index of the previous step
+S_ENGINE_ON_TIME_S = 20
+S_ESAVE_SOC_PCT = 21  # displayed SOC held in e-save mode
+S_EFF_MASS_KG = 22  # mass the vehicle sees on the dyno
+S_TIME_S = 23
+S_STEP = 24  # plant steps run over the campaign
+S_LOCKUP_ENGAGE_S = 25
+S_INERTIA_PHASE_S = 26  # time left in a shift's inertia phase
+S_OLD_GAIN_RAD_PER_M = 27  # pump speed per vehicle speed of the gear before the shift
 N_STATE = 28
 
 
 @njit(cache=True)
-def tc_torques(a: np.ndarray, gamma: float, wp: float, wt: float) -> tuple[float, float, float]:
-    """Pump and turbine torque (eq. 35-36) and dT_p/d(omega_p) at speeds ``wp``, ``wt`` (rad/s)."""
-    sr = wt / wp if wp > 1e-6 else 0.0
-    if sr < gamma:
-        tp = a[0] * wp * wp + a[1] * wp * wt + a[2] * wt * wt
-        tt = a[3] * wp * wp + a[4] * wp * wt + a[5] * wt * wt
-        dtp = 2.0 * a[0] * wp + a[1] * wt
-    else:
-        tp = a[6] * wp * wp + a[7] * wp * wt + a[8] * wt * wt
-        tt = tp
-        dtp = 2.0 * a[6] * wp + a[7] * wt
-    return tp, tt, max(dtp, 0.0)
+def kinetic_energy(p: np.ndarray, st: np.ndarray) -> float:
+    """Stored kinetic energy (vehicle as the dyno sees it, pump side, free engine), J.
 
+    Parameters
+    ----------
+    p:
+        Scalar parameters (``P_*``).
+    st:
+        State vector (``S_*``).
 
-@njit(cache=True)
-def willans_power(p: np.ndarray, t: float, w: float) -> float:
-    """Motor DC power from the Willans line (eq. 18-24), motoring for T >= 0, generating for T < 0."""
-    if w < 1.0 and abs(t) < 0.5:
-        return 0.0
-    if t >= 0.0:
-        return (t * w + p[P_W_LOSS]) / p[P_W_E]
-    return p[P_W_EG] * t * w + p[P_W_LOSSG]
-
-
-@njit(cache=True)
-def _bsfc(w: np.ndarray, b: np.ndarray, tab: np.ndarray, ws: float, bmep: float) -> float:
-    """Bilinear interpolation of the BSFC map (kg/J), clamped outside the grid."""
-    nw = w.shape[0]
-    nb = b.shape[0]
-    x = min(max(ws, w[0]), w[nw - 1])
-    y = min(max(bmep, b[0]), b[nb - 1])
-    i = np.searchsorted(w, x) - 1
-    i = min(max(i, 0), nw - 2)
-    j = np.searchsorted(b, y) - 1
-    j = min(max(j, 0), nb - 2)
-    fx = (x - w[i]) / (w[i + 1] - w[i])
-    fy = (y - b[j]) / (b[j + 1] - b[j])
-    return ((1 - fx) * (1 - fy) * tab[i, j] + fx * (1 - fy) * tab[i + 1, j]
-            + (1 - fx) * fy * tab[i, j + 1] + fx * fy * tab[i + 1, j + 1])
-
-
-@njit(cache=True)
-def _merge(j1: float, w1: float, j2: float, w2: float) -> tuple[float, float]:
-    """Two inertias locked together by a clutch: common speed (momentum kept) and the energy lost, J."""
-    w = (j1 * w1 + j2 * w2) / (j1 + j2)
-    return w, 0.5 * j1 * w1 * w1 + 0.5 * j2 * w2 * w2 - 0.5 * (j1 + j2) * w * w
-
-
-@njit(cache=True)
-def jp_now(jm: float, je: float, k0: bool) -> float:
-    """Inertia of the pump side: motor and converter pump, plus the engine when K0 is closed."""
-    return jm + (je if k0 else 0.0)
-
-
-@njit(cache=True)
-def _ke(p: np.ndarray, st: np.ndarray) -> float:
-    jp = p[P_M_J] + (p[P_E_J] if st[S_K0] > 0.5 else 0.0)
-    ke = 0.5 * st[S_MEFF] * st[S_V] ** 2 + 0.5 * jp * st[S_WP] ** 2
-    if st[S_K0] < 0.5:
-        ke += 0.5 * p[P_E_J] * st[S_WE] ** 2
+    Returns
+    -------
+    float
+        0.5 m v^2 + 0.5 J_p omega_p^2 (+ 0.5 J_e omega_e^2 with K0 open), J.
+    """
+    k0 = st[S_K0_CLOSED] > 0.5
+    jp = p[P_MOTOR_INERTIA_KGM2] + (p[P_ENGINE_INERTIA_KGM2] if k0 else 0.0)
+    ke = 0.5 * st[S_EFF_MASS_KG] * st[S_SPEED_MPS] ** 2 + 0.5 * jp * st[S_PUMP_SPEED_RADPS] ** 2
+    if st[S_K0_CLOSED] < 0.5:
+        ke += 0.5 * p[P_ENGINE_INERTIA_KGM2] * st[S_ENGINE_SPEED_RADPS] ** 2
     return ke
 
 
 @njit(cache=True)
-def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarray, up_v0: np.ndarray,
-              up_s: np.ndarray, dn_v0: np.ndarray, dn_s: np.ndarray, e_fl_w: np.ndarray, e_fl_t: np.ndarray,
-              bsfc_w: np.ndarray, bsfc_b: np.ndarray, bsfc_tab: np.ndarray, m_fl_w: np.ndarray, m_fl_t: np.ndarray,
-              c_soc: np.ndarray, c_ocv: np.ndarray, c_rd: np.ndarray, c_rc: np.ndarray, tc_a: np.ndarray,
-              cmd: np.ndarray, decim: int, st: np.ndarray, out: np.ndarray, row0: int,
+def run_plant(tab: PlantTables, cmd: np.ndarray, decim: int, st: np.ndarray, out: np.ndarray, row0: int,
               led: np.ndarray) -> tuple[int, int]:
     """Advance the plant over the steps of one test's commands.
 
     Parameters
     ----------
-    p:
-        Scalar parameters, indexed by the ``P_*`` constants of :mod:`benchtwin.emulator.params`.
-    ratios, eta_m, c0:
-        Per gear (index 0 = neutral): ratio, eq. 14 eta_m and C0 (Nm).
-    up_v0, up_s, dn_v0, dn_s:
-        Shift lines per gear pair (m/s, m/s per pedal %).
-    e_fl_w, e_fl_t, m_fl_w, m_fl_t:
-        Engine and motor full-load curves (rad/s, Nm).
-    bsfc_w, bsfc_b, bsfc_tab:
-        BSFC grid: speed (rad/s) x BMEP (Pa) -> kg/J.
-    c_soc, c_ocv, c_rd, c_rc:
-        Literature cell maps over the displayed SOC fraction (V, ohm).
-    tc_a:
-        Torque converter a0..a8 (Nm/(rad/s)^2).
+    tab:
+        Parameter record: scalars ``tab.p`` (``P_*``) and lookup tables.
     cmd:
         Commands of the test, rows ``C_*`` x steps.
     decim:
@@ -292,639 +226,274 @@ def run_plant(p: np.ndarray, ratios: np.ndarray, eta_m: np.ndarray, c0: np.ndarr
         Output rows written and plant steps run. The test ends before its last command once its end
         condition has fired and the car has come to rest.
     """
-    dt = p[P_DT]
     n = cmd.shape[1]
-    ng = int(p[P_NG])
-    rw = p[P_RW]
-    ifd = p[P_IFD]
-    mass = p[P_MASS]
-    je = p[P_E_J]
-    jm = p[P_M_J]
-    gamma = p[P_TC_GAMMA]
-    smin = p[P_SOC_MIN]
-    smax = p[P_SOC_MAX]
-    ncell = p[P_NCELL]
-    widle_e = p[P_E_IDLE]
-    widle_m = p[P_M_IDLE]
-    kidle = p[P_IDLE_K]
-    npre = int(p[P_DRV_NPRE])
-    vramp = 0.5 / 3.6  # road load fades in below 0.5 km/h (no force at standstill)
-
-    v = st[S_V]
-    x = st[S_X]
-    wp = st[S_WP]
-    we = st[S_WE]
-    eon = st[S_EON] > 0.5
-    k0 = st[S_K0] > 0.5
-    lu = st[S_LU] > 0.5
-    gear = int(st[S_GEAR])
-    gtgt = int(st[S_GT])
-    sht = st[S_SHT]
-    soc = st[S_SOC]
-    soclv = st[S_SOCLV]
-    drv_u = st[S_DRV_U]
-    drv_e = st[S_DRV_E]
-    dyn_u = st[S_DYN_U]
-    dyn_e = st[S_DYN_E]
-    latch = st[S_LATCH] > 0.5
-    latch_t = st[S_LATCH_T]
-    latch_v = st[S_LATCH_V]
-    seg_prev = st[S_SEG]
-    eon_t = st[S_EON_T]
-    esave = st[S_ESAVE]
-    meff = st[S_MEFF]
-    t = st[S_T]
-    kstep = int(st[S_STEP])
-    lut = st[S_LUT]
-    ramp = st[S_RAMP]
-    kold = st[S_KOLD]
-    t_inertia = p[P_SHIFT_INERTIA]
     iout = row0
     nrun = n
-
     for i in range(n):
-        t = kstep * dt
-        dmode = int(cmd[C_DYNO_MODE, i])
-        seg = cmd[C_SEG, i]
-        hm = int(cmd[C_HMODE, i])
-        dsoc = 100.0 * (soc - smin) / (smax - smin)
-        if seg != seg_prev:
-            latch = False
-            drv_u = 0.0
-            drv_e = 0.0
-            esave = dsoc
-            seg_prev = seg
-        # ---- dyno mode: simulated inertia (road-load) or rollers only (speed-controlled) ----
-        m_new = mass if dmode == 0 else p[P_MSC]
-        if m_new != meff:
-            led[L_DYNO] -= 0.5 * (m_new - meff) * v * v  # the dyno supplies the change of simulated inertia
-            meff = m_new
-            dyn_u = 0.0
-            dyn_e = 0.0
-
-        # ---- end conditions of the protocol ----
-        ek = int(cmd[C_END_KIND, i])
-        if not latch and ek > 0:
-            ev = cmd[C_END_VAL, i]
-            if ((ek == 1 and v >= ev) or (ek == 2 and dsoc <= ev) or (ek == 3 and dsoc >= ev) or ek == 4):
-                latch = True
-                latch_t = t
-                latch_v = v
-
-        # ---- driver ----
-        dm = int(cmd[C_DRV_MODE, i])
-        pedal = cmd[C_PEDAL, i]
-        brake = cmd[C_BRAKE, i]
-        gh = int(cmd[C_GEAR, i])
-        if latch or dm == 1:
-            if latch:
-                vt = max(latch_v - p[P_DRV_STOP] * (t - latch_t), 0.0)
-                vt_pre = max(latch_v - p[P_DRV_STOP] * (t + npre * dt - latch_t), 0.0)
-                aref = -p[P_DRV_STOP] if vt_pre > 0.0 else 0.0
-            else:
-                vt = cmd[C_VTGT, i]
-                vt_pre = cmd[C_VPRE, i]  # previewed target and reference acceleration (protocols.py)
-                aref = cmd[C_AREF, i]
-            ff = mass * aref + (p[P_F0] + p[P_F1] * vt_pre + p[P_F2] * vt_pre * vt_pre) * min(vt_pre / vramp, 1.0)
-            e = vt - v
-            drv_u = drv_u + p[P_DRV_B0] * e + p[P_DRV_B1] * drv_e
-            drv_u = min(max(drv_u, -p[P_DRV_FBMAX]), p[P_DRV_FBMAX])
-            drv_e = e
-            u = ff + drv_u
-            # pedal map estimate: available force in the current gear
-            gest = max(gear, 1)
-            kk = ratios[gest] * ifd / rw
-            west = max(kk * v, widle_e)
-            tav = np.interp(west, m_fl_w, m_fl_t)
-            if hm != 1:
-                tav += np.interp(west, e_fl_w, e_fl_t)
-            fav = max(tav * kk * 0.9, 500.0)
-            if u >= 0.0:
-                pedal = min(100.0 * u / fav, 100.0)
-                brake = 0.0
-            else:
-                pedal = 0.0
-                brake = min(100.0 * (-u) * rw / p[P_B_TMAX], 100.0)
-            if vt <= 0.0 and vt_pre <= 0.0 and v < 0.3:
-                pedal = 0.0
-                brake = max(brake, 25.0)
-                drv_u = 0.0
-        vk = v * 3.6
-
-        # ---- shift schedule: target gear, then actual gear after the actuation delay ----
-        if gh >= 0:
-            gtgt = gh
-        else:
-            if gtgt == 0:
-                gtgt = 1
-            if gtgt < ng and v >= up_v0[gtgt - 1] + up_s[gtgt - 1] * pedal:
-                gtgt += 1
-            elif gtgt > 1 and v <= dn_v0[gtgt - 2] + dn_s[gtgt - 2] * pedal:
-                gtgt -= 1
-        if gear != gtgt:
-            sht += dt
-            if sht >= p[P_SHIFT_DELAY] - 1e-9:
-                g_old = gear
-                if gtgt == 0 or gear == 0:
-                    gear = gtgt
-                elif gtgt > gear:
-                    gear += 1
-                else:
-                    gear -= 1
-                sht = 0.0
-                if g_old > 0 and gear > 0:
-                    # clutch-to-clutch shift: the lock-up opens (slip control), the turbine speed moves to the
-                    # new ratio over the inertia phase while the motor takes the pump side's inertia torque
-                    lu = False
-                    lut = 0.0
-                    ramp = t_inertia
-                    kold = ratios[g_old] * ifd / rw
-        else:
-            sht = 0.0
-        kg = ratios[gear] * ifd / rw if gear > 0 else 0.0
-        if gear == 0:
-            ramp = 0.0
-        kge = kg + (kold - kg) * (ramp / t_inertia) if ramp > 0.0 else kg
-        rge = kge * rw / ifd
-        wt = kge * v if gear > 0 else wp
-
-        # ---- machine limits ----
-        wq = max(wp, 1.0)
-        tm_max = np.interp(wp, m_fl_w, m_fl_t)
-        tm_max = min(tm_max, max((p[P_PDCH] * p[P_W_E] - p[P_W_LOSS]) / wq, 0.0))
-        tm_gen = np.interp(wp, m_fl_w, m_fl_t)
-        tm_gen = min(tm_gen, (p[P_PCH] + p[P_W_LOSSG]) / (p[P_W_EG] * wq))
-        te_max = np.interp(max(wp, widle_e), e_fl_w, e_fl_t)
-        ef = int(cmd[C_ENG, i])
-        t_avail = tm_max if (hm == 1 and ef != 1) else tm_max + te_max
-        t_dem = pedal * 0.01 * t_avail
-        if gear > 0:
-            # traction / gearbox input torque limiter: wheel force at most P_H_FMAX through the converter's
-            # present torque ratio (launches in low gears)
-            tr_now = 1.0
-            if not lu and wp > 1.0:
-                tpn, ttn, _dn = tc_torques(tc_a, gamma, wp, wt)
-                if tpn > 1e-3:
-                    tr_now = max(ttn / tpn, 1.0)
-            t_dem = min(t_dem, p[P_H_FMAX] * rw / (ratios[gear] * ifd * eta_m[gear] * tr_now) + c0[gear])
-        lu_ok = lu and gear > 0
-        if pedal <= 0.0 and lu_ok and v > p[P_B_VCUT]:
-            t_dem = -p[P_COAST_T]
-        p_dem = t_dem * wp
-
-        # ---- hybrid strategy: engine on/off ----
-        want = eon
-        if ef == 1:
-            want = True
-        elif ef == 0:
-            want = False
-        elif hm == 1:
-            want = pedal >= p[P_H_KICK] or (eon and pedal >= p[P_H_KICK] - 10.0) or dsoc < 0.5
-        elif hm == 0:
-            if not eon:
-                want = p_dem > p[P_H_PON] or v > p[P_H_VON] or (dsoc < p[P_H_SUS] and vk > 15.0)
-            else:
-                want = not (p_dem < p[P_H_POFF] and v < p[P_H_VON] - 5.0 / 3.6
-                            and (dsoc >= p[P_H_SUS] + 2.0 or vk < 5.0) and eon_t >= p[P_H_TMIN])
-        elif hm == 2:
-            if not eon:
-                want = p_dem > p[P_H_ESAVE] or (dsoc < esave - 1.0 and vk > 10.0)
-            else:
-                want = not (p_dem < 0.5 * p[P_H_ESAVE] and (dsoc >= esave or vk < 5.0) and eon_t >= p[P_H_TMIN])
-        else:
-            want = vk > 3.0 or pedal > 0.0 or (eon and eon_t < p[P_H_TMIN])
-        fuel_start = 0.0
-        if want and not eon:
-            eon = True
-            eon_t = 0.0
-            fuel_start = p[P_E_START_KG]
-        elif not want and eon:
-            eon = False
-        if eon:
-            eon_t += dt
-
-        # ---- K0 clutch ----
-        kf = int(cmd[C_K0, i])
-        k0_req = (kf == 1) or (kf == -1 and eon)
-        if k0 and not k0_req:
-            k0 = False
-            we = wp
-        ke_e_self = 0.0
-        if not k0:
-            if k0_req and (eon or kf == 1):
-                target = max(wp, 0.5 * widle_e) if eon else wp
-            else:
-                target = widle_e if eon else 0.0
-            step = p[P_E_SPIN] * dt
-            we_new = min(we + step, target) if we < target else max(we - step, target)
-            ke_e_self = 0.5 * je * (we_new * we_new - we * we)
-            we = we_new
-            if k0_req and abs(we - wp) < 3.0:
-                # the clutch locks: engine and pump side (with the vehicle if the lock-up is closed) share
-                # their momentum; the small speed difference is lost as clutch slip energy
-                rigid = lu and gear > 0 and kg > 0.0
-                j2 = jm + (meff / (kg * kg) if rigid else 0.0)
-                w, loss = _merge(je, we, j2, wp)
-                led[L_K0] += loss
-                wp = w
-                we = w
-                if rigid:
-                    v = w / kg
-                    wt = w
-                k0 = True
-        else:
-            we = wp
-        jp = jm + (je if k0 else 0.0)
-
-        # ---- lock-up clutch command ----
-        luf = int(cmd[C_LU, i])
-        if luf == 1:
-            lu_req = gear > 0 and vk >= 5.0
-        elif luf == 0:
-            lu_req = False
-        else:
-            # closed above its speed, and kept closed while braking down to the regen cut-off
-            lu_req = gear >= p[P_LU_GEAR] and (v >= p[P_LU_V] or (brake > 0.0 and v > p[P_B_VCUT]))
-        if not lu_req:
-            lu = False
-            lut = 0.0
-
-        # ---- torque split ----
-        sus = 0.0
-        if hm == 0 and dsoc < p[P_H_SUS]:
-            sus = min(p[P_H_SUSK] * (p[P_H_SUS] - dsoc), p[P_H_SUSMAX])
-        elif hm == 2:
-            sus = min(max(p[P_H_SUSK] * (esave - dsoc), -p[P_H_SUSMAX]), p[P_H_SUSMAX])
-        te = 0.0
-        tm = t_dem
-        if k0 and eon:
-            if hm == 3:
-                tm = -min(p[P_H_CHG] / wq, tm_gen)
-                te = min(max(t_dem - tm, 0.0), te_max)
-                tm = min(t_dem - te, 0.0)
-            elif hm == 1:
-                low = min(p[P_H_SUSK] * (p[P_H_SUS] - dsoc), p[P_H_SUSMAX]) if dsoc < p[P_H_SUS] else 0.0
-                te = min(max(t_dem - tm_max, 0.0) + low / wq, te_max)
-                tm = t_dem - te
-            else:
-                te = min(max(t_dem + sus / wq, 0.0), te_max)
-                tm = t_dem - te
-        elif k0 and not eon:
-            te = -(p[P_E_FR0] + p[P_E_FR1] * wp) if wp > 1.0 else 0.0
-        # brakes and blending
-        bdem = brake * 0.01 * p[P_B_TMAX]
-        bhyd = bdem
-        if bdem > 0.0 and gear > 0 and (lu or lu_req) and v > p[P_B_VCUT]:
-            # regeneration first (also through a converter opened only for a shift), hydraulic for the rest
-            kgr = ratios[gear] * ifd
-            # the regenerative share fades out over the last 8 km/h above the cut-off speed
-            fade = min((v - p[P_B_VCUT]) / (8.0 / 3.6), 1.0)
-            t_in_need = eta_m[gear] * (c0[gear] - fade * bdem / kgr)
-            tm_r = max(t_in_need - te, -tm_gen)
-            tm = min(tm, tm_r)
-            tm = max(tm, -tm_gen)
-            t_in_real = tm + te
-            breg = -kgr * (t_in_real / eta_m[gear] - c0[gear]) if t_in_real <= eta_m[gear] * c0[gear] else 0.0
-            bhyd = max(bdem - breg, 0.0)
-        if ramp > 0.0 and gear > 0 and not lu:
-            # torque intervention during the inertia phase: the motor takes the pump side's inertia torque so
-            # that the pump follows the turbine instead of dumping its energy into the driveline
-            tm += jp_now(jm, je, k0) * (kg - kold) * v / t_inertia
-        tm = min(max(tm, -tm_gen), tm_max)
-        # idle speed holding when the pump side is free
-        free = (not lu) or gear == 0
-        d_idle = 0.0
-        if free:
-            if k0 and eon:
-                if wp < widle_e:
-                    te = min(te + kidle * (widle_e - wp), te_max)
-                    d_idle = kidle
-            elif gear == 0 and not (k0 and eon):
-                # neutral: the motor holds the pump at idle (or lets it run down at standstill)
-                wtarget = widle_m if (pedal > 0.0 or v > 0.3) else 0.0
-                tm = min(max(tm + kidle * (wtarget - wp), -min(tm_gen, 30.0)), tm_max)
-                d_idle = kidle
-            elif (pedal > 0.0 or v > 0.3) and wp < widle_m:  # the motor stops at standstill, pedal released
-                tm = min(tm + kidle * (widle_m - wp), tm_max)
-                d_idle = kidle
-        decel_dem = bdem / (rw * mass)
-        fs = min(max(p[P_B_FS0] + p[P_B_FS1] * decel_dem, p[P_B_FS0]), p[P_B_FSMAX])
-        tbf = fs * bhyd
-        tbr = (1.0 - fs) * bhyd
-        fb = (tbf + tbr) / rw
-
-        # ---- engine fuel (BSFC map, eq. 26-28) ----
-        fuel_flow = 0.0
-        if eon:
-            if k0 and te > 0.0:
-                bmep = 4.0 * np.pi * te / p[P_VD]
-                fuel_flow += _bsfc(bsfc_w, bsfc_b, bsfc_tab, wp, bmep) * te * wp
-            else:
-                wf = wp if k0 else we
-                bmin = bsfc_b[0]
-                tmin = bmin * p[P_VD] / (4.0 * np.pi)
-                fuel_flow += _bsfc(bsfc_w, bsfc_b, bsfc_tab, wf, bmin) * tmin * wf
-        fuel_e = (fuel_flow * dt + fuel_start) * p[P_LHV]
-        fuel_flow += fuel_start / dt
-
-        # ---- dyno forces ----
-        rlf = min(v / vramp, 1.0)
-        f_rl = (p[P_F0] + p[P_F1] * v + p[P_F2] * v * v) * rlf
-        f_par = (p[P_PF0] + p[P_PF1] * v + p[P_PF2] * v * v) * rlf
-        f_dyn = 0.0
-        vset = np.nan
-        if dmode == 1:
-            vset = cmd[C_DYNO_SET, i]
-            e = vset - v
-            dyn_u = dyn_u + p[P_DYN_B0] * e + p[P_DYN_B1] * dyn_e
-            flim = min(p[P_DYN_FMAX], p[P_DYN_PMAX] / max(v, 1.0))
-            dyn_u = min(max(dyn_u, -flim), flim)
-            dyn_e = e
-            f_dyn = dyn_u
-            f_ext = f_dyn - f_par
-        else:
-            f_ext = -f_rl
-
-        # ---- lock-up engagement: capacity ramps up; it sticks once the torque to hold is within capacity ----
-        tsrc = te + tm
-        cap_now = 0.0
-        if lu_req and not lu and gear > 0 and ramp <= 0.0:
-            lut += dt
-            cap_now = p[P_LU_CAP] * min(lut / p[P_LU_TENG], 1.0)
-            tp0, _tt0, _d0 = tc_torques(tc_a, gamma, wp, wt)
-            tneed = tsrc - tp0 - jp * (wt - wp) / dt
-            if abs(tneed) <= cap_now:
-                # the lock-up sticks: pump side and vehicle (seen through the gear) share their momentum
-                w, loss = _merge(jp, wp, meff / (kg * kg), wt)
-                led[L_LOCKUP] += loss
-                wp = w
-                v = w / kg
-                wt = w
-                if k0:
-                    we = wp
-                lu = True
-
-        # ---- driveline and vehicle ----
-        tp = 0.0
-        tt = 0.0
-        tlu = 0.0
-        tin = 0.0
-        tout = 0.0
-        tp_eff = 0.0
-        tlu_eff = 0.0
-        slip_w = 0.0
-        dw = 0.0
-        a = 0.0
-        if gear > 0 and lu:
-            eta = eta_m[gear]
-            cc = c0[gear]
-            ig = ratios[gear]
-            fbd = fb if v > 0.0 else 0.0
-            den = meff + eta * jp * kg * kg
-            a = (kg * eta * (tsrc - cc) + f_ext - fbd) / den
-            tin = tsrc - jp * kg * a
-            if tin >= cc:
-                tout = ig * eta * (tin - cc)
-            else:
-                den = meff + jp * kg * kg / eta
-                a = (kg * (tsrc / eta - cc) + f_ext - fbd) / den
-                tin = tsrc - jp * kg * a
-                if tin <= eta * cc:
-                    tout = ig * (tin / eta - cc)
-                else:
-                    a = (f_ext - fbd) / (meff + 0.0)
-                    tin = tsrc - jp * kg * a
-                    tout = 0.0
-            if v <= 0.0 and a < 0.0:
-                a = 0.0
-        else:
-            if gear > 0:
-                tp, tt, dtp = tc_torques(tc_a, gamma, wp, wt)
-                dlu = 0.0
-                if cap_now > 0.0:
-                    tlu = cap_now if wp > wt else -cap_now
-                tin = tt + tlu
-                eta = eta_m[gear]
-                cc = c0[gear]
-                # during the inertia phase the slipping shift clutch passes the torque at the lower ratio
-                # (higher ratio in coast); the speed difference times torque is clutch slip energy
-                reff = rge
-                if ramp > 0.0:
-                    rnew = ratios[gear]
-                    rold = kold * rw / ifd
-                    reff = min(rnew, rold) if tin >= 0.0 else max(rnew, rold)
-                if tin >= cc:
-                    tout = reff * eta * (tin - cc)
-                elif tin <= eta * cc:
-                    tout = reff * (tin / eta - cc)
-                else:
-                    tout = 0.0
-                slip_w = (rge - reff) * ifd / rw  # turbine speed above the clutch's output side, per m/s
-                num = tsrc - tp - tlu
-                dw = dt * num / (jp + dt * (dtp + dlu + d_idle))
-                tp_eff = tp + dtp * dw
-                tlu_eff = tlu + dlu * dw
-            else:
-                dw = dt * tsrc / (jp + dt * d_idle)
-            fw = ifd * tout / rw
-            if v <= 0.0:
-                a = (fw + f_ext) / meff
-                if a <= 0.0:
-                    a = 0.0
-                else:
-                    a = max((fw + f_ext - fb) / meff, 0.0)
-            else:
-                a = (fw + f_ext - fb) / meff
-        fw = ifd * tout / rw
-        v_new = v + a * dt
-        stop_fix = 0.0
-        if v_new < 0.0:
-            a_stop = -v / dt
-            stop_fix = meff * (a_stop - a)  # force the brakes/resistance did not need to deliver
-            a = a_stop
-            v_new = 0.0
-        v_mid = 0.5 * (v + v_new)
-        if gear > 0 and lu:
-            wp_new = kg * v_new
-            tp = tin
-            tt = tin
-        else:
-            wp_new = max(wp + dw, 0.0)
-        w_mid = 0.5 * (wp + wp_new)
-        wt_mid = kge * v_mid if gear > 0 else w_mid
-        ws_mid = ifd * v_mid / rw
-
-        # ---- motor electrical power (Willans) and HV battery (eq. 29-30) ----
-        pel = willans_power(p, tm, wp)
-        # 12 V system: DC/DC with droop feeding loads and the 12 V battery
-        ocv_lv = p[P_LV_OCV0] + (p[P_LV_OCV1] - p[P_LV_OCV0]) * soclv
-        pload = cmd[C_LVLOAD, i]
-        rd = p[P_LV_DROOP]
-        rb = p[P_LV_R]
-        vlv = p[P_DCDC_V]
-        for _k in range(2):
-            iload = pload / vlv
-            vlv = (p[P_DCDC_V] - rd * iload + rd * ocv_lv / rb) / (1.0 + rd / rb)
-        ilvb = (ocv_lv - vlv) / rb
-        idc = pload / vlv - ilvb
-        plv = vlv * idc
-        pdc_in = plv / p[P_DCDC_ETA]
-        php = pel + pdc_in
-        sd = min(max((soc - smin) / (smax - smin), 0.0), 1.0)
-        ocv_c = np.interp(sd, c_soc, c_ocv)
-        uoc = ncell * p[P_ALPHA] * ocv_c
-        if php >= 0.0:
-            rpk = ncell * p[P_BETA_D] * np.interp(sd, c_soc, c_rd)
-        else:
-            rpk = ncell * p[P_BETA_C] * np.interp(sd, c_soc, c_rc)
-        disc = uoc * uoc - 4.0 * rpk * php
-        if disc < 0.0:
-            disc = 0.0
-        ib = (uoc - np.sqrt(disc)) / (2.0 * rpk)
-        vb = uoc - ib * rpk
-
-        # ---- ledger ----
-        led[L_FUEL] += fuel_e
-        led[L_HV_CHEM] += uoc * ib * dt
-        led[L_HV_R] += rpk * ib * ib * dt
-        led[L_LV_CHEM] += ocv_lv * ilvb * dt
-        led[L_LV_R] += rb * ilvb * ilvb * dt
-        led[L_DCDC] += (pdc_in - plv) * dt
-        led[L_LV_LOADS] += pload * dt
-        if gear > 0 and lu:
-            p_in_src_e = te * w_mid
-            p_in_src_m = tm * w_mid
-        else:
-            # pump node implicit: idle torque at the new speed goes to the machine that holds idle
-            te_eff = te
-            tm_eff = tm
-            if d_idle > 0.0:
-                if k0 and eon:
-                    te_eff = te - d_idle * dw
-                else:
-                    tm_eff = tm - d_idle * dw
-            p_in_src_e = te_eff * w_mid
-            p_in_src_m = tm_eff * w_mid
-        if k0:
-            led[L_ENGINE] += fuel_e - p_in_src_e * dt
-        else:
-            led[L_ENGINE] += fuel_e - ke_e_self
-            if p_in_src_e != 0.0:
-                led[L_ENGINE] -= p_in_src_e * dt
-        led[L_MOTOR] += pel * dt - p_in_src_m * dt
-        if gear > 0 and not lu:
-            led[L_TC] += (tp_eff * w_mid - tt * wt_mid) * dt
-            led[L_LOCKUP] += (tlu_eff * w_mid - tlu * wt_mid) * dt
-        if gear > 0:
-            led[L_SHIFT] += tin * slip_w * v_mid * dt
-            led[L_TRANS] += (tin * (wt_mid - slip_w * v_mid) - tout * ws_mid) * dt
-        led[L_BRAKES] += (fb * v_mid - stop_fix * v_mid) * dt if v_mid > 0.0 else 0.0
-        if dmode == 0:
-            led[L_ROAD] += f_rl * v_mid * dt
-        else:
-            led[L_ROAD] += f_par * v_mid * dt
-            led[L_DYNO] -= f_dyn * v_mid * dt
-
-        # ---- outputs (state at the start of the step, actions over the step) ----
-        if kstep % decim == 0:
-            o = out[:, iout]
-            o[O_V] = v
-            o[O_A] = a
-            o[O_X] = x
-            o[O_DSET] = vset
-            mv = 1.0 if v_mid > 0.0 else 0.0
-            o[O_FFRONT] = -mv * tbf / rw - 0.5 * f_par
-            o[O_FREAR] = fw - mv * tbr / rw - 0.5 * f_par
-            o[O_FRL] = p[P_F0] + p[P_F1] * v + p[P_F2] * v * v
-            o[O_PEDAL] = pedal
-            o[O_BRAKE] = brake
-            o[O_HMODE] = hm
-            o[O_WE] = wp if k0 else we
-            o[O_TE] = te
-            o[O_EON] = 1.0 if eon else 0.0
-            o[O_FUEL] = fuel_flow
-            o[O_K0] = 1.0 if k0 else 0.0
-            o[O_WP] = wp
-            o[O_TM] = tm
-            o[O_PEL] = pel
-            o[O_TP] = tp
-            o[O_WT] = wt
-            o[O_TT] = tt
-            o[O_LU] = 1.0 if (lu and gear > 0) else 0.0
-            o[O_GT] = gtgt
-            o[O_GA] = gear
-            o[O_TIN] = tin
-            o[O_TOUT] = tout
-            o[O_WS] = ifd * v / rw
-            o[O_WW] = v / rw
-            o[O_PF] = tbf / p[P_B_GF] * 1e5
-            o[O_PR] = tbr / p[P_B_GR] * 1e5
-            o[O_PMC] = max(o[O_PF], o[O_PR])
-            o[O_TBF] = tbf
-            o[O_TBR] = tbr
-            o[O_IB] = ib
-            o[O_VB] = vb
-            o[O_OCV] = uoc
-            o[O_SOC] = soc
-            o[O_DSOC] = dsoc
-            o[O_ILV] = idc
-            o[O_VLV] = vlv
-            o[O_ILVB] = ilvb
-            o[O_Q_ENGINE] = fuel_flow * p[P_LHV] - te * wp if eon else 0.0
-            o[O_Q_MOTOR] = pel - tm * wp
-            o[O_Q_BATT] = rpk * ib * ib
-            o[O_VDYN] = v
+        wrote, stop = plant_step(tab, cmd, i, st, led, out, iout, decim)
+        if wrote:
             iout += 1
-
-        # ---- advance states ----
-        x += v_mid * dt
-        v = v_new
-        wp = wp_new
-        if k0:
-            we = wp
-        soc -= ib * dt / p[P_CAP_AS]
-        soclv -= ilvb * dt / p[P_LV_CAP_AS]
-        t = (kstep + 1) * dt
-        if ramp > 0.0:
-            ramp = max(ramp - dt, 0.0)
-        kstep += 1
-        if latch and v <= 0.0 and t - latch_t > latch_v / p[P_DRV_STOP] + 3.0:
+        if stop:
             nrun = i + 1
             break
-
-    st[S_V] = v
-    st[S_X] = x
-    st[S_WP] = wp
-    st[S_WE] = we
-    st[S_EON] = 1.0 if eon else 0.0
-    st[S_K0] = 1.0 if k0 else 0.0
-    st[S_LU] = 1.0 if lu else 0.0
-    st[S_GEAR] = gear
-    st[S_GT] = gtgt
-    st[S_SHT] = sht
-    st[S_SOC] = soc
-    st[S_SOCLV] = soclv
-    st[S_DRV_U] = drv_u
-    st[S_DRV_E] = drv_e
-    st[S_DYN_U] = dyn_u
-    st[S_DYN_E] = dyn_e
-    st[S_LATCH] = 1.0 if latch else 0.0
-    st[S_LATCH_T] = latch_t
-    st[S_LATCH_V] = latch_v
-    st[S_SEG] = seg_prev
-    st[S_EON_T] = eon_t
-    st[S_ESAVE] = esave
-    st[S_MEFF] = meff
-    st[S_T] = t
-    st[S_STEP] = kstep
-    st[S_LUT] = lut
-    st[S_RAMP] = ramp
-    st[S_KOLD] = kold
     return iout - row0, nrun
 
 
-@njit(cache=True)
-def kinetic_energy(p: np.ndarray, st: np.ndarray) -> float:
-    """Stored kinetic energy (vehicle as the dyno sees it, pump side, free engine), J."""
-    return _ke(p, st)
+@njit(cache=True, _nrt=False)
+def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: np.ndarray, out: np.ndarray,
+               iout: int, decim: int) -> tuple[bool, bool]:
+    """One plant step: read the state, run the sub-steps in order, book the ledger, write outputs, advance.
 
+    Parameters
+    ----------
+    tab, cmd, st, led, out, decim:
+        As for :func:`run_plant`.
+    i:
+        Column of ``cmd`` (this step's commands).
+    iout:
+        Output column, written when the campaign's step count is a multiple of ``decim``.
+
+    Returns
+    -------
+    tuple of bool
+        ``(wrote, stop)``: an output column was written; the test is over (end condition fired and the
+        car at rest long enough).
+    """
+    p = tab.p
+    dt = p[P_DT_S]
+    wheel_radius_m = p[P_WHEEL_RADIUS_M]
+    final_drive_ratio = p[P_FINAL_DRIVE_RATIO]
+    smin = p[P_SOC_MIN_FRAC]
+    smax = p[P_SOC_MAX_FRAC]
+
+    speed_mps = st[S_SPEED_MPS]
+    distance_m = st[S_DISTANCE_M]
+    pump_speed_radps = st[S_PUMP_SPEED_RADPS]
+    engine_speed_radps = st[S_ENGINE_SPEED_RADPS]
+    engine_on = st[S_ENGINE_ON] > 0.5
+    k0_closed = st[S_K0_CLOSED] > 0.5
+    lockup_closed = st[S_LOCKUP_CLOSED] > 0.5
+    gear = int(st[S_GEAR])
+    gear_target = int(st[S_GEAR_TARGET])
+    shift_timer_s = st[S_SHIFT_TIMER_S]
+    soc_frac = st[S_SOC_FRAC]
+    lv_soc_frac = st[S_LV_SOC_FRAC]
+    driver_force_n = st[S_DRIVER_FORCE_N]
+    driver_error_mps = st[S_DRIVER_ERROR_MPS]
+    dyno_force_n = st[S_DYNO_FORCE_N]
+    dyno_error_mps = st[S_DYNO_ERROR_MPS]
+    end_latched = st[S_END_LATCHED] > 0.5
+    latch_time_s = st[S_LATCH_TIME_S]
+    latch_speed_mps = st[S_LATCH_SPEED_MPS]
+    segment = st[S_SEGMENT]
+    engine_on_time_s = st[S_ENGINE_ON_TIME_S]
+    esave_soc_pct = st[S_ESAVE_SOC_PCT]
+    eff_mass_kg = st[S_EFF_MASS_KG]
+    kstep = int(st[S_STEP])
+    lockup_engage_time_s = st[S_LOCKUP_ENGAGE_S]
+    inertia_phase_left_s = st[S_INERTIA_PHASE_S]
+    old_gain_rad_per_m = st[S_OLD_GAIN_RAD_PER_M]
+
+    time_s = kstep * dt
+    dyno_mode = int(cmd[C_DYNO_MODE, i])
+    hybrid_mode = int(cmd[C_HMODE, i])
+    engine_cmd = int(cmd[C_ENG, i])
+    displayed_soc_pct = 100.0 * (soc_frac - smin) / (smax - smin)
+
+    # ---- protocol: new test, dyno mode, end condition ----
+    (segment, end_latched, latch_time_s, latch_speed_mps, driver_force_n, driver_error_mps, esave_soc_pct,
+     eff_mass_kg, dyno_force_n, dyno_error_mps) = protocol_step(
+        p, led, time_s, speed_mps, displayed_soc_pct, cmd[C_SEG, i], dyno_mode, int(cmd[C_END_KIND, i]),
+        cmd[C_END_VAL, i], segment, end_latched, latch_time_s, latch_speed_mps, driver_force_n, driver_error_mps,
+        esave_soc_pct, eff_mass_kg, dyno_force_n, dyno_error_mps)
+
+    # ---- driver ----
+    pedal_pct, brake_pct, driver_force_n, driver_error_mps = driver_step(
+        tab, time_s, speed_mps, gear, hybrid_mode, int(cmd[C_DRV_MODE, i]), cmd[C_PEDAL, i], cmd[C_BRAKE, i],
+        cmd[C_VTGT, i], cmd[C_VPRE, i], cmd[C_AREF, i], end_latched, latch_time_s, latch_speed_mps,
+        driver_force_n, driver_error_mps)
+
+    # ---- shift logic: target gear, then actual gear after the actuation delay ----
+    (gear_target, gear, shift_timer_s, lockup_closed, lockup_engage_time_s, inertia_phase_left_s,
+     old_gain_rad_per_m) = shift_step(
+        tab, speed_mps, pedal_pct, int(cmd[C_GEAR, i]), gear_target, gear, shift_timer_s, lockup_closed,
+        lockup_engage_time_s, inertia_phase_left_s, old_gain_rad_per_m)
+    inertia_phase_left_s, gain_rad_per_m, eff_gain_rad_per_m, eff_ratio, turbine_speed_radps = gear_gains(
+        tab, gear, inertia_phase_left_s, old_gain_rad_per_m, speed_mps, pump_speed_radps)
+
+    # ---- machine limits and torque demand ----
+    motor_max_nm, motor_gen_max_nm, engine_max_nm, torque_demand_nm, power_demand_w, limit_speed_radps = \
+        torque_demand(tab, pump_speed_radps, turbine_speed_radps, speed_mps, pedal_pct, hybrid_mode, engine_cmd,
+                      gear, lockup_closed)
+
+    # ---- hybrid strategy: engine on/off ----
+    engine_on, engine_on_time_s, start_fuel_kg = engine_on_off(
+        p, engine_cmd, hybrid_mode, engine_on, engine_on_time_s, pedal_pct, displayed_soc_pct, power_demand_w,
+        speed_mps, esave_soc_pct)
+
+    # ---- K0 clutch ----
+    k0_closed, engine_speed_radps, pump_speed_radps, speed_mps, turbine_speed_radps, engine_self_energy_j = k0_step(
+        p, led, int(cmd[C_K0, i]), engine_on, k0_closed, engine_speed_radps, pump_speed_radps, speed_mps,
+        turbine_speed_radps, lockup_closed, gear, gain_rad_per_m, eff_mass_kg)
+    pump_inertia_kgm2 = p[P_MOTOR_INERTIA_KGM2] + (p[P_ENGINE_INERTIA_KGM2] if k0_closed else 0.0)
+
+    # ---- lock-up command, torque split, brakes and blending, pump-side torque control ----
+    lockup_request, lockup_closed, lockup_engage_time_s = lockup_command(
+        p, int(cmd[C_LU, i]), gear, speed_mps, brake_pct, lockup_closed, lockup_engage_time_s)
+    engine_torque_nm, motor_torque_nm = torque_split(
+        p, hybrid_mode, displayed_soc_pct, esave_soc_pct, k0_closed, engine_on, pump_speed_radps, torque_demand_nm,
+        motor_max_nm, motor_gen_max_nm, engine_max_nm, limit_speed_radps)
+    brake_demand_nm, hydraulic_brake_nm, motor_torque_nm = brake_blending(
+        tab, brake_pct, gear, lockup_closed, lockup_request, speed_mps, engine_torque_nm, motor_torque_nm,
+        motor_gen_max_nm)
+    engine_torque_nm, motor_torque_nm, idle_gain_nm_per_radps = pump_torque_control(
+        p, gear, lockup_closed, k0_closed, engine_on, speed_mps, pump_speed_radps, pedal_pct, pump_inertia_kgm2,
+        gain_rad_per_m, old_gain_rad_per_m, inertia_phase_left_s, engine_torque_nm, motor_torque_nm, engine_max_nm,
+        motor_max_nm, motor_gen_max_nm)
+    front_brake_nm, rear_brake_nm, brake_force_n = brake_split(p, brake_demand_nm, hydraulic_brake_nm)
+
+    # ---- engine fuel (BSFC map, eq. 26-28) ----
+    fuel_flow_kgps, fuel_energy_j = engine_fuel(tab, engine_on, k0_closed, engine_torque_nm, pump_speed_radps,
+                                                engine_speed_radps, start_fuel_kg)
+
+    # ---- dyno forces ----
+    road_load_n, parasitic_n, dyno_applied_n, external_force_n, dyno_set_mps, dyno_force_n, dyno_error_mps = \
+        dyno_forces(p, dyno_mode, cmd[C_DYNO_SET, i], speed_mps, dyno_force_n, dyno_error_mps)
+
+    # ---- lock-up engagement ----
+    source_torque_nm = engine_torque_nm + motor_torque_nm
+    (lockup_closed, lockup_engage_time_s, lockup_capacity_nm, speed_mps, pump_speed_radps, turbine_speed_radps,
+     engine_speed_radps) = lockup_engagement(
+        tab, led, lockup_request, lockup_closed, gear, inertia_phase_left_s, lockup_engage_time_s, k0_closed,
+        source_torque_nm, pump_inertia_kgm2, gain_rad_per_m, eff_mass_kg, speed_mps, pump_speed_radps,
+        turbine_speed_radps, engine_speed_radps)
+
+    # ---- driveline and vehicle ----
+    (accel_mps2, pump_torque_nm, turbine_torque_nm, lockup_torque_nm, input_torque_nm, output_torque_nm,
+     pump_torque_eff_nm, lockup_torque_eff_nm, slip_gain_rad_per_m, pump_speed_step_radps) = driveline_step(
+        tab, gear, lockup_closed, speed_mps, pump_speed_radps, turbine_speed_radps, source_torque_nm,
+        pump_inertia_kgm2, gain_rad_per_m, eff_ratio, old_gain_rad_per_m, inertia_phase_left_s, lockup_capacity_nm,
+        idle_gain_nm_per_radps, eff_mass_kg, external_force_n, brake_force_n)
+    wheel_force_n = final_drive_ratio * output_torque_nm / wheel_radius_m
+    (accel_mps2, new_speed_mps, stop_force_n, mid_speed_mps, new_pump_speed_radps, mid_pump_speed_radps,
+     mid_turbine_speed_radps, mid_shaft_speed_radps) = vehicle_step(
+        p, gear, lockup_closed, speed_mps, accel_mps2, pump_speed_radps, pump_speed_step_radps, gain_rad_per_m,
+        eff_gain_rad_per_m, eff_mass_kg)
+
+    # ---- motor electrical power (Willans), 12 V system, HV battery (eq. 29-30) ----
+    motor_elec_w = motor_elec_power_w(p[P_WILLANS_E], p[P_WILLANS_LOSS_W], p[P_WILLANS_E_GEN],
+                                      p[P_WILLANS_LOSS_GEN_W], motor_torque_nm, pump_speed_radps)
+    lv_load_w = cmd[C_LVLOAD, i]
+    lv_ocv_v, lv_bus_v, lv_battery_current_a, dcdc_lv_current_a, dcdc_lv_power_w, dcdc_hv_power_w = lv_system(
+        p, lv_soc_frac, lv_load_w)
+    hv_ocv_v, hv_resistance_ohm, hv_current_a, hv_terminal_v = hv_battery(tab, soc_frac,
+                                                                         motor_elec_w + dcdc_hv_power_w)
+
+    # ---- ledger ----
+    ledger_electrical(p, led, fuel_energy_j, hv_ocv_v, hv_resistance_ohm, hv_current_a, lv_ocv_v,
+                      lv_battery_current_a, dcdc_hv_power_w, dcdc_lv_power_w, lv_load_w)
+    ledger_machines(p, led, gear, lockup_closed, k0_closed, engine_on, engine_torque_nm, motor_torque_nm,
+                    motor_elec_w, fuel_energy_j, engine_self_energy_j, idle_gain_nm_per_radps, pump_speed_step_radps,
+                    mid_pump_speed_radps)
+    ledger_driveline(p, led, gear, lockup_closed, dyno_mode, pump_torque_eff_nm, turbine_torque_nm,
+                     lockup_torque_eff_nm, lockup_torque_nm, input_torque_nm, output_torque_nm, slip_gain_rad_per_m,
+                     mid_pump_speed_radps, mid_turbine_speed_radps, mid_speed_mps, mid_shaft_speed_radps,
+                     brake_force_n, stop_force_n, road_load_n, parasitic_n, dyno_applied_n)
+
+    # ---- outputs (state at the start of the step, actions over the step) ----
+    wrote = False
+    if kstep % decim == 0:
+        o = out[:, iout]
+        o[O_V] = speed_mps
+        o[O_A] = accel_mps2
+        o[O_X] = distance_m
+        o[O_DSET] = dyno_set_mps
+        moving = 1.0 if mid_speed_mps > 0.0 else 0.0
+        o[O_FFRONT] = -moving * front_brake_nm / wheel_radius_m - 0.5 * parasitic_n
+        o[O_FREAR] = wheel_force_n - moving * rear_brake_nm / wheel_radius_m - 0.5 * parasitic_n
+        o[O_FRL] = road_load_force_n(p[P_F0_N], p[P_F1_N_PER_MPS], p[P_F2_N_PER_MPS2], speed_mps)
+        o[O_PEDAL] = pedal_pct
+        o[O_BRAKE] = brake_pct
+        o[O_HMODE] = hybrid_mode
+        o[O_WE] = pump_speed_radps if k0_closed else engine_speed_radps
+        o[O_TE] = engine_torque_nm
+        o[O_EON] = 1.0 if engine_on else 0.0
+        o[O_FUEL] = fuel_flow_kgps
+        o[O_K0] = 1.0 if k0_closed else 0.0
+        o[O_WP] = pump_speed_radps
+        o[O_TM] = motor_torque_nm
+        o[O_PEL] = motor_elec_w
+        o[O_TP] = pump_torque_nm
+        o[O_WT] = turbine_speed_radps
+        o[O_TT] = turbine_torque_nm
+        o[O_LU] = 1.0 if (lockup_closed and gear > 0) else 0.0
+        o[O_GT] = gear_target
+        o[O_GA] = gear
+        o[O_TIN] = input_torque_nm
+        o[O_TOUT] = output_torque_nm
+        o[O_WS] = final_drive_ratio * speed_mps / wheel_radius_m
+        o[O_WW] = speed_mps / wheel_radius_m
+        o[O_PF] = front_brake_nm / p[P_BRAKE_GAIN_FRONT_NM_PER_BAR] * 1e5
+        o[O_PR] = rear_brake_nm / p[P_BRAKE_GAIN_REAR_NM_PER_BAR] * 1e5
+        o[O_PMC] = max(o[O_PF], o[O_PR])
+        o[O_TBF] = front_brake_nm
+        o[O_TBR] = rear_brake_nm
+        o[O_IB] = hv_current_a
+        o[O_VB] = hv_terminal_v
+        o[O_OCV] = hv_ocv_v
+        o[O_SOC] = soc_frac
+        o[O_DSOC] = displayed_soc_pct
+        o[O_ILV] = dcdc_lv_current_a
+        o[O_VLV] = lv_bus_v
+        o[O_ILVB] = lv_battery_current_a
+        o[O_Q_ENGINE] = (fuel_flow_kgps * p[P_FUEL_LHV_J_PER_KG] - engine_torque_nm * pump_speed_radps
+                         if engine_on else 0.0)
+        o[O_Q_MOTOR] = motor_elec_w - motor_torque_nm * pump_speed_radps
+        o[O_Q_BATT] = hv_resistance_ohm * hv_current_a * hv_current_a
+        o[O_VDYN] = speed_mps
+        wrote = True
+
+    # ---- advance states ----
+    distance_m += mid_speed_mps * dt
+    speed_mps = new_speed_mps
+    pump_speed_radps = new_pump_speed_radps
+    if k0_closed:
+        engine_speed_radps = pump_speed_radps
+    soc_frac -= hv_current_a * dt / p[P_BATT_CAPACITY_AS]
+    lv_soc_frac -= lv_battery_current_a * dt / p[P_LV_CAPACITY_AS]
+    time_s = (kstep + 1) * dt
+    if inertia_phase_left_s > 0.0:
+        inertia_phase_left_s = max(inertia_phase_left_s - dt, 0.0)
+    kstep += 1
+    stop = (end_latched and speed_mps <= 0.0
+            and time_s - latch_time_s > latch_speed_mps / p[P_DRIVER_STOP_DECEL_MPS2] + 3.0)
+
+    st[S_SPEED_MPS] = speed_mps
+    st[S_DISTANCE_M] = distance_m
+    st[S_PUMP_SPEED_RADPS] = pump_speed_radps
+    st[S_ENGINE_SPEED_RADPS] = engine_speed_radps
+    st[S_ENGINE_ON] = 1.0 if engine_on else 0.0
+    st[S_K0_CLOSED] = 1.0 if k0_closed else 0.0
+    st[S_LOCKUP_CLOSED] = 1.0 if lockup_closed else 0.0
+    st[S_GEAR] = gear
+    st[S_GEAR_TARGET] = gear_target
+    st[S_SHIFT_TIMER_S] = shift_timer_s
+    st[S_SOC_FRAC] = soc_frac
+    st[S_LV_SOC_FRAC] = lv_soc_frac
+    st[S_DRIVER_FORCE_N] = driver_force_n
+    st[S_DRIVER_ERROR_MPS] = driver_error_mps
+    st[S_DYNO_FORCE_N] = dyno_force_n
+    st[S_DYNO_ERROR_MPS] = dyno_error_mps
+    st[S_END_LATCHED] = 1.0 if end_latched else 0.0
+    st[S_LATCH_TIME_S] = latch_time_s
+    st[S_LATCH_SPEED_MPS] = latch_speed_mps
+    st[S_SEGMENT] = segment
+    st[S_ENGINE_ON_TIME_S] = engine_on_time_s
+    st[S_ESAVE_SOC_PCT] = esave_soc_pct
+    st[S_EFF_MASS_KG] = eff_mass_kg
+    st[S_TIME_S] = time_s
+    st[S_STEP] = kstep
+    st[S_LOCKUP_ENGAGE_S] = lockup_engage_time_s
+    st[S_INERTIA_PHASE_S] = inertia_phase_left_s
+    st[S_OLD_GAIN_RAD_PER_M] = old_gain_rad_per_m
+    return wrote, stop

@@ -1,0 +1,325 @@
+"""Model layer: the pure equations of docs/models.md, one scalar function per model form.
+
+Every function here is pure (no state, no ledger, no parameter vector): it takes plain floats and small
+float64 arrays and returns floats. Each is compiled with numba (``@njit``), so the plant's sub-steps call
+it at no cost, and it stays callable from plain Python (through the numba dispatcher, or its ``py_func``
+attribute for the uncompiled Python body). Importing this module compiles nothing and has no side effects.
+
+Units are SI throughout: rad/s, Nm, W, m/s, N, A, V, ohm, kg/J.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "bsfc_kg_per_j",
+    "clutch_merge",
+    "interp_1d",
+    "motor_elec_power_w",
+    "pack_current_a",
+    "road_load_force_n",
+    "torque_converter_curves_nm",
+    "torque_converter_torques_nm",
+    "transmission_output_torque_nm",
+]
+
+
+#: numba's np.interp looks a few points around its guess before bisecting
+_LIKELY_IN_CACHE_SIZE = 8
+
+
+@njit(cache=True)
+def _search_with_guess(key: float, arr: np.ndarray, length: int, guess: int) -> int:
+    """Index j with arr[j] <= key < arr[j + 1] (-1 below, ``length`` above): numba's np.interp search."""
+    imin = 0
+    imax = length
+    if key > arr[length - 1]:
+        return length
+    elif key < arr[0]:
+        return -1
+    if length <= 4:
+        i = 1
+        while i < length and key >= arr[i]:
+            i += 1
+        return i - 1
+    if guess > length - 3:
+        guess = length - 3
+    if guess < 1:
+        guess = 1
+    if key < arr[guess]:
+        if key < arr[guess - 1]:
+            imax = guess - 1
+            if guess > _LIKELY_IN_CACHE_SIZE and key >= arr[guess - _LIKELY_IN_CACHE_SIZE]:
+                imin = guess - _LIKELY_IN_CACHE_SIZE
+        else:
+            return guess - 1
+    else:
+        if key < arr[guess + 1]:
+            return guess
+        elif key < arr[guess + 2]:
+            return guess + 1
+        else:
+            imin = guess + 2
+            if guess < length - _LIKELY_IN_CACHE_SIZE - 1 and key < arr[guess + _LIKELY_IN_CACHE_SIZE]:
+                imax = guess + _LIKELY_IN_CACHE_SIZE
+    while imin < imax:
+        imid = imin + ((imax - imin) >> 1)
+        if key >= arr[imid]:
+            imin = imid + 1
+        else:
+            imax = imid
+    return imin - 1
+
+
+@njit(cache=True)
+def interp_1d(x: float, xp: np.ndarray, fp: np.ndarray) -> float:
+    """Linear interpolation of one scalar, clamped outside ``xp``: the same result as ``np.interp(x, xp, fp)``.
+
+    The scalar path of numba's ``np.interp`` (itself numpy's algorithm, step for step, so the results are
+    bit-identical) without its temporary arrays, so that the plant's sub-steps, compiled without
+    reference counting, allocate nothing.
+
+    Parameters
+    ----------
+    x:
+        Where to interpolate.
+    xp, fp:
+        Increasing sample points and their values (same length, at least 1).
+
+    Returns
+    -------
+    float
+        The interpolated value (``fp[0]`` below ``xp[0]``, ``fp[-1]`` above ``xp[-1]``, NaN for NaN).
+    """
+    n = xp.shape[0]
+    if n == 1:
+        return fp[0]
+    if np.isnan(x):
+        return x
+    j = _search_with_guess(x, xp, n, 0)
+    if j == -1:
+        return fp[0]
+    elif j == n:
+        return fp[n - 1]
+    elif j == n - 1 or xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    res = slope * (x - xp[j]) + fp[j]
+    if np.isnan(res):
+        res = slope * (x - xp[j + 1]) + fp[j + 1]
+        if np.isnan(res) and fp[j] == fp[j + 1]:
+            res = fp[j]
+    return res
+
+
+@njit(cache=True)
+def torque_converter_torques_nm(a_nm_per_radps2: np.ndarray, coupling_speed_ratio: float, pump_speed_radps: float,
+                                turbine_speed_radps: float) -> tuple[float, float, float]:
+    """Pump and turbine torque of the torque converter (eq. 35-36) and dT_p/d(omega_p).
+
+    Parameters
+    ----------
+    a_nm_per_radps2:
+        Coefficients a0..a8, Nm/(rad/s)^2 (the vehicle file's ``a_nm_per_radps2``).
+    coupling_speed_ratio:
+        Gamma: converter mode below the speed ratio omega_t / omega_p = Gamma, coupling mode at and above.
+    pump_speed_radps, turbine_speed_radps:
+        omega_p and omega_t, rad/s. The speed ratio is taken as 0 when omega_p <= 1e-6 rad/s.
+
+    Returns
+    -------
+    pump_torque_nm, turbine_torque_nm, dpump_torque_dspeed_nm_per_radps
+        T_p and T_t (Nm), and the partial derivative of T_p with respect to omega_p, floored at 0
+        (used by the semi-implicit pump-speed update).
+    """
+    a = a_nm_per_radps2
+    wp = pump_speed_radps
+    wt = turbine_speed_radps
+    sr = wt / wp if wp > 1e-6 else 0.0
+    if sr < coupling_speed_ratio:
+        tp = a[0] * wp * wp + a[1] * wp * wt + a[2] * wt * wt
+        tt = a[3] * wp * wp + a[4] * wp * wt + a[5] * wt * wt
+        dtp = 2.0 * a[0] * wp + a[1] * wt
+    else:
+        tp = a[6] * wp * wp + a[7] * wp * wt + a[8] * wt * wt
+        tt = tp
+        dtp = 2.0 * a[6] * wp + a[7] * wt
+    return tp, tt, max(dtp, 0.0)
+
+
+@njit(cache=True)
+def torque_converter_curves_nm(a_nm_per_radps2: np.ndarray, coupling_speed_ratio: float,
+                               pump_speed_radps: np.ndarray,
+                               turbine_speed_radps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 35-36 over arrays of operating points: :func:`torque_converter_torques_nm` point by point.
+
+    Parameters
+    ----------
+    a_nm_per_radps2, coupling_speed_ratio:
+        As for :func:`torque_converter_torques_nm`.
+    pump_speed_radps, turbine_speed_radps:
+        1-D arrays of the same length, rad/s. With ``pump_speed_radps = 1`` and ``turbine_speed_radps = SR``
+        the results are the curves T_p / omega_p^2 and T_t / omega_p^2 over the speed ratio.
+
+    Returns
+    -------
+    pump_torque_nm, turbine_torque_nm
+        Arrays, Nm (the very numbers the plant computes at those points).
+    """
+    n = pump_speed_radps.shape[0]
+    tp = np.empty(n)
+    tt = np.empty(n)
+    for k in range(n):
+        tp_k, tt_k, _d = torque_converter_torques_nm(a_nm_per_radps2, coupling_speed_ratio, pump_speed_radps[k],
+                                                     turbine_speed_radps[k])
+        tp[k] = tp_k
+        tt[k] = tt_k
+    return tp, tt
+
+
+@njit(cache=True)
+def motor_elec_power_w(willans_e: float, willans_loss_w: float, willans_e_gen: float, willans_loss_gen_w: float,
+                       torque_nm: float, speed_radps: float) -> float:
+    """Motor inverter DC power from the Willans line (eq. 18-24).
+
+    Motoring (T >= 0): P_el = (T omega + W_loss) / e; generating (T < 0): P_el = e_gen T omega + W_loss_gen.
+    Zero when the machine is practically at rest and unloaded (omega < 1 rad/s and |T| < 0.5 Nm).
+
+    Parameters
+    ----------
+    willans_e, willans_loss_w:
+        Motoring efficiency e (-) and loss W_loss (W).
+    willans_e_gen, willans_loss_gen_w:
+        Generating slope e_gen (-) and loss W_loss_gen (W).
+    torque_nm, speed_radps:
+        Motor torque (Nm) and speed (rad/s).
+
+    Returns
+    -------
+    float
+        DC power, W (negative: power into the HV bus).
+    """
+    if speed_radps < 1.0 and abs(torque_nm) < 0.5:
+        return 0.0
+    if torque_nm >= 0.0:
+        return (torque_nm * speed_radps + willans_loss_w) / willans_e
+    return willans_e_gen * torque_nm * speed_radps + willans_loss_gen_w
+
+
+@njit(cache=True)
+def bsfc_kg_per_j(speed_grid_radps: np.ndarray, bmep_grid_pa: np.ndarray, bsfc_table_kg_per_j: np.ndarray,
+                  speed_radps: float, bmep_pa: float) -> float:
+    """Brake-specific fuel consumption (eq. 26-28), bilinear inside the grid and clamped outside.
+
+    Parameters
+    ----------
+    speed_grid_radps, bmep_grid_pa:
+        Grid axes: engine speed (rad/s) and BMEP (Pa), increasing.
+    bsfc_table_kg_per_j:
+        BSFC over the grid (speed x BMEP), kg/J.
+    speed_radps, bmep_pa:
+        Operating point.
+
+    Returns
+    -------
+    float
+        BSFC, kg/J.
+    """
+    w = speed_grid_radps
+    b = bmep_grid_pa
+    tab = bsfc_table_kg_per_j
+    nw = w.shape[0]
+    nb = b.shape[0]
+    x = min(max(speed_radps, w[0]), w[nw - 1])
+    y = min(max(bmep_pa, b[0]), b[nb - 1])
+    i = np.searchsorted(w, x) - 1
+    i = min(max(i, 0), nw - 2)
+    j = np.searchsorted(b, y) - 1
+    j = min(max(j, 0), nb - 2)
+    fx = (x - w[i]) / (w[i + 1] - w[i])
+    fy = (y - b[j]) / (b[j + 1] - b[j])
+    return ((1 - fx) * (1 - fy) * tab[i, j] + fx * (1 - fy) * tab[i + 1, j]
+            + (1 - fx) * fy * tab[i, j + 1] + fx * fy * tab[i + 1, j + 1])
+
+
+@njit(cache=True)
+def clutch_merge(inertia1_kgm2: float, speed1_radps: float, inertia2_kgm2: float,
+                 speed2_radps: float) -> tuple[float, float]:
+    """Two inertias locked together by a clutch: common speed (momentum kept) and the energy lost.
+
+    Parameters
+    ----------
+    inertia1_kgm2, speed1_radps, inertia2_kgm2, speed2_radps:
+        The two sides before the lock.
+
+    Returns
+    -------
+    speed_radps, loss_j
+        Common speed after the lock and the kinetic energy dissipated by the slip, J.
+    """
+    j1 = inertia1_kgm2
+    w1 = speed1_radps
+    j2 = inertia2_kgm2
+    w2 = speed2_radps
+    w = (j1 * w1 + j2 * w2) / (j1 + j2)
+    return w, 0.5 * j1 * w1 * w1 + 0.5 * j2 * w2 * w2 - 0.5 * (j1 + j2) * w * w
+
+
+@njit(cache=True)
+def road_load_force_n(f0_n: float, f1_n_per_mps: float, f2_n_per_mps2: float, speed_mps: float) -> float:
+    """Road-load force F0 + F1 v + F2 v^2 (v in m/s, coefficients converted to m/s), N."""
+    return f0_n + f1_n_per_mps * speed_mps + f2_n_per_mps2 * speed_mps * speed_mps
+
+
+@njit(cache=True)
+def transmission_output_torque_nm(ratio: float, eta_m: float, c0_nm: float, input_torque_nm: float) -> float:
+    """Gearbox output torque of eq. 14 (drive), eq. 13-14 (coast) and the dead band between.
+
+    Parameters
+    ----------
+    ratio:
+        Gear ratio i_g (or the effective ratio while a shift clutch slips).
+    eta_m, c0_nm:
+        eq. 14 efficiency and drag torque C0 (Nm) of the gear.
+    input_torque_nm:
+        T_in, Nm.
+
+    Returns
+    -------
+    float
+        T_out: i_g eta_m (T_in - C0) for T_in >= C0, i_g (T_in / eta_m - C0) for T_in <= eta_m C0, else 0.
+    """
+    if input_torque_nm >= c0_nm:
+        return ratio * eta_m * (input_torque_nm - c0_nm)
+    if input_torque_nm <= eta_m * c0_nm:
+        return ratio * (input_torque_nm / eta_m - c0_nm)
+    return 0.0
+
+
+@njit(cache=True)
+def pack_current_a(open_circuit_v: float, resistance_ohm: float, power_w: float) -> float:
+    """HV pack current drawing ``power_w`` at the terminals of an OCV source with internal resistance (eq. 29-30).
+
+    Solves P = (U_oc - R I) I for the smaller root, I = (U_oc - sqrt(U_oc^2 - 4 R P)) / (2 R); the
+    discriminant is floored at 0 (the most power the pack can give).
+
+    Parameters
+    ----------
+    open_circuit_v, resistance_ohm:
+        Pack open-circuit voltage (V) and internal resistance (ohm).
+    power_w:
+        Terminal power, W (positive: discharge).
+
+    Returns
+    -------
+    float
+        Current, A (positive: discharge).
+    """
+    uoc = open_circuit_v
+    rpk = resistance_ohm
+    disc = uoc * uoc - 4.0 * rpk * power_w
+    if disc < 0.0:
+        disc = 0.0
+    return (uoc - np.sqrt(disc)) / (2.0 * rpk)

@@ -1,0 +1,253 @@
+"""Sub-steps of a plant step, energy side: engine fuel, dyno forces, HV battery, 12 V system and the ledger.
+
+Pure ``@njit`` functions with the conventions of :mod:`benchtwin.emulator.steps_control`; the ledger
+sub-steps only add to the entries of ``led`` (``L_*``, J) they name.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from benchtwin.emulator.models import bsfc_kg_per_j, interp_1d, pack_current_a, road_load_force_n
+from benchtwin.emulator.params import (
+    L_BRAKES,
+    L_DCDC,
+    L_DYNO,
+    L_ENGINE,
+    L_FUEL,
+    L_HV_CHEM,
+    L_HV_R,
+    L_LOCKUP,
+    L_LV_CHEM,
+    L_LV_LOADS,
+    L_LV_R,
+    L_MOTOR,
+    L_ROAD,
+    L_SHIFT,
+    L_TC,
+    L_TRANS,
+    P_BATT_ALPHA,
+    P_BATT_BETA_CHARGE,
+    P_BATT_BETA_DISCHARGE,
+    P_DCDC_DROOP_OHM,
+    P_DCDC_EFFICIENCY,
+    P_DCDC_SET_V,
+    P_DISPLACEMENT_M3,
+    P_DT_S,
+    P_DYNO_B0_N_PER_MPS,
+    P_DYNO_B1_N_PER_MPS,
+    P_DYNO_MAX_FORCE_N,
+    P_DYNO_MAX_POWER_W,
+    P_F0_N,
+    P_F1_N_PER_MPS,
+    P_F2_N_PER_MPS2,
+    P_FUEL_LHV_J_PER_KG,
+    P_LV_OCV_EMPTY_V,
+    P_LV_OCV_FULL_V,
+    P_LV_RESISTANCE_OHM,
+    P_N_CELLS_SERIES,
+    P_PARASITIC_F0_N,
+    P_PARASITIC_F1_N_PER_MPS,
+    P_PARASITIC_F2_N_PER_MPS2,
+    P_SOC_MAX_FRAC,
+    P_SOC_MIN_FRAC,
+    PlantTables,
+)
+from benchtwin.emulator.steps_control import ROAD_LOAD_FADE_MPS
+
+
+@njit(cache=True, _nrt=False)
+def engine_fuel(tab: PlantTables, engine_on: bool, k0_closed: bool, engine_torque_nm: float, pump_speed_radps: float,
+                engine_speed_radps: float, start_fuel_kg: float) -> tuple[float, float]:
+    """Engine fuel (eq. 26-28): BSFC(omega, BMEP = 4 pi T / V_d) T omega when driving through K0, the map's
+    lowest-BMEP flow when motoring or idling free, nothing when off, plus the start's fuel mass.
+
+    Returns
+    -------
+    tuple
+        ``(fuel_flow_kgps, fuel_energy_j)``: mass flow over the step (start included) and the step's fuel
+        chemical energy (LHV).
+    """
+    p = tab.p
+    dt = p[P_DT_S]
+    te = engine_torque_nm
+    wp = pump_speed_radps
+    fuel_flow = 0.0
+    if engine_on:
+        if k0_closed and te > 0.0:
+            bmep = 4.0 * np.pi * te / p[P_DISPLACEMENT_M3]
+            fuel_flow += bsfc_kg_per_j(tab.bsfc_w, tab.bsfc_b, tab.bsfc_kgpj, wp, bmep) * te * wp
+        else:
+            wf = wp if k0_closed else engine_speed_radps
+            bmin = tab.bsfc_b[0]
+            tmin = bmin * p[P_DISPLACEMENT_M3] / (4.0 * np.pi)
+            fuel_flow += bsfc_kg_per_j(tab.bsfc_w, tab.bsfc_b, tab.bsfc_kgpj, wf, bmin) * tmin * wf
+    fuel_e = (fuel_flow * dt + start_fuel_kg) * p[P_FUEL_LHV_J_PER_KG]
+    fuel_flow += start_fuel_kg / dt
+    return fuel_flow, fuel_e
+
+
+@njit(cache=True, _nrt=False)
+def dyno_forces(p: np.ndarray, dyno_mode: int, dyno_set_mps: float, speed_mps: float, dyno_force_n: float,
+                dyno_error_mps: float) -> tuple:
+    """Roller forces. Road-load mode: F = -(F0 + F1 v + F2 v^2) (faded in below 0.5 km/h); speed-controlled
+    mode: a PI on roller speed (force and power limited) against the vehicle's parasitic loss.
+
+    Returns
+    -------
+    tuple
+        ``(road_load_n, parasitic_n, dyno_force_n, external_force_n, set_speed_mps, dyno_force_state_n,
+        dyno_error_mps)``; the set speed is NaN in road-load mode.
+    """
+    v = speed_mps
+    rlf = min(v / ROAD_LOAD_FADE_MPS, 1.0)
+    f_rl = road_load_force_n(p[P_F0_N], p[P_F1_N_PER_MPS], p[P_F2_N_PER_MPS2], v) * rlf
+    f_par = road_load_force_n(p[P_PARASITIC_F0_N], p[P_PARASITIC_F1_N_PER_MPS], p[P_PARASITIC_F2_N_PER_MPS2], v) * rlf
+    f_dyn = 0.0
+    vset = np.nan
+    if dyno_mode == 1:
+        vset = dyno_set_mps
+        e = vset - v
+        dyno_force_n = dyno_force_n + p[P_DYNO_B0_N_PER_MPS] * e + p[P_DYNO_B1_N_PER_MPS] * dyno_error_mps
+        flim = min(p[P_DYNO_MAX_FORCE_N], p[P_DYNO_MAX_POWER_W] / max(v, 1.0))
+        dyno_force_n = min(max(dyno_force_n, -flim), flim)
+        dyno_error_mps = e
+        f_dyn = dyno_force_n
+        f_ext = f_dyn - f_par
+    else:
+        f_ext = -f_rl
+    return f_rl, f_par, f_dyn, f_ext, vset, dyno_force_n, dyno_error_mps
+
+
+@njit(cache=True, _nrt=False)
+def lv_system(p: np.ndarray, lv_soc_frac: float, lv_load_w: float) -> tuple:
+    """12 V system: DC/DC with droop (set voltage minus droop times current) in parallel with the 12 V battery
+    (linear OCV over SOC, internal resistance) feeding the loads; two fixed-point passes on the bus voltage.
+
+    Returns
+    -------
+    tuple
+        ``(lv_ocv_v, lv_bus_v, lv_battery_current_a, dcdc_lv_current_a, dcdc_lv_power_w, dcdc_hv_power_w)``;
+        the DC/DC draws ``P_lv / eta_dcdc`` from the HV bus.
+    """
+    ocv_lv = p[P_LV_OCV_EMPTY_V] + (p[P_LV_OCV_FULL_V] - p[P_LV_OCV_EMPTY_V]) * lv_soc_frac
+    pload = lv_load_w
+    rd = p[P_DCDC_DROOP_OHM]
+    rb = p[P_LV_RESISTANCE_OHM]
+    vlv = p[P_DCDC_SET_V]
+    for _k in range(2):
+        iload = pload / vlv
+        vlv = (p[P_DCDC_SET_V] - rd * iload + rd * ocv_lv / rb) / (1.0 + rd / rb)
+    ilvb = (ocv_lv - vlv) / rb
+    idc = pload / vlv - ilvb
+    plv = vlv * idc
+    pdc_in = plv / p[P_DCDC_EFFICIENCY]
+    return ocv_lv, vlv, ilvb, idc, plv, pdc_in
+
+
+@njit(cache=True, _nrt=False)
+def hv_battery(tab: PlantTables, soc_frac: float, hv_power_w: float) -> tuple[float, float, float, float]:
+    """HV pack (eq. 29-30): U_oc = n alpha OCV_lit(s), R = n beta R_lit(s) (discharge or charge map and beta
+    by the sign of the power), current from the terminal power, terminal voltage U_oc - R I.
+
+    Returns
+    -------
+    tuple
+        ``(open_circuit_v, resistance_ohm, current_a, terminal_v)``.
+    """
+    p = tab.p
+    smin = p[P_SOC_MIN_FRAC]
+    smax = p[P_SOC_MAX_FRAC]
+    ncell = p[P_N_CELLS_SERIES]
+    sd = min(max((soc_frac - smin) / (smax - smin), 0.0), 1.0)
+    ocv_c = interp_1d(sd, tab.cell_soc, tab.cell_ocv)
+    uoc = ncell * p[P_BATT_ALPHA] * ocv_c
+    if hv_power_w >= 0.0:
+        rpk = ncell * p[P_BATT_BETA_DISCHARGE] * interp_1d(sd, tab.cell_soc, tab.cell_rd)
+    else:
+        rpk = ncell * p[P_BATT_BETA_CHARGE] * interp_1d(sd, tab.cell_soc, tab.cell_rc)
+    ib = pack_current_a(uoc, rpk, hv_power_w)
+    vb = uoc - ib * rpk
+    return uoc, rpk, ib, vb
+
+
+@njit(cache=True, _nrt=False)
+def ledger_electrical(p: np.ndarray, led: np.ndarray, fuel_energy_j: float, open_circuit_v: float,
+                      resistance_ohm: float, current_a: float, lv_ocv_v: float, lv_battery_current_a: float,
+                      dcdc_hv_power_w: float, dcdc_lv_power_w: float, lv_load_w: float) -> None:
+    """Ledger, sources and electrical losses: fuel, HV and 12 V chemical power and I^2 R, DC/DC loss, 12 V loads."""
+    dt = p[P_DT_S]
+    ib = current_a
+    ilvb = lv_battery_current_a
+    rb = p[P_LV_RESISTANCE_OHM]
+    led[L_FUEL] += fuel_energy_j
+    led[L_HV_CHEM] += open_circuit_v * ib * dt
+    led[L_HV_R] += resistance_ohm * ib * ib * dt
+    led[L_LV_CHEM] += lv_ocv_v * ilvb * dt
+    led[L_LV_R] += rb * ilvb * ilvb * dt
+    led[L_DCDC] += (dcdc_hv_power_w - dcdc_lv_power_w) * dt
+    led[L_LV_LOADS] += lv_load_w * dt
+
+
+@njit(cache=True, _nrt=False)
+def ledger_machines(p: np.ndarray, led: np.ndarray, gear: int, lockup_closed: bool, k0_closed: bool,
+                    engine_on: bool, engine_torque_nm: float, motor_torque_nm: float, motor_elec_power_w: float,
+                    fuel_energy_j: float, engine_self_energy_j: float, idle_gain_nm_per_radps: float,
+                    pump_speed_step_radps: float, mid_pump_speed_radps: float) -> None:
+    """Ledger, engine and motor losses: fuel (or electrical) power in minus shaft power out at the mid-point
+    pump speed; with the pump free, the idle controller's torque is taken at the end-of-step speed."""
+    dt = p[P_DT_S]
+    te = engine_torque_nm
+    tm = motor_torque_nm
+    w_mid = mid_pump_speed_radps
+    if gear > 0 and lockup_closed:
+        p_in_src_e = te * w_mid
+        p_in_src_m = tm * w_mid
+    else:
+        # pump node implicit: idle torque at the new speed goes to the machine that holds idle
+        te_eff = te
+        tm_eff = tm
+        if idle_gain_nm_per_radps > 0.0:
+            if k0_closed and engine_on:
+                te_eff = te - idle_gain_nm_per_radps * pump_speed_step_radps
+            else:
+                tm_eff = tm - idle_gain_nm_per_radps * pump_speed_step_radps
+        p_in_src_e = te_eff * w_mid
+        p_in_src_m = tm_eff * w_mid
+    if k0_closed:
+        led[L_ENGINE] += fuel_energy_j - p_in_src_e * dt
+    else:
+        led[L_ENGINE] += fuel_energy_j - engine_self_energy_j
+        if p_in_src_e != 0.0:
+            led[L_ENGINE] -= p_in_src_e * dt
+    led[L_MOTOR] += motor_elec_power_w * dt - p_in_src_m * dt
+
+
+@njit(cache=True, _nrt=False)
+def ledger_driveline(p: np.ndarray, led: np.ndarray, gear: int, lockup_closed: bool, dyno_mode: int,
+                     pump_torque_eff_nm: float, turbine_torque_nm: float, lockup_torque_eff_nm: float,
+                     lockup_torque_nm: float, input_torque_nm: float, output_torque_nm: float,
+                     slip_gain_rad_per_m: float, mid_pump_speed_radps: float, mid_turbine_speed_radps: float,
+                     mid_speed_mps: float, mid_shaft_speed_radps: float, brake_force_n: float, stop_force_n: float,
+                     road_load_n: float, parasitic_n: float, dyno_force_n: float) -> None:
+    """Ledger, driveline and vehicle: converter and lock-up slip, shift-clutch slip, gearbox loss (eq. 13-14),
+    brakes, road-load (or parasitic) work and the dyno's absorbed energy, at the mid-point speeds."""
+    dt = p[P_DT_S]
+    w_mid = mid_pump_speed_radps
+    wt_mid = mid_turbine_speed_radps
+    v_mid = mid_speed_mps
+    tin = input_torque_nm
+    slip_w = slip_gain_rad_per_m
+    if gear > 0 and not lockup_closed:
+        led[L_TC] += (pump_torque_eff_nm * w_mid - turbine_torque_nm * wt_mid) * dt
+        led[L_LOCKUP] += (lockup_torque_eff_nm * w_mid - lockup_torque_nm * wt_mid) * dt
+    if gear > 0:
+        led[L_SHIFT] += tin * slip_w * v_mid * dt
+        led[L_TRANS] += (tin * (wt_mid - slip_w * v_mid) - output_torque_nm * mid_shaft_speed_radps) * dt
+    led[L_BRAKES] += (brake_force_n * v_mid - stop_force_n * v_mid) * dt if v_mid > 0.0 else 0.0
+    if dyno_mode == 0:
+        led[L_ROAD] += road_load_n * v_mid * dt
+    else:
+        led[L_ROAD] += parasitic_n * v_mid * dt
+        led[L_DYNO] -= dyno_force_n * v_mid * dt
