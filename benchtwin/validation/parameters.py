@@ -19,6 +19,7 @@ from scipy.interpolate import RegularGridInterpolator
 
 from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
+from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.errors import ConfigError, IdentificationError
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey, param_key, split_param
@@ -161,14 +162,22 @@ def _true_bsfc(vehicle: VehicleConfig) -> Callable[[np.ndarray, np.ndarray], np.
 
 
 def _tc_curves(a: list[float] | np.ndarray, sr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Converter-mode torque ratio and capacity factor (rad/s / sqrt(Nm)) from a0..a5 (eq. 35)."""
-    tp = a[0] + a[1] * sr + a[2] * sr**2
-    tt = a[3] + a[4] * sr + a[5] * sr**2
+    """Converter-mode torque ratio and capacity factor (rad/s / sqrt(Nm)) from a0..a5 (eq. 35).
+
+    Evaluated by the plant's own eq. 35-36 (:func:`benchtwin.emulator.models.torque_converter_curves_nm`) at
+    omega_p = 1 rad/s, forced into converter mode.
+    """
+    a9 = np.concatenate([np.asarray(a, dtype=float)[:6], np.full(3, np.nan)])
+    sr = np.asarray(sr, dtype=float)
+    tp, tt = torque_converter_curves_nm(a9, np.inf, np.ones_like(sr), sr)
     return tt / tp, 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan))
 
 
 def _coupling_cf(a678: list[float] | np.ndarray, sr: np.ndarray) -> np.ndarray:
-    tp = a678[0] + a678[1] * sr + a678[2] * sr**2
+    """Coupling-mode capacity factor from a6..a8 (eq. 36), by the plant's eq. 35-36 forced into coupling mode."""
+    a9 = np.concatenate([np.full(6, np.nan), np.asarray(a678, dtype=float)[:3]])
+    sr = np.asarray(sr, dtype=float)
+    tp, _tt = torque_converter_curves_nm(a9, -np.inf, np.ones_like(sr), sr)
     return 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan))
 
 
