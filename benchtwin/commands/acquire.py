@@ -44,9 +44,14 @@ def run(args: argparse.Namespace) -> int:
     """Decode (or encode and decode) and write the Recording; return the exit status."""
     from benchtwin.chain.acquisition import acquire
     from benchtwin.chain.batch import read_logs, run_batch
+    from benchtwin.commands._common import check_writable
     from benchtwin.config.setup import load_setup
     from benchtwin.trace import Trace
 
+    check_writable(args.out)
+    if args.trace is not None:
+        check_writable(args.logs if args.logs is not None else args.out.with_suffix(""), directory=True,
+                       what="--logs")
     setup = load_setup(args.setup) if args.setup else None
     t0 = time.perf_counter()
     if args.trace is not None:

@@ -47,6 +47,7 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``benchtwin record``."""
     from benchtwin.chain.live.bench import recorder_from_setup, save_capture
+    from benchtwin.commands._common import check_writable
     from benchtwin.config.setup import load_setup
     from benchtwin.segments import load_segments
 
@@ -55,6 +56,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".mf4":
         raise ConfigError(f"--out {out}: the Recording is written as MF4; use a .mf4 name")
+    spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
+    check_writable(out)
+    check_writable(spool, directory=True, what="--spool")
     setup = load_setup(args.setup)
     segments = []
     if args.segments:
@@ -73,7 +77,6 @@ def run(args: argparse.Namespace) -> int:
         unknown = [b for b in buses if b not in setup.buses]
         if unknown:
             raise ConfigError(f"--buses: {', '.join(unknown)} not in the setup ({', '.join(setup.buses)})")
-    spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
     rec = recorder_from_setup(setup, spool, transport=args.transport, host=args.host, port=args.port,
                               modbus_host=args.modbus_host, modbus_port=args.modbus_port, speedup=args.speedup,
                               buses=buses, channel_map=cmap, modbus=not args.no_modbus,
