@@ -11,11 +11,17 @@ Two ways in:
 
 A setup may be a file or a shipped name (``paper``, ``ideal``). The summary lists the channels,
 the flagged samples, protocol errors, Modbus timeouts and the clock offsets detected.
+
+A damaged or truncated bus log (its own frame/object count, a file cut inside its data, or a time base
+ending before the segment table or the other buses) is decoded up to the damage, reported on stderr
+per bus and time span, listed in the Recording's ``meta["damaged_logs"]``, and its cut flagged
+(TRANSPORT_DROP | LOST_FRAME); the exit status is then 1 (the Recording is written but incomplete).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -88,4 +94,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"  flagged samples in {len(flagged)} channels: " + ", ".join(
             f"{k} {sum(v.values())}" for k, v in sorted(flagged.items())[:12]) + (" ..." if len(flagged) > 12 else ""))
     print(f"wrote {path}")
-    return 0
+    damaged = rec.meta.get("damaged_logs", [])
+    for dmg in damaged:
+        (a, b), (ea, eb) = dmg["covered_s"], dmg["expected_s"]
+        print(f"benchtwin: warning: damaged log {dmg['file']} (bus {dmg['bus']}): {dmg['reason']}; it covers "
+              f"{a:.3f} .. {b:.3f} s of {ea:.3f} .. {eb:.3f} s, nothing after {b:.3f} s on this bus",
+              file=sys.stderr, flush=True)
+    return 1 if damaged else 0
