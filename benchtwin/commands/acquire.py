@@ -5,6 +5,9 @@ Two ways in:
 * ``benchtwin acquire LOGDIR [--setup FILE] --out REC.mf4`` decodes the raw logs in LOGDIR
   (``<bus>.mf4`` MF4 bus logs, ``<device>.polls.npz`` Modbus poll logs, ``segments.json``); the
   setup defaults to ``LOGDIR/setup.json`` written with the logs.
+* ``benchtwin acquire SPOOL_DIR --out REC.mf4`` recovers the Recording of a ``benchtwin record`` that
+  was killed (or crashed) from its spool folder (``<out>.spool/``; setup and segments are in it): every
+  frame and poll flushed before the kill, at most the last second received is lost.
 * ``benchtwin acquire --trace TRACEDIR --setup FILE --logs LOGDIR --out REC.mf4 [--seed N] [--blf]``
   runs the whole batch chain on a saved Trace: the sensors encode it, the raw logs are written to
   LOGDIR (and BLF copies with ``--blf``), read back and decoded.
@@ -50,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     """Decode (or encode and decode) and write the Recording; return the exit status."""
     from benchtwin.chain.acquisition import acquire
     from benchtwin.chain.batch import read_logs, run_batch
+    from benchtwin.chain.live.bench import is_spool, read_spool
     from benchtwin.commands._common import check_writable
     from benchtwin.config.setup import load_setup
     from benchtwin.trace import Trace
@@ -73,7 +77,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.logdir is None:
             raise ConfigError("give a LOGDIR of raw logs, or --trace TRACEDIR")
-        received, setup = read_logs(args.logdir, setup)
+        if is_spool(args.logdir):
+            received, setup = read_spool(args.logdir, setup)
+            got = received.meta["recovered_spool"]
+            print("recovering a recorder spool: " + ", ".join(f"{b} {n} frames" for b, n in got["frames"].items())
+                  + "".join(f", {k} {n} polls" for k, n in got["polls"].items())
+                  + ("" if got["recorder_stopped_cleanly"] else "; the recorder did not stop cleanly"), flush=True)
+        else:
+            received, setup = read_logs(args.logdir, setup)
         rec = acquire(received, setup)
     wall = time.perf_counter() - t0
     try:

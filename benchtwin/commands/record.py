@@ -2,10 +2,13 @@
 
 Connects to every CAN bus of the setup (python-can over socketcand, or socketcan interfaces),
 polls the pressure module over Modbus TCP at the setup's rate, receives the thermo module's PDOs
-with a canopen RemoteNode. Raw frames and polls are flushed to ``<out>.spool/`` while recording, so
-nothing received is lost if the run ends badly. On stop (``--duration``, the stream going idle,
-Ctrl-C, or every bus connection dropped) everything received is decoded by the same decoder as
-batch mode and saved as MF4; the raw bus logs are also written as MF4 bus logs next to it.
+with a canopen RemoteNode. Raw frames and polls are flushed to ``<out>.spool/`` while recording (at
+least every second; the setup and segment table are in the spool from the start), so killing the
+recorder at any moment (even ``kill -9``) loses at most the last second received:
+``benchtwin acquire <out>.spool --out REC.mf4`` turns the spool into the Recording.
+On stop (``--duration``, the stream going idle, Ctrl-C, or every bus connection dropped) everything
+received is decoded by the same decoder as batch mode and saved as MF4; the raw bus logs are also
+written as MF4 bus logs next to it.
 """
 
 from __future__ import annotations
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     rec = recorder_from_setup(setup, spool, transport=args.transport, host=args.host, port=args.port,
                               modbus_host=args.modbus_host, modbus_port=args.modbus_port, speedup=args.speedup,
                               buses=buses, channel_map=cmap, modbus=not args.no_modbus,
-                              connect_timeout=args.connect_timeout)
+                              connect_timeout=args.connect_timeout, segments=segments)
     rec.start()
     print(f"recording {', '.join(rec.buses)}"
           + (f" + modbus {', '.join(p.spec.device for p in rec.pollers)}" if rec.pollers else "")
