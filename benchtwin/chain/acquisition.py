@@ -73,7 +73,7 @@ class AcquisitionInput:
 def _events_for(events: list[TransportEvent], names: set[str]) -> np.ndarray:
     ends = []
     for e in events:
-        if (e.source in names or e.source == "*") and e.kind in ("drop", "overrun"):
+        if (e.source in names or e.source == "*") and e.kind in ("drop", "overrun", "truncated"):
             ends.append(e.end_s if np.isfinite(e.end_s) else e.time_s)
     return np.asarray(ends, dtype=np.float64)
 
@@ -139,6 +139,25 @@ def _flag_saturation(rec: Any, devs: list[Device]) -> None:
             ch.flags[at] |= FLAG["SATURATED"]
 
 
+def _flag_truncations(rec: Any, events: list[TransportEvent], of_bus: dict[str, set[str]]) -> None:
+    """A bus log cut short (a ``truncated`` event): its channels' last sample before the cut and any sample in
+    the missing span are flagged TRANSPORT_DROP | LOST_FRAME (nothing after the cut is complete)."""
+    bit = FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"]
+    for e in events:
+        if e.kind != "truncated":
+            continue
+        for name in of_bus.get(e.source, ()):
+            ch = rec[name]
+            if not len(ch):
+                continue
+            t = ch.timestamps
+            at = (t >= e.time_s) & (t <= e.end_s)
+            k = int(np.searchsorted(t, e.time_s, side="right")) - 1
+            if 0 <= k < len(t):
+                at[k] = True
+            ch.flags[at] |= bit
+
+
 def _bus_load(table: FrameTable) -> float:
     """FrameTable.bus_load (same bit counts: worst-case stuffing) from a histogram of (DLC, IDE)."""
     f = table.frames
@@ -188,13 +207,17 @@ def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segmen
     devs = devices(setup)
     polled = {d.poll_device: d for d in devs if d.poll_device is not None}
     sink = DecodeSink()
+    of_bus: dict[str, set[str]] = {}
     for bus, table in data.can.items():
         drops = _events_for(data.events, {bus})
+        before = set(sink.rec.channels)
         try:
             _decode_bus(table, devs, sink, drops)
         except Exception as exc:  # never lose the other buses because one is broken
             log.error("bus %s could not be decoded: %s", bus, exc)
             sink.protocol_error(f"{bus}: decoding failed ({exc})", max(1, len(table)))
+        of_bus[bus] = set(sink.rec.channels) - before
+    _flag_truncations(sink.rec, data.events, of_bus)
     for device, plog in data.polls.items():
         drops = _events_for(data.events, {device})
         dev = polled.get(device)

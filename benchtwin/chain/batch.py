@@ -21,8 +21,7 @@ import numpy as np
 
 from benchtwin.chain.acquisition import AcquisitionInput, acquire
 from benchtwin.chain.buslog import (
-    read_blf,
-    read_mf4,
+    read_bus_log,
     read_poll_log,
     write_blf,
     write_mf4,
@@ -35,10 +34,13 @@ from benchtwin.recording import Recording
 from benchtwin.segments import load_segments, save_segments
 from benchtwin.sensors import devices, encode, write_bus_dbcs
 from benchtwin.trace import Trace
-from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable
+from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, TransportEvent
 from benchtwin.wire.merge import insert_frames
 
-__all__ = ["deliver", "read_logs", "run_batch", "write_logs"]
+__all__ = ["TRUNCATION_TOLERANCE_S", "deliver", "read_logs", "run_batch", "write_logs"]
+
+#: a bus whose time base ends this much before the segment table or another source is flagged as cut short
+TRUNCATION_TOLERANCE_S = 0.5
 
 
 def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
@@ -139,27 +141,30 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
         setup = validate_data(SetupConfig, json.loads(sp.read_text(encoding="utf-8")), str(sp))
     received = AcquisitionInput()
     skipped = []
+    file_damage: dict[str, tuple[str, str | None]] = {}
 
-    def read_one(p: Path) -> FrameTable | DataError:
+    def read_one(p: Path) -> tuple[FrameTable, str | None] | DataError:
         bitrate = setup.buses[p.stem].bitrate if p.stem in setup.buses else 500_000
         try:
-            return read_mf4(p, p.stem, bitrate)
+            return read_bus_log(p, p.stem, bitrate)
         except DataError as exc:
             return exc
 
     files = sorted(d.glob("*.mf4"))
     with ThreadPoolExecutor(max_workers=max(1, min(len(files), os.cpu_count() or 1))) as pool:
         for p, res in zip(files, pool.map(read_one, files)):
-            if isinstance(res, FrameTable):
-                received.can[p.stem] = res
+            if not isinstance(res, DataError):
+                received.can[p.stem], file_damage[p.stem] = res[0], (p.name, res[1])
             elif p.stem in setup.buses:
                 raise res
             else:
                 skipped.append(f"{p.name}: {res}")  # e.g. a Recording saved next to the logs
     for p in sorted(d.glob("*.blf")):  # BLF-only buses (a logger that writes BLF)
         if p.stem not in received.can:
-            bitrate = setup.buses[p.stem].bitrate if p.stem in setup.buses else 500_000
-            received.can[p.stem] = read_blf(p, p.stem, bitrate)
+            res = read_one(p)
+            if isinstance(res, DataError):
+                raise res
+            received.can[p.stem], file_damage[p.stem] = res[0], (p.name, res[1])
     for p in sorted(d.glob("*.polls.npz")):
         plog = read_poll_log(p)
         received.polls[plog.device] = plog
@@ -173,7 +178,44 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
         received.meta = json.loads(meta.read_text(encoding="utf-8"))
     if skipped:
         received.meta["skipped_files"] = skipped
+    damaged = _damaged_logs(received, file_damage)
+    if damaged:
+        received.meta["damaged_logs"] = damaged
+        for dmg in damaged:
+            received.events.append(TransportEvent(dmg["covered_s"][1], dmg["bus"], "truncated", dmg["expected_s"][1],
+                                                  f"damaged log {dmg['file']}: {dmg['reason']}"))
     return received, setup
+
+
+def _damaged_logs(received: AcquisitionInput, file_damage: dict[str, tuple[str, str | None]],
+                  tol_s: float = TRUNCATION_TOLERANCE_S) -> list[dict[str, Any]]:
+    """Buses whose log is damaged or cut short: what the file says of itself, and the end of its time base
+    against the segment table and the other sources (buses and poll logs)."""
+    spans = {b: (float(t.frames["timestamp"][0]), float(t.frames["timestamp"][-1]))
+             for b, t in received.can.items() if len(t)}
+    polled = [(float(pl.times[0]), float(pl.times[-1])) for pl in received.polls.values() if len(pl.times)]
+    seg = [(float(s.start_s), float(s.end_s)) for s in received.segments]
+    out = []
+    for bus, table in sorted(received.can.items()):
+        file, reason = file_damage.get(bus, (bus, None))
+        reasons = [reason] if reason else []
+        refs = [("the segment table", a, b) for a, b in seg]
+        refs += [(f"bus {o}", a, b) for o, (a, b) in spans.items() if o != bus]
+        refs += [("the poll logs", a, b) for a, b in polled]
+        first, last = spans.get(bus, (float("nan"), float("nan")))
+        exp_start = min([a for _, a, _ in refs] + ([first] if np.isfinite(first) else []), default=first)
+        exp_end = max([b for _, _, b in refs] + ([last] if np.isfinite(last) else []), default=last)
+        if not len(table):
+            reasons.append("no frame in the log")
+        elif exp_end - last > tol_s:
+            by = next(name for name, _, b in refs if b == exp_end)
+            reasons.append(f"its frames end at {last:.3f} s, {exp_end - last:.3f} s before {by} ({exp_end:.3f} s)")
+        if reasons:
+            covered_end = last if np.isfinite(last) else exp_start
+            out.append({"bus": bus, "file": file, "reason": "; ".join(reasons), "frames_read": len(table),
+                        "covered_s": [first if np.isfinite(first) else exp_start, covered_end],
+                        "expected_s": [exp_start, exp_end]})
+    return out
 
 
 def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,

@@ -7,15 +7,30 @@ the CAN bus-event type, the structure python-can's ``MF4Writer`` writes), append
 time (the device clocks as seen by the logger). Data bytes are stored 8 wide (classic CAN).
 
 BLF: exported through python-can's ``BLFWriter`` (per message; for hand-over to Vector tools, not
-for speed), with a ``.blf.json`` sidecar holding the exact first timestamp. Poll logs: ``.npz`` (bulk) and optional CSV.
+for speed), with a ``.blf.json`` sidecar holding the exact first timestamp, the frame count and the
+last timestamp. Poll logs: ``.npz`` (bulk) and optional CSV.
+
+Damaged logs: :func:`read_bus_log` reads a ``.mf4`` or ``.blf`` and says what is wrong with it, keeping
+every frame before the damage. A BLF is checked against the object count in its own file header and
+against the sidecar; a reading error ends the read at the last whole frame. An MF4 whose blocks cannot
+be read (a truncated file: asammdf writes the channel and group blocks after the data) is salvaged when
+it has benchtwin's own record layout: the data blocks that follow the header are read record by record
+up to the cut, and the cycle count of the channel group (when readable) is compared with the records.
 """
 
 from __future__ import annotations
 
 import csv
+import gc
 import json
+import logging
+import struct
+import sys
+import threading
+import zlib
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +41,7 @@ from benchtwin.wire.merge import merge_frames
 __all__ = [
     "MF4_FRAME_DTYPE",
     "read_blf",
+    "read_bus_log",
     "read_mf4",
     "read_poll_log",
     "write_blf",
@@ -47,6 +63,11 @@ MF4_FRAME_DTYPE = np.dtype([
     ("CAN_DataFrame.BRS", "<u1"),
     ("CAN_DataFrame.ESI", "<u1"),
 ])
+
+log = logging.getLogger(__name__)
+
+#: one MF4 record as benchtwin writes it: the time channel, then the CAN_DataFrame bytes (no invalidation)
+_MF4_RECORD = np.dtype([("time", "<f8"), *[(n, MF4_FRAME_DTYPE.fields[n][0]) for n in MF4_FRAME_DTYPE.names]])
 
 #: header start time of the logs written (the campaign's t = 0)
 DEFAULT_START = datetime(2026, 1, 1, tzinfo=UTC)
@@ -99,23 +120,51 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
 
     Timestamps are seconds since :data:`DEFAULT_START` (the logs benchtwin writes start there, so
     they come back unchanged; a file of another logger, e.g. python-can's ``MF4Writer``, is shifted
-    by its header start time, as ``can.MF4Reader`` does).
+    by its header start time, as ``can.MF4Reader`` does). A truncated benchtwin log gives the frames
+    before the cut (with a warning; :func:`read_bus_log` also returns what is wrong).
 
     Raises
     ------
     DataError
-        If the file is missing, unreadable or holds no CAN_DataFrame group.
+        If the file is missing, unreadable (and not salvageable) or holds no CAN_DataFrame group.
     """
-    from asammdf import MDF
+    table, damage = _read_mf4(Path(path), bus, bitrate)
+    if damage:
+        log.warning("%s: %s", path, damage)
+    return table
 
-    path = Path(path)
+
+def _frames_from_mf4(samples: np.ndarray, timestamps: np.ndarray, shift: float) -> np.ndarray:
+    s = samples
+    fr = np.zeros(len(s), dtype=FRAME_DTYPE)
+    fr["timestamp"] = timestamps + shift if shift else timestamps
+    ids = s["CAN_DataFrame.ID"].astype(np.uint32)
+    fr["arbitration_id"] = ids & np.uint32(0x1FFFFFFF)
+    fr["is_extended"] = (s["CAN_DataFrame.IDE"] != 0) | ((ids & np.uint32(0x80000000)) != 0)
+    fr["dlc"] = s["CAN_DataFrame.DLC"]
+    data = np.asarray(s["CAN_DataFrame.DataBytes"])
+    w = min(8, data.shape[1]) if data.ndim == 2 else 0
+    if w:
+        fr["data"][:, :w] = data[:, :w]
+    return fr
+
+
+def _read_mf4(path: Path, bus: str | None, bitrate: int) -> tuple[FrameTable, str | None]:
     if not path.exists():
         raise DataError(f"{path}: no such bus log")
-    try:
-        mdf = MDF(path, process_bus_logging=False)  # we decode the frames ourselves
-    except Exception as exc:  # asammdf raises many kinds for a bad file
-        raise DataError(f"{path}: not a readable MF4 file ({exc})") from exc
+    if _mf4_cut_before_its_groups(path):  # truncated: asammdf cannot open it; read the records up to the cut
+        salvaged = _salvage_mf4(path)
+        if salvaged is not None:
+            return FrameTable(bus or path.stem, salvaged[0], bitrate), salvaged[1]
+    mdf, error = _open_mdf(path)
+    if mdf is None:
+        salvaged = _salvage_mf4(path)
+        if salvaged is None:
+            raise DataError(f"{path}: not a readable MF4 file ({error})")
+        frames, reason = salvaged
+        return FrameTable(bus or path.stem, frames, bitrate), reason
     parts = []
+    damage = []
     with mdf:
         # timestamps are relative to the header start: bring them to seconds since DEFAULT_START (the
         # campaign's t = 0 for the logs benchtwin writes; any other logger's file keeps its real time)
@@ -124,22 +173,87 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
             names = [ch.name for ch in group.channels]
             if "CAN_DataFrame" not in names:
                 continue
-            sig = mdf.get("CAN_DataFrame", group=gi)
-            s = sig.samples
-            fr = np.zeros(len(s), dtype=FRAME_DTYPE)
-            fr["timestamp"] = sig.timestamps + shift if shift else sig.timestamps
-            ids = s["CAN_DataFrame.ID"].astype(np.uint32)
-            fr["arbitration_id"] = ids & np.uint32(0x1FFFFFFF)
-            fr["is_extended"] = (s["CAN_DataFrame.IDE"] != 0) | ((ids & np.uint32(0x80000000)) != 0)
-            fr["dlc"] = s["CAN_DataFrame.DLC"]
-            data = np.asarray(s["CAN_DataFrame.DataBytes"])
-            w = min(8, data.shape[1]) if data.ndim == 2 else 0
-            if w:
-                fr["data"][:, :w] = data[:, :w]
-            parts.append(fr)
-    if not parts:
+            try:
+                sig = mdf.get("CAN_DataFrame", group=gi)
+            except Exception as exc:  # a damaged data block
+                damage.append(f"channel group {gi} unreadable ({exc})")
+                continue
+            expected = int(getattr(group.channel_group, "cycles_nr", len(sig)))
+            if len(sig) < expected:
+                damage.append(f"{len(sig)} of the {expected} frames its channel group counts")
+            parts.append(_frames_from_mf4(sig.samples, sig.timestamps, shift))
+    if not parts and not damage:
         raise DataError(f"{path}: no CAN_DataFrame group (not a CAN bus log)")
-    return FrameTable(bus or path.stem, merge_frames(parts), bitrate)
+    frames = merge_frames(parts) if parts else np.zeros(0, FRAME_DTYPE)
+    return FrameTable(bus or path.stem, frames, bitrate), "; ".join(damage) or None
+
+
+_OPEN_LOCK = threading.Lock()
+
+
+def _open_mdf(path: Path) -> tuple[Any, str]:
+    """asammdf's MDF of ``path`` (without bus-logging processing: we decode the frames ourselves), or None and
+    why. asammdf's ``__del__`` of a half-built object complains on stderr after a failed open: silenced here."""
+    from asammdf import MDF
+
+    with _OPEN_LOCK:
+        hook = sys.unraisablehook
+        sys.unraisablehook = lambda _u: None
+        try:
+            try:
+                return MDF(path, process_bus_logging=False), ""
+            except Exception as exc:  # asammdf raises many kinds for a bad file
+                error = str(exc) or type(exc).__name__
+            gc.collect()
+            return None, error
+        finally:
+            sys.unraisablehook = hook
+
+
+def _mf4_cut_before_its_groups(path: Path) -> bool:
+    """True when an MF4 file ends before its header or its first data group block (a truncated file)."""
+    size = path.stat().st_size
+    with path.open("rb") as fh:
+        head = fh.read(64 + 24 + 8)
+    if head[:3] != b"MDF":
+        return False  # not an MF4 at all: let asammdf say so
+    if len(head) < 64 + 32 or head[64:68] != b"##HD":
+        return True
+    first_dg = int.from_bytes(head[64 + 24:64 + 32], "little")
+    return first_dg + 24 > size
+
+
+def _salvage_mf4(path: Path) -> tuple[np.ndarray, str] | None:
+    """The frames before the cut of a truncated MF4 with benchtwin's record layout (None if it is not one)."""
+    raw = path.read_bytes()
+    if raw[:3] != b"MDF":
+        return None
+    if len(raw) < 64 + 24 or raw[64:68] != b"##HD":
+        return np.zeros(0, FRAME_DTYPE), "truncated inside its header: no frame left"
+    hd_links = int.from_bytes(raw[64 + 16:64 + 24], "little")
+    hd_data = 64 + 24 + 8 * hd_links
+    pos = raw.find(b"##DT", hd_data)
+    if hd_data + 8 > len(raw) or pos < 0:
+        return np.zeros(0, FRAME_DTYPE), "truncated before its data: no frame left"
+    start_ns = int.from_bytes(raw[hd_data:hd_data + 8], "little")
+    if b"benchtwin bus log" not in raw[:pos]:
+        return None  # another logger's layout: the records cannot be known without the channel blocks
+    chunks, declared = [], 0
+    while pos + 24 <= len(raw) and raw[pos:pos + 4] == b"##DT":
+        length = int.from_bytes(raw[pos + 8:pos + 16], "little")
+        if length < 24:
+            break
+        declared += length - 24
+        chunks.append(raw[pos + 24:min(pos + length, len(raw))])
+        pos += (length + 7) // 8 * 8
+    body = b"".join(chunks)
+    n = len(body) // _MF4_RECORD.itemsize
+    rec = np.frombuffer(body[:n * _MF4_RECORD.itemsize], dtype=_MF4_RECORD)
+    shift = start_ns / 1e9 - DEFAULT_START.timestamp()
+    frames = _frames_from_mf4(rec, rec["time"].astype(np.float64), shift)
+    at_least = declared // _MF4_RECORD.itemsize
+    return frames, (f"truncated: the file ends inside its data (channel blocks missing); {n} frames kept "
+                    f"of at least {at_least} its data blocks declare")
 
 
 def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:
@@ -161,7 +275,8 @@ def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:
                                                    dlc=dlc[k], data=data[8 * k:8 * k + n], channel=channel,
                                                    check=False))
     # BLF keeps times relative to its start (stored to the millisecond): remember the exact first time
-    _blf_sidecar(path).write_text(json.dumps({"first_timestamp_s": ts[0] if ts else 0.0, "bus": table.bus}),
+    _blf_sidecar(path).write_text(json.dumps({"first_timestamp_s": ts[0] if ts else 0.0, "bus": table.bus,
+                                              "frames": len(f), "last_timestamp_s": ts[-1] if ts else 0.0}),
                                   encoding="utf-8")
     return path
 
@@ -174,28 +289,72 @@ def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
     """Read a BLF log with python-can into a frame table.
 
     python-can gives BLF times relative to the file start; the ``<file>.blf.json`` that
-    :func:`write_blf` leaves next to the file restores the exact time base.
+    :func:`write_blf` leaves next to the file restores the exact time base. A damaged or truncated
+    file gives the frames before the damage (with a warning; :func:`read_bus_log` also returns what
+    is wrong).
     """
-    import can
+    table, damage = _read_blf(Path(path), bus, bitrate)
+    if damage:
+        log.warning("%s: %s", path, damage)
+    return table
 
-    path = Path(path)
+
+def _read_blf(path: Path, bus: str | None, bitrate: int) -> tuple[FrameTable, str | None]:
+    import can
+    import can.io.blf
+
     if not path.exists():
         raise DataError(f"{path}: no such bus log")
     rows = []
-    for msg in can.BLFReader(str(path)):
-        if msg.is_error_frame or msg.is_remote_frame:
-            continue
-        d = bytes(msg.data)[:8].ljust(8, b"\x00")
-        rows.append((msg.timestamp, msg.arbitration_id, msg.is_extended_id, msg.dlc, tuple(d)))
+    damage = []
+    declared = None
+    n_objects = 0
+    try:
+        reader = can.BLFReader(str(path))
+        declared = int(reader.object_count)
+        for msg in reader:
+            n_objects += 1
+            if msg.is_error_frame or msg.is_remote_frame:
+                continue
+            d = bytes(msg.data)[:8].ljust(8, b"\x00")
+            rows.append((msg.timestamp, msg.arbitration_id, msg.is_extended_id, msg.dlc, tuple(d)))
+    except (can.CanError, can.io.blf.BLFParseError, struct.error, zlib.error, ValueError, OSError,
+            EOFError) as exc:
+        damage.append(f"unreadable after {n_objects} objects ({type(exc).__name__}: {exc or 'truncated'})")
+    if declared is not None and declared and n_objects < declared:
+        damage.append(f"{n_objects} of the {declared} objects its header counts")
     fr = np.array(rows, dtype=FRAME_DTYPE) if rows else np.zeros(0, FRAME_DTYPE)
     side = _blf_sidecar(path)
-    if side.exists() and len(fr):
+    if side.exists():
         try:
-            first = float(json.loads(side.read_text(encoding="utf-8"))["first_timestamp_s"])
-            fr["timestamp"] += first - fr["timestamp"][0]
+            info = json.loads(side.read_text(encoding="utf-8"))
+            if len(fr):
+                fr["timestamp"] += float(info["first_timestamp_s"]) - fr["timestamp"][0]
+            want = int(info.get("frames", len(fr)))
+            if len(fr) < want and not damage:
+                damage.append(f"{len(fr)} of the {want} frames written")
         except (ValueError, KeyError, TypeError):
             pass  # a foreign sidecar: keep the reader's times
-    return FrameTable.concat(bus or path.stem, [fr], bitrate)
+    return FrameTable.concat(bus or path.stem, [fr], bitrate), "; ".join(damage) or None
+
+
+def read_bus_log(path: str | Path, bus: str | None = None, bitrate: int = 500_000
+                 ) -> tuple[FrameTable, str | None]:
+    """Read a ``.mf4`` or ``.blf`` bus log; return its frames and what is wrong with the file (None if whole).
+
+    The frames before any damage are kept. Only the file's own bookkeeping is checked here (object
+    and cycle counts, readable blocks); :func:`benchtwin.chain.batch.read_logs` also compares the end
+    of each bus's time base with the segment table and the other buses.
+
+    Raises
+    ------
+    DataError
+        If the file is missing or cannot be read at all (not a bus log).
+    """
+    p = Path(path)
+    if p.suffix.lower() == ".blf":
+        return _read_blf(p, bus, bitrate)
+    return _read_mf4(p, bus, bitrate)
 
 
 def write_poll_log(log: PollLog, path: str | Path) -> Path:

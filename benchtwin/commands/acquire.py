@@ -5,17 +5,26 @@ Two ways in:
 * ``benchtwin acquire LOGDIR [--setup FILE] --out REC.mf4`` decodes the raw logs in LOGDIR
   (``<bus>.mf4`` MF4 bus logs, ``<device>.polls.npz`` Modbus poll logs, ``segments.json``); the
   setup defaults to ``LOGDIR/setup.json`` written with the logs.
+* ``benchtwin acquire SPOOL_DIR --out REC.mf4`` recovers the Recording of a ``benchtwin record`` that
+  was killed (or crashed) from its spool folder (``<out>.spool/``; setup and segments are in it): every
+  frame and poll flushed before the kill, at most the last second received is lost.
 * ``benchtwin acquire --trace TRACEDIR --setup FILE --logs LOGDIR --out REC.mf4 [--seed N] [--blf]``
   runs the whole batch chain on a saved Trace: the sensors encode it, the raw logs are written to
   LOGDIR (and BLF copies with ``--blf``), read back and decoded.
 
 A setup may be a file or a shipped name (``paper``, ``ideal``). The summary lists the channels,
 the flagged samples, protocol errors, Modbus timeouts and the clock offsets detected.
+
+A damaged or truncated bus log (its own frame/object count, a file cut inside its data, or a time base
+ending before the segment table or the other buses) is decoded up to the damage, reported on stderr
+per bus and time span, listed in the Recording's ``meta["damaged_logs"]``, and its cut flagged
+(TRANSPORT_DROP | LOST_FRAME); the exit status is then 1 (the Recording is written but incomplete).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -44,9 +53,15 @@ def run(args: argparse.Namespace) -> int:
     """Decode (or encode and decode) and write the Recording; return the exit status."""
     from benchtwin.chain.acquisition import acquire
     from benchtwin.chain.batch import read_logs, run_batch
+    from benchtwin.chain.live.bench import is_spool, read_spool
+    from benchtwin.commands._common import check_writable
     from benchtwin.config.setup import load_setup
     from benchtwin.trace import Trace
 
+    check_writable(args.out)
+    if args.trace is not None:
+        check_writable(args.logs if args.logs is not None else args.out.with_suffix(""), directory=True,
+                       what="--logs")
     setup = load_setup(args.setup) if args.setup else None
     t0 = time.perf_counter()
     if args.trace is not None:
@@ -62,7 +77,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.logdir is None:
             raise ConfigError("give a LOGDIR of raw logs, or --trace TRACEDIR")
-        received, setup = read_logs(args.logdir, setup)
+        if is_spool(args.logdir):
+            received, setup = read_spool(args.logdir, setup)
+            got = received.meta["recovered_spool"]
+            print("recovering a recorder spool: " + ", ".join(f"{b} {n} frames" for b, n in got["frames"].items())
+                  + "".join(f", {k} {n} polls" for k, n in got["polls"].items())
+                  + ("" if got["recorder_stopped_cleanly"] else "; the recorder did not stop cleanly"), flush=True)
+        else:
+            received, setup = read_logs(args.logdir, setup)
         rec = acquire(received, setup)
     wall = time.perf_counter() - t0
     try:
@@ -83,4 +105,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"  flagged samples in {len(flagged)} channels: " + ", ".join(
             f"{k} {sum(v.values())}" for k, v in sorted(flagged.items())[:12]) + (" ..." if len(flagged) > 12 else ""))
     print(f"wrote {path}")
-    return 0
+    damaged = rec.meta.get("damaged_logs", [])
+    for dmg in damaged:
+        (a, b), (ea, eb) = dmg["covered_s"], dmg["expected_s"]
+        print(f"benchtwin: warning: damaged log {dmg['file']} (bus {dmg['bus']}): {dmg['reason']}; it covers "
+              f"{a:.3f} .. {b:.3f} s of {ea:.3f} .. {eb:.3f} s, nothing after {b:.3f} s on this bus",
+              file=sys.stderr, flush=True)
+    return 1 if damaged else 0

@@ -2,10 +2,13 @@
 
 Connects to every CAN bus of the setup (python-can over socketcand, or socketcan interfaces),
 polls the pressure module over Modbus TCP at the setup's rate, receives the thermo module's PDOs
-with a canopen RemoteNode. Raw frames and polls are flushed to ``<out>.spool/`` while recording, so
-nothing received is lost if the run ends badly. On stop (``--duration``, the stream going idle,
-Ctrl-C, or every bus connection dropped) everything received is decoded by the same decoder as
-batch mode and saved as MF4; the raw bus logs are also written as MF4 bus logs next to it.
+with a canopen RemoteNode. Raw frames and polls are flushed to ``<out>.spool/`` while recording (at
+least every second; the setup and segment table are in the spool from the start), so killing the
+recorder at any moment (even ``kill -9``) loses at most the last second received:
+``benchtwin acquire <out>.spool --out REC.mf4`` turns the spool into the Recording.
+On stop (``--duration``, the stream going idle, Ctrl-C, or every bus connection dropped) everything
+received is decoded by the same decoder as batch mode and saved as MF4; the raw bus logs are also
+written as MF4 bus logs next to it.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``benchtwin record``."""
     from benchtwin.chain.live.bench import recorder_from_setup, save_capture
+    from benchtwin.commands._common import check_writable
     from benchtwin.config.setup import load_setup
     from benchtwin.segments import load_segments
 
@@ -55,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".mf4":
         raise ConfigError(f"--out {out}: the Recording is written as MF4; use a .mf4 name")
+    spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
+    check_writable(out)
+    check_writable(spool, directory=True, what="--spool")
     setup = load_setup(args.setup)
     segments = []
     if args.segments:
@@ -73,11 +80,10 @@ def run(args: argparse.Namespace) -> int:
         unknown = [b for b in buses if b not in setup.buses]
         if unknown:
             raise ConfigError(f"--buses: {', '.join(unknown)} not in the setup ({', '.join(setup.buses)})")
-    spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
     rec = recorder_from_setup(setup, spool, transport=args.transport, host=args.host, port=args.port,
                               modbus_host=args.modbus_host, modbus_port=args.modbus_port, speedup=args.speedup,
                               buses=buses, channel_map=cmap, modbus=not args.no_modbus,
-                              connect_timeout=args.connect_timeout)
+                              connect_timeout=args.connect_timeout, segments=segments)
     rec.start()
     print(f"recording {', '.join(rec.buses)}"
           + (f" + modbus {', '.join(p.spec.device for p in rec.pollers)}" if rec.pollers else "")

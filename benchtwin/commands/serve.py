@@ -4,7 +4,13 @@ The CAN buses go on the chosen transport (``socketcand``: our endpoint on 127.0.
 socketcand client reaches from another process; ``socketcan``: kernel interfaces such as vcan0;
 ``virtual``: in-process only), the pressure module on a Modbus TCP server, the thermo module as a
 CANopen node, each IVT-S answers its command channel. The endpoints are printed first; at the end
-the pacing statistics and the bus load per bus.
+the pacing statistics, the bus load per bus and whether the plan was kept.
+
+Exit status: 0 when the plan was kept; 1 when it was not: a delivery failed (frames lost), the run
+ended later than 5 % of its planned wall time (at least 0.25 s) after plan (the requested speed-up
+was not held: the achieved speed-up and the lateness are printed), or a client that was receiving
+left or was dropped before the end of the run (e.g. ``benchtwin record`` killed); 2 on a usage or
+setup error.
 """
 
 from __future__ import annotations
@@ -140,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
             if Path(args.record).suffix.lower() != ".mf4":
                 raise ConfigError(f"--record {args.record}: the Recording is written as MF4; use a .mf4 name")
             spool = Path(args.record).with_name(Path(args.record).name + ".spool")
-            recorder = embedded_recorder(session, setup, spool).start()
+            recorder = embedded_recorder(session, setup, spool, segments=list(trace.segments)).start()
             print(f"  recording in this process to {args.record}", flush=True)
         elif args.transport == "virtual":
             print("  (virtual transport: only acquisitions in this process can connect; see --record)", flush=True)
@@ -153,7 +159,9 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr, flush=True)
         print(f"playing {sch.start_s:.3f} .. {sch.end_s:.3f} s of plant time at speed-up {args.speedup:g} "
               f"({sch.n_deliveries} deliveries)", flush=True)
+        before = dict(session.transport.stats()) if session.transport is not None else {}
         report = session.run(progress=lambda t: print(f"  t = {t:.1f} s", flush=True))
+        after = dict(session.transport.stats()) if session.transport is not None else {}
         if args.linger > 0:
             time.sleep(args.linger)
         if recorder is not None:
@@ -178,7 +186,34 @@ def run(args: argparse.Namespace) -> int:
                            meta={"transport": args.transport, "embedded": True}, spool_dir=spool)
         print(f"wrote {args.record} ({len(rec.channels)} channels, "
               + ", ".join(f"{b} {len(t)} frames" for b, t in capture.can.items()) + ")", flush=True)
+    problems = _plan_problems(report, before, after)
     if args.report:
-        Path(args.report).write_text(json.dumps({"pacing": report.to_dict(), "stats": stats}, indent=1,
-                                                default=float))
-    return 0 if report.lost == 0 else 1
+        Path(args.report).write_text(json.dumps({"pacing": report.to_dict(), "stats": stats, "plan_kept": not problems,
+                                                 "problems": problems}, indent=1, default=float))
+    for text in problems:
+        print(f"benchtwin: warning: plan not kept: {text}", file=sys.stderr, flush=True)
+    print("plan kept" if not problems else f"PLAN NOT KEPT ({len(problems)} problem{'s' * (len(problems) > 1)})",
+          flush=True)
+    return 1 if problems else 0
+
+
+def _plan_problems(report: Any, before: dict[str, Any], after: dict[str, Any]) -> list[str]:
+    """Print what was achieved; return what of the plan was not kept (lost deliveries, the speed-up, receiving
+    clients gone before the end of the run)."""
+    out = []
+    print(f"achieved speed-up {report.achieved_speedup:.3g} of {report.speedup:g} requested; ended "
+          f"{report.late_s:.3f} s late, worst item {report.pacing_max_ms:.1f} ms late", flush=True)
+    if report.lost:
+        out.append(f"{report.lost} items could not be delivered")
+    if not report.speedup_held():
+        out.append(f"speed-up {report.speedup:g} not held: achieved {report.achieved_speedup:.3g}, the run ended "
+                   f"{report.late_s:.3f} s late (worst item {report.pacing_max_ms / 1e3:.3f} s late)")
+    left = int(after.get("raw_clients_left", 0)) - int(before.get("raw_clients_left", 0))
+    dropped = int(after.get("clients_dropped", 0)) - int(before.get("clients_dropped", 0))
+    if left > 0:
+        out.append(f"{left} receiving client(s) left before the end of the run (a recorder died or stopped); "
+                   f"{dropped} of them dropped by the endpoint for lagging")
+    if after:
+        print(f"clients: {int(after.get('clients_connected', 0))} connected at the end, {max(left, 0)} left during "
+              f"the run, {max(dropped, 0)} dropped for lagging", flush=True)
+    return out

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from benchtwin.commands._common import add_scenario_args, load_scenario
+from benchtwin.commands._common import add_scenario_args, check_writable, load_scenario
 
 __all__ = ["HIGHLIGHTS", "add_subparser", "highlights", "print_report", "run"]
 
@@ -97,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the validation; return 0 when every check passes, 1 otherwise."""
     from benchtwin.validation import validate
 
+    if args.out is not None:
+        check_writable(args.out, directory=True)
     vehicle, setup, campaign = load_scenario(args)
     report = validate(vehicle, setup, campaign, profile=args.profile, out_dir=args.out,
                       figures=bool(args.figures and args.out), progress=True)

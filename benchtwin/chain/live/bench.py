@@ -21,15 +21,18 @@ from benchtwin.chain.live.recorder import (
     LiveRecorder,
     ModbusPollSpec,
     open_acquisition_bus,
+    read_frame_spool,
+    read_poll_spool,
 )
 from benchtwin.chain.live.session import LiveSession
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import ConfigError, DataError
-from benchtwin.segments import Segment
+from benchtwin.segments import Segment, load_segments, segments_to_json
 from benchtwin.sensors import devices
-from benchtwin.wire.frames import DeviceOutputs
+from benchtwin.wire.frames import DeviceOutputs, TransportEvent
 
-__all__ = ["capture_to_input", "embedded_recorder", "recorder_from_setup", "save_capture", "session_from_setup"]
+__all__ = ["capture_to_input", "embedded_recorder", "is_spool", "read_spool", "recorder_from_setup", "save_capture",
+           "session_from_setup"]
 
 
 def session_from_setup(outputs: DeviceOutputs, setup: SetupConfig, *, transport: str = "virtual",
@@ -97,7 +100,8 @@ def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport:
                         host: str = "127.0.0.1", port: int = 29536, modbus_host: str | None = None,
                         modbus_port: int | None = None, speedup: float = 1.0, buses: list[str] | None = None,
                         channel_map: Mapping[str, str] | None = None, modbus: bool = True,
-                        canopen: bool = True, connect_timeout: float = 10.0) -> LiveRecorder:
+                        canopen: bool = True, connect_timeout: float = 10.0,
+                        segments: list[Segment] | None = None) -> LiveRecorder:
     """A :class:`LiveRecorder` connected to every bus, the pressure module and the thermo module of ``setup``.
 
     IVT-S configured in triggered mode are triggered at their ``trigger_period_ms`` (plant time).
@@ -119,7 +123,16 @@ def recorder_from_setup(setup: SetupConfig, spool_dir: str | Path, *, transport:
         raise
     polls, nodes, triggers = _acquisition_side(setup, opened, modbus_host=modbus_host or host,
                                                modbus_port=modbus_port, modbus=modbus, canopen=canopen)
-    return LiveRecorder(opened, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=speedup)
+    return LiveRecorder(opened, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=speedup,
+                        context=_spool_context(setup, segments))
+
+
+def _spool_context(setup: SetupConfig, segments: list[Segment] | None) -> dict[str, str]:
+    """The files a spool holds from the start so that it decodes alone: the setup and the segment table."""
+    out = {"setup.json": setup.model_dump_json(indent=1)}
+    if segments:
+        out["segments.json"] = segments_to_json(segments)
+    return out
 
 
 def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None,
@@ -136,7 +149,8 @@ def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None
                             segments=list(segments or []), meta=m)
 
 
-def embedded_recorder(session: LiveSession, setup: SetupConfig, spool_dir: str | Path) -> LiveRecorder:
+def embedded_recorder(session: LiveSession, setup: SetupConfig, spool_dir: str | Path,
+                      segments: list[Segment] | None = None) -> LiveRecorder:
     """A recorder in the serving process: one client per bus on the session's own transport (the embedded
     ``virtual`` bus works), the session's Modbus server, the thermo module's PDOs, IVT-S triggers."""
     if session.transport is None or session.scheduler is None:
@@ -145,7 +159,88 @@ def embedded_recorder(session: LiveSession, setup: SetupConfig, spool_dir: str |
     modbus_port = session.modbus.port if session.modbus is not None else None
     polls, nodes, triggers = _acquisition_side(setup, buses, modbus_host="127.0.0.1", modbus_port=modbus_port,
                                                modbus=session.modbus is not None)
-    return LiveRecorder(buses, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=session.speedup)
+    return LiveRecorder(buses, spool_dir, modbus=polls, canopen=nodes, triggers=triggers, speedup=session.speedup,
+                        context=_spool_context(setup, segments))
+
+
+def is_spool(directory: str | Path) -> bool:
+    """True when ``directory`` is a live recorder's spool (``spool.json`` or ``<bus>.frames`` files)."""
+    d = Path(directory)
+    return d.is_dir() and ((d / "spool.json").exists() or any(d.glob("*.frames")))
+
+
+def read_spool(directory: str | Path, setup: SetupConfig | None = None) -> tuple[AcquisitionInput, SetupConfig]:
+    """The decoder's input from a recorder's spool, e.g. after the recorder was killed.
+
+    Every whole record of ``<bus>.frames`` and ``<device>.polls`` is kept (a partial last record, cut by
+    the kill, is dropped); the transport events come from ``events.jsonl``; the setup from ``setup.json``
+    unless given; the segment table from ``segments.json`` if present. ``meta["recovered_spool"]`` says
+    what was recovered and where each bus's data ends.
+
+    Raises
+    ------
+    DataError
+        The folder is not a spool, or no setup is given or found.
+    """
+    import json
+
+    from benchtwin.config._base import validate_data
+
+    d = Path(directory)
+    if not is_spool(d):
+        raise DataError(f"{d}: not a recorder spool (no spool.json or *.frames)")
+    if setup is None:
+        sp = d / "setup.json"
+        if not sp.exists():
+            raise DataError(f"{d}: the spool has no setup.json; pass the setup used for the recording")
+        setup = validate_data(SetupConfig, json.loads(sp.read_text(encoding="utf-8")), str(sp))
+    manifest: dict[str, Any] = {}
+    if (d / "spool.json").exists():
+        try:
+            manifest = json.loads((d / "spool.json").read_text(encoding="utf-8"))
+        except ValueError as exc:
+            raise DataError(f"{d / 'spool.json'}: not readable ({exc})") from exc
+    received = AcquisitionInput()
+    for p in sorted(d.glob("*.frames")):
+        bitrate = setup.buses[p.stem].bitrate if p.stem in setup.buses else 500_000
+        received.can[p.stem] = read_frame_spool(p, p.stem, bitrate)
+    specs = {s["device"]: s for s in manifest.get("polls", [])}
+    if not specs:  # a spool without its manifest: the poll layouts of the setup
+        polls, _, _ = _acquisition_side(setup, {}, modbus_host="127.0.0.1", modbus_port=None, canopen=False)
+        specs = {s.device: {"unit_id": s.unit_id, "function_code": s.function_code,
+                            "first_register": s.first_register, "count": s.count} for s in polls}
+    for p in sorted(d.glob("*.polls")):
+        dev = p.name[:-len(".polls")]
+        sp = specs.get(dev)
+        if sp is not None:
+            received.polls[dev] = read_poll_spool(p, dev, int(sp["unit_id"]), int(sp["function_code"]),
+                                                  int(sp["first_register"]), int(sp["count"]))
+    if (d / "events.jsonl").exists():
+        for line in (d / "events.jsonl").read_text(encoding="utf-8").splitlines():
+            try:
+                e = json.loads(line)
+                t, src, kind = float(e["time_s"]), str(e["source"]), str(e["kind"])
+            except (ValueError, KeyError, TypeError):
+                continue  # the last line, cut by the kill
+            if kind == "reconnect":
+                for ev in reversed(received.events):
+                    if ev.source == src and ev.kind == "drop" and ev.end_s == float("inf"):
+                        ev.end_s = t
+                        break
+            received.events.append(TransportEvent(t, src, kind, float("inf") if kind == "drop" else t,
+                                                  str(e.get("detail", ""))))
+    if (d / "segments.json").exists():
+        received.segments = load_segments(d / "segments.json")
+    ended = any(e.kind == "end" for e in received.events)
+    ends = {b: float(t.frames["timestamp"][-1]) if len(t) else None for b, t in received.can.items()}
+    received.meta = {"acquisition": "live", "live_start_unix_s": manifest.get("start_unix_s"),
+                     "live_speedup": manifest.get("speedup"),
+                     "recovered_spool": {"folder": str(d), "recorder_stopped_cleanly": ended,
+                                         "frames": {b: len(t) for b, t in received.can.items()},
+                                         "polls": {k: len(v) for k, v in received.polls.items()},
+                                         "last_frame_s": ends},
+                     "stop_reason": "end" if ended else "recorder killed: recovered from its spool"}
+    return received, setup
 
 
 def save_capture(capture: LiveCapture, setup: SetupConfig, out: str | Path, *, segments: list[Segment] | None = None,

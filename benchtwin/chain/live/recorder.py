@@ -9,7 +9,16 @@
 - every Modbus device with a pymodbus client polling at the setup's rate (status per poll: 0 ok, the
   exception code, or -1 timeout/no connection), spooled to ``<spool>/<device>.polls``;
 - the CANopen thermo module with a canopen RemoteNode (TPDOs received, SDO reads possible);
-- transport events (a drop, a reconnect, the end) with their times.
+- transport events (a drop, a reconnect, the end) with their times, appended to ``<spool>/events.jsonl``.
+
+The spool survives the recorder being killed at any moment (``kill -9``, a power cut of the process):
+the frames are appended as fixed-size FRAME_DTYPE records and handed to the operating system at
+least every ``flush_s`` (0.2 s by default; the guaranteed bound is **1 s** of wall time, see
+:data:`SPOOL_FLUSH_BOUND_S`), the polls likewise; a partial last record (a write cut by the kill) is
+detected by its length and dropped. ``spool.json`` (acquisition clock: start time and speed-up, the
+buses, the poll layouts) and, when the bench gives them, ``setup.json`` and ``segments.json`` are in the
+spool from the start, written atomically (temporary file + rename). ``benchtwin acquire SPOOL_DIR
+--out REC.mf4`` turns such a folder into a Recording (:func:`benchtwin.chain.live.bench.read_spool`).
 
 Times are on the acquisition's clock: ``(wall - start) * speedup`` seconds, i.e. plant seconds
 when the server plays at the same speed-up. On stop (duration, end of stream, Ctrl-C, or every CAN
@@ -20,7 +29,9 @@ arrays batch delivery writes to logs, which the batch decoder turns into the Rec
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -37,10 +48,23 @@ from benchtwin.chain.transports.socketcand import SocketcandClientBus
 from benchtwin.errors import ConfigError, DataError, TransportError
 from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog, TransportEvent
 
-__all__ = ["IvtTriggerSpec", "LiveCapture", "LiveRecorder", "ModbusPollSpec", "open_acquisition_bus",
-           "read_frame_spool", "read_poll_spool"]
+__all__ = ["SPOOL_FLUSH_BOUND_S", "IvtTriggerSpec", "LiveCapture", "LiveRecorder", "ModbusPollSpec",
+           "open_acquisition_bus", "read_frame_spool", "read_poll_spool", "write_atomic"]
 
 log = logging.getLogger(__name__)
+
+#: the longest time (wall seconds) received data may stay in the recorder's memory before it is handed to
+#: the operating system: killing the recorder loses at most this much of what it received
+SPOOL_FLUSH_BOUND_S = 1.0
+
+
+def write_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary file and a rename (never a half-written file)."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, p)
+    return p
 
 
 def open_acquisition_bus(transport: str, bus: str, *, host: str = "127.0.0.1", port: int = 29536,
@@ -208,6 +232,7 @@ class _Poller:
         self.dtype = _poll_dtype(spec.count)
         self._fh = path.open("ab")
         self._stop = threading.Event()
+        self._flushed_at = time.monotonic()
         self.rows: list[np.ndarray] = []
         self.counts = {"ok": 0, "timeout": 0, "exception": 0}
         self._thread = threading.Thread(target=self._run, name=f"modbus-poll-{spec.device}", daemon=True)
@@ -267,6 +292,9 @@ class _Poller:
             if values is not None and len(values) == spec.count:
                 rec["values"][0] = values
             rec.tofile(self._fh)
+            if time.monotonic() - self._flushed_at >= self.recorder.flush_s:
+                self._fh.flush()  # to the operating system: a kill of the recorder keeps it
+                self._flushed_at = time.monotonic()
             self.rows.append(rec)
             next_t += period
             delay = next_t - time.perf_counter()
@@ -308,18 +336,27 @@ class LiveRecorder:
     speedup:
         The server's speed-up (acquisition seconds per wall second).
     flush_s:
-        Spool flush period, wall seconds.
+        Spool flush period, wall seconds (at most :data:`SPOOL_FLUSH_BOUND_S`).
+    context:
+        Files written into the spool at once (name -> text), e.g. ``setup.json`` and ``segments.json``, so
+        that a killed recorder's spool can be decoded alone.
     """
 
     def __init__(self, buses: Mapping[str, can.BusABC], spool_dir: str | Path, *,
                  modbus: list[ModbusPollSpec] | None = None,
                  canopen: Mapping[str, tuple[int, EdsLike, str]] | None = None,
-                 triggers: list[IvtTriggerSpec] | None = None, speedup: float = 1.0, flush_s: float = 0.2) -> None:
+                 triggers: list[IvtTriggerSpec] | None = None, speedup: float = 1.0, flush_s: float = 0.2,
+                 context: Mapping[str, str] | None = None) -> None:
         if not speedup > 0:
             raise ConfigError(f"speed-up must be > 0, got {speedup}")
+        if not 0 < flush_s <= SPOOL_FLUSH_BOUND_S:
+            raise ConfigError(f"spool flush period must be in (0, {SPOOL_FLUSH_BOUND_S}] s, got {flush_s}")
         self.buses = dict(buses)
         self.spool = Path(spool_dir)
         self.spool.mkdir(parents=True, exist_ok=True)
+        for name, text in (context or {}).items():
+            write_atomic(self.spool / name, text)
+        self._events_fh = (self.spool / "events.jsonl").open("a", encoding="utf-8")
         self.speedup = float(speedup)
         self.flush_s = flush_s
         self.start_wall = time.time()
@@ -356,10 +393,23 @@ class LiveRecorder:
                         ev.end_s = t
                         break
             self.events.append(TransportEvent(t, source, kind, t if kind != "drop" else float("inf"), detail))
+            with contextlib.suppress(OSError, ValueError):
+                line = json.dumps({"time_s": t, "source": source, "kind": kind, "detail": detail})
+                self._events_fh.write(line + "\n")
+                self._events_fh.flush()
+
+    def _write_manifest(self) -> None:
+        write_atomic(self.spool / "spool.json", json.dumps({
+            "format": "benchtwin spool 1", "start_unix_s": self.start_wall, "speedup": self.speedup,
+            "flush_s": self.flush_s, "buses": list(self.buses),
+            "polls": [{"device": p.spec.device, "unit_id": p.spec.unit_id, "function_code": p.spec.function_code,
+                       "first_register": p.spec.first_register, "count": p.spec.count} for p in self.pollers],
+            "canopen": list(self.canopen_spec)}, indent=1))
 
     def start(self) -> LiveRecorder:
         """Start receiving (acquisition time 0 is now)."""
         self.start_wall = time.time()
+        self._write_manifest()
         for bus, b in self.buses.items():
             self.notifiers[bus] = can.Notifier(b, [self.spoolers[bus]], timeout=0.1)
         for name, (node_id, eds, bus) in self.canopen_spec.items():
@@ -446,6 +496,8 @@ class LiveRecorder:
         for s in self.spoolers.values():
             s.close()
         self._event("*", "end", reason)
+        with contextlib.suppress(OSError):
+            self._events_fh.close()
         cap = LiveCapture(start_wall=self.start_wall, speedup=self.speedup, events=list(self.events))
         for bus, s in self.spoolers.items():
             frames = np.concatenate(s.parts) if s.parts else np.zeros(0, dtype=FRAME_DTYPE)

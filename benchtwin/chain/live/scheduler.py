@@ -159,10 +159,26 @@ class PacingReport:
         """Plant seconds played per wall second."""
         return (self.plant_end_s - self.plant_start_s) / self.wall_s if self.wall_s > 0 else float("nan")
 
+    @property
+    def late_s(self) -> float:
+        """How much later than planned the run ended, wall seconds (0 with an infinite speed-up)."""
+        if not np.isfinite(self.speedup):
+            return 0.0
+        return self.wall_s - (self.plant_end_s - self.plant_start_s) / self.speedup
+
+    def speedup_held(self, tolerance: float = 0.05, slack_s: float = 0.25) -> bool:
+        """True when the run ended no later than ``tolerance`` of its planned wall time (at least
+        ``slack_s``) after plan, i.e. the achieved speed-up is within ~5 % of the requested one."""
+        if not np.isfinite(self.speedup):
+            return True
+        planned = (self.plant_end_s - self.plant_start_s) / self.speedup
+        return self.late_s <= max(tolerance * planned, slack_s)
+
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form (for JSON)."""
         d = asdict(self)
         d["sent"], d["lost"], d["achieved_speedup"] = self.sent, self.lost, self.achieved_speedup
+        d["late_s"], d["speedup_held"] = self.late_s, self.speedup_held()
         return d
 
     def format(self) -> str:

@@ -103,7 +103,7 @@ class SocketcandServer:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.counters = {"clients_accepted": 0, "clients_dropped": 0, "frames_dropped_bytes": 0,
-                         "malformed_commands": 0, "frames_from_clients": 0}
+                         "malformed_commands": 0, "frames_from_clients": 0, "raw_clients_left": 0}
         self._raw_clients_seen = 0
         self._raw_event = threading.Condition()
 
@@ -389,6 +389,8 @@ class SocketcandServer:
             if c not in self._clients:
                 return
             self._clients.remove(c)
+        if c.state == "raw":  # a receiving client went away (closed, killed or disconnected for lagging)
+            self.counters["raw_clients_left"] += 1
         if c.outbuf:
             self.counters["frames_dropped_bytes"] += len(c.outbuf)
             self.counters["clients_dropped"] += 1

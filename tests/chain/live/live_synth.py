@@ -61,3 +61,10 @@ def make_small_outputs() -> DeviceOutputs:
 #: policy (root or CAP_SYS_NICE), loose at normal priority on a loaded CI machine (a single stall of
 #: another process spoils the p99 of a run this short); benchmarks/bench_live.py measures the real figures
 PACING_BOUNDS_MS = {True: (1.0, 5.0), False: (2.0, 100.0)}
+
+
+def serve_ok_but_for_speed(rc: int, err: str) -> bool:
+    """``benchtwin serve`` kept its plan (exit 0), or missed only the speed-up on a loaded machine (exit 1 with
+    "not held" as its only problem): what tests that do not check pacing accept."""
+    problems = [line for line in err.splitlines() if "plan not kept" in line]
+    return rc == 0 or (rc == 1 and bool(problems) and all("not held" in line for line in problems))
