@@ -31,7 +31,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import threading
 import time
 from collections import deque
@@ -44,6 +43,7 @@ import can
 import numpy as np
 
 from benchtwin.chain.live.canopen_node import EdsLike, PdoLog, ThermoAcquisition
+from benchtwin.chain.live.spool import SPOOL_FLUSH_BOUND_S, poll_dtype, read_frame_spool, read_poll_spool, write_atomic
 from benchtwin.chain.transports.socketcand import SocketcandClientBus
 from benchtwin.errors import ConfigError, DataError, TransportError
 from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog, TransportEvent
@@ -52,20 +52,6 @@ __all__ = ["SPOOL_FLUSH_BOUND_S", "IvtTriggerSpec", "LiveCapture", "LiveRecorder
            "open_acquisition_bus", "read_frame_spool", "read_poll_spool", "write_atomic"]
 
 log = logging.getLogger(__name__)
-
-#: the longest time (wall seconds) received data may stay in the recorder's memory before it is handed to
-#: the operating system: killing the recorder loses at most this much of what it received
-SPOOL_FLUSH_BOUND_S = 1.0
-
-
-def write_atomic(path: str | Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file and a rename (never a half-written file)."""
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, p)
-    return p
-
 
 def open_acquisition_bus(transport: str, bus: str, *, host: str = "127.0.0.1", port: int = 29536,
                          channel: str | None = None, connect_timeout: float = 10.0) -> can.BusABC:
@@ -89,29 +75,6 @@ def open_acquisition_bus(transport: str, bus: str, *, host: str = "127.0.0.1", p
     except (can.CanError, OSError) as exc:
         raise TransportError(f"cannot connect to bus {bus!r} over {transport} ({host}:{port}): {exc}") from exc
     raise ConfigError(f"unknown transport {transport!r}; choose socketcand, socketcan or virtual")
-
-
-def _poll_dtype(count: int) -> np.dtype:
-    return np.dtype([("time", "<f8"), ("status", "<i2"), ("values", "<u2", (count,))])
-
-
-def read_frame_spool(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -> FrameTable:
-    """Frames of a spool file (a partial last record, from a crash mid-write, is dropped)."""
-    p = Path(path)
-    raw = p.read_bytes()
-    n = len(raw) // FRAME_DTYPE.itemsize
-    frames = np.frombuffer(raw[:n * FRAME_DTYPE.itemsize], dtype=FRAME_DTYPE).copy()
-    return FrameTable(bus or p.stem, frames, bitrate)
-
-
-def read_poll_spool(path: str | Path, device: str, unit_id: int, function_code: int, first_register: int,
-                    count: int) -> PollLog:
-    """Polls of a spool file as a :class:`~benchtwin.wire.frames.PollLog`."""
-    dt = _poll_dtype(count)
-    raw = Path(path).read_bytes()
-    rec = np.frombuffer(raw[:len(raw) // dt.itemsize * dt.itemsize], dtype=dt)
-    return PollLog(device, unit_id, function_code, first_register, rec["time"].copy(),
-                   rec["values"].reshape(len(rec), count).copy(), rec["status"].copy())
 
 
 @dataclass(frozen=True)
@@ -229,7 +192,7 @@ class _Poller:
 
     def __init__(self, recorder: LiveRecorder, spec: ModbusPollSpec, path: Path) -> None:
         self.recorder, self.spec, self.path = recorder, spec, path
-        self.dtype = _poll_dtype(spec.count)
+        self.dtype = poll_dtype(spec.count)
         self._fh = path.open("ab")
         self._stop = threading.Event()
         self._flushed_at = time.monotonic()
