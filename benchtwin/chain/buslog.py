@@ -8,6 +8,13 @@ time (the device clocks as seen by the logger). Data bytes are stored 8 wide (cl
 
 BLF: exported through python-can's ``BLFWriter`` (per message; for hand-over to Vector tools, not
 for speed), with a ``.blf.json`` sidecar holding the exact first timestamp. Poll logs: ``.npz`` (bulk) and optional CSV.
+
+Absolute time: every log of a run starts at one time, the run's start (``start_time``: the campaign
+start :data:`DEFAULT_START` in batch, the acquisition start live); a frame at run time ``t`` is at
+``start + t`` in every format. MF4 stores the start in its header and ``t`` per frame; BLF stores
+absolute times (python-can's ``BLFWriter`` takes the file start from the first frame, to the
+millisecond), so an unmodified ``can.MF4Reader`` or ``can.BLFReader`` aligns the buses of a run.
+The readers here take the run start back off (``origin``) and return run times.
 """
 
 from __future__ import annotations
@@ -94,12 +101,13 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
     return path
 
 
-def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -> FrameTable:
+def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000, *,
+             origin: datetime = DEFAULT_START) -> FrameTable:
     """Read every CAN data frame of an MF4 bus log into a frame table (bulk, no per-frame objects).
 
-    Timestamps are seconds since :data:`DEFAULT_START` (the logs benchtwin writes start there, so
-    they come back unchanged; a file of another logger, e.g. python-can's ``MF4Writer``, is shifted
-    by its header start time, as ``can.MF4Reader`` does).
+    Timestamps are seconds since ``origin`` (the run start; the logs of a batch run start at
+    :data:`DEFAULT_START`, so they come back unchanged; a file of another logger, e.g. python-can's
+    ``MF4Writer``, is shifted by its header start time, as ``can.MF4Reader`` does).
 
     Raises
     ------
@@ -119,7 +127,7 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
     with mdf:
         # timestamps are relative to the header start: bring them to seconds since DEFAULT_START (the
         # campaign's t = 0 for the logs benchtwin writes; any other logger's file keeps its real time)
-        shift = mdf.header.start_time.timestamp() - DEFAULT_START.timestamp()
+        shift = mdf.header.start_time.timestamp() - origin.timestamp()
         for gi, group in enumerate(mdf.groups):
             names = [ch.name for ch in group.channels]
             if "CAN_DataFrame" not in names:
@@ -142,14 +150,19 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
     return FrameTable(bus or path.stem, merge_frames(parts), bitrate)
 
 
-def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:
-    """Export a frame table as BLF with python-can's BLFWriter (timestamps relative to the log start)."""
+def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1, start_time: datetime = DEFAULT_START) -> Path:
+    """Export a frame table as BLF with python-can's BLFWriter, frames at absolute times ``start_time + t``.
+
+    python-can's ``BLFReader`` gives them back as Unix times (the file start is kept to the
+    millisecond; the ``<file>.blf.json`` sidecar keeps the exact first time for :func:`read_blf`).
+    """
     import can
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     f = table.frames
-    ts = f["timestamp"].tolist()
+    epoch = start_time.timestamp()
+    ts = (f["timestamp"] + epoch).tolist()
     ids = f["arbitration_id"].tolist()
     ext = f["is_extended"].tolist()
     dlc = f["dlc"].tolist()
@@ -160,8 +173,9 @@ def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:
             writer.on_message_received(can.Message(timestamp=ts[k], arbitration_id=ids[k], is_extended_id=ext[k],
                                                    dlc=dlc[k], data=data[8 * k:8 * k + n], channel=channel,
                                                    check=False))
-    # BLF keeps times relative to its start (stored to the millisecond): remember the exact first time
-    _blf_sidecar(path).write_text(json.dumps({"first_timestamp_s": ts[0] if ts else 0.0, "bus": table.bus}),
+    # BLF stores its start to the millisecond: remember the exact first time (run seconds) and the run start
+    _blf_sidecar(path).write_text(json.dumps({"first_timestamp_s": float(f["timestamp"][0]) if len(f) else 0.0,
+                                              "start_time": start_time.isoformat(), "bus": table.bus}),
                                   encoding="utf-8")
     return path
 
@@ -170,11 +184,12 @@ def _blf_sidecar(path: Path) -> Path:
     return path.with_name(path.name + ".json")
 
 
-def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -> FrameTable:
-    """Read a BLF log with python-can into a frame table.
+def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000, *,
+             origin: datetime = DEFAULT_START) -> FrameTable:
+    """Read a BLF log with python-can into a frame table, times in seconds since ``origin`` (the run start).
 
-    python-can gives BLF times relative to the file start; the ``<file>.blf.json`` that
-    :func:`write_blf` leaves next to the file restores the exact time base.
+    python-can gives the absolute times of the file (start to the millisecond); the ``<file>.blf.json``
+    that :func:`write_blf` leaves next to the file restores the exact first time.
     """
     import can
 
@@ -188,11 +203,15 @@ def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
         d = bytes(msg.data)[:8].ljust(8, b"\x00")
         rows.append((msg.timestamp, msg.arbitration_id, msg.is_extended_id, msg.dlc, tuple(d)))
     fr = np.array(rows, dtype=FRAME_DTYPE) if rows else np.zeros(0, FRAME_DTYPE)
+    fr["timestamp"] -= origin.timestamp()
     side = _blf_sidecar(path)
     if side.exists() and len(fr):
         try:
-            first = float(json.loads(side.read_text(encoding="utf-8"))["first_timestamp_s"])
-            fr["timestamp"] += first - fr["timestamp"][0]
+            blob = json.loads(side.read_text(encoding="utf-8"))
+            first = float(blob["first_timestamp_s"])
+            first += datetime.fromisoformat(blob["start_time"]).timestamp() - origin.timestamp()
+            if abs(first - fr["timestamp"][0]) < 2e-3:  # the sidecar of this file: sub-millisecond start
+                fr["timestamp"] += first - fr["timestamp"][0]
         except (ValueError, KeyError, TypeError):
             pass  # a foreign sidecar: keep the reader's times
     return FrameTable.concat(bus or path.stem, [fr], bitrate)
