@@ -135,3 +135,32 @@ def test_the_recording_mf4_shows_words_for_states_and_flags(paper_run):
         assert mdf.header.start_time == rec.start_time
     with MDF(out / "vehicle.mf4") as mdf:
         assert mdf.header.start_time == rec.start_time
+
+
+def test_a_record_folder_decodes_on_its_own(paper_run, tmp_path):
+    """What record/serve --record leave beside the Recording: logs, DBCs, EDS, setup.json; acquire reads it."""
+    from asammdf import MDF
+
+    from benchtwin.chain.live.bench import save_capture
+    from benchtwin.chain.live.recorder import LiveCapture
+    from benchtwin.cli import main
+    from benchtwin.recording import Recording
+
+    setup, _, _, received = paper_run
+    cap = LiveCapture(can=dict(received.can), polls=dict(received.polls), start_wall=1_790_000_000.25, speedup=1.0)
+    rec = save_capture(cap, setup, tmp_path / "live.mf4")
+    raw = tmp_path / "live_raw"
+    for name in ("setup.json", "thermo_module.eds", *(f"{b}.dbc" for b in setup.buses),
+                 *(f"{b}.mf4" for b in setup.buses)):
+        assert (raw / name).exists(), name
+    assert main(["acquire", str(raw), "--out", str(tmp_path / "again.mf4")]) == 0
+    again = Recording.load(tmp_path / "again.mf4")
+    assert set(again.channels) == set(rec.channels)
+    np.testing.assert_allclose(again["shaft_torque_nm"].values, rec["shaft_torque_nm"].values)
+    np.testing.assert_allclose(again["vehicle_speed_kmh"].timestamps, rec["vehicle_speed_kmh"].timestamps)
+    # the logs and both Recordings start at the acquisition start
+    starts = []
+    for path in (raw / "vehicle.mf4", tmp_path / "live.mf4", tmp_path / "again.mf4"):
+        with MDF(path) as mdf:
+            starts.append(mdf.header.start_time.timestamp())
+    assert starts == pytest.approx([1_790_000_000.25] * 3, abs=1e-6)
