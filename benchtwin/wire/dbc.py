@@ -251,6 +251,10 @@ def ivt_node_name(place: str) -> str:
     return "IVT_" + "".join(w.capitalize() for w in place.split("_"))
 
 
+#: CANopen NMT states as the heartbeat carries them
+NMT_STATE_TEXTS: dict[int, str] = {0: "Boot-up", 4: "Stopped", 5: "Operational", 127: "Pre-operational"}
+
+
 def build_thermo_pdos(node_id: int, places: list[str] | tuple[str, ...] = ()) -> Database:
     """The thermo module's TPDOs as DBC messages, derived from its EDS mapping (for CAN tools).
 
@@ -274,6 +278,11 @@ def build_thermo_pdos(node_id: int, places: list[str] | tuple[str, ...] = ()) ->
                              scale=layout.scale((index, sub)), unit="degC", comment=comment))
         msgs.append(_msg(tp.cob_id, f"THERMO_TPDO{tp.number}", tp.length, sigs, tp.event_ms or None, "THMM",
                          f"CANopen TPDO{tp.number} of node {node_id} (from thermo_module.eds)"))
+    msgs.append(_msg(0x700 + node_id, "THERMO_NMT_ErrorControl", 1, [
+        _sig("Thermo_NMT_State", 0, 7, choices=NMT_STATE_TEXTS,
+             comment="0 boot-up message, else the heartbeat's state"),
+        _sig("Thermo_NMT_Toggle", 7, 1),
+    ], None, "THMM", f"CANopen boot-up and heartbeat of node {node_id} (period: object 0x1017)"))
     return Database(msgs, [Node("THMM"), Node("BENCH")], version="benchtwin-thermo-pdo-1")
 
 
