@@ -318,6 +318,8 @@ class Recording:
                     if ch.name == "time" or ch.name.startswith("$"):
                         continue
                     sig = mdf.get(ch.name, group=gi, index=ci, raw=True)
+                    if sig.conversion is not None and getattr(sig.conversion, "conversion_type", None) not in (7, 11):
+                        sig = mdf.get(ch.name, group=gi, index=ci)  # a numeric conversion (another tool's file)
                     if ch.name.endswith(".flags"):
                         flags[ch.name[:-6]] = np.asarray(sig.samples, dtype=np.uint16)
                     else:
