@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from datetime import datetime
 from enum import IntFlag
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,7 @@ import numpy as np
 from benchtwin.errors import DataError, MissingChannelError
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
-__all__ = ["Channel", "Flag", "Recording"]
+__all__ = ["FLAG_CONVERSION", "Channel", "Flag", "Recording"]
 
 
 class Flag(IntFlag):
@@ -45,6 +46,37 @@ class Flag(IntFlag):
                 | cls.STALE)
 
 
+#: MDF bit-field text table of the flag bits: a viewer shows ``SATURATED|LOST_FRAME`` for 3
+FLAG_CONVERSION: dict[str, Any] = {}
+for _k, _f in enumerate(f for f in Flag if f.value):
+    FLAG_CONVERSION[f"mask_{_k}"] = int(_f.value)
+    FLAG_CONVERSION[f"text_{_k}"] = {"val_0": int(_f.value), "text_0": _f.name, "default_addr": ""}
+
+
+def _value_text_conversion(texts: dict[int, str] | None) -> dict[str, Any] | None:
+    """An MDF value-to-text conversion (asammdf dict form) of a value table, or None."""
+    if not texts:
+        return None
+    conv: dict[str, Any] = {}
+    for k, (value, text) in enumerate(sorted(texts.items())):
+        conv[f"val_{k}"] = float(value)
+        conv[f"text_{k}"] = str(text)
+    conv["default_addr"] = ""
+    return conv
+
+
+def _texts_of(conversion: Any) -> dict[int, str] | None:
+    """The value table of an MDF value-to-text conversion (None for any other conversion)."""
+    if conversion is None or getattr(conversion, "conversion_type", None) != 7:  # 7: value to text (TABX)
+        return None
+    out = {}
+    for k in range(int(conversion.ref_param_nr) - 1):
+        text = conversion.referenced_blocks.get(f"text_{k}")
+        if isinstance(text, bytes):
+            out[int(conversion[f"val_{k}"])] = text.decode("utf-8", "replace")
+    return out or None
+
+
 @dataclass
 class Channel:
     """One decoded channel.
@@ -63,6 +95,9 @@ class Channel:
         :class:`Flag` bits per sample, uint16.
     source:
         Which device or bus it came from (``ivt_battery``, ``vehicle_can``, ``modbus_pressure``).
+    value_texts:
+        For a state channel (hybrid mode, gear, clutch states): value -> text, from the DBC's value
+        table; saved as an MDF value-to-text conversion so a viewer shows the words.
     """
 
     name: str
@@ -71,6 +106,7 @@ class Channel:
     values: np.ndarray
     flags: np.ndarray | None = None
     source: str = ""
+    value_texts: dict[int, str] | None = None
 
     def __post_init__(self) -> None:
         self.timestamps = np.asarray(self.timestamps, dtype=np.float64)
@@ -131,11 +167,15 @@ class Recording:
         The campaign's tests (may be empty for real logs).
     meta:
         Free metadata: sources, detected clock offsets, counts of flagged samples, transports.
+    start_time:
+        Absolute time of timestamp 0 (UTC): the campaign start (batch) or the acquisition start (live);
+        the raw bus logs of the run start at the same time. None: unknown (saved as the save time).
     """
 
     channels: dict[str, Channel] = field(default_factory=dict)
     segments: list[Segment] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
+    start_time: datetime | None = None
 
     def __getitem__(self, name: str) -> Channel:
         try:
@@ -211,6 +251,11 @@ class Recording:
     def save(self, path: str | Path) -> Path:
         """Save as MF4 (one channel group per source) with units and flags.
 
+        The header start time is :attr:`start_time` (the raw logs' start: acquisition time 0), so the
+        Recording and the bus logs of a run line up in any MDF tool. Each ``<name>.flags`` channel
+        carries a bit-field text table (``SATURATED|LOST_FRAME``) and each state channel with
+        :attr:`Channel.value_texts` a value-to-text table, so the asammdf viewer shows words.
+
         The segment table and the metadata travel in the file comment (JSON) and in a sidecar
         ``<stem>.segments.json`` next to the file.
         """
@@ -231,10 +276,13 @@ class Recording:
                 sigs = []
                 for ch in group:
                     sigs.append(Signal(ch.values, ch.timestamps, name=ch.name, unit=ch.unit,
-                                       comment=f"source={source}"))
+                                       comment=f"source={source}", conversion=_value_text_conversion(ch.value_texts)))
                     sigs.append(Signal(ch.flags, ch.timestamps, name=f"{ch.name}.flags", unit="",
-                                       comment="benchtwin quality flags (see benchtwin.recording.Flag)"))
+                                       comment="benchtwin quality flags (see benchtwin.recording.Flag)",
+                                       conversion=FLAG_CONVERSION))
                 mdf.append(sigs, comment=source, acq_name=source)
+        if self.start_time is not None:
+            mdf.header.start_time = self.start_time
         mdf.header.comment = json.dumps({"benchtwin": {"meta": self.meta, "segments": json.loads(
             segments_to_json(self.segments))}}, default=str)
         mdf.save(path, overwrite=True)
@@ -269,15 +317,18 @@ class Recording:
                 for ci, ch in enumerate(group.channels):
                     if ch.name == "time" or ch.name.startswith("$"):
                         continue
-                    sig = mdf.get(ch.name, group=gi, index=ci)
+                    sig = mdf.get(ch.name, group=gi, index=ci, raw=True)
+                    if sig.conversion is not None and getattr(sig.conversion, "conversion_type", None) not in (7, 11):
+                        sig = mdf.get(ch.name, group=gi, index=ci)  # a numeric conversion (another tool's file)
                     if ch.name.endswith(".flags"):
                         flags[ch.name[:-6]] = np.asarray(sig.samples, dtype=np.uint16)
                     else:
                         values[ch.name] = (sig, source)
             for name, (sig, source) in values.items():
                 rec.add(Channel(name, sig.unit or "", sig.timestamps, np.asarray(sig.samples, dtype=np.float64),
-                                flags.get(name), source))
+                                flags.get(name), source, _texts_of(sig.conversion)))
             comment = getattr(mdf.header, "description", "") or ""
+            rec.start_time = mdf.header.start_time
         side = path.with_suffix(".segments.json")
         try:
             blob = json.loads(comment)["benchtwin"]

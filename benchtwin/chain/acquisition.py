@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,9 @@ class AcquisitionInput:
         The campaign's segment table (on the acquisition clock).
     meta:
         Extra metadata carried into the Recording.
+    start_time:
+        Absolute time (UTC) of time 0 (the campaign start in batch, the acquisition start live); the
+        Recording and the raw logs carry it as their start time.
     """
 
     can: dict[str, FrameTable] = field(default_factory=dict)
@@ -68,6 +72,7 @@ class AcquisitionInput:
     events: list[TransportEvent] = field(default_factory=list)
     segments: list[Segment] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
+    start_time: datetime | None = None
 
 
 def _events_for(events: list[TransportEvent], names: set[str]) -> np.ndarray:
@@ -259,4 +264,5 @@ def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segmen
                               "detail": e.detail} for e in data.events]
     m["bus_load"] = {bus: _bus_load(t) for bus, t in data.can.items()}
     rec.meta = m
+    rec.start_time = data.start_time
     return rec

@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 from concurrent.futures import ThreadPoolExecutor
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from benchtwin.chain.acquisition import AcquisitionInput, acquire
 from benchtwin.chain.buslog import (
+    DEFAULT_START,
     read_bus_log,
     read_poll_log,
     write_blf,
@@ -72,29 +74,32 @@ def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
             can[d.bus] = FrameTable(d.bus, insert_frames(old.frames, got.frames), old.bitrate)
         if got.polls is not None:
             polls[got.polls.device] = got.polls
-    return AcquisitionInput(can=can, polls=polls)
+    return AcquisitionInput(can=can, polls=polls, start_time=DEFAULT_START)
 
 
 def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Path, *, blf: bool = False,
                poll_csv: bool = False) -> dict[str, Path]:
     """Write the raw logs of a run into ``out_dir``; return name -> path.
 
-    Files: ``<bus>.mf4`` (MF4 bus logging, one per bus), ``<bus>.blf`` (if ``blf``),
+    Files: ``<bus>.mf4`` (MF4 bus logging, one per bus with frames), ``<bus>.blf`` (if ``blf``),
     ``<device>.polls.npz`` (and ``.csv`` if ``poll_csv``), ``<bus>.dbc`` and ``thermo_module.eds``
-    (to decode them with cantools/canopen), ``setup.json`` (the setup used) and ``segments.json``.
+    (to decode them with cantools/canopen), ``setup.json`` (the setup used), ``segments.json`` and
+    ``meta.json`` (with ``log_start_utc``). Every bus log starts at ``received.start_time`` (default:
+    the campaign start :data:`~benchtwin.chain.buslog.DEFAULT_START`) with frames at absolute times.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    start = received.start_time or DEFAULT_START
     paths: dict[str, Path] = {}
-    buses = sorted(received.can.items())
+    buses = sorted((b, t) for b, t in received.can.items() if len(t))
     with ThreadPoolExecutor(max_workers=max(1, min(len(buses), os.cpu_count() or 1))) as pool:
-        done = pool.map(lambda item: write_mf4(item[1][1], out / f"{item[1][0]}.mf4", channel=item[0]),
-                        enumerate(buses, start=1))
+        done = pool.map(lambda item: write_mf4(item[1][1], out / f"{item[1][0]}.mf4", channel=item[0],
+                                               start_time=start), enumerate(buses, start=1))
         for (bus, _), p in zip(buses, done):
             paths[f"{bus}.mf4"] = p
     if blf:
         for ch, (bus, table) in enumerate(buses, start=1):
-            paths[f"{bus}.blf"] = write_blf(table, out / f"{bus}.blf", channel=ch)
+            paths[f"{bus}.blf"] = write_blf(table, out / f"{bus}.blf", channel=ch, start_time=start)
     for dev, plog in received.polls.items():
         paths[f"{dev}.polls.npz"] = write_poll_log(plog, out / f"{dev}.polls.npz")
         if poll_csv:
@@ -108,10 +113,14 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
     paths["setup.json"] = out / "setup.json"
     paths["setup.json"].write_text(setup.model_dump_json(indent=1), encoding="utf-8")
     paths["segments.json"] = save_segments(received.segments, out / "segments.json")
-    if received.meta:
-        paths["meta.json"] = out / "meta.json"
-        paths["meta.json"].write_text(json.dumps(received.meta, indent=1, default=str), encoding="utf-8")
+    paths["meta.json"] = out / "meta.json"
+    paths["meta.json"].write_text(json.dumps({**received.meta, _LOG_START: start.isoformat()}, indent=1,
+                                             default=str), encoding="utf-8")
     return paths
+
+
+#: key of ``meta.json`` holding the logs' start time (time 0 of every log in the folder)
+_LOG_START = "log_start_utc"
 
 
 def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[AcquisitionInput, SetupConfig]:
@@ -142,11 +151,19 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
     received = AcquisitionInput()
     skipped = []
     file_damage: dict[str, tuple[str, str | None]] = {}
+    meta = d / "meta.json"
+    if meta.exists():
+        received.meta = json.loads(meta.read_text(encoding="utf-8"))
+    try:
+        start = datetime.fromisoformat(str(received.meta.pop(_LOG_START)))
+    except (KeyError, ValueError):
+        start = DEFAULT_START  # logs of another logger: times since the campaign start epoch
+    received.start_time = start
 
     def read_one(p: Path) -> tuple[FrameTable, str | None] | DataError:
         bitrate = setup.buses[p.stem].bitrate if p.stem in setup.buses else 500_000
         try:
-            return read_bus_log(p, p.stem, bitrate)
+            return read_bus_log(p, p.stem, bitrate, origin=start)
         except DataError as exc:
             return exc
 
@@ -173,9 +190,6 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
     seg = d / "segments.json"
     if seg.exists():
         received.segments = load_segments(seg)
-    meta = d / "meta.json"
-    if meta.exists():
-        received.meta = json.loads(meta.read_text(encoding="utf-8"))
     if skipped:
         received.meta["skipped_files"] = skipped
     damaged = _damaged_logs(received, file_damage)

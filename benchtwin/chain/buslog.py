@@ -16,6 +16,13 @@ against the sidecar; a reading error ends the read at the last whole frame. An M
 be read (a truncated file: asammdf writes the channel and group blocks after the data) is salvaged when
 it has benchtwin's own record layout: the data blocks that follow the header are read record by record
 up to the cut, and the cycle count of the channel group (when readable) is compared with the records.
+
+Absolute time: every log of a run starts at one time, the run's start (``start_time``: the campaign
+start :data:`DEFAULT_START` in batch, the acquisition start live); a frame at run time ``t`` is at
+``start + t`` in every format. MF4 stores the start in its header and ``t`` per frame; BLF stores
+absolute times (python-can's ``BLFWriter`` takes the file start from the first frame, to the
+millisecond), so an unmodified ``can.MF4Reader`` or ``can.BLFReader`` aligns the buses of a run.
+The readers here take the run start back off (``origin``) and return run times.
 """
 
 from __future__ import annotations
@@ -115,20 +122,21 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
     return path
 
 
-def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -> FrameTable:
+def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000, *,
+             origin: datetime = DEFAULT_START) -> FrameTable:
     """Read every CAN data frame of an MF4 bus log into a frame table (bulk, no per-frame objects).
 
-    Timestamps are seconds since :data:`DEFAULT_START` (the logs benchtwin writes start there, so
-    they come back unchanged; a file of another logger, e.g. python-can's ``MF4Writer``, is shifted
-    by its header start time, as ``can.MF4Reader`` does). A truncated benchtwin log gives the frames
-    before the cut (with a warning; :func:`read_bus_log` also returns what is wrong).
+    Timestamps are seconds since ``origin`` (the run start; the logs of a batch run start at
+    :data:`DEFAULT_START`, so they come back unchanged; a file of another logger, e.g. python-can's
+    ``MF4Writer``, is shifted by its header start time, as ``can.MF4Reader`` does). A truncated benchtwin
+    log gives the frames before the cut (with a warning; :func:`read_bus_log` also returns what is wrong).
 
     Raises
     ------
     DataError
         If the file is missing, unreadable (and not salvageable) or holds no CAN_DataFrame group.
     """
-    table, damage = _read_mf4(Path(path), bus, bitrate)
+    table, damage = _read_mf4(Path(path), bus, bitrate, origin)
     if damage:
         log.warning("%s: %s", path, damage)
     return table
@@ -149,16 +157,17 @@ def _frames_from_mf4(samples: np.ndarray, timestamps: np.ndarray, shift: float) 
     return fr
 
 
-def _read_mf4(path: Path, bus: str | None, bitrate: int) -> tuple[FrameTable, str | None]:
+def _read_mf4(path: Path, bus: str | None, bitrate: int, origin: datetime = DEFAULT_START
+              ) -> tuple[FrameTable, str | None]:
     if not path.exists():
         raise DataError(f"{path}: no such bus log")
     if _mf4_cut_before_its_groups(path):  # truncated: asammdf cannot open it; read the records up to the cut
-        salvaged = _salvage_mf4(path)
+        salvaged = _salvage_mf4(path, origin)
         if salvaged is not None:
             return FrameTable(bus or path.stem, salvaged[0], bitrate), salvaged[1]
     mdf, error = _open_mdf(path)
     if mdf is None:
-        salvaged = _salvage_mf4(path)
+        salvaged = _salvage_mf4(path, origin)
         if salvaged is None:
             raise DataError(f"{path}: not a readable MF4 file ({error})")
         frames, reason = salvaged
@@ -168,7 +177,7 @@ def _read_mf4(path: Path, bus: str | None, bitrate: int) -> tuple[FrameTable, st
     with mdf:
         # timestamps are relative to the header start: bring them to seconds since DEFAULT_START (the
         # campaign's t = 0 for the logs benchtwin writes; any other logger's file keeps its real time)
-        shift = mdf.header.start_time.timestamp() - DEFAULT_START.timestamp()
+        shift = mdf.header.start_time.timestamp() - origin.timestamp()
         for gi, group in enumerate(mdf.groups):
             names = [ch.name for ch in group.channels]
             if "CAN_DataFrame" not in names:
@@ -223,7 +232,7 @@ def _mf4_cut_before_its_groups(path: Path) -> bool:
     return first_dg + 24 > size
 
 
-def _salvage_mf4(path: Path) -> tuple[np.ndarray, str] | None:
+def _salvage_mf4(path: Path, origin: datetime = DEFAULT_START) -> tuple[np.ndarray, str] | None:
     """The frames before the cut of a truncated MF4 with benchtwin's record layout (None if it is not one)."""
     raw = path.read_bytes()
     if raw[:3] != b"MDF":
@@ -249,21 +258,26 @@ def _salvage_mf4(path: Path) -> tuple[np.ndarray, str] | None:
     body = b"".join(chunks)
     n = len(body) // _MF4_RECORD.itemsize
     rec = np.frombuffer(body[:n * _MF4_RECORD.itemsize], dtype=_MF4_RECORD)
-    shift = start_ns / 1e9 - DEFAULT_START.timestamp()
+    shift = start_ns / 1e9 - origin.timestamp()
     frames = _frames_from_mf4(rec, rec["time"].astype(np.float64), shift)
     at_least = declared // _MF4_RECORD.itemsize
     return frames, (f"truncated: the file ends inside its data (channel blocks missing); {n} frames kept "
                     f"of at least {at_least} its data blocks declare")
 
 
-def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:
-    """Export a frame table as BLF with python-can's BLFWriter (timestamps relative to the log start)."""
+def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1, start_time: datetime = DEFAULT_START) -> Path:
+    """Export a frame table as BLF with python-can's BLFWriter, frames at absolute times ``start_time + t``.
+
+    python-can's ``BLFReader`` gives them back as Unix times (the file start is kept to the
+    millisecond; the ``<file>.blf.json`` sidecar keeps the exact first time for :func:`read_blf`).
+    """
     import can
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     f = table.frames
-    ts = f["timestamp"].tolist()
+    epoch = start_time.timestamp()
+    ts = (f["timestamp"] + epoch).tolist()
     ids = f["arbitration_id"].tolist()
     ext = f["is_extended"].tolist()
     dlc = f["dlc"].tolist()
@@ -274,9 +288,12 @@ def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1) -> Path:
             writer.on_message_received(can.Message(timestamp=ts[k], arbitration_id=ids[k], is_extended_id=ext[k],
                                                    dlc=dlc[k], data=data[8 * k:8 * k + n], channel=channel,
                                                    check=False))
-    # BLF keeps times relative to its start (stored to the millisecond): remember the exact first time
-    _blf_sidecar(path).write_text(json.dumps({"first_timestamp_s": ts[0] if ts else 0.0, "bus": table.bus,
-                                              "frames": len(f), "last_timestamp_s": ts[-1] if ts else 0.0}),
+    # BLF stores its start to the millisecond: remember the exact first time (run seconds), the run start, and
+    # the frame count and last time (a truncated file is recognised by them)
+    _blf_sidecar(path).write_text(json.dumps({"first_timestamp_s": float(f["timestamp"][0]) if len(f) else 0.0,
+                                              "start_time": start_time.isoformat(), "bus": table.bus,
+                                              "frames": len(f),
+                                              "last_timestamp_s": float(f["timestamp"][-1]) if len(f) else 0.0}),
                                   encoding="utf-8")
     return path
 
@@ -285,21 +302,22 @@ def _blf_sidecar(path: Path) -> Path:
     return path.with_name(path.name + ".json")
 
 
-def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -> FrameTable:
-    """Read a BLF log with python-can into a frame table.
+def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000, *,
+             origin: datetime = DEFAULT_START) -> FrameTable:
+    """Read a BLF log with python-can into a frame table, times in seconds since ``origin`` (the run start).
 
-    python-can gives BLF times relative to the file start; the ``<file>.blf.json`` that
-    :func:`write_blf` leaves next to the file restores the exact time base. A damaged or truncated
-    file gives the frames before the damage (with a warning; :func:`read_bus_log` also returns what
-    is wrong).
+    python-can gives the absolute times of the file (start to the millisecond); the ``<file>.blf.json``
+    that :func:`write_blf` leaves next to the file restores the exact first time. A damaged or truncated
+    file gives the frames before the damage (with a warning; :func:`read_bus_log` also returns what is wrong).
     """
-    table, damage = _read_blf(Path(path), bus, bitrate)
+    table, damage = _read_blf(Path(path), bus, bitrate, origin)
     if damage:
         log.warning("%s: %s", path, damage)
     return table
 
 
-def _read_blf(path: Path, bus: str | None, bitrate: int) -> tuple[FrameTable, str | None]:
+def _read_blf(path: Path, bus: str | None, bitrate: int, origin: datetime = DEFAULT_START
+              ) -> tuple[FrameTable, str | None]:
     import can
     import can.io.blf
 
@@ -324,13 +342,18 @@ def _read_blf(path: Path, bus: str | None, bitrate: int) -> tuple[FrameTable, st
     if declared is not None and declared and n_objects < declared:
         damage.append(f"{n_objects} of the {declared} objects its header counts")
     fr = np.array(rows, dtype=FRAME_DTYPE) if rows else np.zeros(0, FRAME_DTYPE)
+    fr["timestamp"] -= origin.timestamp()
     side = _blf_sidecar(path)
     if side.exists():
         try:
-            info = json.loads(side.read_text(encoding="utf-8"))
+            blob = json.loads(side.read_text(encoding="utf-8"))
             if len(fr):
-                fr["timestamp"] += float(info["first_timestamp_s"]) - fr["timestamp"][0]
-            want = int(info.get("frames", len(fr)))
+                first = float(blob["first_timestamp_s"])
+                if "start_time" in blob:
+                    first += datetime.fromisoformat(blob["start_time"]).timestamp() - origin.timestamp()
+                if abs(first - fr["timestamp"][0]) < 2e-3:  # the sidecar of this file: sub-millisecond start
+                    fr["timestamp"] += first - fr["timestamp"][0]
+            want = int(blob.get("frames", len(fr)))
             if len(fr) < want and not damage:
                 damage.append(f"{len(fr)} of the {want} frames written")
         except (ValueError, KeyError, TypeError):
@@ -338,8 +361,8 @@ def _read_blf(path: Path, bus: str | None, bitrate: int) -> tuple[FrameTable, st
     return FrameTable.concat(bus or path.stem, [fr], bitrate), "; ".join(damage) or None
 
 
-def read_bus_log(path: str | Path, bus: str | None = None, bitrate: int = 500_000
-                 ) -> tuple[FrameTable, str | None]:
+def read_bus_log(path: str | Path, bus: str | None = None, bitrate: int = 500_000, *,
+                 origin: datetime = DEFAULT_START) -> tuple[FrameTable, str | None]:
     """Read a ``.mf4`` or ``.blf`` bus log; return its frames and what is wrong with the file (None if whole).
 
     The frames before any damage are kept. Only the file's own bookkeeping is checked here (object
@@ -353,8 +376,8 @@ def read_bus_log(path: str | Path, bus: str | None = None, bitrate: int = 500_00
     """
     p = Path(path)
     if p.suffix.lower() == ".blf":
-        return _read_blf(p, bus, bitrate)
-    return _read_mf4(p, bus, bitrate)
+        return _read_blf(p, bus, bitrate, origin)
+    return _read_mf4(p, bus, bitrate, origin)
 
 
 def write_poll_log(log: PollLog, path: str | Path) -> Path:

@@ -7,8 +7,15 @@ least every second; the setup and segment table are in the spool from the start)
 recorder at any moment (even ``kill -9``) loses at most the last second received:
 ``benchtwin acquire <out>.spool --out REC.mf4`` turns the spool into the Recording.
 On stop (``--duration``, the stream going idle, Ctrl-C, or every bus connection dropped) everything
-received is decoded by the same decoder as batch mode and saved as MF4; the raw bus logs are also
-written as MF4 bus logs next to it.
+received is decoded by the same decoder as batch mode and saved as MF4; the raw logs go to
+``<out stem>_raw/`` with the DBC of every bus, the EDS and ``setup.json``, so ``benchtwin acquire
+<out stem>_raw`` or cantools decode them on their own.
+
+Where to connect follows python-can's configuration when no flag says otherwise (``can.util.load_config``:
+CAN_INTERFACE, CAN_CHANNEL, CAN_CONFIG, ~/can.conf, /etc/can.conf): the interface (socketcand or
+socketcan) gives ``--transport``, ``host``/``port`` the socketcand endpoint, and the channel the interface
+of a single recorded bus. A flag always wins; without flags or configuration: socketcand on
+127.0.0.1:29536.
 """
 
 from __future__ import annotations
@@ -28,9 +35,12 @@ def add_subparser(subparsers: Any) -> None:
     p = subparsers.add_parser("record", help="record a live bench into a Recording (MF4)", description=__doc__,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--setup", required=True, help="bench setup file or shipped name (paper, ideal)")
-    p.add_argument("--transport", default="socketcand", choices=["socketcand", "socketcan"])
-    p.add_argument("--host", default="127.0.0.1", help="socketcand endpoint host (loopback)")
-    p.add_argument("--port", type=int, default=29536, help="socketcand endpoint port")
+    p.add_argument("--transport", default=None, choices=["socketcand", "socketcan"],
+                   help="default: python-can's configured interface, else socketcand")
+    p.add_argument("--host", default=None, help="socketcand endpoint host (default: python-can's config, else "
+                                                "127.0.0.1)")
+    p.add_argument("--port", type=int, default=None, help="socketcand endpoint port (default: python-can's "
+                                                          "config, else 29536)")
     p.add_argument("--connect-timeout", type=float, default=10.0,
                    help="seconds to keep trying to reach the endpoint (it may still be starting)")
     p.add_argument("--channel-map", default="", help="socketcan: bus=iface,... (default: the bus names)")
@@ -45,6 +55,40 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--out", required=True, help="Recording to write (.mf4)")
     p.add_argument("--spool", default=None, help="incremental raw logs (default: <out>.spool/)")
     p.set_defaults(func=run)
+
+
+_DEFAULTS = {"transport": "socketcand", "host": "127.0.0.1", "port": 29536}
+
+
+def python_can_defaults(args: argparse.Namespace, buses: list[str]) -> tuple[str, str, int, dict[str, str]]:
+    """Transport, host, port and channel map: the flags, else python-can's configuration, else the defaults.
+
+    Raises
+    ------
+    ConfigError
+        python-can's configuration names an interface ``record`` cannot use.
+    """
+    import can
+
+    try:
+        cfg = dict(can.util.load_config())
+    except (can.CanInterfaceNotImplementedError, ValueError, TypeError):
+        cfg = {}  # nothing (or nothing usable) configured
+    transport = args.transport
+    cmap = {}
+    if transport is None and cfg.get("interface"):
+        transport = str(cfg["interface"])
+        if transport not in ("socketcand", "socketcan"):
+            raise ConfigError(f"python-can's configuration selects interface {transport!r}; record reads "
+                              "socketcand or socketcan (pass --transport)")
+        if cfg.get("channel") and len(buses) == 1:
+            cmap[buses[0]] = str(cfg["channel"])
+    transport = transport or _DEFAULTS["transport"]
+    from_cfg = transport == "socketcand" and cfg.get("interface") in (None, "socketcand")
+    host = args.host or (str(cfg["host"]) if from_cfg and cfg.get("host") else _DEFAULTS["host"])
+    port = args.port if args.port is not None else (int(cfg["port"]) if from_cfg and cfg.get("port")
+                                                    else _DEFAULTS["port"])
+    return transport, host, port, cmap
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,18 +113,19 @@ def run(args: argparse.Namespace) -> int:
             segments = load_segments(args.segments)
         except OSError as exc:
             raise ConfigError(f"--segments {args.segments}: cannot read the segment table ({exc.strerror})") from exc
-    cmap = {}
-    for part in filter(None, (s.strip() for s in args.channel_map.split(","))):
-        bus, sep, iface = part.partition("=")
-        if not sep:
-            raise ConfigError(f"--channel-map: {part!r} is not bus=interface")
-        cmap[bus] = iface
     buses = [b.strip() for b in args.buses.split(",")] if args.buses else None
     if buses:
         unknown = [b for b in buses if b not in setup.buses]
         if unknown:
             raise ConfigError(f"--buses: {', '.join(unknown)} not in the setup ({', '.join(setup.buses)})")
-    rec = recorder_from_setup(setup, spool, transport=args.transport, host=args.host, port=args.port,
+    transport, host, port, cmap = python_can_defaults(args, buses or list(setup.buses))
+    for part in filter(None, (s.strip() for s in args.channel_map.split(","))):
+        bus, sep, iface = part.partition("=")
+        if not sep:
+            raise ConfigError(f"--channel-map: {part!r} is not bus=interface")
+        cmap[bus] = iface
+    args.transport = transport
+    rec = recorder_from_setup(setup, spool, transport=transport, host=host, port=port,
                               modbus_host=args.modbus_host, modbus_port=args.modbus_port, speedup=args.speedup,
                               buses=buses, channel_map=cmap, modbus=not args.no_modbus,
                               connect_timeout=args.connect_timeout, segments=segments)

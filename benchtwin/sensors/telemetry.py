@@ -157,8 +157,9 @@ class ShaftTorqueTelemetry(Device):
         return encode_telemetry(trace, self.cfg, rng)
 
     def database(self) -> Database:
-        """The AD module's frame."""
-        return build_ad_module("AD_Torque", self.cfg.can_id, max(1, round(1000.0 / self.cfg.rate_hz)))
+        """The AD module's frame, its value scaled by this setup's K_TOT: ``AD_Torque_ShaftTorque`` in Nm."""
+        return build_ad_module("AD_Torque", self.cfg.can_id, max(1, round(1000.0 / self.cfg.rate_hz)),
+                               k_tot(self.cfg.shaft, self.cfg.k_tel))
 
     def frame_decoders(self) -> dict[int, FrameDecoder]:
         """The AD module's frame: code -> torque with eq. 12, clip bit -> SATURATED."""

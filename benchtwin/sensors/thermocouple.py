@@ -138,7 +138,13 @@ class ThermoModule(Device):
     def frame_decoders(self) -> dict[int, FrameDecoder]:
         """One decoder per TPDO of the EDS mapping."""
         layout = pdo_layout(self.cfg.node_id)
-        return {tp.cob_id: FrameDecoder(tp.length, self._decoder(tp)) for tp in layout.tpdos}
+        out = {tp.cob_id: FrameDecoder(tp.length, self._decoder(tp)) for tp in layout.tpdos}
+        out[0x700 + self.cfg.node_id] = FrameDecoder(1, self._nmt)  # boot-up and heartbeat of the live node
+        return out
+
+    def _nmt(self, s: FrameStream, sink: DecodeSink) -> None:
+        """Boot-up messages and heartbeats: counted in ``meta["canopen_nmt"]``, no channel."""
+        sink.count("canopen_nmt", self.name, len(s.t))
 
     def _decoder(self, tp: TpdoLayout):
         layout = pdo_layout(self.cfg.node_id)

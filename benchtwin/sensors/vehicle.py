@@ -151,6 +151,11 @@ class _DbcDevice(Device):
         sources = SIGNAL_MAP[self.stem]
         period = (codec.message.cycle_time or 0) / 1000.0
         counters = [n for n in codec.signals if sources[n].trace is None]
+        texts = {}  # the DBC's value tables, in physical values (what the Recording stores)
+        for sig in codec.message.signals:
+            if sig.choices:
+                texts[sig.name] = {round(sig.scale * raw + sig.offset): str(text)
+                                   for raw, text in sig.choices.items()}
 
         def decode(s: FrameStream, sink: DecodeSink) -> None:
             good, proto, nbad = split_bad(s.dlc, codec.length)
@@ -175,7 +180,7 @@ class _DbcDevice(Device):
                 elif not src.hold:
                     at_limit = (r == sig.raw_max) | ((r == sig.raw_min) if sig.signed else False)
                     flags[at_limit] |= FLAG["SATURATED"]
-                sink.add(src.role, unit_of_role(src.role), t, v, flags, self.name)
+                sink.add(src.role, unit_of_role(src.role), t, v, flags, self.name, texts.get(name))
 
         return decode
 

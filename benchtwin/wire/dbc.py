@@ -85,6 +85,10 @@ def _msg(frame_id: int, name: str, length: int, signals: list[Signal], cycle_ms:
                    strict=True)
 
 
+#: value table of the gear signals
+GEAR_TEXTS: dict[int, str] = {0: "Neutral", 1: "1st", 2: "2nd", 3: "3rd", **{g: f"{g}th" for g in range(4, 10)}}
+
+
 def build_vehicle() -> Database:
     """The vehicle CAN layout (see the module docstring)."""
     msgs = [
@@ -105,8 +109,8 @@ def build_vehicle() -> Database:
             _sig("FuelMassFlow", 0, 16, scale=0.001, unit="g/s", minimum=0, maximum=65.535),
         ], 50, "ECM", "fuel mass flow"),
         _msg(0x0D0, "TCU_Status", 8, [
-            _sig("GearTarget", 0, 4, minimum=0, maximum=9, comment="0 neutral"),
-            _sig("GearActual", 4, 4, minimum=0, maximum=9, comment="0 neutral"),
+            _sig("GearTarget", 0, 4, minimum=0, maximum=9, comment="0 neutral", choices=GEAR_TEXTS),
+            _sig("GearActual", 4, 4, minimum=0, maximum=9, comment="0 neutral", choices=GEAR_TEXTS),
             _sig("LockupClosed", 8, 1, choices={0: "open", 1: "closed"}),
             _sig("K0Closed", 9, 1, choices={0: "open", 1: "closed"}),
         ], 20, "TCU", "transmission status"),
@@ -183,11 +187,25 @@ def build_ivt(name: str = "IVT", result_base_id: int = 0x521, command_id: int = 
     return Database(msgs, [Node(name), Node("BENCH")], version="benchtwin-ivt-s-1")
 
 
-def build_ad_module(name: str = "AD_Torque", frame_id: int = 0x310, cycle_ms: int = 2) -> Database:
-    """The AD module frame carrying the telemetry output voltage (12-bit, +-10 V)."""
+def build_ad_module(name: str = "AD_Torque", frame_id: int = 0x310, cycle_ms: int = 2,
+                    k_tot_nm_per_v: float | None = None) -> Database:
+    """The AD module frame carrying the telemetry output voltage (12-bit, +-10 V).
+
+    The shipped ``ad_module.dbc`` is generic: ``<name>_Vout`` in volts. With ``k_tot_nm_per_v`` (the
+    setup's K_TOT, eq. 12) the same bits are ``<name>_ShaftTorque`` in Nm (scale K_TOT * 20 V / 4096):
+    the per-setup DBC written beside the logs decodes the shaft torque directly.
+    """
+    if k_tot_nm_per_v is None:
+        value = _sig(f"{name}_Vout", 0, 12, signed=True, scale=AD_TORQUE_LSB_V, unit="V", minimum=-10.0,
+                     maximum=10.0, comment="telemetry output voltage; torque = K_TOT * Vout")
+    else:
+        k = float(k_tot_nm_per_v)
+        value = _sig(f"{name}_ShaftTorque", 0, 12, signed=True, scale=k * AD_TORQUE_LSB_V, unit="Nm",
+                     minimum=-10.0 * k, maximum=10.0 * k,
+                     comment=f"propeller-shaft torque = K_TOT * Vout with this setup's K_TOT = {k:.6g} Nm/V "
+                             f"(Vout = raw * 20 V / 4096)")
     msgs = [_msg(frame_id, name, 3, [
-        _sig(f"{name}_Vout", 0, 12, signed=True, scale=AD_TORQUE_LSB_V, unit="V", minimum=-10.0, maximum=10.0,
-             comment="telemetry output voltage; torque = K_TOT * Vout"),
+        value,
         _sig(f"{name}_Counter", 12, 4),
         _sig(f"{name}_Clip", 16, 1, choices={0: "ok", 1: "clipped"}),
     ], cycle_ms, "ADMM", "AD MiniModule, propeller-shaft torque telemetry")]
@@ -233,6 +251,10 @@ def ivt_node_name(place: str) -> str:
     return "IVT_" + "".join(w.capitalize() for w in place.split("_"))
 
 
+#: CANopen NMT states as the heartbeat carries them
+NMT_STATE_TEXTS: dict[int, str] = {0: "Boot-up", 4: "Stopped", 5: "Operational", 127: "Pre-operational"}
+
+
 def build_thermo_pdos(node_id: int, places: list[str] | tuple[str, ...] = ()) -> Database:
     """The thermo module's TPDOs as DBC messages, derived from its EDS mapping (for CAN tools).
 
@@ -256,6 +278,11 @@ def build_thermo_pdos(node_id: int, places: list[str] | tuple[str, ...] = ()) ->
                              scale=layout.scale((index, sub)), unit="degC", comment=comment))
         msgs.append(_msg(tp.cob_id, f"THERMO_TPDO{tp.number}", tp.length, sigs, tp.event_ms or None, "THMM",
                          f"CANopen TPDO{tp.number} of node {node_id} (from thermo_module.eds)"))
+    msgs.append(_msg(0x700 + node_id, "THERMO_NMT_ErrorControl", 1, [
+        _sig("Thermo_NMT_State", 0, 7, choices=NMT_STATE_TEXTS,
+             comment="0 boot-up message, else the heartbeat's state"),
+        _sig("Thermo_NMT_Toggle", 7, 1),
+    ], None, "THMM", f"CANopen boot-up and heartbeat of node {node_id} (period: object 0x1017)"))
     return Database(msgs, [Node("THMM"), Node("BENCH")], version="benchtwin-thermo-pdo-1")
 
 

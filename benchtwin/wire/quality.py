@@ -160,9 +160,10 @@ class DecodeSink:
     rec: Recording = field(default_factory=Recording)
     counts: dict[str, Any] = field(default_factory=lambda: {"protocol_errors": {}, "unknown_ids": {}, "frames": {}})
 
-    def add(self, name: str, unit: str, t: np.ndarray, v: np.ndarray, flags: np.ndarray, source: str) -> None:
-        """Add one decoded channel."""
-        self.rec.add(Channel(name, unit, t, v, flags, source))
+    def add(self, name: str, unit: str, t: np.ndarray, v: np.ndarray, flags: np.ndarray, source: str,
+            value_texts: dict[int, str] | None = None) -> None:
+        """Add one decoded channel (``value_texts``: the value table of a state signal)."""
+        self.rec.add(Channel(name, unit, t, v, flags, source, value_texts))
 
     def protocol_error(self, where: str, n: int) -> None:
         """Count ``n`` malformed frames or answers at ``where``."""

@@ -10,11 +10,12 @@ sides of a live run agree by construction.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from benchtwin.chain.acquisition import AcquisitionInput, acquire
-from benchtwin.chain.buslog import write_mf4, write_poll_log
+from benchtwin.chain.batch import write_logs
 from benchtwin.chain.live.recorder import (
     IvtTriggerSpec,
     LiveCapture,
@@ -146,7 +147,8 @@ def capture_to_input(capture: LiveCapture, segments: list[Segment] | None = None
          "live_stats": capture.stats}
     m.update(meta or {})
     return AcquisitionInput(can=dict(capture.can), polls=dict(capture.polls), events=list(capture.events),
-                            segments=list(segments or []), meta=m)
+                            segments=list(segments or []), meta=m,
+                            start_time=datetime.fromtimestamp(capture.start_wall, UTC))
 
 
 def embedded_recorder(session: LiveSession, setup: SetupConfig, spool_dir: str | Path,
@@ -247,8 +249,12 @@ def save_capture(capture: LiveCapture, setup: SetupConfig, out: str | Path, *, s
                  meta: Mapping[str, Any] | None = None, spool_dir: str | Path | None = None) -> Any:
     """Decode a live capture into the Recording ``out`` (MF4) and write the raw logs next to it.
 
-    Raw logs: ``<out stem>_raw/<bus>.mf4`` (MF4 bus logging), ``<device>.polls.npz`` and ``capture.json``
-    (counters and transport events). Returns the Recording.
+    Raw logs in ``<out stem>_raw/``, as batch writes them (:func:`benchtwin.chain.batch.write_logs`), so
+    the folder decodes on its own (``benchtwin acquire <out stem>_raw``, ``cantools decode``, asammdf):
+    ``<bus>.mf4`` (MF4 bus logging), ``<device>.polls.npz``, ``<bus>.dbc`` for every bus, the thermo
+    module's EDS, ``setup.json``, ``segments.json``, ``meta.json``, plus ``capture.json`` (counters and
+    transport events). The logs and the Recording start at the acquisition start (wall clock, UTC).
+    Returns the Recording.
 
     Raises
     ------
@@ -260,13 +266,9 @@ def save_capture(capture: LiveCapture, setup: SetupConfig, out: str | Path, *, s
     out = Path(out)
     raw_dir = out.with_name(out.stem + "_raw")
     try:
-        raw_dir.mkdir(parents=True, exist_ok=True)
-        for bus, table in capture.can.items():
-            if len(table):
-                write_mf4(table, raw_dir / f"{bus}.mf4")
-        for dev, plog in capture.polls.items():
-            write_poll_log(plog, raw_dir / f"{dev}.polls.npz")
-        recording = acquire(capture_to_input(capture, segments, meta), setup)
+        received = capture_to_input(capture, segments, meta)
+        write_logs(received, setup, raw_dir)
+        recording = acquire(received, setup)
         recording.save(out)
         (raw_dir / "capture.json").write_text(json.dumps(
             {"stats": capture.stats, "events": recording.meta.get("transport_events", [])}, indent=1,

@@ -28,8 +28,8 @@ import numpy as np
 
 from benchtwin.errors import ConfigError, DataError
 
-__all__ = ["LiveScheduler", "PacingReport", "Stream", "StreamStats", "bus_load_fraction", "restore_policy",
-           "use_realtime_priority"]
+__all__ = ["LiveScheduler", "PacingReport", "Stream", "StreamStats", "bus_load_fraction", "format_table",
+           "restore_policy", "use_realtime_priority"]
 
 log = logging.getLogger(__name__)
 
@@ -182,19 +182,53 @@ class PacingReport:
         return d
 
     def format(self) -> str:
-        """A table for the terminal."""
-        lines = [f"played {self.plant_end_s - self.plant_start_s:.3f} s of plant time in {self.wall_s:.3f} s "
-                 f"(speed-up {self.speedup:g}, achieved {self.achieved_speedup:.2f}); "
-                 f"{'complete' if self.completed else 'STOPPED EARLY'}",
-                 f"{'stream':<24}{'items':>10}{'sent':>10}{'lost':>7}{'p50 ms':>9}{'p99 ms':>9}{'max ms':>9}"
-                 f"{'rate/s':>10}{'bus load':>10}"]
+        """A table for the terminal: one row per stream and a total, every column fixed-width.
+
+        Column widths are taken from the widest cell, so long stream names, large counts and missing
+        figures (``-``) keep the columns aligned.
+        """
+        head = (f"played {self.plant_end_s - self.plant_start_s:.3f} s of plant time in {self.wall_s:.3f} s "
+                f"(speed-up {self.speedup:g}, achieved {self.achieved_speedup:.2f}); "
+                f"{'complete' if self.completed else 'STOPPED EARLY'}")
+        rows = []
         for s in self.streams.values():
-            load = f"{100 * s.bus_load:.1f} %" if s.bus_load is not None else "-"
-            lines.append(f"{s.name:<24}{s.items:>10}{s.sent:>10}{s.lost:>7}{s.pacing_p50_ms:>9.3f}"
-                         f"{s.pacing_p99_ms:>9.3f}{s.pacing_max_ms:>9.3f}{s.rate_per_s:>10.0f}{load:>10}")
-        lines.append(f"{'all':<24}{sum(s.items for s in self.streams.values()):>10}{self.sent:>10}{self.lost:>7}"
-                     f"{self.pacing_p50_ms:>9.3f}{self.pacing_p99_ms:>9.3f}{self.pacing_max_ms:>9.3f}")
-        return "\n".join(lines)
+            rows.append([s.name, str(s.items), str(s.sent), str(s.lost), _ms(s.pacing_p50_ms), _ms(s.pacing_p99_ms),
+                         _ms(s.pacing_max_ms), _num(s.rate_per_s, ".0f"),
+                         f"{100 * s.bus_load:.1f} %" if s.bus_load is not None else "-"])
+        rows.append(["all", str(sum(s.items for s in self.streams.values())), str(self.sent), str(self.lost),
+                     _ms(self.pacing_p50_ms), _ms(self.pacing_p99_ms), _ms(self.pacing_max_ms), "-", "-"])
+        headers = ["stream", "items", "sent", "lost", "p50 ms", "p99 ms", "max ms", "rate/s", "bus load"]
+        return "\n".join([head, *format_table(headers, rows, align="<" + ">" * (len(headers) - 1))])
+
+
+def _num(x: float, spec: str) -> str:
+    return format(x, spec) if np.isfinite(x) else "-"
+
+
+def _ms(x: float) -> str:
+    return _num(x, ".3f")
+
+
+def format_table(headers: list[str], rows: list[list[str]], align: str | None = None, sep: str = "  ") -> list[str]:
+    """Lines of a fixed-width text table: each column as wide as its widest cell.
+
+    Parameters
+    ----------
+    headers:
+        Column titles.
+    rows:
+        Cells as text, one list per row (as many cells as headers).
+    align:
+        One character per column, ``<`` left or ``>`` right (default: first left, the rest right).
+    sep:
+        Text between columns.
+    """
+    n = len(headers)
+    align = align or "<" + ">" * (n - 1)
+    if len(align) != n or any(len(r) != n for r in rows):
+        raise ValueError("format_table: every row and the alignment need one entry per column")
+    widths = [max(len(str(c)) for c in col) for col in zip(headers, *rows)]
+    return [sep.join(f"{c!s:{a}{w}}" for c, a, w in zip(r, align, widths)) for r in [headers, *rows]]
 
 
 def _quantiles_ms(err_s: np.ndarray) -> tuple[float, float, float, float]:

@@ -6,6 +6,8 @@ client (:mod:`.socketcand_client`) both speak it, and a test can check it withou
 
 from __future__ import annotations
 
+import re
+
 import can
 import numpy as np
 
@@ -47,6 +49,9 @@ def format_message(msg: can.Message, timestamp: float) -> bytes:
     return f"< frame {idt} {_ts_text(timestamp)} {bytes(msg.data[:msg.dlc]).hex().upper()} >".encode("ascii")
 
 
+_HEX = re.compile(r"[0-9A-Fa-f]+")
+
+
 def parse_send(body: str, timestamp: float) -> can.Message:
     """Parse the body of ``< send ID DLC B0 .. >`` (without the brackets) into a message.
 
@@ -59,11 +64,15 @@ def parse_send(body: str, timestamp: float) -> can.Message:
     if len(parts) < 3 or parts[0] != "send":
         raise ValueError(f"not a send command: {body!r}")
     id_text = parts[1]
+    # plain hex digits only: int(x, 16) alone takes "-1", "+7ff", "0x12" and "1_0"
+    if not (_HEX.fullmatch(id_text) and len(id_text) <= 8 and _HEX.fullmatch(parts[2]) and len(parts[2]) <= 2
+            and all(_HEX.fullmatch(b) and len(b) <= 2 for b in parts[3:])):
+        raise ValueError(f"malformed send command: {body!r}")
     can_id = int(id_text, 16)
     dlc = int(parts[2], 16)
     data = bytes(int(b, 16) for b in parts[3:])
     is_ext = len(id_text) > 3 or can_id > 0x7FF
-    if dlc > 8 or dlc != len(data) or can_id > 0x1FFFFFFF or any(int(b, 16) > 0xFF for b in parts[3:]):
+    if dlc > 8 or dlc != len(data) or can_id > 0x1FFFFFFF:
         raise ValueError(f"malformed send command: {body!r}")
     return can.Message(timestamp=timestamp, arbitration_id=can_id, is_extended_id=is_ext, dlc=dlc, data=data,
                        is_rx=True)

@@ -45,6 +45,9 @@ __all__ = ["SocketcandDeviceBus", "SocketcandServer", "SocketcandTransport"]
 
 log = logging.getLogger(__name__)
 
+#: at most this much of a malformed command goes into the log
+_LOGGED_CHARS = 80
+
 
 @dataclass(eq=False)
 class _Client:
@@ -327,10 +330,12 @@ class SocketcandServer:
             del c.inbuf[:end + 1]
             self._command(c, body)
 
-    def _malformed(self, c: _Client, what: object) -> None:
+    def _malformed(self, c: _Client, what: bytes | str) -> None:
         c.malformed += 1
         self.counters["malformed_commands"] += 1
-        log.warning("socketcand endpoint: malformed command from %s: %r", c.peer, what)
+        shown = what[:_LOGGED_CHARS]  # a client's 64 KiB of garbage must not flood the log
+        more = f" ... ({len(what)} bytes)" if len(what) > _LOGGED_CHARS else ""
+        log.warning("socketcand endpoint: malformed command from %s: %r%s", c.peer, shown, more)
 
     def _command(self, c: _Client, body: str) -> None:
         word = body.split(" ", 1)[0]

@@ -128,3 +128,33 @@ def test_realtime_priority_is_validated_and_restored():
         assert os.sched_getscheduler(0) == os.SCHED_FIFO
     restore_policy(previous)
     assert os.sched_getscheduler(0) == before
+
+
+def test_pacing_table_columns_are_aligned_for_long_names_big_counts_and_missing_figures():
+    from benchtwin.chain.live.scheduler import PacingReport, StreamStats
+
+    streams = {
+        "can:instrument": StreamStats("can:instrument", "can", 123456789, 123456789, 0, 5000, 0.012, 0.5, 12.25,
+                                      -0.1, 81234.0, 0.4321),
+        "canopen:a_very_long_thermo_module_name": StreamStats("canopen:a_very_long_thermo_module_name", "canopen",
+                                                              30, 29, 1, 30, 0.1, 0.2, 0.3, 0.0, float("nan")),
+        "modbus:pressure": StreamStats("modbus:pressure", "modbus", 400, 400, 0, 400, float("nan"), float("nan"),
+                                       float("nan"), float("nan"), 200.0),
+    }
+    rep = PacingReport(speedup=4.0, plant_start_s=0.0, plant_end_s=2.0, wall_s=0.5, completed=True, streams=streams,
+                       pacing_p50_ms=0.05, pacing_p99_ms=0.4, pacing_max_ms=12.25)
+    lines = rep.format().splitlines()
+    table = lines[1:]
+    assert len(table) == 1 + len(streams) + 1  # header, one row per stream, the total
+    assert len({len(line) for line in table}) == 1  # fixed width: every line as long as the header
+    header = table[0]
+    # each right-aligned column ends where its title ends, on every row
+    for title in ("items", "sent", "lost", "p50 ms", "p99 ms", "max ms", "rate/s", "bus load"):
+        end = header.index(title) + len(title)
+        for line in table[1:]:
+            assert line[end - 1] != " ", (title, line)
+            assert end == len(line) or line[end] == " ", (title, line)
+    assert table[-1].startswith("all ")
+    assert "nan" not in rep.format()
+    assert "43.2 %" in table[1] and "123456789" in table[1]
+    assert table[2].startswith("canopen:a_very_long_thermo_module_name ")
