@@ -44,15 +44,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
 
 
 def _load_specs(path: Path) -> Any:
-    from benchtwin.config._base import validate_data
+    from benchtwin.config._base import read_toml, validate_data
     from benchtwin.config.specs import VehicleSpecs
 
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path)
     if "specs" in data and isinstance(data["specs"], dict):
         data = data["specs"]
     return validate_data(VehicleSpecs, data, str(path))
