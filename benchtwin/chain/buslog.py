@@ -14,12 +14,16 @@ from __future__ import annotations
 
 import csv
 import json
+import struct
+import zipfile
+import zlib
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
 from benchtwin.errors import DataError
+from benchtwin.recording import open_mdf
 from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog
 from benchtwin.wire.merge import merge_frames
 
@@ -106,15 +110,10 @@ def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
     DataError
         If the file is missing, unreadable or holds no CAN_DataFrame group.
     """
-    from asammdf import MDF
-
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no such bus log")
-    try:
-        mdf = MDF(path, process_bus_logging=False)  # we decode the frames ourselves
-    except Exception as exc:  # asammdf raises many kinds for a bad file
-        raise DataError(f"{path}: not a readable MF4 file ({exc})") from exc
+    mdf = open_mdf(path, process_bus_logging=False)  # we decode the frames ourselves
     parts = []
     with mdf:
         # timestamps are relative to the header start: bring them to seconds since DEFAULT_START (the
@@ -182,11 +181,14 @@ def read_blf(path: str | Path, bus: str | None = None, bitrate: int = 500_000) -
     if not path.exists():
         raise DataError(f"{path}: no such bus log")
     rows = []
-    for msg in can.BLFReader(str(path)):
-        if msg.is_error_frame or msg.is_remote_frame:
-            continue
-        d = bytes(msg.data)[:8].ljust(8, b"\x00")
-        rows.append((msg.timestamp, msg.arbitration_id, msg.is_extended_id, msg.dlc, tuple(d)))
+    try:
+        for msg in can.BLFReader(str(path)):
+            if msg.is_error_frame or msg.is_remote_frame:
+                continue
+            d = bytes(msg.data)[:8].ljust(8, b"\x00")
+            rows.append((msg.timestamp, msg.arbitration_id, msg.is_extended_id, msg.dlc, tuple(d)))
+    except (can.io.blf.BLFParseError, zlib.error, struct.error, ValueError, OSError) as exc:
+        raise DataError(f"{path}: not a readable BLF bus log ({exc or type(exc).__name__})") from None
     fr = np.array(rows, dtype=FRAME_DTYPE) if rows else np.zeros(0, FRAME_DTYPE)
     side = _blf_sidecar(path)
     if side.exists() and len(fr):
@@ -222,8 +224,9 @@ def read_poll_log(path: str | Path) -> PollLog:
                            z["times"], z["values"], z["status"])
     except FileNotFoundError:
         raise DataError(f"{path}: no such poll log") from None
-    except (KeyError, ValueError, OSError) as exc:
-        raise DataError(f"{path}: not a poll log ({exc})") from exc
+    except (KeyError, ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        why = "not an .npz archive" if "pickle" in str(exc) else (str(exc) or type(exc).__name__)
+        raise DataError(f"{path}: not a poll log ({why})") from None
 
 
 def write_poll_csv(log: PollLog, path: str | Path) -> Path:
