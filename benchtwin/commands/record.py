@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchtwin.commands._common import load_setup_arg, writable_dir, writable_file
 from benchtwin.errors import ConfigError
 
 __all__ = ["add_subparser", "run"]
@@ -46,16 +47,21 @@ def add_subparser(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``benchtwin record``."""
+    import math
+
     from benchtwin.chain.live.bench import recorder_from_setup, save_capture
-    from benchtwin.config.setup import load_setup
     from benchtwin.segments import load_segments
 
-    if not args.speedup > 0:
-        raise ConfigError(f"--speedup must be > 0, got {args.speedup}")
+    if not (args.speedup > 0 and math.isfinite(args.speedup)):
+        raise ConfigError(f"--speedup must be a finite number > 0, got {args.speedup}")
+    for opt, value in (("--duration", args.duration), ("--idle", args.idle),
+                       ("--connect-timeout", args.connect_timeout)):
+        if value is not None and not (value > 0 and math.isfinite(value)):
+            raise ConfigError(f"{opt} {value}: give a finite number of seconds > 0")
     out = Path(args.out)
     if out.suffix.lower() != ".mf4":
         raise ConfigError(f"--out {out}: the Recording is written as MF4; use a .mf4 name")
-    setup = load_setup(args.setup)
+    setup = load_setup_arg(args.setup)
     segments = []
     if args.segments:
         try:
@@ -74,6 +80,12 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise ConfigError(f"--buses: {', '.join(unknown)} not in the setup ({', '.join(setup.buses)})")
     spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
+    # before connecting: a recording that cannot be saved is a recording lost
+    writable_file(out, "--out")
+    writable_dir(spool, "--spool")
+    raw_dir = out.with_name(out.stem + "_raw")
+    if raw_dir.exists() and not raw_dir.is_dir():
+        raise ConfigError(f"--out {out}: the raw logs go to {raw_dir}, which is a file")
     rec = recorder_from_setup(setup, spool, transport=args.transport, host=args.host, port=args.port,
                               modbus_host=args.modbus_host, modbus_port=args.modbus_port, speedup=args.speedup,
                               buses=buses, channel_map=cmap, modbus=not args.no_modbus,
@@ -94,6 +106,5 @@ def run(args: argparse.Namespace) -> int:
               "samples after it are flagged", file=sys.stderr, flush=True)
     recording = save_capture(capture, setup, out, segments=segments,
                              meta={"transport": args.transport, "stop_reason": reason}, spool_dir=spool)
-    raw_dir = out.with_name(out.stem + "_raw")
     print(f"wrote {out} ({len(recording.channels)} channels) and raw logs in {raw_dir}", flush=True)
     return 0
