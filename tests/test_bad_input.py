@@ -371,3 +371,14 @@ def test_seed_overrides_the_campaign_and_is_recorded(tmp_path: Path, capsys: pyt
     assert json.loads((tmp_path / "o" / "meta.json").read_text(encoding="utf-8"))["seed"] == 99
     # the acceleration test ends long before its 100 s block: the bar's total still never moves
     assert totals and len(set(totals)) == 1, totals
+
+
+def test_seed_reaches_the_scenario_of_validate_and_gain() -> None:
+    import argparse
+
+    from benchtwin.commands._common import load_scenario
+
+    args = argparse.Namespace(vehicle="p2_phev_9at", setup="ideal", campaign="quick", seed=5)
+    assert load_scenario(args)[2].seed == 5  # validation.json meta and the recording take campaign.seed
+    args.seed = None
+    assert load_scenario(args)[2].seed == load_campaign("quick.toml").seed
