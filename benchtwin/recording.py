@@ -8,7 +8,10 @@ with asammdf: one channel group per source, each channel with its unit, and a co
 
 from __future__ import annotations
 
+import gc
 import json
+import sys
+import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -21,7 +24,94 @@ import numpy as np
 from benchtwin.errors import DataError, MissingChannelError
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
-__all__ = ["FLAG_CONVERSION", "Channel", "Flag", "Recording"]
+__all__ = ["FLAG_CONVERSION", "Channel", "Flag", "Recording", "open_mdf"]
+
+
+#: numpy dtype kinds of MF4 channels that are not numbers, as a user would call them
+_KINDS = {"V": "records (e.g. CAN frames)", "S": "bytes", "U": "text", "O": "objects"}
+
+
+def _is_mdf_del(unraisable: Any) -> bool:
+    name = getattr(unraisable.object, "__qualname__", "")
+    return isinstance(name, str) and name.startswith(("MDF4.__del__", "MDF3.__del__", "MDF.__del__"))
+
+
+class _QuietMdfDel:
+    """While entered (by any thread), the ignored-exception report of asammdf's ``MDF4.__del__`` is dropped.
+
+    ``sys.unraisablehook`` is process-wide: the threads that read bus logs in parallel share one
+    filter, installed by the first to enter and removed by the last to leave.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._users = 0
+        self._previous: Any = None
+
+    def _hook(self, unraisable: Any) -> None:
+        if not _is_mdf_del(unraisable):
+            self._previous(unraisable)
+
+    def __enter__(self) -> None:
+        with self._lock:
+            if self._users == 0:
+                self._previous = sys.unraisablehook
+                sys.unraisablehook = self._hook
+            self._users += 1
+
+    def __exit__(self, *exc: object) -> None:
+        with self._lock:
+            self._users -= 1
+            if self._users == 0:
+                sys.unraisablehook = self._previous
+                self._previous = None
+
+
+_QUIET_MDF_DEL = _QuietMdfDel()
+
+
+def _disarm(tb: Any) -> None:
+    """Mark the half-built MDF objects of a failed constructor closed, so their ``__del__`` has nothing to do.
+
+    The object may outlive this call (a reference cycle, collected whenever the garbage collector next
+    runs, in any thread); its ``close()`` returns at once when ``_closed`` is set.
+    """
+    while tb is not None:
+        for value in list(tb.tb_frame.f_locals.values()):
+            if type(value).__name__ in ("MDF4", "MDF3") and not hasattr(value, "_file"):
+                value._closed = True
+        tb = tb.tb_next
+
+
+def open_mdf(path: str | Path, **kwargs: Any) -> Any:
+    """Open an MF4 file with asammdf; a file asammdf cannot read is one :class:`DataError` line.
+
+    asammdf leaves a half-built object behind when its constructor fails, whose ``__del__`` then
+    prints an ignored-exception traceback on stderr (``'MDF4' object has no attribute '_file'``);
+    that object is marked closed (its ``__del__`` then does nothing) and collected here with exactly
+    that report silenced, before the error is raised.
+
+    Raises
+    ------
+    DataError
+        No such file, or not a readable MF4 file (truncated, foreign, not MF4 at all).
+    """
+    from asammdf import MDF
+
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such file")
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder, not an MF4 file")
+    reason = ""
+    with _QUIET_MDF_DEL:
+        try:
+            return MDF(path, **kwargs)
+        except Exception as exc:  # asammdf raises many kinds for a bad file
+            reason = str(exc) or type(exc).__name__
+            _disarm(exc.__traceback__)
+        gc.collect()  # the half-built object (held by the traceback until here) goes now, quietly
+    raise DataError(f"{path}: not a readable MF4 file ({reason})")
 
 
 class Flag(IntFlag):
@@ -285,7 +375,7 @@ class Recording:
             mdf.header.start_time = self.start_time
         mdf.header.comment = json.dumps({"benchtwin": {"meta": self.meta, "segments": json.loads(
             segments_to_json(self.segments))}}, default=str)
-        mdf.save(path, overwrite=True)
+        path = Path(mdf.save(path, overwrite=True))  # asammdf makes the suffix .mf4: the real name
         mdf.close()
         path.with_suffix(".segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
         return path
@@ -299,15 +389,8 @@ class Recording:
         DataError
             If the file cannot be read as MF4.
         """
-        from asammdf import MDF
-
         path = Path(path)
-        if not path.exists():
-            raise DataError(f"{path}: no such file")
-        try:
-            mdf = MDF(path)
-        except Exception as exc:  # asammdf raises many kinds for a bad file
-            raise DataError(f"{path}: not a readable MF4 file ({exc})") from exc
+        mdf = open_mdf(path)
         rec = cls()
         with mdf:
             values: dict[str, Any] = {}
@@ -325,8 +408,15 @@ class Recording:
                     else:
                         values[ch.name] = (sig, source)
             for name, (sig, source) in values.items():
-                rec.add(Channel(name, sig.unit or "", sig.timestamps, np.asarray(sig.samples, dtype=np.float64),
-                                flags.get(name), source, _texts_of(sig.conversion)))
+                try:
+                    samples = np.asarray(sig.samples, dtype=np.float64)
+                except (TypeError, ValueError):  # a CAN frame group, text, a structure: not a Recording
+                    raise DataError(
+                        f"{path}: channel {name!r} holds {_KINDS.get(np.asarray(sig.samples).dtype.kind, 'data')}, "
+                        "not numbers: this is not a benchtwin Recording (a raw bus log: decode it with benchtwin "
+                        "acquire; another tool's log: import it with --signal-map)") from None
+                rec.add(Channel(name, sig.unit or "", sig.timestamps, samples, flags.get(name), source,
+                                _texts_of(sig.conversion)))
             comment = getattr(mdf.header, "description", "") or ""
             rec.start_time = mdf.header.start_time
         side = path.with_suffix(".segments.json")

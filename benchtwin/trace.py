@@ -186,7 +186,7 @@ class Trace:
     @classmethod
     def load(cls, directory: str | Path) -> Trace:
         """Load a trace written by :meth:`save`."""
-        from asammdf import MDF
+        from benchtwin.recording import open_mdf
 
         directory = Path(directory)
         path = directory / "trace.mf4"
@@ -194,7 +194,7 @@ class Trace:
             raise DataError(f"{directory}: no trace.mf4 found")
         channels: dict[str, np.ndarray] = {}
         time_s = np.zeros(0)
-        with MDF(path) as mdf:
+        with open_mdf(path) as mdf:
             for name in mdf.channels_db:
                 if name.startswith("time") or name.startswith("$"):
                     continue
@@ -204,7 +204,10 @@ class Trace:
         seg_path = directory / "segments.json"
         segments = segments_from_json(seg_path.read_text(encoding="utf-8"), str(seg_path)) if seg_path.exists() else []
         meta_path = directory / "meta.json"
-        meta = json.loads(meta_path.read_text(encoding="utf-8")) if meta_path.exists() else {}
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8")) if meta_path.exists() else {}
+        except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+            raise DataError(f"{meta_path}: damaged, not the trace's meta data ({exc})") from None
         return cls(time_s, channels, segments, meta)
 
 

@@ -147,13 +147,16 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
             raise DataError(f"{d}: no setup.json; pass the setup file used for the run")
         from benchtwin.config._base import validate_data
 
-        setup = validate_data(SetupConfig, json.loads(sp.read_text(encoding="utf-8")), str(sp))
+        setup = validate_data(SetupConfig, _read_json(sp, "the setup written with the logs"), str(sp))
     received = AcquisitionInput()
     skipped = []
     file_damage: dict[str, tuple[str, str | None]] = {}
     meta = d / "meta.json"
     if meta.exists():
-        received.meta = json.loads(meta.read_text(encoding="utf-8"))
+        blob = _read_json(meta, "the logs' meta data")
+        if not isinstance(blob, dict):
+            raise DataError(f"{meta}: not the logs' meta data (a JSON object is expected)")
+        received.meta = blob
     try:
         start = datetime.fromisoformat(str(received.meta.pop(_LOG_START)))
     except (KeyError, ValueError):
@@ -230,6 +233,16 @@ def _damaged_logs(received: AcquisitionInput, file_damage: dict[str, tuple[str, 
                         "covered_s": [first if np.isfinite(first) else exp_start, covered_end],
                         "expected_s": [exp_start, exp_end]})
     return out
+
+
+def _read_json(path: Path, what: str) -> Any:
+    """A JSON file of a log folder; DataError naming the file if it is damaged."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError
+        raise DataError(f"{path}: damaged, not {what} ({exc})") from None
 
 
 def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,

@@ -28,12 +28,10 @@ The readers here take the run start back off (``origin``) and return run times.
 from __future__ import annotations
 
 import csv
-import gc
 import json
 import logging
 import struct
-import sys
-import threading
+import zipfile
 import zlib
 from datetime import UTC, datetime
 from pathlib import Path
@@ -42,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.errors import DataError
+from benchtwin.recording import open_mdf
 from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog
 from benchtwin.wire.merge import merge_frames
 
@@ -197,26 +196,13 @@ def _read_mf4(path: Path, bus: str | None, bitrate: int, origin: datetime = DEFA
     return FrameTable(bus or path.stem, frames, bitrate), "; ".join(damage) or None
 
 
-_OPEN_LOCK = threading.Lock()
-
-
 def _open_mdf(path: Path) -> tuple[Any, str]:
     """asammdf's MDF of ``path`` (without bus-logging processing: we decode the frames ourselves), or None and
-    why. asammdf's ``__del__`` of a half-built object complains on stderr after a failed open: silenced here."""
-    from asammdf import MDF
-
-    with _OPEN_LOCK:
-        hook = sys.unraisablehook
-        sys.unraisablehook = lambda _u: None
-        try:
-            try:
-                return MDF(path, process_bus_logging=False), ""
-            except Exception as exc:  # asammdf raises many kinds for a bad file
-                error = str(exc) or type(exc).__name__
-            gc.collect()
-            return None, error
-        finally:
-            sys.unraisablehook = hook
+    why (:func:`benchtwin.recording.open_mdf` keeps asammdf's complaint about a half-built object quiet)."""
+    try:
+        return open_mdf(path, process_bus_logging=False), ""
+    except DataError as exc:
+        return None, str(exc)
 
 
 def _mf4_cut_before_its_groups(path: Path) -> bool:
@@ -404,8 +390,9 @@ def read_poll_log(path: str | Path) -> PollLog:
                            z["times"], z["values"], z["status"])
     except FileNotFoundError:
         raise DataError(f"{path}: no such poll log") from None
-    except (KeyError, ValueError, OSError) as exc:
-        raise DataError(f"{path}: not a poll log ({exc})") from exc
+    except (KeyError, ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        why = "not an .npz archive" if "pickle" in str(exc) else (str(exc) or type(exc).__name__)
+        raise DataError(f"{path}: not a poll log ({why})") from None
 
 
 def write_poll_csv(log: PollLog, path: str | Path) -> Path:

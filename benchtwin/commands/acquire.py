@@ -28,6 +28,7 @@ import sys
 import time
 from pathlib import Path
 
+from benchtwin.commands._common import add_seed_arg, load_setup_arg, writable_dir, writable_file
 from benchtwin.errors import ConfigError, DataError
 
 __all__ = ["add_subparser", "run"]
@@ -42,9 +43,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     p.add_argument("--setup", default=None, help="setup TOML or shipped name (default: LOGDIR/setup.json)")
     p.add_argument("--trace", type=Path, default=None, help="encode this saved Trace first (folder of trace.mf4)")
     p.add_argument("--logs", type=Path, default=None, help="with --trace: where to write the raw logs")
-    p.add_argument("--seed", type=int, default=None, help="with --trace: campaign seed (default: the trace's)")
+    add_seed_arg(p, "with --trace: the trace's")
     p.add_argument("--blf", action="store_true", help="with --trace: also export BLF bus logs")
-    p.add_argument("--out", type=Path, required=True, help="Recording MF4 to write")
+    p.add_argument("--out", type=Path, required=True, help="Recording MF4 to write (.mf4 is added or replaces "
+                                                           "another suffix)")
     p.set_defaults(func=run)
     return p
 
@@ -54,29 +56,30 @@ def run(args: argparse.Namespace) -> int:
     from benchtwin.chain.acquisition import acquire
     from benchtwin.chain.batch import read_logs, run_batch
     from benchtwin.chain.live.bench import is_spool, read_spool
-    from benchtwin.commands._common import check_writable
-    from benchtwin.config.setup import load_setup
     from benchtwin.trace import Trace
 
-    check_writable(args.out)
-    if args.trace is not None:
-        check_writable(args.logs if args.logs is not None else args.out.with_suffix(""), directory=True,
-                       what="--logs")
-    setup = load_setup(args.setup) if args.setup else None
-    t0 = time.perf_counter()
     if args.trace is not None:
         if args.logdir is not None:
             raise ConfigError("give either LOGDIR (decode logs) or --trace (encode a trace), not both")
-        if setup is None:
+        if args.setup is None:
             raise ConfigError("--trace needs --setup (the bench to put on the trace)")
+    elif args.logdir is None:
+        raise ConfigError("give a LOGDIR of raw logs, or --trace TRACEDIR")
+    elif args.seed is not None:
+        raise ConfigError("--seed is for --trace (decoding logs draws nothing at random)")
+    setup = load_setup_arg(args.setup) if args.setup else None
+    # asammdf writes the MF4 under the name with its suffix made .mf4: check (and report) that file
+    out = args.out if args.out.suffix.lower() == ".mf4" else args.out.with_suffix(".mf4")
+    writable_file(out, "--out")
+    t0 = time.perf_counter()
+    if args.trace is not None and setup is not None:
+        logs = args.logs if args.logs is not None else args.out.with_suffix("")
+        writable_dir(logs, "--logs")
         trace = Trace.load(args.trace)
         seed = args.seed if args.seed is not None else int(trace.meta.get("seed", 0) or 0)
-        logs = args.logs if args.logs is not None else args.out.with_suffix("")
         rec = run_batch(trace, setup, seed, logs, blf=args.blf)
         print(f"encoded {trace.duration_s:.0f} s of trace with setup {setup.name!r}, raw logs in {logs}")
     else:
-        if args.logdir is None:
-            raise ConfigError("give a LOGDIR of raw logs, or --trace TRACEDIR")
         if is_spool(args.logdir):
             received, setup = read_spool(args.logdir, setup)
             got = received.meta["recovered_spool"]
@@ -88,9 +91,9 @@ def run(args: argparse.Namespace) -> int:
         rec = acquire(received, setup)
     wall = time.perf_counter() - t0
     try:
-        path = rec.save(args.out)
+        path = rec.save(out)
     except OSError as exc:
-        raise DataError(f"{args.out}: cannot write the recording ({exc.strerror or exc})") from None
+        raise DataError(f"{out}: cannot write the recording ({exc.strerror or exc})") from None
     n_frames = sum(rec.meta.get("frames", {}).values())
     n_samples = sum(len(c) for c in rec.channels.values())
     print(f"decoded {n_frames} frames and {sum(v['polls'] for v in rec.meta.get('modbus', {}).values())} polls "

@@ -24,7 +24,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     """Register the ``demo`` subcommand."""
     p = subparsers.add_parser("demo", help="simulate WLTC 3b on the default vehicle and print a summary",
                               description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
-    p.add_argument("--campaign", default="wltc.toml", help="campaign (default: the shipped wltc.toml)")
+    p.add_argument("--campaign", default="wltc", help="campaign TOML or a shipped name (default: wltc)")
     p.set_defaults(func=run)
     return p
 
@@ -66,12 +66,11 @@ def summary_rows(trace: Trace) -> list[tuple[str, str]]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo campaign and print the summary table; return the exit status."""
-    from benchtwin.config.campaign import load_campaign
-    from benchtwin.config.vehicle import load_vehicle
+    from benchtwin.commands._common import load_campaign_arg, load_vehicle_arg
     from benchtwin.emulator import simulate_campaign
 
-    vehicle = load_vehicle()
-    campaign = load_campaign(args.campaign)
+    vehicle = load_vehicle_arg(None)
+    campaign = load_campaign_arg(args.campaign)
     t0 = time.perf_counter()
     trace = simulate_campaign(vehicle, campaign, progress=True)
     wall = time.perf_counter() - t0

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from benchtwin.commands._common import add_scenario_args, load_scenario
+from benchtwin.commands._common import add_scenario_args, add_seed_arg, load_scenario
 
 __all__ = ["add_subparser", "run"]
 
@@ -22,6 +22,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     p = subparsers.add_parser("gain", help="choose the telemetry gain K_TEL for the shaft torque",
                               description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
     add_scenario_args(p)
+    add_seed_arg(p)
     p.add_argument("--margin", type=float, default=1.1, help="headroom factor on the peak torque (default 1.1)")
     p.add_argument("--score", action="store_true",
                    help="identify the transmission with every gain and show the error against the truth")
@@ -35,9 +36,12 @@ def run(args: argparse.Namespace) -> int:
     from benchtwin.errors import ConfigError
     from benchtwin.validation import select_gain
 
-    if not args.margin >= 1.0:
+    if not (math.isfinite(args.margin) and args.margin >= 1.0):
         raise ConfigError(f"--margin {args.margin}: must be >= 1.0")
     vehicle, setup, campaign = load_scenario(args)
+    if setup.telemetry is None:  # before the campaign is simulated, not after
+        raise ConfigError(f"--setup {args.setup}: setup {setup.name!r} has no [telemetry] section: there is no "
+                          "gain to choose")
     trace = simulate_campaign(vehicle, campaign, progress=True)
     base = None
     if args.score:
@@ -46,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
         base = run_batch(trace, setup, seed=campaign.seed)
     best, options = select_gain(trace, setup, vehicle if args.score else None, seed=campaign.seed,
                                 base_recording=base, margin=args.margin)
-    print(f"benchtwin gain: campaign {campaign.name}, peak shaft torque {options[0].peak_torque_nm:.0f} Nm, "
+    print(f"benchtwin gain: campaign {campaign.name} (seed {campaign.seed}), "
+          f"peak shaft torque {options[0].peak_torque_nm:.0f} Nm, "
           f"setup gain {setup.telemetry.k_tel}")
     head = f"{'K_TEL':>6s} {'K_TOT Nm/V':>11s} {'resol. Nm':>10s} {'range Nm':>10s} {'clipped':>9s}"
     if args.score:

@@ -16,6 +16,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from benchtwin.commands._common import writable_dir
 from benchtwin.errors import ConfigError, DataError
 
 __all__ = ["add_subparser", "run"]
@@ -44,15 +45,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
 
 
 def _load_specs(path: Path) -> Any:
-    from benchtwin.config._base import validate_data
+    from benchtwin.config._base import read_toml, validate_data
     from benchtwin.config.specs import VehicleSpecs
 
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path)
     if "specs" in data and isinstance(data["specs"], dict):
         data = data["specs"]
     return validate_data(VehicleSpecs, data, str(path))
@@ -60,7 +56,7 @@ def _load_specs(path: Path) -> Any:
 
 def _parse_options(items: list[str], options: dict[str, dict[str, Any]]) -> None:
     """Parse ``METHOD.KEY=VALUE`` items into ``options`` (values as TOML literals); ConfigError on a bad one."""
-    from benchtwin.identification.run import method_options
+    from benchtwin.identification.run import method_option_defaults, method_options
 
     for item in items:
         head, sep, raw = item.partition("=")
@@ -78,7 +74,36 @@ def _parse_options(items: list[str], options: dict[str, dict[str, Any]]) -> None
             value = tomllib.loads(f"v = {raw.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             value = raw.strip()  # a bare word: take it as a string
+        default = method_option_defaults(method).get(key)
+        problem = _option_problem(value, default)
+        if problem:
+            raise ConfigError(f"--option {item!r}: {method}.{key} {problem} (default {default!r})")
+        if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
         options.setdefault(method, {})[key] = value
+
+
+def _option_problem(value: Any, default: Any) -> str | None:
+    """What is wrong with an option value given the option's default (None: nothing, or nothing known)."""
+    import math
+
+    def number(v: Any) -> bool:
+        return isinstance(v, int | float) and not isinstance(v, bool)
+
+    if number(value) and not math.isfinite(value):
+        return f"takes a finite number, got {value!r}"
+    if isinstance(default, bool):
+        return None if isinstance(value, bool) else f"takes true or false, got {value!r}"
+    if isinstance(default, int):
+        whole = isinstance(value, int) and not isinstance(value, bool)
+        return None if whole else f"takes a whole number, got {value!r}"
+    if isinstance(default, float):
+        return None if number(value) else f"takes a number, got {value!r}"
+    if isinstance(default, tuple | list):
+        return None if isinstance(value, list) else f"takes a list in brackets, got {value!r}"
+    if isinstance(default, str):
+        return None if isinstance(value, str) else f"takes a word in quotes, got {value!r}"
+    return None
 
 
 def _write_tables(result: Any, out: Path) -> list[Path]:
@@ -127,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
 
     options: dict[str, dict[str, Any]] = {}
     specs = None
+    _parse_options(args.option, options)  # a typo in an option costs nothing yet
+    out: Path = writable_dir(args.out, "--out")
     if args.signal_map is not None:
         from benchtwin.identification.importers import import_log
         from benchtwin.identification.signal_map import load_signal_map
@@ -136,8 +163,9 @@ def run(args: argparse.Namespace) -> int:
         specs = smap.specs
         if smap.battery is not None:
             b = smap.battery
-            options["battery_map_free"] = {"capacity_ah": b.capacity_ah, "soc_nodes_pct": b.soc_nodes_pct,
-                                           "min_abs_current_a": b.min_abs_current_a, "min_rest_s": b.min_rest_s}
+            hints = {"capacity_ah": b.capacity_ah, "soc_nodes_pct": b.soc_nodes_pct,
+                     "min_abs_current_a": b.min_abs_current_a, "min_rest_s": b.min_rest_s}
+            options["battery_map_free"] = {**hints, **options.get("battery_map_free", {})}
     else:
         if args.recording.suffix.lower() not in (".mf4", ".mdf"):
             raise ConfigError(f"{args.recording}: not an MF4 Recording; give --signal-map to import a "
@@ -145,16 +173,10 @@ def run(args: argparse.Namespace) -> int:
         rec = Recording.load(args.recording)
     if args.specs is not None:
         specs = _load_specs(args.specs)
-    _parse_options(args.option, options)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     result = identify_all(rec, specs, methods=methods, options=options)
     result.meta["recording"] = str(args.recording)
     result.meta["signal_map"] = str(args.signal_map) if args.signal_map else None
-    out: Path = args.out
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     params = out / "params.json"
     # the numbers first: whatever happens to the figures, the identified parameters are on disk
     params.write_text(json.dumps(result.to_dict(), indent=1, default=str), encoding="utf-8")

@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from benchtwin.commands._common import load_setup_arg, writable_dir, writable_file
 from benchtwin.errors import ConfigError
 
 __all__ = ["add_subparser", "run"]
@@ -93,20 +94,21 @@ def python_can_defaults(args: argparse.Namespace, buses: list[str]) -> tuple[str
 
 def run(args: argparse.Namespace) -> int:
     """Run ``benchtwin record``."""
+    import math
+
     from benchtwin.chain.live.bench import recorder_from_setup, save_capture
-    from benchtwin.commands._common import check_writable
-    from benchtwin.config.setup import load_setup
     from benchtwin.segments import load_segments
 
-    if not args.speedup > 0:
-        raise ConfigError(f"--speedup must be > 0, got {args.speedup}")
+    if not (args.speedup > 0 and math.isfinite(args.speedup)):
+        raise ConfigError(f"--speedup must be a finite number > 0, got {args.speedup}")
+    for opt, value in (("--duration", args.duration), ("--idle", args.idle),
+                       ("--connect-timeout", args.connect_timeout)):
+        if value is not None and not (value > 0 and math.isfinite(value)):
+            raise ConfigError(f"{opt} {value}: give a finite number of seconds > 0")
     out = Path(args.out)
     if out.suffix.lower() != ".mf4":
         raise ConfigError(f"--out {out}: the Recording is written as MF4; use a .mf4 name")
-    spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
-    check_writable(out)
-    check_writable(spool, directory=True, what="--spool")
-    setup = load_setup(args.setup)
+    setup = load_setup_arg(args.setup)
     segments = []
     if args.segments:
         try:
@@ -118,6 +120,13 @@ def run(args: argparse.Namespace) -> int:
         unknown = [b for b in buses if b not in setup.buses]
         if unknown:
             raise ConfigError(f"--buses: {', '.join(unknown)} not in the setup ({', '.join(setup.buses)})")
+    spool = Path(args.spool) if args.spool else out.with_name(out.name + ".spool")
+    # before connecting: a recording that cannot be saved is a recording lost
+    writable_file(out, "--out")
+    writable_dir(spool, "--spool")
+    raw_dir = out.with_name(out.stem + "_raw")
+    if raw_dir.exists() and not raw_dir.is_dir():
+        raise ConfigError(f"--out {out}: the raw logs go to {raw_dir}, which is a file")
     transport, host, port, cmap = python_can_defaults(args, buses or list(setup.buses))
     for part in filter(None, (s.strip() for s in args.channel_map.split(","))):
         bus, sep, iface = part.partition("=")
@@ -145,6 +154,5 @@ def run(args: argparse.Namespace) -> int:
               "samples after it are flagged", file=sys.stderr, flush=True)
     recording = save_capture(capture, setup, out, segments=segments,
                              meta={"transport": args.transport, "stop_reason": reason}, spool_dir=spool)
-    raw_dir = out.with_name(out.stem + "_raw")
     print(f"wrote {out} ({len(recording.channels)} channels) and raw logs in {raw_dir}", flush=True)
     return 0

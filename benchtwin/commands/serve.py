@@ -17,12 +17,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from benchtwin.commands._common import (
+    add_seed_arg,
+    load_campaign_arg,
+    load_setup_arg,
+    load_vehicle_arg,
+    writable_file,
+)
 from benchtwin.errors import ConfigError
 
 __all__ = ["add_subparser", "run"]
@@ -45,7 +53,7 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--channel-map", default="", help="socketcan: bus=iface,... (default vcan0, vcan1, ...)")
     p.add_argument("--start", type=float, default=None, help="plant time to start at, s")
     p.add_argument("--end", type=float, default=None, help="plant time to stop at, s")
-    p.add_argument("--seed", type=int, default=None, help="sensor seed (default: the campaign's, else 0)")
+    add_seed_arg(p, "the campaign's, else 0")
     p.add_argument("--wait-clients", type=int, default=0, metavar="N",
                    help="socketcand: wait for N clients in raw mode before playing")
     p.add_argument("--wait-timeout", type=float, default=30.0, help="seconds to wait for --wait-clients")
@@ -76,19 +84,15 @@ def _load_trace(args: argparse.Namespace) -> tuple[Any, int]:
     if args.synthetic is not None:
         from benchtwin.sensors.synthetic import synthetic_trace
 
-        if not args.synthetic > 0:
-            raise ConfigError("serve: --synthetic needs a positive duration")
+        if not 0 < args.synthetic <= 86_400:
+            raise ConfigError(f"serve: --synthetic {args.synthetic}: give a duration in seconds, > 0 and at most "
+                              "86400 (a day)")
         return synthetic_trace(float(args.synthetic)), seed
-    from benchtwin.config.campaign import load_campaign
-    from benchtwin.config.vehicle import load_vehicle
     from benchtwin.emulator import simulate_campaign
 
-    name = args.campaign
-    if not Path(name).suffix and not Path(name).exists():
-        name = f"{name}.toml"  # a shipped campaign by its bare name (quick, paper, wltc)
-    campaign = load_campaign(name)
-    vehicle = load_vehicle(args.vehicle)
-    seed = int(getattr(campaign, "seed", 0) or 0)
+    campaign = load_campaign_arg(args.campaign, args.seed)
+    vehicle = load_vehicle_arg(args.vehicle)
+    seed = int(campaign.seed)
     print(f"simulating {args.campaign} ...", flush=True)
     return simulate_campaign(vehicle, campaign), seed
 
@@ -106,12 +110,20 @@ def _channel_map(text: str) -> dict[str, str]:
 def run(args: argparse.Namespace) -> int:
     """Run ``benchtwin serve``."""
     from benchtwin.chain.live.bench import session_from_setup
-    from benchtwin.config.setup import load_setup
     from benchtwin.sensors import encode
 
-    if not args.speedup > 0:
-        raise ConfigError(f"--speedup must be > 0, got {args.speedup}")
-    setup = load_setup(args.setup)
+    if not (args.speedup > 0 and math.isfinite(args.speedup)):
+        raise ConfigError(f"--speedup must be a finite number > 0, got {args.speedup}")
+    for opt, value in (("--start", args.start), ("--end", args.end), ("--linger", args.linger),
+                       ("--wait-timeout", args.wait_timeout)):
+        if value is not None and not math.isfinite(value):
+            raise ConfigError(f"{opt} {value}: give a finite number of seconds")
+    if args.record and Path(args.record).suffix.lower() != ".mf4":
+        raise ConfigError(f"--record {args.record}: the Recording is written as MF4; use a .mf4 name")
+    for opt, value in (("--record", args.record), ("--report", args.report), ("--segments-out", args.segments_out)):
+        if value:  # before anything is simulated or served
+            writable_file(value, opt)
+    setup = load_setup_arg(args.setup)
     trace, seed = _load_trace(args)
     if args.seed is not None:
         seed = args.seed
@@ -183,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
         from benchtwin.chain.live.bench import save_capture
 
         rec = save_capture(capture, setup, args.record, segments=list(trace.segments),
-                           meta={"transport": args.transport, "embedded": True}, spool_dir=spool)
+                           meta={"transport": args.transport, "embedded": True, "seed": seed}, spool_dir=spool)
         print(f"wrote {args.record} ({len(rec.channels)} channels, "
               + ", ".join(f"{b} {len(t)} frames" for b, t in capture.can.items()) + ")", flush=True)
     problems = _plan_problems(report, before, after)

@@ -2,7 +2,7 @@
 
 Writes ``DIR/trace.mf4`` (every Trace channel, SI units, asammdf), ``DIR/segments.json`` (one segment per
 test) and ``DIR/meta.json`` (vehicle, seed, rates, energy ledger). A bare campaign name such as
-``paper.toml`` is looked up among the shipped campaigns.
+``quick`` or ``paper.toml`` is looked up among the shipped campaigns; ``--seed`` replaces the campaign's.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ import argparse
 import time
 from pathlib import Path
 
+from benchtwin.commands._common import add_seed_arg, load_campaign_arg, load_vehicle_arg, writable_dir
 from benchtwin.errors import DataError
 
 __all__ = ["add_subparser", "run"]
@@ -20,10 +21,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     """Register the ``simulate`` subcommand."""
     p = subparsers.add_parser("simulate", help="run a test campaign on the emulated vehicle and save the Trace",
                               description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
-    p.add_argument("--campaign", required=True, help="campaign TOML (or a shipped name: paper.toml, quick.toml, "
-                                                     "wltc.toml)")
-    p.add_argument("--vehicle", type=Path, default=None, help="vehicle TOML (default: the shipped p2_phev_9at.toml)")
+    p.add_argument("--campaign", required=True, help="campaign TOML or a shipped name: paper, quick, wltc")
+    p.add_argument("--vehicle", default=None, help="vehicle TOML or a shipped name (default: p2_phev_9at)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
+    add_seed_arg(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -31,12 +32,11 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
 
 def run(args: argparse.Namespace) -> int:
     """Simulate the campaign and write the Trace; return the exit status."""
-    from benchtwin.config.campaign import load_campaign
-    from benchtwin.config.vehicle import load_vehicle
     from benchtwin.emulator import energy_balance, simulate_campaign
 
-    vehicle = load_vehicle(args.vehicle)
-    campaign = load_campaign(args.campaign)
+    vehicle = load_vehicle_arg(args.vehicle)
+    campaign = load_campaign_arg(args.campaign, args.seed)
+    writable_dir(args.out, "--out")
     t0 = time.perf_counter()
     trace = simulate_campaign(vehicle, campaign, progress=not args.no_progress)
     wall = time.perf_counter() - t0
@@ -48,5 +48,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"{campaign.name}: {len(trace.segments)} tests, {trace.duration_s:.0f} s simulated in {wall:.1f} s "
           f"({trace.duration_s / max(wall, 1e-9):.0f}x real time), energy balance residual "
           f"{100 * bal['residual_frac']:.4f} %")
-    print(f"wrote {path} and {args.out / 'segments.json'}")
+    print(f"wrote {path} and {args.out / 'segments.json'} (seed {campaign.seed})")
     return 0

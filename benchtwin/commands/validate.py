@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from benchtwin.commands._common import add_scenario_args, check_writable, load_scenario
+from benchtwin.commands._common import add_scenario_args, add_seed_arg, load_scenario, writable_dir
 
 __all__ = ["HIGHLIGHTS", "add_subparser", "highlights", "print_report", "run"]
 
@@ -21,6 +21,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     p = subparsers.add_parser("validate", help="campaign -> chain -> identification, compared with the truth",
                               description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
     add_scenario_args(p)
+    add_seed_arg(p)
     p.add_argument("--profile", choices=("ideal", "realistic"), default=None,
                    help="tolerance profile (default: ideal for an ideal setup, else realistic)")
     p.add_argument("--out", type=Path, default=None, help="write logs, recording, params.json, validation.json")
@@ -97,9 +98,9 @@ def run(args: argparse.Namespace) -> int:
     """Run the validation; return 0 when every check passes, 1 otherwise."""
     from benchtwin.validation import validate
 
-    if args.out is not None:
-        check_writable(args.out, directory=True)
     vehicle, setup, campaign = load_scenario(args)
+    if args.out is not None:
+        writable_dir(args.out, "--out")
     report = validate(vehicle, setup, campaign, profile=args.profile, out_dir=args.out,
                       figures=bool(args.figures and args.out), progress=True)
     print_report(report, show_all=args.all)

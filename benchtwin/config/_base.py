@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from benchtwin.errors import ConfigError
 
-__all__ = ["StrictModel", "load_model", "scenario_path", "validate_data"]
+__all__ = ["StrictModel", "load_model", "read_toml", "scenario_path", "validate_data"]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -23,9 +23,14 @@ SCENARIO_ROOTS: tuple[Path, ...] = (
 
 
 class StrictModel(BaseModel):
-    """Base of every scenario model: unknown keys are errors, values are validated on assignment."""
+    """Base of every scenario model: unknown keys are errors, values are validated on assignment.
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, populate_by_name=True)
+    NaN and infinity are refused in every float field of every model (nested tables and lists
+    included): ``nan`` and ``inf`` are valid TOML but never a valid bench or vehicle value.
+    """
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, populate_by_name=True,
+                              allow_inf_nan=False)
 
 
 def scenario_path(*parts: str) -> Path:
@@ -43,6 +48,25 @@ def scenario_path(*parts: str) -> Path:
     raise ConfigError(f"no shipped scenario file {'/'.join(parts)!r}")
 
 
+def _data_loc(data: Any, loc: tuple[Any, ...]) -> tuple[Any, ...]:
+    """``loc`` without the tags pydantic inserts for a discriminated union (``tests.0.ramp_up.gear``).
+
+    A string step that is not a key of the table at that point but is the value of its ``kind`` is such
+    a tag: the user wrote ``tests[0].gear``.
+    """
+    out: list[Any] = []
+    cur = data
+    for item in loc:
+        if isinstance(cur, dict) and isinstance(item, str) and item not in cur and cur.get("kind") == item:
+            continue
+        out.append(item)
+        try:
+            cur = cur[item]
+        except (KeyError, IndexError, TypeError):
+            cur = None
+    return tuple(out)
+
+
 def _fmt_loc(loc: tuple[Any, ...]) -> str:
     out = ""
     for item in loc:
@@ -53,13 +77,16 @@ def _fmt_loc(loc: tuple[Any, ...]) -> str:
     return out or "<root>"
 
 
+_MISSING = object()
+
+
 def _lookup(data: Any, loc: tuple[Any, ...]) -> Any:
     cur = data
     for item in loc:
         try:
             cur = cur[item]
         except (KeyError, IndexError, TypeError):
-            return None
+            return _MISSING
     return cur
 
 
@@ -90,11 +117,12 @@ def format_validation_error(exc: ValidationError, source: str, data: Any, model:
     """Turn a pydantic ValidationError into one line per problem naming file, key, value, fix."""
     lines = []
     for err in exc.errors():
-        loc = tuple(err.get("loc", ()))
+        raw_loc = tuple(err.get("loc", ()))
+        loc = _data_loc(data, raw_loc)
         key = _fmt_loc(loc)
         typ = err.get("type", "")
         if typ == "extra_forbidden":
-            allowed = _model_fields_at(model, loc)
+            allowed = _model_fields_at(model, raw_loc)
             hint = ""
             close = difflib.get_close_matches(str(loc[-1]), allowed, n=1, cutoff=0.5) if loc else []
             if close:
@@ -107,7 +135,10 @@ def format_validation_error(exc: ValidationError, source: str, data: Any, model:
         else:
             value = _lookup(data, loc)
             msg = err.get("msg", "invalid value")
-            lines.append(f"{source}: key {key!r} = {value!r}: {msg}")
+            if typ == "finite_number":
+                msg = "nan and inf are not allowed; give a finite number"
+            shown = "" if value is _MISSING else f" = {value!r}"
+            lines.append(f"{source}: key {key!r}{shown}: {msg}")
     return "\n".join(lines)
 
 
@@ -119,23 +150,38 @@ def validate_data(model: type[M], data: Any, source: str = "<data>") -> M:
         raise ConfigError(format_validation_error(exc, source, data, model)) from None
 
 
-def load_model(model: type[M], path: str | Path) -> M:
-    """Read a TOML file and validate it as ``model``.
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file into a dict.
 
     Raises
     ------
     ConfigError
-        File missing, not TOML, or not valid for the model; the message names the file and key.
+        File missing, a folder, not UTF-8, unreadable or not TOML; one line naming the file.
     """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a TOML file") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset {exc.start}); "
+                          "TOML files must be saved as UTF-8") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot be read ({exc.strerror})") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    return validate_data(model, data, str(path))
+
+
+def load_model(model: type[M], path: str | Path) -> M:
+    """Read a TOML file and validate it as ``model``.
+
+    Raises
+    ------
+    ConfigError
+        File missing, not UTF-8, not TOML, or not valid for the model; the message names the file and key.
+    """
+    return validate_data(model, read_toml(path), str(path))

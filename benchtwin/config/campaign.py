@@ -29,6 +29,15 @@ __all__ = [
     "load_campaign",
 ]
 
+#: the longest any one duration of a campaign may be (one day of plant time); the whole campaign is bounded
+#: by the plant samples it needs (``benchtwin.emulator.MAX_PLANT_SAMPLES``)
+MAX_DURATION_S = 86_400.0
+
+#: a duration key: positive, finite, at most a day
+Duration = Annotated[float, Field(gt=0, le=MAX_DURATION_S)]
+#: a pedal position (accelerator or brake), percent of travel
+Pedal = Annotated[float, Field(ge=0, le=100)]
+
 HybridMode = Literal["hybrid", "electric", "e_save", "charge"]
 Force = Literal["auto", "on", "off"]
 Clutch = Literal["auto", "closed", "open"]
@@ -53,8 +62,8 @@ class DriverConfig(StrictModel):
 
     bandwidth_radps: float = Field(default=1.5, gt=0)
     damping: float = Field(default=1.0, gt=0)
-    preview_s: float = Field(default=0.4, ge=0)
-    stop_decel_mps2: float = Field(default=1.5, gt=0)
+    preview_s: float = Field(default=0.4, ge=0, le=10)
+    stop_decel_mps2: float = Field(default=1.5, gt=0, le=10)
 
 
 class _TestBase(StrictModel):
@@ -68,10 +77,10 @@ class RampUpTest(_TestBase):
     kind: Literal["ramp_up"]
     gear: int = Field(ge=1)
     speed_kmh: float = Field(gt=0, le=200)
-    pedal_steps_pct: list[float] = Field(min_length=1)
-    brake_steps_pct: list[float] = Field(default_factory=list)
-    step_hold_s: float = Field(default=8.0, gt=0)
-    lead_in_s: float = Field(default=15.0, gt=0)
+    pedal_steps_pct: list[Pedal] = Field(min_length=1)
+    brake_steps_pct: list[Pedal] = Field(default_factory=list)
+    step_hold_s: Duration = 8.0
+    lead_in_s: Duration = 15.0
     engine: Force = "auto"
     k0: Clutch = "auto"
     lockup: Clutch = "closed"
@@ -83,8 +92,8 @@ class ConstantDriveTest(_TestBase):
     kind: Literal["constant_drive"]
     speed_kmh: float = Field(gt=0, le=200)
     gear: int = Field(default=0, ge=0, description="0: automatic")
-    approach_s: float = Field(default=30.0, gt=0)
-    max_duration_s: float = Field(gt=0)
+    approach_s: Duration = 30.0
+    max_duration_s: Duration
     end_displayed_soc_pct: float | None = Field(default=None, ge=0, le=100)
 
 
@@ -93,8 +102,8 @@ class AccelerationTest(_TestBase):
 
     kind: Literal["acceleration"]
     pedal_pct: float = Field(gt=0, le=100)
-    end_speed_kmh: float = Field(default=130.0, gt=0)
-    max_duration_s: float = Field(default=150.0, gt=0)
+    end_speed_kmh: float = Field(default=130.0, gt=0, le=250)
+    max_duration_s: Duration = 150.0
 
 
 class DecelerationTest(_TestBase):
@@ -103,7 +112,7 @@ class DecelerationTest(_TestBase):
     kind: Literal["deceleration"]
     start_speed_kmh: float = Field(gt=0, le=200)
     decel_mps2: float = Field(gt=0, le=6)
-    approach_s: float = Field(default=40.0, gt=0)
+    approach_s: Duration = 40.0
 
 
 class RampDownTest(_TestBase):
@@ -111,10 +120,17 @@ class RampDownTest(_TestBase):
 
     kind: Literal["ramp_down"]
     pedal_pct: float = Field(ge=0, le=100)
-    start_speed_kmh: float = Field(default=130.0, gt=0)
+    start_speed_kmh: float = Field(default=130.0, gt=0, le=200)
     end_speed_kmh: float = Field(default=0.0, ge=0)
     rate_kmh_per_s: float = Field(default=1.0, gt=0)
-    lead_in_s: float = Field(default=25.0, gt=0)
+    lead_in_s: Duration = 25.0
+
+    @model_validator(mode="after")
+    def _downwards(self) -> RampDownTest:
+        if not self.end_speed_kmh < self.start_speed_kmh:
+            raise ValueError(f"end_speed_kmh ({self.end_speed_kmh}) must be below start_speed_kmh "
+                             f"({self.start_speed_kmh}): the dyno ramps down")
+        return self
 
 
 class NeutralBrakingTest(_TestBase):
@@ -122,9 +138,9 @@ class NeutralBrakingTest(_TestBase):
 
     kind: Literal["neutral_braking"]
     speed_kmh: float = Field(gt=0, le=200)
-    brake_steps_pct: list[float] = Field(min_length=1)
-    step_hold_s: float = Field(default=5.0, gt=0)
-    lead_in_s: float = Field(default=15.0, gt=0)
+    brake_steps_pct: list[Pedal] = Field(min_length=1)
+    step_hold_s: Duration = 5.0
+    lead_in_s: Duration = 15.0
 
 
 class CycleTest(_TestBase):
@@ -132,8 +148,9 @@ class CycleTest(_TestBase):
 
     kind: Literal["cycle"]
     cycle: str = "wltc_class3b.csv"
-    from_s: float = Field(default=0.0, ge=0, description="run only part of the cycle: start time")
-    to_s: float | None = Field(default=None, gt=0, description="end time (default: the end of the cycle)")
+    from_s: float = Field(default=0.0, ge=0, le=MAX_DURATION_S, description="run only part of the cycle: start time")
+    to_s: float | None = Field(default=None, gt=0, le=MAX_DURATION_S,
+                               description="end time (default: the end of the cycle)")
 
     @model_validator(mode="after")
     def _window(self) -> CycleTest:
@@ -146,9 +163,9 @@ class CoastdownTest(_TestBase):
     """Driver reaches ``start_speed_kmh``, then neutral, no pedals, road-load mode, until standstill."""
 
     kind: Literal["coastdown"]
-    start_speed_kmh: float = Field(default=130.0, gt=0)
-    approach_s: float = Field(default=60.0, gt=0)
-    max_duration_s: float = Field(default=400.0, gt=0)
+    start_speed_kmh: float = Field(default=130.0, gt=0, le=200)
+    approach_s: Duration = 60.0
+    max_duration_s: Duration = 400.0
 
 
 TestConfig = Annotated[

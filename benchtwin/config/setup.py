@@ -11,19 +11,22 @@ thermo module's range): values beyond it are clipped and flagged, as on the real
 
 from __future__ import annotations
 
+import difflib
 import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from benchtwin.config._base import StrictModel, load_model, scenario_path
 from benchtwin.errors import ConfigError
 
 __all__ = [
+    "DYNO_ROLES",
     "IVT_PLACES",
     "K_TEL_STEPS",
     "THERMO_PLACES",
+    "VEHICLE_CAN_ROLES",
     "BusConfig",
     "ChannelErrors",
     "DynoConfig",
@@ -57,12 +60,29 @@ THERMO_PLACES: tuple[str, ...] = (
 #: telemetry gains selectable on the rotary switch (paper, Table 2)
 K_TEL_STEPS: tuple[int, ...] = (250, 500, 1000, 2000, 4000, 8000)
 
+#: Recording roles the vehicle CAN tap carries (``vehicle.dbc``): the keys allowed under ``[vehicle_can.errors]``
+#: (kept here because config sits below the sensors; a test checks it against the sensors' signal map)
+VEHICLE_CAN_ROLES: tuple[str, ...] = (
+    "engine_speed_rpm", "engine_torque_nm", "engine_on", "em_speed_rpm", "em_torque_nm", "fuel_mass_flow_gps",
+    "gear_target", "gear_actual", "lockup_closed", "k0_closed", "pedal_pct", "brake_pedal_pct",
+    "vehicle_speed_kmh", "displayed_soc_pct", "hybrid_mode",
+)
+
+#: Recording roles the dyno broadcast carries (``dyno.dbc``): the keys allowed under ``[dyno.errors]``
+DYNO_ROLES: tuple[str, ...] = ("dyno_speed_kmh", "dyno_set_speed_kmh", "dyno_force_front_n", "dyno_force_rear_n")
+
+#: host names of the loopback interface, the only place the emulated bench listens
+LOOPBACK_HOSTS: tuple[str, ...] = ("127.0.0.1", "localhost", "::1")
+
+#: the longest time any setup key may name (latencies, clock offsets, stuck intervals): one day
+MAX_TIME_S = 86_400.0
+
 
 class StuckInterval(StrictModel):
     """The sensor output freezes at its last value from ``start_s`` to ``end_s`` (plant time)."""
 
-    start_s: float
-    end_s: float
+    start_s: float = Field(ge=0, le=MAX_TIME_S)
+    end_s: float = Field(gt=0, le=MAX_TIME_S)
 
     @model_validator(mode="after")
     def _order(self) -> StuckInterval:
@@ -109,8 +129,9 @@ class ChannelErrors(StrictModel):
 class LinkErrors(StrictModel):
     """Timing and delivery errors of one device."""
 
-    latency_s: float = Field(0.0, ge=0, description="delay between measuring and sending")
-    clock_offset_s: float = Field(0.0, description="device clock minus plant clock at t = 0")
+    latency_s: float = Field(0.0, ge=0, le=10.0, description="delay between measuring and sending")
+    clock_offset_s: float = Field(0.0, ge=-MAX_TIME_S, le=MAX_TIME_S, description="device clock minus plant clock "
+                                                                                  "at t = 0")
     clock_drift_ppm: float = Field(0.0, gt=-1e5, lt=1e5, description="device clock rate error, ppm")
     drop_prob: float = Field(0.0, ge=0, lt=1, description="probability that a frame is lost")
     duplicate_prob: float = Field(0.0, ge=0, lt=1, description="probability that a frame is sent twice")
@@ -145,7 +166,7 @@ class IvtConfig(StrictModel):
     current_range_a: float = Field(1000.0, gt=0)
     voltage_range_v: float = Field(600.0, gt=0)
     adc_bits: int = Field(16, ge=8, le=32, description="the shunt's converter resolution over +-range")
-    temperature_degc: float = Field(25.0, description="shunt temperature reported in T")
+    temperature_degc: float = Field(25.0, ge=-40, le=125, description="shunt temperature reported in T")
     ocs_threshold_a: float | None = Field(None, gt=0, description="over-current detection threshold: status "
                                                                   "bit OCS on the current result (None: off)")
     current_errors: ChannelErrors = Field(default_factory=ChannelErrors)
@@ -163,7 +184,8 @@ class PressureConfig(StrictModel):
 
     device: str = "brake_pressure"
     unit_id: int = Field(1, ge=0, le=247)
-    host: str = "127.0.0.1"
+    host: str = Field("127.0.0.1", description="where the module listens; the emulated bench serves on loopback "
+                                               "only (record reaches another host with --modbus-host)")
     port: int = Field(5020, ge=1, le=65535)
     full_scale_bar: float = Field(100.0, gt=0, description="SPA100 range 0..full_scale_bar")
     full_scale_v: float = Field(5.0, gt=0, description="SPA100 output at full scale")
@@ -177,6 +199,15 @@ class PressureConfig(StrictModel):
     exception_code: int = Field(6, ge=1, le=11, description="exception code answered (6: device busy)")
     errors: ChannelErrors = Field(default_factory=ChannelErrors, description="errors in bar")
     link: LinkErrors = Field(default_factory=LinkErrors)
+
+    @field_validator("host")
+    @classmethod
+    def _loopback(cls, v: str) -> str:
+        if v not in LOOPBACK_HOSTS and not v.startswith("127."):
+            raise ValueError("the emulated pressure module serves on loopback only (127.0.0.1); to poll a real "
+                             "module on another host keep the setup's host and pass `benchtwin record --modbus-host "
+                             "HOST`")
+        return v
 
 
 class ShaftConfig(StrictModel):
@@ -229,8 +260,9 @@ class ThermoConfig(StrictModel):
     pdo_period_ms: int = Field(100, ge=1, le=65535, description="TPDO event timer")
     places: list[str] = Field(default_factory=lambda: list(THERMO_PLACES),
                               description="trace channel of each input, in input order (max 9)")
-    cold_junction_degc: float = Field(25.0, description="terminal temperature")
-    cold_junction_error_degc: float = Field(0.0, description="error of the module's cold-junction sensor")
+    cold_junction_degc: float = Field(25.0, ge=-40, le=125, description="terminal temperature")
+    cold_junction_error_degc: float = Field(0.0, ge=-50, le=50, description="error of the module's cold-junction "
+                                                                            "sensor")
     emf_resolution_uv: float = Field(0.5, ge=0, description="input converter resolution, microvolt")
     range_min_degc: float = -40.0
     range_max_degc: float = 1100.0
@@ -242,7 +274,20 @@ class ThermoConfig(StrictModel):
         bad = [p for p in self.places if p not in THERMO_PLACES]
         if bad or len(self.places) > 9 or len(set(self.places)) != len(self.places):
             raise ValueError(f"places must be up to 9 distinct of {list(THERMO_PLACES)}; got {self.places}")
+        if not self.range_max_degc > self.range_min_degc:
+            raise ValueError(f"range_max_degc ({self.range_max_degc}) must be above range_min_degc "
+                             f"({self.range_min_degc})")
         return self
+
+
+def _known_roles(errors: dict[str, ChannelErrors], allowed: tuple[str, ...], where: str
+                 ) -> dict[str, ChannelErrors]:
+    for role in errors:
+        if role not in allowed:
+            close = difflib.get_close_matches(role, allowed, n=1, cutoff=0.6)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ValueError(f"{role!r} is not a role {where} carries; {hint}allowed: {', '.join(allowed)}")
+    return errors
 
 
 class VehicleCanConfig(StrictModel):
@@ -253,6 +298,11 @@ class VehicleCanConfig(StrictModel):
                                              description="per Recording role, in the role's unit")
     link: LinkErrors = Field(default_factory=LinkErrors)
 
+    @field_validator("errors")
+    @classmethod
+    def _roles(cls, v: dict[str, ChannelErrors]) -> dict[str, ChannelErrors]:
+        return _known_roles(v, VEHICLE_CAN_ROLES, "the vehicle CAN")
+
 
 class DynoConfig(StrictModel):
     """The chassis dyno's CAN broadcast (``dyno.dbc``, 100 Hz)."""
@@ -261,6 +311,11 @@ class DynoConfig(StrictModel):
     errors: dict[str, ChannelErrors] = Field(default_factory=dict,
                                              description="per Recording role, in the role's unit")
     link: LinkErrors = Field(default_factory=LinkErrors)
+
+    @field_validator("errors")
+    @classmethod
+    def _roles(cls, v: dict[str, ChannelErrors]) -> dict[str, ChannelErrors]:
+        return _known_roles(v, DYNO_ROLES, "the dyno")
 
 
 class SetupConfig(StrictModel):
@@ -280,6 +335,9 @@ class SetupConfig(StrictModel):
 
     @model_validator(mode="after")
     def _check(self) -> SetupConfig:
+        if not (self.ivt or self.pressure or self.telemetry or self.thermo or self.vehicle_can or self.dyno):
+            raise ValueError("the setup has no sensor: give at least one of [ivt.<place>], [pressure], "
+                             "[telemetry], [thermo], [vehicle_can], [dyno]")
         for place in self.ivt:
             if place not in IVT_PLACES:
                 raise ValueError(f"ivt place {place!r} unknown; allowed: {list(IVT_PLACES)}")

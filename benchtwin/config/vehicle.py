@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field, field_validator, model_validator
 
@@ -32,6 +33,12 @@ __all__ = [
     "VehicleConfig",
     "load_vehicle",
 ]
+
+
+#: a full-load torque point: a machine's maximum torque is positive at every speed of its curve
+FullLoadTorque = Annotated[float, Field(gt=0, le=10_000)]
+#: a speed axis point, rpm
+Rpm = Annotated[float, Field(ge=0, le=50_000)]
 
 
 def _increasing(name: str, values: list[float]) -> list[float]:
@@ -62,10 +69,10 @@ class EngineConfig(StrictModel):
     """Diesel engine: full load, idle, friction, fuel map (BSFC over speed x BMEP), start cost."""
 
     idle_speed_rpm: float = Field(gt=0)
-    max_speed_rpm: float = Field(gt=0)
+    max_speed_rpm: float = Field(gt=0, le=50_000)
     inertia_kgm2: float = Field(gt=0)
-    full_load_speed_rpm: list[float] = Field(min_length=2)
-    full_load_torque_nm: list[float] = Field(min_length=2)
+    full_load_speed_rpm: list[Rpm] = Field(min_length=2)
+    full_load_torque_nm: list[FullLoadTorque] = Field(min_length=2)
     friction_torque_nm: float = Field(ge=0, description="motoring drag at 0 rpm")
     friction_torque_nm_per_krpm: float = Field(ge=0)
     start_fuel_g: float = Field(ge=0)
@@ -97,10 +104,10 @@ class EngineConfig(StrictModel):
 class MotorConfig(StrictModel):
     """PMSM in P2 position: torque limits and the Willans line (eq. 18-25), motoring and generating."""
 
-    max_speed_rpm: float = Field(gt=0)
+    max_speed_rpm: float = Field(gt=0, le=50_000)
     inertia_kgm2: float = Field(gt=0, description="rotor plus torque converter pump")
-    full_load_speed_rpm: list[float] = Field(min_length=2)
-    full_load_torque_nm: list[float] = Field(min_length=2)
+    full_load_speed_rpm: list[Rpm] = Field(min_length=2)
+    full_load_torque_nm: list[FullLoadTorque] = Field(min_length=2)
     willans_e: float = Field(gt=0, le=1)
     willans_w_loss_w: float = Field(ge=0)
     willans_e_gen: float = Field(gt=0, le=1)
@@ -249,7 +256,7 @@ class ThermalConfig(StrictModel):
     engine_coolant_flow_kgps: float = Field(gt=0)
     engine_heat_to_coolant_frac: float = Field(gt=0, le=1)
     engine_radiator_ua_w_per_k: float = Field(ge=0)
-    engine_thermostat_degc: float
+    engine_thermostat_degc: float = Field(ge=40, le=130)
     battery_heat_capacity_j_per_k: float = Field(gt=0)
     battery_ua_w_per_k: float = Field(ge=0)
     battery_coolant_flow_kgps: float = Field(gt=0)

@@ -249,7 +249,10 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     if progress:
         from tqdm import tqdm
 
+        # a fixed total: the plant seconds of every test's full block; a test that ends early (its end
+        # condition reached) still advances the bar by its whole block, so the total never moves
         bar = tqdm(total=round(n_max * dt), unit="s sim", desc=campaign.name, leave=False)
+    done = 0
     rows = 0
     segments: list[Segment] = []
     try:
@@ -262,9 +265,9 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
             settings = {k: (float(v + t_start) if k.endswith("_s") and k not in _DURATION_KEYS else v)
                         for k, v in seg.settings.items()}
             segments.append(Segment(float(t_start), float(t_start + steps * dt), seg.kind, seg.name, settings))
+            done += block.shape[1]
             if bar is not None:
-                bar.total = bar.n + round((n_max - int(st[S_STEP])) * dt)
-                bar.update(round(steps * dt))
+                bar.update(round(done * dt) - bar.n)
     finally:
         if bar is not None:
             bar.close()

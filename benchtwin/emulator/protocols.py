@@ -51,7 +51,11 @@ from benchtwin.emulator.params import (
 from benchtwin.errors import ConfigError
 from benchtwin.segments import Segment
 
-__all__ = ["Protocol", "build_protocol", "load_cycle"]
+__all__ = ["MAX_PLANT_SAMPLES", "Protocol", "build_protocol", "check_size", "load_cycle", "protocol_steps"]
+
+#: the most plant steps a campaign may need (5e6: 13.9 h of plant time at 100 Hz, a few GiB of
+#: command and output rows); the paper campaign needs about 1.4e6
+MAX_PLANT_SAMPLES = 5_000_000
 
 SEGMENT_KIND = {
     "ramp_up": "ramp_up", "constant_drive": "constant_drive", "acceleration": "acceleration",
@@ -72,11 +76,12 @@ class Protocol:
 
     blocks: list[np.ndarray] = field(default_factory=list)
     segments: list[Segment] = field(default_factory=list)
+    steps: list[int] = field(default_factory=list)
 
     @property
     def n_steps(self) -> int:
         """Number of plant steps if every test runs its full block."""
-        return int(sum(b.shape[1] for b in self.blocks))
+        return int(sum(self.steps)) if self.steps else int(sum(b.shape[1] for b in self.blocks))
 
 
 def load_cycle(name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -99,8 +104,9 @@ def load_cycle(name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Builder:
-    def __init__(self, dt: float) -> None:
+    def __init__(self, dt: float, dry: bool = False) -> None:
         self.dt = dt
+        self.dry = dry  # count the steps only (no arrays): the size check before anything is allocated
         self.blocks: list[np.ndarray] = []
         self.n = 0
 
@@ -108,6 +114,9 @@ class _Builder:
               drv_mode: int = 0, pedal: Any = 0.0, brake: Any = 0.0, vtgt: Any = 0.0, gear: int = -1,
               k0: int = -1, lu: int = -1, eng: int = -1, end_kind: int = 0, end_val: float = 0.0) -> None:
         n = max(round(duration_s / self.dt), 1)
+        if self.dry:
+            self.n += n
+            return
         b = np.empty((NC, n))
         tloc = np.arange(n) * self.dt
         for row, val in ((C_DYNO_SET, dyno_set), (C_PEDAL, pedal), (C_BRAKE, brake), (C_VTGT, vtgt)):
@@ -163,6 +172,31 @@ def _driver_stop(b: _Builder, seg: int, hm: int, v: float, decel: float) -> None
     b.phase(v / decel + 4.0, seg=seg, hmode=hm, drv_mode=1, vtgt=_ramp(v, 0.0, decel))
 
 
+def protocol_steps(campaign: CampaignConfig) -> list[int]:
+    """Plant steps of each test's full block, computed without building any array."""
+    return _build(campaign, dry=True).steps
+
+
+def check_size(campaign: CampaignConfig) -> int:
+    """Return the campaign's plant steps; ConfigError if they exceed :data:`MAX_PLANT_SAMPLES`.
+
+    The message says how long the campaign would run, the limit, and the longest test (where a
+    duration key is most likely too large).
+    """
+    steps = protocol_steps(campaign)
+    n = sum(steps)
+    if n > MAX_PLANT_SAMPLES:
+        dt = 1.0 / campaign.plant_rate_hz
+        k = int(np.argmax(steps))
+        test = campaign.tests[k]
+        raise ConfigError(
+            f"campaign {campaign.name!r}: the tests need {n * dt:.4g} s ({n * dt / 3600:.1f} h) of plant time, "
+            f"{n:.3g} plant samples at {campaign.plant_rate_hz:g} Hz; the limit is {MAX_PLANT_SAMPLES:.3g} samples "
+            f"({MAX_PLANT_SAMPLES * dt / 3600:.1f} h at this rate); the longest is tests[{k}] "
+            f"({test.name or test.kind}, {steps[k] * dt:.4g} s): shorten its durations or split the campaign")
+    return n
+
+
 def build_protocol(campaign: CampaignConfig) -> Protocol:
     """Turn the campaign's tests into per-step commands and the segment table.
 
@@ -175,14 +209,25 @@ def build_protocol(campaign: CampaignConfig) -> Protocol:
     -------
     Protocol
         One command block per test (the 12 V load row is filled in by the emulator) and one Segment per test.
+
+    Raises
+    ------
+    ConfigError
+        The campaign needs more than :data:`MAX_PLANT_SAMPLES` plant steps (checked before allocating).
     """
+    check_size(campaign)
+    return _build(campaign, dry=False)
+
+
+def _build(campaign: CampaignConfig, *, dry: bool) -> Protocol:
     dt = 1.0 / campaign.plant_rate_hz
     segments: list[Segment] = []
     blocks: list[np.ndarray] = []
+    test_steps: list[int] = []
     names: set[str] = set()
     stop = campaign.driver.stop_decel_mps2
     for k, test in enumerate(campaign.tests):
-        b = _Builder(dt)
+        b = _Builder(dt, dry)
         t0 = 0.0
         hm = HYBRID_MODES[test.mode]
         settings: dict[str, Any] = test.model_dump(exclude_none=True)
@@ -278,10 +323,13 @@ def build_protocol(campaign: CampaignConfig) -> Protocol:
         settings["mode"] = test.mode
         settings["protocol"] = test.kind
         segments.append(Segment(start_s=t0, end_s=b.t, kind=SEGMENT_KIND[test.kind], name=name, settings=settings))
+        test_steps.append(b.n)
+        if dry:
+            continue
         block = np.ascontiguousarray(np.concatenate(b.blocks, axis=1))
         _driver_preview(block, dt, campaign.driver.preview_s)
         blocks.append(block)
-    return Protocol(blocks=blocks, segments=segments)
+    return Protocol(blocks=blocks, segments=segments, steps=test_steps)
 
 
 def _driver_preview(block: np.ndarray, dt: float, preview_s: float, half_window_s: float = 0.5) -> None:

@@ -222,15 +222,10 @@ def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
     DataError, MissingChannelError, ConfigError
         Unreadable file, a mapped channel missing or not numeric, an unknown unit.
     """
-    from asammdf import MDF
+    from benchtwin.recording import open_mdf
 
     path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
-    try:
-        mdf = MDF(path)
-    except Exception as exc:  # asammdf raises many kinds on a bad file
-        raise DataError(f"{path}: not a readable MF4 file ({exc})") from exc
+    mdf = open_mdf(path)
     cols: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
     with mdf:
         for role, cm in smap.channels.items():

@@ -54,7 +54,7 @@ from benchtwin.identification.torque_converter import identify_torque_converter
 from benchtwin.identification.transmission import identify_transmission
 from benchtwin.recording import Recording
 
-__all__ = ["METHODS", "Method", "identify_all", "method_options", "transmission_table"]
+__all__ = ["METHODS", "Method", "identify_all", "method_option_defaults", "method_options", "transmission_table"]
 
 log = logging.getLogger(__name__)
 
@@ -215,6 +215,25 @@ def method_options(name: str) -> set[str] | None:
     if name == "torque_converter":
         names.discard("transmission")  # filled from the transmission result (a gear-keyed table: code only)
     return names
+
+
+def method_option_defaults(name: str) -> dict[str, Any]:
+    """Default of each keyword option of a method (what a value given on the command line must match).
+
+    Parameters
+    ----------
+    name:
+        Method name (see :data:`METHODS`).
+
+    Raises
+    ------
+    DataError
+        Unknown method.
+    """
+    allowed = method_options(name)
+    params = inspect.signature(_TARGETS[name]).parameters
+    return {n: p.default for n, p in params.items()
+            if (allowed is None or n in allowed) and p.kind is inspect.Parameter.KEYWORD_ONLY}
 
 
 def _merge(result: IdentificationResult, name: str, out: Any) -> None:
