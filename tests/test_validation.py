@@ -69,8 +69,10 @@ def test_ideal_chain_recovers_every_parameter(paper_trace: Trace) -> None:
                                                     setup.telemetry.k_tel))
             check = by_name[f"transmission.gear{g}{suffix}.eta_m"]
             assert abs(check.error) <= bound, (check.name, check.error, bound)
-            # the report may not claim more room than the converter step can explain
-            assert check.tolerance <= max(bound, 8e-3), (check.name, check.tolerance, bound)
+            # the report may not claim more room than the converter step can explain: a 3-sigma bound of uniform
+            # roundings (sigma q / sqrt(12)) propagated by the same weights is at most sqrt(3) times the worst case,
+            # since sqrt(sum g^2) <= sum |g|
+            assert check.tolerance <= max(np.sqrt(3.0) * bound * 1.001, 8e-3), (check.name, check.tolerance, bound)
     names = {c.name for c in report.checks}
     # every subsystem of the paper was judged, every gear and every gear pair both ways
     for g in range(1, VEHICLE.n_gears + 1):

@@ -129,4 +129,6 @@ def test_record_stopped_with_ctrl_c_keeps_and_decodes_what_it_received(tmp_path)
     live = Recording.load(out)
     assert live.meta["stop_reason"] == "interrupted"
     speed = live["vehicle_speed_kmh"]
-    assert 20 < len(speed) < 200  # about 2 s at 2x of a 10 Hz signal, not the whole 20 s run
+    # the speed is sent every 20 ms: the whole 20 s run is 1,000 samples; stopped after about 2 s of wall time
+    # at 2x (some 200 samples on a quiet machine, more when it is busy), it holds part of the run, not all of it
+    assert 20 < len(speed) < 950
