@@ -33,11 +33,13 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError, DataError, IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
+from benchtwin.identification._signals import STATE_ROLES
 from benchtwin.identification.battery import (
     identify_battery,
     identify_battery_map_free,
@@ -53,6 +55,7 @@ from benchtwin.identification.shifts import identify_shift_thresholds
 from benchtwin.identification.torque_converter import identify_torque_converter
 from benchtwin.identification.transmission import identify_transmission
 from benchtwin.recording import Recording
+from benchtwin.roles import unit_of_role
 
 __all__ = ["METHODS", "Method", "identify_all", "method_option_defaults", "method_options", "transmission_table"]
 
@@ -299,6 +302,10 @@ def identify_all(
         wanted.append("battery_map_free")
     options = options or {}
     result = IdentificationResult(meta={"ran": [], "skipped": {}, "seconds": {}})
+    stuck = stuck_channels(recording)
+    if stuck:
+        result.meta["stuck_channels"] = stuck
+        log.warning("channels that never change (not used): %s", ", ".join(f"{k} = {v:g}" for k, v in stuck.items()))
     # the fits solve many small systems: BLAS threads only wait for a free core on a loaded machine
     # (measured: single runs of 3 s instead of 0.6 s at load 4 on 2 cores), so one thread is faster
     with threadpool_limits(limits=1, user_api="blas"):
@@ -308,9 +315,39 @@ def identify_all(
     return result
 
 
+#: fewest samples over which a continuous channel that never changes is taken for a stuck sensor
+STUCK_MIN_SAMPLES = 100
+
+
+def stuck_channels(recording: Recording) -> dict[str, float]:
+    """Continuous channels (torques, speeds, currents, voltages; not states) that hold one value over the whole
+    Recording: a stuck sensor or a wrong signal mapping, never a measurement of a vehicle that was driven.
+
+    Returns
+    -------
+    dict
+        Channel name -> the value it is stuck at (channels with fewer than :data:`STUCK_MIN_SAMPLES` finite
+        samples are not judged).
+    """
+    out: dict[str, float] = {}
+    for name, ch in recording.channels.items():
+        if name in STATE_ROLES or unit_of_role(name) == "":
+            continue
+        v = ch.values[np.isfinite(ch.values)]
+        if v.size >= STUCK_MIN_SAMPLES and v[0] != 0.0 and np.all(v == v[0]):
+            out[name] = float(v[0])
+    return out
+
+
 def _run_method(m: Method, recording: Recording, specs: VehicleSpecs | None, result: IdentificationResult,
                 options: Mapping[str, Mapping[str, Any]]) -> None:
     """Run one method into ``result``: skipped, fitted, or its error recorded (never raised)."""
+    stuck = [r for r in m.roles if r in result.meta.get("stuck_channels", {})]
+    if stuck:
+        result.meta["skipped"][m.name] = "; ".join(
+            f"channel {r} holds {result.meta['stuck_channels'][r]:g} over the whole recording (a stuck sensor or a "
+            "wrong signal mapping)" for r in stuck)
+        return
     missing = [r for r in m.roles if r not in recording]
     if m.any_roles and not any(r in recording for r in m.any_roles):
         missing.append(" or ".join(m.any_roles))

@@ -92,3 +92,20 @@ def test_serial_fit_intervals_cover_the_truth_on_correlated_noise() -> None:
                     hit_plain += 1
     assert hit_serial / reps >= 0.85
     assert hit_plain / reps <= 0.5
+
+
+def test_a_stuck_channel_is_not_identified_from(ramp_rec, specs) -> None:
+    """A motor-torque channel frozen at one value over the whole log: the methods that need it are skipped with
+    the reason, never fitted (an input-torque offset is indistinguishable from the transmission's C0)."""
+    from benchtwin.identification.run import identify_all
+    from benchtwin.recording import Channel, Recording
+
+    rec = Recording(dict(ramp_rec.channels), list(ramp_rec.segments), dict(ramp_rec.meta))
+    ch = rec["em_torque_nm"]
+    rec.add(Channel(ch.name, ch.unit, ch.timestamps, np.full(len(ch), 150.0), ch.flags, ch.source))
+    res = identify_all(rec, specs, methods=["transmission"])
+    assert res.meta["stuck_channels"] == {"em_torque_nm": 150.0}
+    assert "em_torque_nm holds 150" in res.meta["skipped"]["transmission"]
+    assert not any(k.startswith("transmission") for k in res.fits)
+    # the same recording with the real channel is fitted
+    assert any(k.startswith("transmission") for k in identify_all(ramp_rec, specs, methods=["transmission"]).fits)
