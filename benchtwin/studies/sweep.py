@@ -86,7 +86,8 @@ def run_task(task: RunTask) -> dict[str, Any]:
 def _run_models(task: RunTask) -> tuple[VehicleConfig, SetupConfig, CampaignConfig]:
     doc = apply_axes(task.base, task.params)
     doc["campaign"]["seed"] = task.seed
-    return validate_models(doc, f"run {task.key}:")
+    where = ", ".join(f"{k}={v!r}" for k, v in task.params.items())
+    return validate_models(doc, f"run {task.key} ({where or 'base'}, seed {task.seed}):")
 
 
 def _prefetch(task: RunTask) -> bool | None:
