@@ -281,6 +281,11 @@ class Sweep:
                 _cell(row["passed"]), _cell(row["n_checks"]), _cell(row["n_failed"]), _cell(row["trace_cached"]),
                 row["wall_s"], json.dumps(row["figures"], sort_keys=True)]
 
+    def prefetch(self, *, workers: int = 1, scheduler: str | None = None) -> int:
+        """Put every Trace of the sweep into the cache; return how many had to be simulated."""
+        with _backend(workers, scheduler) as backend:
+            return self._prefetch(backend, self.tasks)
+
     def _prefetch(self, backend: _Backend, todo: list[RunTask]) -> int:
         """Simulate each distinct Trace once before the runs (so no two workers simulate the same one)."""
         firsts: dict[str, RunTask] = {}
