@@ -10,7 +10,7 @@ of the roles its methods read).
 family             tests (segment kinds)                           identification methods
 =================  ==============================================  ===================================
 transmission       ramp_up                                         transmission
-torque_converter   ramp_up                                         transmission, torque_converter
+torque_converter   ramp_up, acceleration, deceleration             transmission, torque_converter
 engine             ramp_up                                         engine
 motor              ramp_up                                         motor
 road_load          coastdown                                       road_load
@@ -19,9 +19,10 @@ battery            constant_drive                                  battery
 shifts             acceleration, deceleration, ramp_down           shifts
 =================  ==============================================  ===================================
 
-The identified values differ slightly from a whole-campaign run where a method also reads other tests
-by default (transmission, engine and motor also use the constant drives), and the sensor noise of each
-contiguous run of tests has its own seed derived from the campaign's.
+The paper campaign's ramp-downs are tests of kind ``deceleration``. The identified values differ
+slightly from a whole-campaign run where a method also reads other tests by default (transmission,
+engine and motor also use the constant drives), and the sensor noise of each contiguous run of tests
+has its own seed derived from the campaign's.
 """
 
 from __future__ import annotations
@@ -71,7 +72,9 @@ class Family:
 
 FAMILIES: dict[str, Family] = {f.name: f for f in (
     Family("transmission", ("ramp_up",), ("transmission",)),
-    Family("torque_converter", ("ramp_up",), ("transmission", "torque_converter")),
+    # converter mode (lock-up open) is seen mostly in the accelerations and decelerations: with ramp-ups
+    # only, too few converter points reach the curves (paper campaign: 6 of 13 checks fail, all pass with them)
+    Family("torque_converter", ("ramp_up", "acceleration", "deceleration"), ("transmission", "torque_converter")),
     Family("engine", ("ramp_up",), ("engine",)),
     Family("motor", ("ramp_up",), ("motor",)),
     Family("road_load", ("coastdown",), ("road_load",)),
