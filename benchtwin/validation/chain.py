@@ -7,6 +7,7 @@ for it are said by each device (:meth:`~benchtwin.sensors.base.Device.truth_chan
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,8 @@ def _error_budget(setup: SetupConfig) -> dict[str, tuple[Any, Any, float]]:
     return out
 
 
-def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, profile: str = "ideal") -> list[Check]:
+def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, profile: str = "ideal",
+                 roles: Iterable[str] | None = None) -> list[Check]:
     """Compare every decoded channel with the Trace.
 
     With the ``ideal`` profile each channel must equal the truth within half its resolution (plus the
@@ -49,6 +51,8 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
     sample period + |clock offset| + |drift| t)``; at least 99 % of the samples must lie within it (the
     rest are stuck-at intervals, reordered frames and other faults the setup asked for).
 
+    ``roles`` restricts the checks to those roles (default: every role of the setup's devices).
+
     Returns
     -------
     list of Check
@@ -56,7 +60,10 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
     """
     budget = _error_budget(setup) if profile != "ideal" else {}
     checks: list[Check] = []
+    wanted = set(roles) if roles is not None else None
     for role, tc in sorted(_chain_truth(setup).items()):
+        if wanted is not None and role not in wanted:
+            continue
         name, factor, hold, res = tc.trace, tc.factor, tc.hold, tc.resolution
         if role not in recording or name not in trace:
             checks.append(Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", "",

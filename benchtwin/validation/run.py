@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -15,10 +16,20 @@ from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.setup import ChannelErrors, LinkErrors, SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator import simulate_campaign
+from benchtwin.emulator.cache import cached_campaign
+from benchtwin.errors import ConfigError
 from benchtwin.identification.run import identify_all
 from benchtwin.recording import Flag
 from benchtwin.trace import Trace
 from benchtwin.validation.chain import chain_checks
+from benchtwin.validation.families import (
+    family_checks,
+    family_spans,
+    merge_recordings,
+    resolve_families,
+    span_seed,
+    stitch_traces,
+)
 from benchtwin.validation.parameters import compare_with_truth, paper_estimation_fits
 from benchtwin.validation.report import ValidationReport
 
@@ -27,7 +38,8 @@ __all__ = ["validate"]
 
 def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *, profile: str | None = None,
              out_dir: str | Path | None = None, figures: bool = False, progress: bool = False,
-             trace: Trace | None = None) -> ValidationReport:
+             trace: Trace | None = None, families: Iterable[str] | None = None,
+             cache: bool | str | Path = False) -> ValidationReport:
     """Simulate the campaign, run the batch chain, identify, and compare with the truth.
 
     Parameters
@@ -45,21 +57,50 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         Show the plant's progress bar.
     trace:
         A Trace of this vehicle and campaign already simulated (to compare several setups on one run).
+    families:
+        Validate only these identification families (see :mod:`benchtwin.validation.families`): the
+        chain runs over the campaign's tests of the kinds they need, only their methods identify, and
+        only their checks are made. None: everything.
+    cache:
+        Take the Trace from the disk cache (:mod:`benchtwin.emulator.cache`), simulating and storing it
+        on a miss: True for the default directory, or a directory. ``meta['trace_cached']`` says
+        whether it hit.
 
     Returns
     -------
     ValidationReport
     """
     prof = profile or ("ideal" if _setup_is_ideal(setup) else "realistic")
+    fams = resolve_families(families)
     report = ValidationReport(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
                                     "profile": prof, "seed": campaign.seed})
+    if fams is not None:
+        report.meta["families"] = [f.name for f in fams]
     t0 = time.perf_counter()
-    if trace is None:
+    if trace is None and cache is not False:
+        trace, hit = cached_campaign(vehicle, campaign, directory=None if cache is True else cache,
+                                     progress=progress)
+        report.meta["trace_cached"] = hit
+    elif trace is None:
         trace = simulate_campaign(vehicle, campaign, progress=progress)
     t1 = time.perf_counter()
-    rec = run_batch(trace, setup, seed=campaign.seed, out_dir=out_dir)
+    if fams is None:
+        rec = run_batch(trace, setup, seed=campaign.seed, out_dir=out_dir)
+        checked = trace
+    else:
+        spans = family_spans(trace.segments, {k for f in fams for k in f.kinds})
+        if not spans:
+            kinds = sorted({k for f in fams for k in f.kinds})
+            raise ConfigError(f"campaign {campaign.name!r} has no test of the kind(s) {', '.join(kinds)} that "
+                              f"the families {', '.join(f.name for f in fams)} need")
+        slices = [trace.slice_time(a, b) for a, b in spans]
+        recs = [run_batch(sl, setup, seed=span_seed(campaign.seed, k),
+                          out_dir=None if out_dir is None else Path(out_dir) / f"span{k}")
+                for k, sl in enumerate(slices)]
+        rec, checked = merge_recordings(recs), stitch_traces(slices)
     t2 = time.perf_counter()
-    result = identify_all(rec, vehicle.specs)
+    methods = None if fams is None else [m for f in fams for m in f.methods]
+    result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)))
     t3 = time.perf_counter()
     report.timings_s = {"simulate": round(t1 - t0, 3), "chain": round(t2 - t1, 3), "identify": round(t3 - t2, 3)}
     report.identification = result
@@ -73,10 +114,13 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
                             if np.count_nonzero(c.flags & int(Flag.SATURATED))},
     }
     gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings})
-    report.checks = chain_checks(trace, rec, setup, profile=prof)
-    paper_sets = paper_estimation_fits(rec, vehicle, trace) if prof == "realistic" else {}
-    report.checks += compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup,
-                                        paper_sets=paper_sets)
+    roles = None if fams is None else set().union(*(f.roles() for f in fams))
+    report.checks = chain_checks(checked, rec, setup, profile=prof, roles=roles)
+    want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
+    paper_sets = paper_estimation_fits(rec, vehicle, trace) if want_paper else {}
+    params = compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup,
+                                paper_sets=paper_sets)
+    report.checks += params if fams is None else family_checks(params, fams)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,42 @@
+"""The Trace cache key and the family selection of validate()."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchtwin.config import load_campaign, load_vehicle
+from benchtwin.emulator import cache
+from benchtwin.errors import ConfigError
+from benchtwin.segments import Segment
+from benchtwin.validation.families import FAMILIES, family_spans, resolve_families
+
+
+def test_the_key_follows_vehicle_campaign_seed_and_code(monkeypatch: pytest.MonkeyPatch) -> None:
+    v, c = load_vehicle(), load_campaign("quick.toml")
+    k = cache.trace_key(v, c)
+    assert k == cache.trace_key(load_vehicle(), load_campaign("quick.toml"))
+    assert k != cache.trace_key(v, c.model_copy(update={"seed": c.seed + 1}))
+    assert k != cache.trace_key(v.model_copy(update={"name": "other"}), c)
+    monkeypatch.setattr(cache, "code_version", lambda: "0.0.0+changed-plant")
+    assert k != cache.trace_key(v, c)
+
+
+def test_cache_dir_from_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    monkeypatch.setenv("BENCHTWIN_CACHE", str(tmp_path))
+    assert cache.cache_dir() == tmp_path
+    monkeypatch.delenv("BENCHTWIN_CACHE")
+    assert cache.cache_dir().parts[-3:] == (".cache", "benchtwin", "traces")
+
+
+def test_family_spans_join_neighbouring_tests() -> None:
+    segs = [Segment(0, 10, "ramp_up", "a"), Segment(10, 20, "ramp_up", "b"), Segment(20, 30, "coastdown", "c"),
+            Segment(30, 40, "ramp_up", "d")]
+    assert family_spans(segs, FAMILIES["transmission"].kinds) == [(0, 20), (30, 40)]
+    assert family_spans(segs, FAMILIES["road_load"].kinds) == [(20, 30)]
+    assert family_spans(segs, FAMILIES["battery"].kinds) == []
+
+
+def test_unknown_family_names_the_allowed_ones() -> None:
+    with pytest.raises(ConfigError, match="allowed: transmission, torque_converter"):
+        resolve_families(["gearbox"])
+    assert [f.name for f in resolve_families(["battery", "battery"])] == ["battery"]
