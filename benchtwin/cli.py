@@ -29,6 +29,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "identify",
     "validate",
     "gain",
+    "faults",
 )
 
 
