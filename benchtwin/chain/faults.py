@@ -49,14 +49,10 @@ WINDOW_S = 2.0
 _DECLARED = {"frame_loss": "drop_prob", "duplicate": "duplicate_prob", "reorder": "reorder_prob"}
 
 
-def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end (exclusive) indices of the runs of True."""
-    e = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return e[::2], e[1::2]
-
-
 def _channel_evidence(rec: Recording, devs: dict[str, Device]) -> list[tuple[str, str, str, np.ndarray, np.ndarray]]:
-    """Evidence judged from each decoded channel's flags, timing and values (see the module docstring)."""
+    """Evidence judged from each decoded channel's flags, timing and values (see the module docstring).
+
+    Works on the few flagged samples and long gaps only (a clean channel costs one ``diff``)."""
     out = []
     lost_bits = int(Flag.LOST_FRAME | Flag.OUT_OF_ORDER)
     for name, ch in rec.channels.items():
@@ -65,33 +61,42 @@ def _channel_evidence(rec: Recording, devs: dict[str, Device]) -> list[tuple[str
             continue
         t, f = ch.timestamps, ch.flags
         dt = np.diff(t)
-        period = float(np.median(dt))
-        td = (f[1:] & int(Flag.TRANSPORT_DROP)) != 0
-        long_gap = (dt > max(GAP_MIN_PERIODS * period, GAP_MIN_S)) & ~td
-        lostish = (f[1:] & lost_bits) != 0
-        counters = bool(getattr(dev, "counters", False))
-        burst = long_gap & lostish if counters else np.zeros_like(long_gap)
-        silent = long_gap & ~burst
-        for kind, m in (("frame_loss_burst", burst), ("silent", silent)):
-            if m.any():
-                out.append((kind, ch.source, "", t[:-1][m], t[1:][m]))
-        f[1:][silent] |= int(Flag.LOST_FRAME)  # nothing came for a while: the sample after is not continuous
-        short = ~long_gap & ~td
+        period = float(np.median(dt[:: max(1, dt.size // 100_000)]))
+        # gaps: before sample i + 1 for each i in gap
+        gap = np.flatnonzero(dt > max(GAP_MIN_PERIODS * period, GAP_MIN_S))
+        gap = gap[(f[gap + 1] & int(Flag.TRANSPORT_DROP)) == 0]
+        if gap.size:
+            counters = bool(getattr(dev, "counters", False))
+            jumped = (f[gap + 1] & lost_bits) != 0 if counters else np.zeros(gap.size, bool)
+            for kind, g in (("frame_loss_burst", gap[jumped]), ("silent", gap[~jumped])):
+                if g.size:
+                    out.append((kind, ch.source, "", t[g], t[g + 1]))
+            f[gap[~jumped] + 1] |= int(Flag.LOST_FRAME)  # nothing came for a while: not continuous
+        idx = np.flatnonzero(f)
+        if idx.size == 0:
+            continue
+        fi = f[idx]
+        short = idx >= 1
+        short[short] = ~np.isin(idx[short] - 1, gap) & ((fi[short] & int(Flag.TRANSPORT_DROP)) == 0)
+        dti = np.where(idx >= 1, t[idx] - t[np.maximum(idx - 1, 0)], 0.0)
         # a gap after frames dropped as malformed is theirs (PROTOCOL_ERROR), not a loss
-        loss = short & ((f[1:] & int(Flag.LOST_FRAME)) != 0) & (dt > 1.5 * period)
-        loss &= (f[1:] & int(Flag.DUPLICATE | Flag.PROTOCOL_ERROR)) == 0
-        reorder = short & ((f[1:] & int(Flag.OUT_OF_ORDER)) != 0) & (dt < 1.5 * period)
-        dup = (f & int(Flag.DUPLICATE)) != 0
-        for kind, times in (("frame_loss", t[1:][loss]), ("reorder", t[1:][reorder]), ("duplicate", t[dup]),
-                            ("ivt_error", t[(f & int(Flag.STATUS_ERROR)) != 0])):
-            if times.size:
+        loss = short & ((fi & int(Flag.LOST_FRAME)) != 0) & (dti > 1.5 * period)
+        loss &= (fi & int(Flag.DUPLICATE | Flag.PROTOCOL_ERROR)) == 0
+        reorder = short & ((fi & int(Flag.OUT_OF_ORDER)) != 0) & (dti < 1.5 * period)
+        for kind, m in (("frame_loss", loss), ("reorder", reorder), ("duplicate", (fi & int(Flag.DUPLICATE)) != 0),
+                        ("ivt_error", (fi & int(Flag.STATUS_ERROR)) != 0)):
+            if m.any():
+                times = t[idx[m]]
                 out.append((kind, ch.source, "", times, times))
-        sat = ((f & int(Flag.SATURATED)) != 0) & ((f & int(Flag.OUT_OF_RANGE | Flag.TIMEOUT)) == 0)  # not held
+        sat = ((fi & int(Flag.SATURATED)) != 0) & ((fi & int(Flag.OUT_OF_RANGE | Flag.TIMEOUT)) == 0)  # not held
         if sat.any():
-            a, b = _runs(sat)
-            long_sat = t[b - 1] - t[a] >= CLIP_MIN_S
+            si = idx[sat]
+            cut = np.flatnonzero(np.diff(si) != 1) + 1
+            a = si[np.concatenate([[0], cut])]
+            b = si[np.concatenate([cut - 1, [si.size - 1]])]
+            long_sat = t[b] - t[a] >= CLIP_MIN_S
             if long_sat.any():
-                out.append(("clip", ch.source, name, t[a[long_sat]], t[b[long_sat] - 1]))
+                out.append(("clip", ch.source, name, t[a[long_sat]], t[b[long_sat]]))
     return out
 
 
