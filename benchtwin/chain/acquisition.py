@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.chain.alignment import clock_offsets, detect_lag
+from benchtwin.chain.faults import detect_faults
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Flag, Recording
@@ -114,6 +115,7 @@ def _decoders(devs: list[Device], bus: str) -> dict[int, FrameDecoder]:
 def _decode_bus(table: FrameTable, devs: list[Device], sink: DecodeSink, drops: np.ndarray) -> None:
     frames = table.frames
     decoders = _decoders(devs, table.bus)
+    owner = {cid: d.name for d in devs if d.bus == table.bus for cid in d.frame_decoders()}
     groups, unknown = _group(frames, list(decoders))
     sink.counts["frames"][table.bus] = len(table)
     if unknown:
@@ -123,6 +125,11 @@ def _decode_bus(table: FrameTable, devs: list[Device], sink: DecodeSink, drops: 
     dlc = np.ascontiguousarray(frames["dlc"])
     words = np.ascontiguousarray(frames["data"]).view("<u8")[:, 0]
     for cid, idx in groups.items():
+        length = decoders[cid].length
+        if length:
+            wrong = dlc[idx] != length
+            if wrong.any():  # judged from the wire: the identifier's layout has another length
+                sink.fault("wrong_dlc", owner[cid], ts[idx][wrong])
         decoders[cid].decode(FrameStream(table.bus, cid, ts[idx], dlc[idx], words[idx], drops), sink)
 
 
@@ -237,6 +244,7 @@ def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segmen
             sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
     rec = sink.rec
     _flag_saturation(rec, devs)
+    faults_found = detect_faults(rec, devs, sink.evidence, data.events)
     rec.segments = list(segments if segments is not None else data.segments)
     m = dict(data.meta)
     m.update(meta or {})
@@ -260,6 +268,7 @@ def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segmen
             flagged.setdefault(name, {})["bad"] = bad
     sink.counts["flagged_samples"] = flagged
     m.update(sink.counts)
+    m["faults_detected"] = faults_found
     m["transport_events"] = [{"time_s": e.time_s, "source": e.source, "kind": e.kind, "end_s": e.end_s,
                               "detail": e.detail} for e in data.events]
     m["bus_load"] = {bus: _bus_load(t) for bus, t in data.can.items()}

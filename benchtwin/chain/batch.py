@@ -2,7 +2,8 @@
 
 :func:`deliver` turns :class:`~benchtwin.wire.frames.DeviceOutputs` into what an acquisition
 receives (the thermo module's TPDO frames merged into their bus, the Modbus module polled at the
-configured rate with the configured faults). :func:`write_logs` writes the raw logs of a run
+configured rate with the configured faults; a bus's injected faults: frame faults over spans and
+transport disconnects, which also give a ``drop`` event). :func:`write_logs` writes the raw logs of a run
 (``<bus>.mf4`` bus logs, ``<device>.polls.npz`` poll logs, ``<bus>.dbc`` and the EDS to decode
 them, the segment table) and :func:`read_logs` reads them back. :func:`run_batch` is the whole
 batch path in one call: encode -> deliver -> (write and read the logs) -> acquire.
@@ -35,6 +36,7 @@ from benchtwin.errors import DataError
 from benchtwin.recording import Recording
 from benchtwin.segments import load_segments, save_segments
 from benchtwin.sensors import devices, encode, write_bus_dbcs
+from benchtwin.sensors.imperfections import device_rng, disconnect, span_frame_faults, truncate_log
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, TransportEvent
 from benchtwin.wire.merge import insert_frames
@@ -61,6 +63,7 @@ def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
         Acquisition span for polling; defaults to the span of the register snapshots.
     """
     can = {bus: FrameTable(bus, t.frames, t.bitrate) for bus, t in outputs.can.items()}
+    events: list[TransportEvent] = []
     polls = {}
     for d in devices(setup):
         if d.wire == "canopen" and d.name in outputs.canopen:
@@ -74,7 +77,16 @@ def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
             can[d.bus] = FrameTable(d.bus, insert_frames(old.frames, got.frames), old.bitrate)
         if got.polls is not None:
             polls[got.polls.device] = got.polls
-    return AcquisitionInput(can=can, polls=polls, start_time=DEFAULT_START)
+    for bus, table in list(can.items()):  # faults injected on a whole bus (the setup's [[faults]] with bus = ...)
+        faults = setup.faults_of(bus)
+        if not faults:
+            continue
+        frames = span_frame_faults(table.frames, table.frames["arbitration_id"].astype(np.int64), faults,
+                                   device_rng(seed, f"faults:{bus}"))
+        frames, spans = disconnect(frames, faults)
+        events += [TransportEvent(a, bus, "drop", b, "injected transport disconnect") for a, b in spans]
+        can[bus] = FrameTable(bus, frames, table.bitrate)
+    return AcquisitionInput(can=can, polls=polls, events=events, start_time=DEFAULT_START)
 
 
 def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Path, *, blf: bool = False,
@@ -84,14 +96,16 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
     Files: ``<bus>.mf4`` (MF4 bus logging, one per bus with frames), ``<bus>.blf`` (if ``blf``),
     ``<device>.polls.npz`` (and ``.csv`` if ``poll_csv``), ``<bus>.dbc`` and ``thermo_module.eds``
     (to decode them with cantools/canopen), ``setup.json`` (the setup used), ``segments.json`` and
-    ``meta.json`` (with ``log_start_utc``). Every bus log starts at ``received.start_time`` (default:
-    the campaign start :data:`~benchtwin.chain.buslog.DEFAULT_START`) with frames at absolute times.
+    ``meta.json`` (with ``log_start_utc`` and the transport events). Every bus log starts at
+    ``received.start_time`` (default: the campaign start :data:`~benchtwin.chain.buslog.DEFAULT_START`)
+    with frames at absolute times. A bus with an injected ``log_truncation`` is written up to its cut.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     start = received.start_time or DEFAULT_START
     paths: dict[str, Path] = {}
-    buses = sorted((b, t) for b, t in received.can.items() if len(t))
+    buses = sorted((b, FrameTable(b, truncate_log(t.frames, setup.faults_of(b)), t.bitrate))
+                   for b, t in received.can.items() if len(t))
     with ThreadPoolExecutor(max_workers=max(1, min(len(buses), os.cpu_count() or 1))) as pool:
         done = pool.map(lambda item: write_mf4(item[1][1], out / f"{item[1][0]}.mf4", channel=item[0],
                                                start_time=start), enumerate(buses, start=1))
@@ -114,13 +128,16 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
     paths["setup.json"].write_text(setup.model_dump_json(indent=1), encoding="utf-8")
     paths["segments.json"] = save_segments(received.segments, out / "segments.json")
     paths["meta.json"] = out / "meta.json"
-    paths["meta.json"].write_text(json.dumps({**received.meta, _LOG_START: start.isoformat()}, indent=1,
-                                             default=str), encoding="utf-8")
+    events = [[e.time_s, e.source, e.kind, e.end_s, e.detail] for e in received.events]
+    paths["meta.json"].write_text(json.dumps({**received.meta, _LOG_START: start.isoformat(), _EVENTS: events},
+                                             indent=1, default=str), encoding="utf-8")
     return paths
 
 
 #: key of ``meta.json`` holding the logs' start time (time 0 of every log in the folder)
 _LOG_START = "log_start_utc"
+#: key of ``meta.json`` holding the transport events of the run (time, source, kind, end, detail)
+_EVENTS = "transport_events_logged"
 
 
 def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[AcquisitionInput, SetupConfig]:
@@ -162,6 +179,8 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
     except (KeyError, ValueError):
         start = DEFAULT_START  # logs of another logger: times since the campaign start epoch
     received.start_time = start
+    for e in received.meta.pop(_EVENTS, []):
+        received.events.append(TransportEvent(float(e[0]), str(e[1]), str(e[2]), float(e[3]), str(e[4])))
 
     def read_one(p: Path) -> tuple[FrameTable, str | None] | DataError:
         bitrate = setup.buses[p.stem].bitrate if p.stem in setup.buses else 500_000

@@ -132,6 +132,9 @@ def format_validation_error(exc: ValidationError, source: str, data: Any, model:
             lines.append(f"{source}: unknown key {key!r}{hint}")
         elif typ == "missing":
             lines.append(f"{source}: missing key {key!r}: it is required")
+        elif not loc or isinstance(_lookup(data, loc), dict | list):  # a whole table: its own message says where
+            msg = str(err.get("msg", "invalid value")).removeprefix("Value error, ")
+            lines.append(f"{source}: {'' if not loc else key + ': '}{msg}")
         else:
             value = _lookup(data, loc)
             msg = err.get("msg", "invalid value")

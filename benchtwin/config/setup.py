@@ -23,6 +23,7 @@ from benchtwin.errors import ConfigError
 
 __all__ = [
     "DYNO_ROLES",
+    "FAULT_KINDS",
     "IVT_PLACES",
     "K_TEL_STEPS",
     "THERMO_PLACES",
@@ -30,6 +31,7 @@ __all__ = [
     "BusConfig",
     "ChannelErrors",
     "DynoConfig",
+    "FaultSpec",
     "IvtConfig",
     "LinkErrors",
     "PressureConfig",
@@ -318,6 +320,79 @@ class DynoConfig(StrictModel):
         return _known_roles(v, DYNO_ROLES, "the dyno")
 
 
+#: fault kind -> (what it is injected into, what the acquisition judges it from); "ivt": an IVT-S shunt,
+#: "counter": a CAN device whose every frame carries a counter (IVT-S, AD module), "can": any CAN device,
+#: "pressure": the Modbus module, "thermo": the CANopen thermo module, "telemetry": the AD module, "bus": a bus
+FAULT_KINDS: dict[str, tuple[str, str]] = {
+    "frame_loss": ("can", "random frames lost over the span (prob): counter gaps, PDO/cycle gaps"),
+    "frame_loss_burst": ("counter", "every frame lost over the span: a long gap with the counter jumping"),
+    "duplicate": ("can", "frames sent twice (prob): repeated counter, or a second frame within 1/4 cycle"),
+    "reorder": ("counter", "frames swapped with the next of their stream (prob): counter going back"),
+    "corrupt_payload": ("ivt", "random payload bytes (prob): the IVT-S mux byte does not match the identifier"),
+    "wrong_dlc": ("can", "frames with a wrong data length (prob)"),
+    "ivt_error": ("ivt", "the shunt reports an error in its status bits (status: 4 measurement, 8 system)"),
+    "silent": ("can", "the device sends nothing over the span: a gap with the counter continuing (or no counter)"),
+    "modbus_restart": ("pressure", "the Modbus server restarts: every poll over the span times out"),
+    "modbus_slow": ("pressure", "the Modbus server answers late (latency_s): poll age against the module's uptime"),
+    "transport_disconnect": ("bus", "the transport of a bus disconnects and reconnects: a drop event and no frames"),
+    "clock_drift": ("pressure", "the module's clock runs drift_ppm fast over the span: poll time vs uptime slope"),
+    "clock_step": ("pressure", "the module's clock steps by offset_s at start_s: poll time vs uptime jumps"),
+    "stuck": ("channel", "the channel's value freezes (channel): bit-identical readings where noise is declared"),
+    "clip": ("telemetry", "the telemetry output sits at its rail (level high/low): AD module clip bit, held"),
+    "open_circuit": ("thermo", "a thermocouple opens (channel): the module reports -0x8000"),
+    "log_truncation": ("bus", "the bus log ends at start_s: its time base ends before the other sources"),
+}
+
+
+class FaultSpec(StrictModel):
+    """One fault injected on purpose (a ``[[faults]]`` entry of the setup file).
+
+    ``device`` is a device name (``ivt_battery``, ``telemetry``, ``thermo``, ``vehicle_can``, ``dyno`` or
+    the pressure module's ``device``), ``bus`` a bus of ``[buses]``; ``channel`` the Recording role for
+    ``stuck`` and ``open_circuit``. The fault lasts from ``start_s`` for ``duration_s`` (plant time);
+    a ``log_truncation`` has no duration (the log ends at ``start_s``).
+    """
+
+    kind: Literal[tuple(FAULT_KINDS)]  # type: ignore[valid-type]
+    device: str | None = None
+    bus: str | None = None
+    channel: str | None = None
+    start_s: float = Field(ge=0, description="plant time the fault starts")
+    duration_s: float | None = Field(None, gt=0, description="how long it lasts")
+    prob: float = Field(0.3, gt=0, le=1, description="frame faults: share of the span's frames hit")
+    status: int = Field(4, ge=1, le=15, description="ivt_error: status nibble (4 measurement, 8 system error)")
+    latency_s: float = Field(0.03, gt=0, description="modbus_slow: extra answer time")
+    drift_ppm: float = Field(100.0, ge=-1000, le=1000, description="clock_drift: extra clock rate")
+    offset_s: float = Field(0.1, gt=0, le=10, description="clock_step: the clock jumps forward by this")
+    level: Literal["high", "low"] = Field("high", description="clip: which rail")
+
+    @model_validator(mode="after")
+    def _fields(self) -> FaultSpec:
+        target = FAULT_KINDS[self.kind][0]
+        if target == "bus":
+            if self.bus is None or self.device is not None:
+                raise ValueError(f"fault {self.kind!r} needs bus = <a bus> (and no device)")
+        elif self.device is None or self.bus is not None:
+            raise ValueError(f"fault {self.kind!r} needs device = <a device> (and no bus)")
+        if (self.channel is None) == (self.kind in ("stuck", "open_circuit")):
+            raise ValueError(f"fault {self.kind!r} " + ("needs channel = <role>" if self.channel is None
+                                                        else "takes no channel"))
+        if (self.duration_s is None) != (self.kind == "log_truncation"):
+            raise ValueError(f"fault {self.kind!r} " + ("needs duration_s" if self.duration_s is None
+                                                        else "takes no duration_s (the log ends at start_s)"))
+        return self
+
+    @property
+    def end_s(self) -> float:
+        """End of the span (infinite for a truncated log)."""
+        return math.inf if self.duration_s is None else self.start_s + self.duration_s
+
+    @property
+    def target(self) -> str:
+        """The device or bus the fault is injected into."""
+        return str(self.device if self.device is not None else self.bus)
+
+
 class SetupConfig(StrictModel):
     """A bench setup: buses and every sensor (see the module docstring)."""
 
@@ -332,6 +407,7 @@ class SetupConfig(StrictModel):
     thermo: ThermoConfig | None = None
     vehicle_can: VehicleCanConfig | None = None
     dyno: DynoConfig | None = None
+    faults: list[FaultSpec] = Field(default_factory=list, description="faults injected on purpose ([[faults]])")
 
     @model_validator(mode="after")
     def _check(self) -> SetupConfig:
@@ -371,7 +447,48 @@ class SetupConfig(StrictModel):
         if self.dyno is not None:
             for cid in (0x700, 0x701):
                 claim(self.dyno.bus, cid, "dyno")
+        for k, f in enumerate(self.faults):
+            self._check_fault(k, f)
         return self
+
+    def device_kinds(self) -> dict[str, str]:
+        """Device name -> ``ivt``, ``telemetry``, ``thermo``, ``vehicle_can``, ``dyno`` or ``pressure``."""
+        out = {f"ivt_{p}": "ivt" for p in self.ivt}
+        for key in ("telemetry", "thermo", "vehicle_can", "dyno"):
+            if getattr(self, key) is not None:
+                out[key] = key
+        if self.pressure is not None:
+            out[self.pressure.device] = "pressure"
+        return out
+
+    def _check_fault(self, k: int, f: FaultSpec) -> None:
+        where = f"faults[{k}] ({f.kind})"
+        target = FAULT_KINDS[f.kind][0]
+        if target == "bus":
+            if f.bus not in self.buses:
+                raise ValueError(f"{where}: bus {f.bus!r} is not a bus of [buses] ({', '.join(self.buses)})")
+            return
+        kinds = self.device_kinds()
+        kind = kinds.get(str(f.device))
+        if kind is None:
+            raise ValueError(f"{where}: device {f.device!r} is not in this setup ({', '.join(kinds)})")
+        ok = {"can": kind != "pressure", "counter": kind in ("ivt", "telemetry"), "ivt": kind == "ivt",
+              "pressure": kind == "pressure", "thermo": kind == "thermo", "telemetry": kind == "telemetry",
+              "channel": True}[target]
+        if not ok:
+            need = {"can": "a CAN device", "counter": "a device with a frame counter (an IVT-S or the telemetry)",
+                    "ivt": "an IVT-S shunt", "pressure": "the Modbus pressure module", "thermo": "the thermo module",
+                    "telemetry": "the telemetry"}[target]
+            raise ValueError(f"{where}: device {f.device!r} is not {need}")
+        if f.kind == "open_circuit" and self.thermo is not None and f.channel not in self.thermo.places:
+            raise ValueError(f"{where}: channel {f.channel!r} is not a thermocouple place ({self.thermo.places})")
+        if f.kind == "modbus_slow" and self.pressure is not None and f.latency_s >= self.pressure.poll_timeout_s:
+            raise ValueError(f"{where}: latency_s {f.latency_s} must be below poll_timeout_s "
+                             f"{self.pressure.poll_timeout_s} (a longer wait is a timeout)")
+
+    def faults_of(self, target: str) -> list[FaultSpec]:
+        """The faults injected into one device or bus."""
+        return [f for f in self.faults if f.target == target]
 
     def bitrate(self, bus: str) -> int:
         """Bit rate of a bus."""

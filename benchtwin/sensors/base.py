@@ -151,6 +151,8 @@ class Device(ABC):
     section: ClassVar[str]
     #: ``can``, ``canopen`` or ``modbus``
     wire: ClassVar[str]
+    #: every frame carries a cyclic counter (a gap with the counter running on is a loss, not a silence)
+    counters: ClassVar[bool] = False
 
     def __init__(self, name: str, cfg: Any, setup: SetupConfig) -> None:
         self.name = name

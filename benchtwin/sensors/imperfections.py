@@ -14,6 +14,14 @@ Clocks (:class:`DeviceClock`): a device clock reads ``t_dev = (1 + drift) * t_pl
 frames carry device time. Frame faults (:func:`frame_faults`): independent drops, duplicates
 (+50 us) and reorders (swap with the next frame of the same stream).
 
+Faults injected on purpose (the setup's ``[[faults]]``, :class:`~benchtwin.config.setup.FaultSpec`) over a
+span of plant time: :func:`span_frame_faults` (random and burst loss, duplicates, reorders, corrupted
+payloads, wrong DLC, applied after the link's own faults), :func:`silent_ticks` (a device that sends
+nothing, its counters do not advance), :func:`with_stuck` (a frozen channel), :func:`faulty_clock` (a
+clock that drifts or steps), :func:`disconnect` (a transport drop span) and :func:`truncate_log` (a log
+that ends early). Kinds that change what a device measures or reports (IVT-S status, Modbus restart and
+slow answers, telemetry clip, thermocouple open circuit) are injected in the device's own module.
+
 All random draws come from one :class:`numpy.random.Generator` per device made by :func:`device_rng`
 from the campaign seed, so adding a device does not change the draws of the others.
 """
@@ -22,15 +30,18 @@ from __future__ import annotations
 
 import functools
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from benchtwin.config.setup import ChannelErrors, LinkErrors
+from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, StuckInterval
 from benchtwin.errors import DataError
 from benchtwin.wire.frames import FRAME_DTYPE
 
-__all__ = ["DeviceClock", "device_rng", "frame_faults", "hold_sample", "lti_filter", "measure", "sample"]
+__all__ = ["DeviceClock", "FaultyClock", "device_rng", "disconnect", "faulty_clock", "frame_faults", "hold_sample",
+           "in_spans", "lti_filter", "measure", "sample", "silent_ticks", "span_frame_faults", "truncate_log",
+           "with_stuck"]
 
 
 def device_rng(seed: int | None, device: str) -> np.random.Generator:
@@ -213,3 +224,159 @@ def frame_faults(frames: np.ndarray, stream: np.ndarray, link: LinkErrors, rng: 
     if link.duplicate_prob > 0:
         res = insert_frames(res, dup)
     return res
+
+
+# ---------------------------------------------------------------------------------------------- injected faults
+
+
+def in_spans(t_plant: np.ndarray, faults: Sequence[FaultSpec], kind: str) -> np.ndarray:
+    """Mask of the plant times inside any fault of ``kind``."""
+    t = np.asarray(t_plant, dtype=np.float64)
+    m = np.zeros(t.shape, dtype=bool)
+    for f in faults:
+        if f.kind == kind:
+            m |= (t >= f.start_s) & (t < f.end_s)
+    return m
+
+
+def silent_ticks(t_dev: np.ndarray, clock: DeviceClock, faults: Sequence[FaultSpec]) -> np.ndarray:
+    """The device ticks outside its ``silent`` spans: a device that stops sending does not count either."""
+    if not any(f.kind == "silent" for f in faults):
+        return t_dev
+    return t_dev[~in_spans(clock.to_plant(t_dev), faults, "silent")]
+
+
+def with_stuck(errors: ChannelErrors, faults: Sequence[FaultSpec], channel: str) -> ChannelErrors:
+    """The channel's errors with the ``stuck`` faults on ``channel`` added as stuck intervals."""
+    extra = [StuckInterval(start_s=f.start_s, end_s=f.end_s) for f in faults
+             if f.kind == "stuck" and f.channel == channel]
+    return errors if not extra else errors.model_copy(update={"stuck": [*errors.stuck, *extra]})
+
+
+def span_frame_faults(frames: np.ndarray, stream: np.ndarray, faults: Sequence[FaultSpec], rng: np.random.Generator,
+                      clock: DeviceClock | None = None) -> np.ndarray:
+    """Apply the frame faults injected over spans to a device's (or a bus's) frames, time-sorted.
+
+    ``frame_loss`` drops each frame of the span with ``prob``; ``frame_loss_burst`` drops them all;
+    ``duplicate`` sends a frame twice (+50 us); ``reorder`` swaps a frame's data with the next frame of
+    its stream; ``corrupt_payload`` replaces the data bytes by random ones; ``wrong_dlc`` sends a frame
+    with another data length. Frame times are device times; ``clock`` maps them to plant time.
+    """
+    kinds = ("frame_loss", "frame_loss_burst", "duplicate", "reorder", "corrupt_payload", "wrong_dlc")
+    todo = [f for f in faults if f.kind in kinds]
+    if not todo or len(frames) == 0:
+        return frames
+    from benchtwin.wire.merge import insert_frames
+
+    out = frames.copy()
+    t = out["timestamp"] if clock is None else clock.to_plant(out["timestamp"])
+    drop = np.zeros(len(out), dtype=bool)
+    dups = []
+    for f in todo:
+        inside = np.flatnonzero((t >= f.start_s) & (t < f.end_s))
+        hit = inside if f.kind == "frame_loss_burst" else inside[rng.random(inside.size) < f.prob]
+        if f.kind in ("frame_loss", "frame_loss_burst"):
+            drop[hit] = True
+        elif f.kind == "duplicate":
+            d = out[hit].copy()
+            d["timestamp"] += 50e-6
+            dups.append(d)
+        elif f.kind == "reorder":
+            order = inside
+            st = stream[order]
+            for i in hit:  # swap with the next frame of the same stream inside the span
+                k = int(np.searchsorted(order, i))
+                nxt = np.flatnonzero(st[k + 1:] == stream[i])
+                if nxt.size:
+                    j = order[k + 1 + nxt[0]]
+                    out["data"][[i, j]] = out["data"][[j, i]]
+        elif f.kind == "corrupt_payload":
+            noise = rng.integers(1, 256, size=(hit.size, 8), dtype=np.uint8)  # every byte changes
+            out["data"][hit] ^= noise
+        else:  # wrong_dlc
+            shift = rng.integers(1, 9, size=hit.size)
+            out["dlc"][hit] = (out["dlc"][hit].astype(np.int64) + shift) % 9
+    res = out[~drop]
+    for d in dups:
+        res = insert_frames(res, d)
+    return res
+
+
+@dataclass(frozen=True)
+class FaultyClock(DeviceClock):
+    """A device clock with injected ``clock_drift`` (extra rate over a span) and ``clock_step`` (a forward jump).
+
+    ``t_dev = (1 + drift) t + offset + sum(step_i [t >= s_i]) + sum(ppm_i 1e-6 clip(t - s_i, 0, d_i))``.
+    """
+
+    faults: tuple[FaultSpec, ...] = ()
+
+    def _extra(self, t: np.ndarray) -> np.ndarray:
+        out = np.zeros(t.shape)
+        for f in self.faults:
+            if f.kind == "clock_step":
+                out += np.where(t >= f.start_s, f.offset_s, 0.0)
+            elif f.kind == "clock_drift":
+                out += f.drift_ppm * 1e-6 * np.clip(t - f.start_s, 0.0, float(f.duration_s))
+        return out
+
+    def to_device(self, t_plant: np.ndarray) -> np.ndarray:
+        """Plant time -> device time."""
+        t = np.asarray(t_plant, dtype=np.float64)
+        return super().to_device(t) + self._extra(t)
+
+    def _grid(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        base = super().to_plant(np.array([np.min(d), np.max(d)])) if d.size else np.zeros(2)
+        lo, hi = float(base[0]) - 20.0, float(base[1]) + 20.0
+        pts = [lo, hi]
+        for f in self.faults:
+            pts += [f.start_s - 1e-9, f.start_s, f.end_s]
+        g = np.unique(np.clip(np.asarray(pts), lo, hi))
+        return g, self.to_device(g)
+
+    def to_plant(self, t_dev: np.ndarray) -> np.ndarray:
+        """Device time -> plant time (a device time inside a forward step maps to the step)."""
+        d = np.asarray(t_dev, dtype=np.float64)
+        g, gd = self._grid(d)
+        return np.interp(d, gd, g)
+
+    def ticks(self, start_plant: float, end_plant: float, period_s: float, phase_s: float = 0.0) -> np.ndarray:
+        """Device ticks in the plant span, without the device times a forward step skipped."""
+        d0, d1 = self.to_device(np.array([start_plant, end_plant]))
+        k0 = np.ceil((d0 - phase_s) / period_s - 1e-9)
+        k1 = np.ceil((d1 - phase_s) / period_s - 1e-9)
+        t = np.arange(k0, k1) * period_s + phase_s
+        keep = np.ones(t.shape, dtype=bool)
+        for f in self.faults:
+            if f.kind == "clock_step":
+                a, b = self.to_device(np.array([f.start_s - 1e-9, f.start_s]))
+                keep &= ~((t > a) & (t < b))
+        return t[keep]
+
+
+def faulty_clock(link: LinkErrors, faults: Sequence[FaultSpec]) -> DeviceClock:
+    """The device's clock with its injected clock faults (a plain :class:`DeviceClock` without)."""
+    mine = tuple(f for f in faults if f.kind in ("clock_drift", "clock_step"))
+    if not mine:
+        return DeviceClock.of(link)
+    return FaultyClock(link.clock_offset_s, link.clock_drift_ppm, mine)
+
+
+def disconnect(frames: np.ndarray, faults: Sequence[FaultSpec]) -> tuple[np.ndarray, list[tuple[float, float]]]:
+    """Remove a bus's frames over its ``transport_disconnect`` spans; return them and the spans."""
+    spans = [(f.start_s, f.end_s) for f in faults if f.kind == "transport_disconnect"]
+    if not spans or len(frames) == 0:
+        return frames, spans
+    t = frames["timestamp"]
+    drop = np.zeros(len(frames), dtype=bool)
+    for a, b in spans:
+        drop |= (t >= a) & (t < b)
+    return frames[~drop], spans
+
+
+def truncate_log(frames: np.ndarray, faults: Sequence[FaultSpec]) -> np.ndarray:
+    """A bus log cut at the earliest ``log_truncation`` of the bus: nothing after it is written."""
+    cuts = [f.start_s for f in faults if f.kind == "log_truncation"]
+    if not cuts or len(frames) == 0:
+        return frames
+    return frames[frames["timestamp"] < min(cuts)]

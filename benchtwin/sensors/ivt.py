@@ -24,17 +24,26 @@ of results), 0x34 set mode (byte 1 bit 0: 1 run, 0 stop).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchtwin.config.setup import IVT_PLACES, ChannelErrors, IvtConfig, LinkErrors, SetupConfig
+from benchtwin.config.setup import IVT_PLACES, ChannelErrors, FaultSpec, IvtConfig, LinkErrors, SetupConfig
 from benchtwin.errors import FrameError
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Device, FrameDecoder, TriggerSpec, TruthChannel
-from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
+from benchtwin.sensors.imperfections import (
+    DeviceClock,
+    frame_faults,
+    in_spans,
+    measure,
+    silent_ticks,
+    span_frame_faults,
+    with_stuck,
+)
 from benchtwin.trace import Trace
 from benchtwin.wire.codec import MessageCodec
 from benchtwin.wire.dbc import build_ivt, ivt_node_name
@@ -121,8 +130,8 @@ def _adc(x: np.ndarray, full_range: float, bits: int) -> tuple[np.ndarray, np.nd
     return np.rint(np.clip(x, -full_range, full_range) / lsb) * lsb, over
 
 
-def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator, t_device: np.ndarray
-                ) -> IvtSamples:
+def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator, t_device: np.ndarray,
+                faults: Sequence[FaultSpec] = ()) -> IvtSamples:
     """All eight results of the shunt at device times ``t_device``.
 
     Parameters
@@ -137,13 +146,18 @@ def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generat
         The device's generator.
     t_device:
         Sample times on the shunt's clock.
+    faults:
+        Injected faults of this shunt: ``stuck`` on its current or voltage role, ``ivt_error`` (the status
+        nibble of every result over the span).
     """
-    ch_i, ch_u, _, _ = IVT_PLACES[place]
+    ch_i, ch_u, role_i, role_u = IVT_PLACES[place]
     clock = DeviceClock.of(cfg.link)
     t = clock.to_plant(t_device)
     i_true, u_true = trace[ch_i], trace[ch_u]
-    i_m = measure(trace.time_s, i_true, t, cfg.current_errors, rng, latency_s=cfg.link.latency_s)
-    u_m = measure(trace.time_s, u_true, t, cfg.voltage_errors, rng, latency_s=cfg.link.latency_s)
+    i_m = measure(trace.time_s, i_true, t, with_stuck(cfg.current_errors, faults, role_i), rng,
+                  latency_s=cfg.link.latency_s)
+    u_m = measure(trace.time_s, u_true, t, with_stuck(cfg.voltage_errors, faults, role_u), rng,
+                  latency_s=cfg.link.latency_s)
     i_q, i_over = _adc(i_m, cfg.current_range_a, cfg.adc_bits)
     u_q, u_over = _adc(u_m, cfg.voltage_range_v, cfg.adc_bits)
     # charge and energy integrate the measured signals on the trace grid (the shunt integrates internally)
@@ -170,12 +184,19 @@ def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generat
         status[0] |= np.where(np.abs(i_m) > cfg.ocs_threshold_a, STATUS_OCS, 0)
     status[1] = np.where(u_over, STATUS_OUT_OF_RANGE, 0)
     status[5] = np.where(i_over | u_over, STATUS_OUT_OF_RANGE, 0)
+    for f in faults:  # the shunt in an error state: its status nibble on every result over the span
+        if f.kind == "ivt_error":
+            status[:, in_spans(t, [f], "ivt_error")] |= f.status
     values = np.clip(values, -(2**31), 2**31 - 1)
     return IvtSamples(np.asarray(t_device, dtype=np.float64), t, values, status)
 
 
-def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator) -> np.ndarray:
+def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator,
+               faults: Sequence[FaultSpec] = ()) -> np.ndarray:
     """All frames the shunt (and, in triggered mode, the bench's trigger commands) put on the bus.
+
+    ``faults``: the shunt's injected faults (``silent`` spans send nothing, frame faults over spans,
+    ``stuck`` and ``ivt_error`` in :func:`ivt_samples`).
 
     Returns
     -------
@@ -203,7 +224,8 @@ def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generato
             fr["dlc"] = 8
             fr["data"] = np.array(payload, dtype=np.uint8)
             parts.append(fr)
-    s = ivt_samples(trace, place, cfg, rng, t_dev)
+    t_dev = silent_ticks(t_dev, clock, faults)
+    s = ivt_samples(trace, place, cfg, rng, t_dev, faults)
     n = s.t_device.shape[0]
     counter = np.arange(n, dtype=np.int64) & 0xF
     # the results of one measurement follow each other in mux order: build them interleaved
@@ -219,7 +241,8 @@ def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generato
                                         _signal(codec, "Status"): s.status[k], _signal(codec, ""): s.values[k]}, n)
     parts.insert(0, res.reshape(-1))
     frames = merge_frames(parts)
-    return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
+    frames = frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
+    return span_frame_faults(frames, frames["arbitration_id"].astype(np.int64), faults, rng, clock)
 
 
 @dataclass
@@ -328,6 +351,7 @@ class IvtShunt(Device):
 
     section = "ivt"
     wire = "can"
+    counters = True
 
     def __init__(self, name: str, cfg: IvtConfig, setup: SetupConfig, place: str) -> None:
         super().__init__(name, cfg, setup)
@@ -340,7 +364,7 @@ class IvtShunt(Device):
 
     def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
         """Result frames (and the bench's trigger commands in triggered mode)."""
-        return encode_ivt(trace, self.place, self.cfg, rng)
+        return encode_ivt(trace, self.place, self.cfg, rng, self.setup.faults_of(self.name))
 
     def database(self) -> Database:
         """The shunt's result, command and answer messages on its own identifiers."""
@@ -364,6 +388,9 @@ class IvtShunt(Device):
 
         def decode(s: FrameStream, sink: DecodeSink) -> None:
             mux_bad = codec.unpack_words(s.words, [_signal(codec, "MuxID")])[_signal(codec, "MuxID")] != k
+            corrupt = mux_bad & (s.dlc == codec.length)
+            if corrupt.any():  # a full-length frame whose mux byte is not this identifier's result
+                sink.fault("corrupt_payload", self.name, s.t[corrupt])
             good, proto, nbad = split_bad(s.dlc, codec.length, mux_bad)
             sink.protocol_error(s.where, nbad)
             raw = codec.unpack_words(s.words[good] if nbad else s.words)

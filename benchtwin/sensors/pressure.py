@@ -7,16 +7,24 @@ there as SATURATED). Module: 16-bit converter over 0-10 V, registers updated at
 ``update_hz`` on the module's clock (uptime in registers 12-13). Acquisition: polls input registers
 0..13 at ``poll_hz`` on its own (plant) clock; each answer holds the last update before the request
 reached the module; configured timeouts and exception responses give a :class:`PollLog` status.
+
+Injected faults (the setup's ``[[faults]]``): ``stuck`` on a pressure role, ``clock_drift`` and
+``clock_step`` of the module's clock (its uptime registers), ``modbus_restart`` (every poll of the span
+times out) and ``modbus_slow`` (answers ``latency_s`` late; the client waits, skipping poll slots).
+The decoder judges them from the poll log: runs of timeouts, and the age of each answer (poll time
+minus the module's uptime) against its neighbours (:func:`poll_clock_evidence`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
-from benchtwin.config.setup import ChannelErrors, LinkErrors, PressureConfig
+from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, PressureConfig
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Delivered, Device, ModbusEndpoint, TruthChannel
-from benchtwin.sensors.imperfections import DeviceClock, device_rng, measure
+from benchtwin.sensors.imperfections import device_rng, faulty_clock, in_spans, measure, with_stuck
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import POLL_OK, POLL_TIMEOUT, PollLog, RegisterSnapshots
 from benchtwin.wire.modbus_map import (
@@ -41,16 +49,18 @@ __all__ = ["PA_PER_BAR", "PressureModule", "decode_pressure_polls", "encode_pres
 PA_PER_BAR = 1e5
 
 
-def encode_pressure(trace: Trace, cfg: PressureConfig, rng: np.random.Generator) -> RegisterSnapshots:
-    """The module's input registers 0..13 at every update (module clock)."""
-    clock = DeviceClock.of(cfg.link)
+def encode_pressure(trace: Trace, cfg: PressureConfig, rng: np.random.Generator,
+                    faults: Sequence[FaultSpec] = ()) -> RegisterSnapshots:
+    """The module's input registers 0..13 at every update (module clock, with its injected clock faults)."""
+    clock = faulty_clock(cfg.link, faults)
     t_dev = clock.ticks(float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9, 1.0 / cfg.update_hz)
     t = clock.to_plant(t_dev)
     n = t.shape[0]
     regs = np.zeros((n, INPUT_COUNT), dtype=np.uint16)
     status = np.zeros(n, dtype=np.int64)
-    for k, (trace_name, _role) in enumerate(CHANNELS):
-        bar = measure(trace.time_s, trace[trace_name] / PA_PER_BAR, t, cfg.errors, rng, latency_s=cfg.link.latency_s)
+    for k, (trace_name, role) in enumerate(CHANNELS):
+        bar = measure(trace.time_s, trace[trace_name] / PA_PER_BAR, t, with_stuck(cfg.errors, faults, role), rng,
+                      latency_s=cfg.link.latency_s)
         volts = np.minimum(bar / cfg.full_scale_bar * cfg.full_scale_v, cfg.output_max_v)  # transducer saturation
         counts, high, low = volts_to_counts(volts)
         regs[:, REG_RAW + k] = counts
@@ -67,15 +77,16 @@ def encode_pressure(trace: Trace, cfg: PressureConfig, rng: np.random.Generator)
 
 
 def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.Generator, start_s: float,
-                   end_s: float) -> PollLog:
+                   end_s: float, faults: Sequence[FaultSpec] = ()) -> PollLog:
     """Batch polling: what a Modbus client polling at ``poll_hz`` from ``start_s`` to ``end_s`` would log.
 
     Each request is sent at ``k / poll_hz`` (acquisition clock = plant clock), reaches the module
     half a round trip later, and is logged when the answer arrives (``+ poll_latency_s``). A request
     that times out is logged ``poll_timeout_s`` after it was sent, and the poll slots that fall in
-    that wait are skipped (a Modbus client waits for one answer at a time).
+    that wait are skipped (a Modbus client waits for one answer at a time). Over a ``modbus_restart``
+    every request times out; over a ``modbus_slow`` each answer comes ``latency_s`` later.
     """
-    clock = DeviceClock.of(cfg.link)
+    clock = faulty_clock(cfg.link, faults)
     t_req = np.arange(np.ceil(start_s * cfg.poll_hz), np.ceil(end_s * cfg.poll_hz)) / cfg.poll_hz
     t_at_module = clock.to_device(t_req + 0.5 * cfg.poll_latency_s)
     idx = np.searchsorted(snap.times, t_at_module, side="right") - 1
@@ -85,15 +96,20 @@ def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.
     r = rng.random(n)
     status[r < cfg.timeout_prob] = POLL_TIMEOUT
     status[(r >= cfg.timeout_prob) & (r < cfg.timeout_prob + cfg.exception_prob)] = cfg.exception_code
-    t_log = t_req + cfg.poll_latency_s
+    status[in_spans(t_req, faults, "modbus_restart")] = POLL_TIMEOUT  # the server is down: no answer
+    latency = np.full(n, cfg.poll_latency_s)
+    for f in faults:
+        if f.kind == "modbus_slow":
+            latency[in_spans(t_req, [f], "modbus_slow")] += f.latency_s
+    t_log = t_req + latency
     keep = np.ones(n, dtype=bool)
-    timed_out = np.flatnonzero((status == POLL_TIMEOUT) & (idx >= 0))
+    timed_out = (status == POLL_TIMEOUT) & (idx >= 0)
     busy_until = -np.inf
-    for i in timed_out:  # timeouts are rare: a short loop
+    for i in np.flatnonzero(timed_out | (latency >= 1.0 / cfg.poll_hz)):  # rare: a short loop
         if t_req[i] < busy_until:
             keep[i] = False  # this slot fell inside an earlier wait
             continue
-        busy_until = t_req[i] + cfg.poll_timeout_s
+        busy_until = t_req[i] + (cfg.poll_timeout_s if timed_out[i] else latency[i])
         t_log[i] = busy_until
         hi = np.searchsorted(t_req, busy_until, side="left")
         keep[i + 1:hi] = False
@@ -123,12 +139,126 @@ def _unwrap_u32(raw: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
+#: an answer this much older than its neighbours' (poll time minus module uptime) came late (LATE)
+LATE_S = 0.012
+#: a persistent change of the answers' age by this much is a step of the module's clock
+CLOCK_STEP_S = 0.01
+#: a drift of the age this far (ppm) from the recording's own over a minute is a clock drifting
+CLOCK_DRIFT_PPM = 40.0
+#: a run of this many timed-out polls in a row is the server down (single timeouts are the network)
+RESTART_RUN = 3
+
+
+def _block_medians(t: np.ndarray, x: np.ndarray, block_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Block index of each sample, and per non-empty block its centre time and median."""
+    k = np.floor((t - t[0]) / block_s).astype(np.int64)
+    counts = np.bincount(k)
+    order = np.lexsort((x, k))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    has = np.flatnonzero(counts)
+    return k, t[0] + (has + 0.5) * block_s, x[order][starts[has] + counts[has] // 2]
+
+
+def poll_clock_evidence(t: np.ndarray, up: np.ndarray, update_period_s: float, declared_ppm: float = 0.0,
+                        block_s: float = 1.0
+                        ) -> tuple[np.ndarray, list[tuple[float, float]], list[tuple[float, float]]]:
+    """Late answers, clock steps and clock drift from the age of good answers (poll time ``t`` minus uptime ``up``).
+
+    The age of an answer is its latency plus the time since the module's last register update: it moves in
+    steps of one update period as the two clocks slide apart (a tick each time their drift adds up to one
+    period). Per 1-s block: a persistent change of the median age over 5 blocks by more than
+    :data:`CLOCK_STEP_S` is a clock step (a rise that falls back within a minute is a stretch of late
+    answers instead); after removing steps, an answer more than :data:`LATE_S` older than the running
+    median is late; the time between two one-period ticks gives the drift (one period per interval),
+    and an interval whose drift differs from the ``declared_ppm`` of the setup by more than
+    :data:`CLOCK_DRIFT_PPM` is a clock drifting.
+
+    Returns
+    -------
+    late, steps, drifts
+        Mask of late answers; ``(time, size)`` of each clock step; ``(start, end)`` of each drifting span.
+    """
+    age = t - up
+    if t.size < 50:
+        return np.zeros(t.size, bool), [], []
+    k, tb, m = _block_medians(t, age, block_s)
+    w = 5
+    steps: list[tuple[float, float]] = []
+    slow: list[tuple[float, float]] = []
+    if m.size > 2 * w:
+        from numpy.lib.stride_tricks import sliding_window_view
+
+        fwd = np.median(sliding_window_view(m, w), axis=1)  # fwd[j] = median(m[j:j+w])
+        c = np.zeros(m.size)
+        c[w:m.size - w + 1] = fwd[w:] - fwd[:-w]
+        cand = np.flatnonzero(np.abs(c) > CLOCK_STEP_S)
+        groups = np.split(cand, np.flatnonzero(np.diff(cand) > 1) + 1) if cand.size else []
+        found = []
+        for g in groups:  # one change per group: the middle of its plateau (full size for w blocks around it)
+            for sign in (1.0, -1.0):
+                gs = g[np.sign(c[g]) == sign]
+                if gs.size:
+                    top = gs[np.abs(c[gs]) >= 0.8 * np.max(np.abs(c[gs]))]
+                    i = int(top[top.size // 2])
+                    found.append((float(tb[i] - 0.5 * block_s), float(c[i])))
+        found.sort()
+        used = set()
+        for a, (ta, ca) in enumerate(found):  # a rise that falls back: a stretch of slow answers, not a clock
+            if a in used or ca <= 0:
+                continue
+            for b in range(a + 1, len(found)):
+                tb_, cb = found[b]
+                if b not in used and cb < 0 and tb_ - ta < 60.0 and abs(ca + cb) < 0.5 * ca:
+                    used |= {a, b}
+                    slow.append((ta, tb_))
+                    break
+        steps = [s for j, s in enumerate(found) if j not in used]
+    level = np.zeros(tb.size)
+    for ts, size in steps:
+        level += np.where(tb >= ts, size, 0.0)
+    mc = m - level
+    in_slow = np.zeros(tb.size, bool)
+    for a, b in slow:
+        in_slow |= (tb >= a - block_s) & (tb <= b + block_s)
+    ref = np.flatnonzero(~in_slow)
+    late = np.zeros(t.size, bool)
+    if ref.size:
+        from scipy.ndimage import median_filter
+
+        base_b = np.interp(tb, tb[ref], median_filter(mc[ref], size=21, mode="nearest"))
+        blk = np.searchsorted(np.flatnonzero(np.bincount(k)), k)  # block of each answer among non-empty ones
+        late = age - level[blk] - np.interp(t, tb, base_b) > LATE_S
+        for ts, _ in steps:  # around a step the level is uncertain: those answers are flagged CLOCK instead
+            late &= np.abs(t - ts) > 1.5 * block_s
+    # drift: one-period ticks of the age, away from steps and slow answers
+    quiet = ~in_slow
+    for ts, _ in steps:
+        quiet &= np.abs(tb - ts) > w * block_s
+    d = np.diff(mc)
+    tick = quiet[1:] & quiet[:-1] & (np.abs(np.abs(d) - update_period_s) < 0.4 * update_period_s)
+    tt, sign = tb[1:][tick] - 0.5 * block_s, np.sign(d[tick])
+    drifts: list[tuple[float, float]] = []
+    for j in range(tt.size - 1):
+        a, b = float(tt[j]), float(tt[j + 1])
+        if not quiet[(tb >= a) & (tb <= b)].all():
+            continue  # a step or slow answers in between: the interval says nothing of the rate
+        ppm = -sign[j + 1] * update_period_s / (b - a) * 1e6  # the module ahead: its uptime gains, age falls
+        if abs(ppm - declared_ppm) > CLOCK_DRIFT_PPM:
+            if drifts and a <= drifts[-1][1]:
+                drifts[-1] = (drifts[-1][0], b)
+            else:
+                drifts.append((a, b))
+    return late, steps, drifts
+
+
 def decode_pressure_polls(log_: PollLog, cfg: PressureConfig | None, sink: DecodeSink, drops: np.ndarray) -> None:
     """Decode the poll log of the pressure module into the five brake-pressure channels (bar).
 
     The time base is the module's uptime registers where polled, else the poll times; a failed poll
     holds the last good values, flagged TIMEOUT or PROTOCOL_ERROR; status bits and the transducer's
-    output limit flag SATURATED. Counts go to ``sink.counts["modbus"]``.
+    output limit flag SATURATED. Counts go to ``sink.counts["modbus"]``. Runs of timeouts (the server
+    down), late answers (LATE) and the module's clock stepping or drifting (CLOCK) are judged from the log
+    (:func:`poll_clock_evidence`) and reported to the sink as faults.
     """
     n = len(log_)
     ok = log_.status == POLL_OK
@@ -156,6 +286,7 @@ def decode_pressure_polls(log_: PollLog, cfg: PressureConfig | None, sink: Decod
     flags[log_.status == POLL_TIMEOUT] |= FLAG["TIMEOUT"]
     flags[(log_.status != POLL_OK) & (log_.status != POLL_TIMEOUT)] |= FLAG["PROTOCOL_ERROR"]
     mark_after(flags, log_.times, drops, FLAG["TRANSPORT_DROP"])
+    _poll_faults(log_, ok, up, flags, cfg, sink)
     # keep timestamps monotonic (a held sample never goes back in time)
     t = np.maximum.accumulate(t)
     status = log_.values[lg, REG_STATUS].astype(np.int64) if log_.count > REG_STATUS else np.zeros(n, np.int64)
@@ -174,6 +305,32 @@ def decode_pressure_polls(log_: PollLog, cfg: PressureConfig | None, sink: Decod
             np.median(log_.times[ok] - up[ok]))
 
 
+def _poll_faults(log_: PollLog, ok: np.ndarray, up: np.ndarray, flags: np.ndarray, cfg: PressureConfig | None,
+                 sink: DecodeSink) -> None:
+    """Server restarts (runs of timeouts), late answers and clock faults of the module, into flags and the sink."""
+    tout = (log_.status == POLL_TIMEOUT).astype(np.int8)
+    if tout.any():
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], tout, [0]])))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a >= RESTART_RUN:
+                sink.fault("modbus_restart", log_.device, log_.times[a:b])
+    if log_.count <= REG_UPTIME_LO or np.count_nonzero(ok) < 50:
+        return
+    idx = np.flatnonzero(ok)
+    period = 1.0 / cfg.update_hz if cfg is not None else 0.005
+    declared = cfg.link.clock_drift_ppm if cfg is not None else 0.0
+    late, steps, drifts = poll_clock_evidence(log_.times[idx], up[idx], period, declared)
+    if late.any():
+        flags[idx[late]] |= FLAG["LATE"]
+        sink.fault("modbus_slow", log_.device, log_.times[idx[late]])
+    for ts, _size in steps:
+        flags[np.abs(log_.times - ts) <= 1.0] |= FLAG["CLOCK"]
+        sink.fault("clock_step", log_.device, np.array([ts]))
+    for a, b in drifts:
+        flags[(log_.times >= a) & (log_.times < b)] |= FLAG["CLOCK"]
+        sink.fault("clock_drift", log_.device, np.array([a]), np.array([b]))
+
+
 class PressureModule(Device):
     """Five SPA100 transducers on the 16-bit Modbus TCP module (setup section ``[pressure]``)."""
 
@@ -187,14 +344,15 @@ class PressureModule(Device):
 
     def encode(self, trace: Trace, rng: np.random.Generator) -> RegisterSnapshots:
         """The module's input registers at every update."""
-        return encode_pressure(trace, self.cfg, rng)
+        return encode_pressure(trace, self.cfg, rng, self.setup.faults_of(self.cfg.device))
 
     def deliver(self, output: RegisterSnapshots, seed: int | None, span_s: tuple[float, float] | None
                 ) -> Delivered:
         """The acquisition's polls over ``span_s`` (default: the snapshots' span), faults from ``modbus_poll``."""
         if span_s is None:
             span_s = (float(output.times[0]), float(output.times[-1])) if len(output.times) else (0.0, 0.0)
-        return Delivered(polls=poll_snapshots(output, self.cfg, device_rng(seed, "modbus_poll"), *span_s))
+        return Delivered(polls=poll_snapshots(output, self.cfg, device_rng(seed, "modbus_poll"), *span_s,
+                                              faults=self.setup.faults_of(self.cfg.device)))
 
     def decode_polls(self, log: PollLog, sink: DecodeSink, drops: np.ndarray) -> None:
         """See :func:`decode_pressure_polls`."""

@@ -15,17 +15,26 @@ paper's shaft (steel, E 210 GPa, nu 0.3, K_SG 2.0, V_s 5 V, solid R_e ~20.5 mm) 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchtwin.config.setup import K_TEL_STEPS, ChannelErrors, LinkErrors, ShaftConfig, TelemetryConfig
+from benchtwin.config.setup import K_TEL_STEPS, ChannelErrors, FaultSpec, LinkErrors, ShaftConfig, TelemetryConfig
 from benchtwin.errors import ConfigError
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Device, FrameDecoder, TruthChannel
-from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
+from benchtwin.sensors.imperfections import (
+    DeviceClock,
+    frame_faults,
+    in_spans,
+    measure,
+    silent_ticks,
+    span_frame_faults,
+    with_stuck,
+)
 from benchtwin.trace import Trace
 from benchtwin.wire.codec import MessageCodec
 from benchtwin.wire.dbc import AD_TORQUE_LSB_V, build_ad_module
@@ -124,13 +133,23 @@ def torque_from_code(code: np.ndarray, cfg: TelemetryConfig) -> np.ndarray:
     return k_tot(cfg.shaft, cfg.k_tel) * np.asarray(code, dtype=np.float64) * AD_TORQUE_LSB_V
 
 
-def encode_telemetry(trace: Trace, cfg: TelemetryConfig, rng: np.random.Generator) -> np.ndarray:
-    """AD module frames of the propeller-shaft torque (FRAME_DTYPE, time-sorted)."""
+def encode_telemetry(trace: Trace, cfg: TelemetryConfig, rng: np.random.Generator,
+                     faults: Sequence[FaultSpec] = ()) -> np.ndarray:
+    """AD module frames of the propeller-shaft torque (FRAME_DTYPE, time-sorted).
+
+    ``faults``: injected faults; a ``clip`` holds the telemetry output at its rail over the span (the AD
+    module sees its input at full scale and sets its clip bit).
+    """
     clock = DeviceClock.of(cfg.link)
     t_dev = clock.ticks(float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9, 1.0 / cfg.rate_hz)
+    t_dev = silent_ticks(t_dev, clock, faults)
     t = clock.to_plant(t_dev)
-    torque = measure(trace.time_s, trace["shaft_torque_nm"], t, cfg.errors, rng, latency_s=cfg.link.latency_s)
+    torque = measure(trace.time_s, trace["shaft_torque_nm"], t, with_stuck(cfg.errors, faults, "shaft_torque_nm"),
+                     rng, latency_s=cfg.link.latency_s)
     vout = cfg.k_tel * bridge_voltage(torque, cfg.shaft)
+    for f in faults:
+        if f.kind == "clip":
+            vout[in_spans(t, [f], "clip")] = cfg.vout_max_v if f.level == "high" else -cfg.vout_max_v
     clip = np.abs(vout) >= cfg.vout_max_v
     vout = np.clip(vout, -cfg.vout_max_v, cfg.vout_max_v)
     raw = np.rint(vout / AD_TORQUE_LSB_V)
@@ -143,7 +162,8 @@ def encode_telemetry(trace: Trace, cfg: TelemetryConfig, rng: np.random.Generato
     frames["dlc"] = 3
     frames["data"] = ad_codec(cfg.can_id).pack(
         {"AD_Torque_Vout": code, "AD_Torque_Counter": np.arange(n), "AD_Torque_Clip": clip}, n)
-    return frame_faults(frames, np.zeros(n, np.int64), cfg.link, rng)
+    frames = frame_faults(frames, np.zeros(n, np.int64), cfg.link, rng)
+    return span_frame_faults(frames, np.zeros(len(frames), np.int64), faults, rng, clock)
 
 
 class ShaftTorqueTelemetry(Device):
@@ -151,10 +171,11 @@ class ShaftTorqueTelemetry(Device):
 
     section = "telemetry"
     wire = "can"
+    counters = True
 
     def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
         """AD module frames."""
-        return encode_telemetry(trace, self.cfg, rng)
+        return encode_telemetry(trace, self.cfg, rng, self.setup.faults_of(self.name))
 
     def database(self) -> Database:
         """The AD module's frame, its value scaled by this setup's K_TOT: ``AD_Torque_ShaftTorque`` in Nm."""

@@ -11,14 +11,24 @@ steps) and publishes ``T`` in 0.1 degC in object 0x9130 (INTEGER16; 0x7FFF above
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 from thermocouple_its90._data import TYPES as _ITS90
 
-from benchtwin.config.setup import ChannelErrors, LinkErrors, ThermoConfig
+from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, ThermoConfig
 from benchtwin.sensors.base import CanopenEndpoint, Delivered, Device, FrameDecoder, TruthChannel
-from benchtwin.sensors.imperfections import DeviceClock, device_rng, frame_faults, measure
+from benchtwin.sensors.imperfections import (
+    DeviceClock,
+    device_rng,
+    frame_faults,
+    in_spans,
+    measure,
+    silent_ticks,
+    span_frame_faults,
+    with_stuck,
+)
 from benchtwin.trace import Trace
 from benchtwin.wire.canopen_pdo import AI_OVERLOAD_NEG, AI_OVERLOAD_POS, EDS_PATH, TpdoLayout, pdo_layout
 from benchtwin.wire.dbc import build_thermo_pdos
@@ -81,15 +91,18 @@ def temperature_type_k(emf_mv: np.ndarray, newton_steps: int = 3) -> np.ndarray:
     return t
 
 
-def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator) -> ProcessImage:
+def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
+                  faults: Sequence[FaultSpec] = ()) -> ProcessImage:
     """The thermo module's object-dictionary values at each TPDO event (its own clock).
 
     Columns follow the EDS TPDO mapping (0x9130 sub 1..9, then 0x2100); inputs without a
-    thermocouple read -0x8000 (open circuit).
+    thermocouple read -0x8000 (open circuit), as does an input with an injected ``open_circuit`` over
+    its span. A ``silent`` node sends no TPDO over its span.
     """
     layout = pdo_layout(cfg.node_id)
     clock = DeviceClock.of(cfg.link)
     t_dev = clock.ticks(float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9, cfg.pdo_period_ms / 1000.0)
+    t_dev = silent_ticks(t_dev, clock, faults)
     t = clock.to_plant(t_dev)
     n = t.shape[0]
     entries = layout.entries
@@ -98,7 +111,8 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator) -> 
     e_cj_true = float(emf_type_k(np.array([t_cj]))[0])
     e_cj_meas = float(emf_type_k(np.array([t_cj + cfg.cold_junction_error_degc]))[0])
     for k, place in enumerate(cfg.places):
-        temp = measure(trace.time_s, trace[place], t, cfg.errors, rng, latency_s=cfg.link.latency_s)
+        temp = measure(trace.time_s, trace[place], t, with_stuck(cfg.errors, faults, place), rng,
+                       latency_s=cfg.link.latency_s)
         v_term = emf_type_k(np.clip(temp, _T_MIN, _T_MAX)) - e_cj_true
         if cfg.emf_resolution_uv > 0:
             step = cfg.emf_resolution_uv * 1e-3
@@ -110,6 +124,7 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator) -> 
         raw = np.where(t_meas > cfg.range_max_degc, AI_OVERLOAD_POS, raw)
         raw = np.where((t_meas < cfg.range_min_degc) | ~np.isfinite(t_meas), AI_OVERLOAD_NEG, raw)
         values[:, col] = np.clip(raw, AI_OVERLOAD_NEG, AI_OVERLOAD_POS)
+        values[in_spans(t, [f for f in faults if f.channel == place], "open_circuit"), col] = AI_OVERLOAD_NEG
     if (0x2100, 0) in entries:
         values[:, entries.index((0x2100, 0))] = round((t_cj + cfg.cold_junction_error_degc) * 10.0)
     return ProcessImage("thermo", cfg.node_id, t_dev, entries, values)
@@ -123,13 +138,15 @@ class ThermoModule(Device):
 
     def encode(self, trace: Trace, rng: np.random.Generator) -> ProcessImage:
         """The object-dictionary values at each TPDO event."""
-        return encode_thermo(trace, self.cfg, rng)
+        return encode_thermo(trace, self.cfg, rng, self.setup.faults_of(self.name))
 
     def deliver(self, output: ProcessImage, seed: int | None, span_s: tuple[float, float] | None) -> Delivered:
         """The TPDO frames on the module's bus, with its link's frame faults (stream ``thermo_pdo``)."""
         pdo = pdo_layout(self.cfg.node_id).pack(output)
-        return Delivered(frames=frame_faults(pdo, pdo["arbitration_id"].astype(np.int64), self.cfg.link,
-                                             device_rng(seed, "thermo_pdo")))
+        rng = device_rng(seed, "thermo_pdo")
+        frames = frame_faults(pdo, pdo["arbitration_id"].astype(np.int64), self.cfg.link, rng)
+        return Delivered(frames=span_frame_faults(frames, frames["arbitration_id"].astype(np.int64),
+                                                  self.setup.faults_of(self.name), rng, DeviceClock.of(self.cfg.link)))
 
     def database(self) -> Database:
         """The TPDOs as DBC messages derived from the EDS mapping."""
@@ -170,6 +187,8 @@ class ThermoModule(Device):
                 v = raw * layout.scale((index, sub))
                 flags = base.copy()
                 hi, lo = raw == AI_OVERLOAD_POS, raw == AI_OVERLOAD_NEG
+                if lo.any():  # below range or open: a coolant probe is never below -40 degC, so open
+                    sink.fault("open_circuit", self.name, t[lo], channel=name)
                 flags[hi | lo] |= FLAG["OUT_OF_RANGE"] | FLAG["SATURATED"]
                 v = np.where(hi, th.range_max_degc, np.where(lo, th.range_min_degc, v))
                 sink.add(name, "degC", t, v, flags, self.name)

@@ -9,16 +9,24 @@ up per frame. A NaN dyno set speed (road-load mode) is sent as the raw maximum 0
 from __future__ import annotations
 
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from benchtwin.config.setup import ChannelErrors, DynoConfig, LinkErrors, VehicleCanConfig
+from benchtwin.config.setup import ChannelErrors, DynoConfig, FaultSpec, LinkErrors, VehicleCanConfig
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Device, FrameDecoder, TruthChannel
-from benchtwin.sensors.imperfections import DeviceClock, frame_faults, measure
+from benchtwin.sensors.imperfections import (
+    DeviceClock,
+    frame_faults,
+    measure,
+    silent_ticks,
+    span_frame_faults,
+    with_stuck,
+)
 from benchtwin.trace import Trace
 from benchtwin.wire.codec import MessageCodec
 from benchtwin.wire.dbc import load_dbc
@@ -94,8 +102,8 @@ def message_codecs(stem: str) -> tuple[MessageCodec, ...]:
     return tuple(MessageCodec(m) for m in load_dbc(stem).messages)
 
 
-def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfig, rng: np.random.Generator
-                      ) -> np.ndarray:
+def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfig, rng: np.random.Generator,
+                      faults: Sequence[FaultSpec] = ()) -> np.ndarray:
     """All frames of the vehicle CAN (``stem='vehicle'``) or the dyno (``'dyno'``), time-sorted."""
     clock = DeviceClock.of(cfg.link)
     t0, t1 = float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9
@@ -105,7 +113,7 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
     for codec in message_codecs(stem):
         period = (codec.message.cycle_time or 100) / 1000.0
         phase = (zlib.crc32(codec.name.encode()) % 97) * 1e-4 % period  # senders are not in phase
-        t_dev = clock.ticks(t0, t1, period, phase)
+        t_dev = silent_ticks(clock.ticks(t0, t1, period, phase), clock, faults)
         t = clock.to_plant(t_dev)
         n = t.shape[0]
         raw = {}
@@ -114,7 +122,7 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
             if src.trace is None:
                 raw[name] = np.arange(n, dtype=np.int64)
                 continue
-            errors = cfg.errors.get(src.role or "", ideal)
+            errors = with_stuck(cfg.errors.get(src.role or "", ideal), faults, src.role or "")
             x = measure(trace.time_s, trace[src.trace] * src.factor, t, errors, rng, latency_s=cfg.link.latency_s,
                         hold=src.hold)
             raw[name], _ = codec.to_raw(name, x)
@@ -125,7 +133,8 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
         fr["data"] = codec.pack(raw, n)
         parts.append(fr)
     frames = merge_frames(parts)
-    return frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
+    frames = frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
+    return span_frame_faults(frames, frames["arbitration_id"].astype(np.int64), faults, rng, clock)
 
 
 class _DbcDevice(Device):
@@ -137,7 +146,7 @@ class _DbcDevice(Device):
 
     def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
         """Every message at its cycle time on the sender's clock."""
-        return encode_can_device(trace, self.stem, self.cfg, rng)
+        return encode_can_device(trace, self.stem, self.cfg, rng, self.setup.faults_of(self.name))
 
     def database(self) -> Database:
         """The shipped DBC."""

@@ -9,6 +9,7 @@ channels and the counts of what went wrong go into a :class:`DecodeSink`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,7 +17,8 @@ import numpy as np
 
 from benchtwin.recording import Channel, Flag, Recording
 
-__all__ = ["FLAG", "DecodeSink", "FrameStream", "counter_flags", "mark_after", "split_bad", "timing_flags"]
+__all__ = ["FLAG", "DecodeSink", "FrameStream", "counter_flags", "mark_after", "split_bad", "stale_runs",
+           "timing_flags"]
 
 #: flag name -> bit (plain ints for numpy in-place ors)
 FLAG: dict[str, int] = {f.name: int(f) for f in Flag}
@@ -74,12 +76,39 @@ def counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
 
 
 def timing_flags(t: np.ndarray, period_s: float) -> np.ndarray:
-    """LOST_FRAME where the spacing exceeds 1.5 periods (streams without a counter)."""
+    """LOST_FRAME where the spacing exceeds 1.5 periods, DUPLICATE where it is under a quarter period
+    (streams without a counter: a frame sent twice follows its first copy at once)."""
     flags = np.zeros(t.shape[0], dtype=np.uint16)
     if t.shape[0] > 1 and period_s > 0:
-        late = np.diff(t) > 1.5 * period_s
-        flags[1:][late] |= FLAG["LOST_FRAME"]
+        dt = np.diff(t)
+        flags[1:][dt > 1.5 * period_s] |= FLAG["LOST_FRAME"]
+        flags[1:][dt < 0.25 * period_s] |= FLAG["DUPLICATE"]
     return flags
+
+
+def stale_runs(values: np.ndarray, usable: np.ndarray, noise_std: float, step: float, p_false: float = 1e-6
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Runs of bit-identical readings too long for a channel with white noise ``noise_std`` and step ``step``.
+
+    Two readings of one steady value fall on one step with probability at most ``p = erf(step / (2 sigma))``
+    (their difference is N(0, 2 sigma^2) and must stay under one step), so ``L`` identical readings in a row
+    happen by chance with at most ``p**(L-1)``; runs longer than the ``L`` with ``N p**(L-1) < p_false``
+    (``N`` readings) are a frozen output, not a steady hold. Readings not ``usable`` (held, clipped,
+    out of range) break runs. Returns start and end (exclusive) indices; none where ``p`` is near 1 (noise
+    far below the step: a frozen output cannot be told from a steady one).
+    """
+    n = int(values.shape[0])
+    if n < 3 or noise_std <= 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    p = math.erf(step / (2.0 * noise_std)) if step > 0 else 0.0
+    if p >= 0.99:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    length = max(5, math.ceil(math.log(p_false / n) / math.log(max(p, 1e-12))) + 1)
+    same = (values[1:] == values[:-1]) & usable[1:] & usable[:-1]
+    e = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
+    a, b = e[::2], e[1::2] + 1  # pairs i..j-1 equal -> readings i..j
+    long_ = b - a >= length
+    return a[long_], b[long_]
 
 
 def mark_after(flags: np.ndarray, t: np.ndarray, bad_times: np.ndarray, bit: int) -> None:
@@ -159,6 +188,8 @@ class DecodeSink:
 
     rec: Recording = field(default_factory=Recording)
     counts: dict[str, Any] = field(default_factory=lambda: {"protocol_errors": {}, "unknown_ids": {}, "frames": {}})
+    #: fault evidence: (kind, device, channel, start times, end times), see :meth:`fault`
+    evidence: list[tuple[str, str, str, np.ndarray, np.ndarray]] = field(default_factory=list)
 
     def add(self, name: str, unit: str, t: np.ndarray, v: np.ndarray, flags: np.ndarray, source: str,
             value_texts: dict[int, str] | None = None) -> None:
@@ -169,6 +200,13 @@ class DecodeSink:
         """Count ``n`` malformed frames or answers at ``where``."""
         if n:
             self.counts["protocol_errors"][where] = self.counts["protocol_errors"].get(where, 0) + int(n)
+
+    def fault(self, kind: str, source: str, t: np.ndarray, end: np.ndarray | None = None, channel: str = "") -> None:
+        """Evidence of a fault of ``kind`` at times ``t`` (spans to ``end``) on a device (and a channel)."""
+        t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        if t.size:
+            e = t if end is None else np.atleast_1d(np.asarray(end, dtype=np.float64))
+            self.evidence.append((kind, source, channel, t, e))
 
     def count(self, key: str, name: str, n: int) -> None:
         """Add ``n`` to the count ``counts[key][name]``."""
