@@ -128,14 +128,14 @@ class Flag(IntFlag):
     OUT_OF_ORDER = 1 << 7  #: the frame arrived after a newer one
     STALE = 1 << 8  #: the value did not change while it should (stuck-at suspected)
     TRANSPORT_DROP = 1 << 9  #: the transport dropped around this sample
-    LATE = 1 << 10  #: the answer came late: the sample's time is uncertain (a slow server)
+    LATE = 1 << 10  #: the answer came late (a slow server); stamped with the module's own uptime, so still usable
     CLOCK = 1 << 11  #: the source's clock stepped or drifted here: its time base is off
 
     @classmethod
     def bad(cls) -> Flag:
         """The flags that make a sample unusable for identification."""
         return (cls.SATURATED | cls.STATUS_ERROR | cls.OUT_OF_RANGE | cls.TIMEOUT | cls.PROTOCOL_ERROR
-                | cls.STALE | cls.LATE | cls.CLOCK)
+                | cls.STALE | cls.CLOCK)
 
 
 #: MDF bit-field text table of the flag bits: a viewer shows ``SATURATED|LOST_FRAME`` for 3

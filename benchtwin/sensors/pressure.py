@@ -182,6 +182,13 @@ def poll_clock_evidence(t: np.ndarray, up: np.ndarray, update_period_s: float, d
     if t.size < 50:
         return np.zeros(t.size, bool), [], []
     k, tb, m = _block_medians(t, age, block_s)
+    # the acquisition's own timing jitter (a busy logger, a live network): the thresholds never fall below a
+    # multiple of it, so a loaded machine's scatter is not taken for a slow server or a clock step
+    blk0 = np.searchsorted(np.flatnonzero(np.bincount(k)), k)
+    dev = age - m[blk0]
+    jitter = 1.4826 * float(np.median(np.abs(dev - np.median(dev))))
+    late_s = max(LATE_S, 8.0 * jitter)
+    step_s = max(CLOCK_STEP_S, 4.0 * jitter)
     w = 5
     steps: list[tuple[float, float]] = []
     slow: list[tuple[float, float]] = []
@@ -191,7 +198,7 @@ def poll_clock_evidence(t: np.ndarray, up: np.ndarray, update_period_s: float, d
         fwd = np.median(sliding_window_view(m, w), axis=1)  # fwd[j] = median(m[j:j+w])
         c = np.zeros(m.size)
         c[w:m.size - w + 1] = fwd[w:] - fwd[:-w]
-        cand = np.flatnonzero(np.abs(c) > CLOCK_STEP_S)
+        cand = np.flatnonzero(np.abs(c) > step_s)
         groups = np.split(cand, np.flatnonzero(np.diff(cand) > 1) + 1) if cand.size else []
         found = []
         for g in groups:  # one change per group: the middle of its plateau (full size for w blocks around it)
@@ -227,7 +234,7 @@ def poll_clock_evidence(t: np.ndarray, up: np.ndarray, update_period_s: float, d
 
         base_b = np.interp(tb, tb[ref], median_filter(mc[ref], size=21, mode="nearest"))
         blk = np.searchsorted(np.flatnonzero(np.bincount(k)), k)  # block of each answer among non-empty ones
-        late = age - level[blk] - np.interp(t, tb, base_b) > LATE_S
+        late = age - level[blk] - np.interp(t, tb, base_b) > late_s
         for ts, _ in steps:  # around a step the level is uncertain: those answers are flagged CLOCK instead
             late &= np.abs(t - ts) > 1.5 * block_s
     # drift: one-period ticks of the age, away from steps and slow answers

@@ -128,7 +128,7 @@ def test_sweep_file_errors_name_the_key_and_what_is_allowed(tmp_path: Path) -> N
     with pytest.raises(ConfigError) as err:
         load_sweep(p)
     msg = str(err.value)
-    assert "key 'families'" in msg and "allowed: transmission" in msg
+    assert "families: unknown family 'batt'" in msg and "allowed: transmission" in msg
     assert "key 'axes.setup.ivt.battery.current_errors.noise_std'" in msg and "num" in msg
     p.write_text('campaign = "quick"\n[axes]\nsetup.telemetry.k_tl = [1]\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=r"key 'axes.setup.telemetry.k_tl'.*allowed keys here: .*k_tel"):
