@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -61,3 +62,8 @@ def make_small_outputs() -> DeviceOutputs:
 #: policy (root or CAP_SYS_NICE), loose at normal priority on a loaded CI machine (a single stall of
 #: another process spoils the p99 of a run this short); benchmarks/bench_live.py measures the real figures
 PACING_BOUNDS_MS = {True: (1.0, 5.0), False: (2.0, 100.0)}
+
+#: False under software emulation (the vcan guest of ``make test-vcan`` sets BENCHTWIN_EMULATED=1): there
+#: wall-clock pacing says nothing about benchtwin, so the timing checks are left out and only what was
+#: delivered (counts, order, ids, bytes) is judged
+TIMING_JUDGED = os.environ.get("BENCHTWIN_EMULATED", "") != "1"

@@ -1,7 +1,8 @@
 """One suite, run back to back over every transport (python-can back2back_test style).
 
-Each subclass changes only ``TRANSPORT``; the socketcan one skips cleanly where the kernel has no
-AF_CAN (as on the development and CI machines).
+Each subclass changes only ``TRANSPORT``; the socketcan one (marked ``vcan``, on vcan0 and vcan1)
+skips cleanly where the kernel has no AF_CAN or no vcan interfaces (as on the development and CI
+machines) and runs under a kernel with vcan through ``make test-vcan``.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ import time
 import can
 import numpy as np
 import pytest
-from live_synth import MIN_EDS, PACING_BOUNDS_MS
+from live_synth import MIN_EDS, PACING_BOUNDS_MS, TIMING_JUDGED
+from vcan_env import skip_without_vcan
 
 from benchtwin.chain.live.canopen_node import ThermoAcquisition
 from benchtwin.chain.live.session import LiveSession
@@ -60,6 +62,8 @@ class _Back2Back:
 
     @pytest.fixture(autouse=True)
     def _available(self):
+        if self.TRANSPORT == "socketcan":
+            skip_without_vcan(("vcan0", "vcan1"))  # the transport's default interfaces of the two buses
         reason = get_transport(self.TRANSPORT).unavailable_reason()
         if reason is not None:
             pytest.skip(f"transport {self.TRANSPORT!r} unavailable here: {reason}")
@@ -90,14 +94,15 @@ class _Back2Back:
                 assert np.array_equal(ids, table["arbitration_id"]), f"{bus}: order or ids differ"
                 assert [bytes(m.data) for m in got] == [r["data"][:r["dlc"]].tobytes() for r in table]
                 assert [m.dlc for m in got] == table["dlc"].tolist()
-                # arrival times follow the plan: wall spacing = plant spacing / speed-up
-                t_rx = np.array([m.timestamp for m in got])
-                expect = (table["timestamp"] - table["timestamp"][0]) / self.SPEEDUP
-                lag = (t_rx - t_rx[0]) - expect
-                assert np.percentile(np.abs(lag - np.median(lag)), 99) < 0.02
+                if TIMING_JUDGED:  # arrival times follow the plan: wall spacing = plant spacing / speed-up
+                    t_rx = np.array([m.timestamp for m in got])
+                    expect = (table["timestamp"] - table["timestamp"][0]) / self.SPEEDUP
+                    lag = (t_rx - t_rx[0]) - expect
+                    assert np.percentile(np.abs(lag - np.median(lag)), 99) < 0.02
         assert rep.completed and rep.lost == 0
-        assert rep.pacing_p50_ms < p50_max
-        assert rep.pacing_p99_ms < p99_max
+        if TIMING_JUDGED:
+            assert rep.pacing_p50_ms < p50_max
+            assert rep.pacing_p99_ms < p99_max
         load = rep.streams["can:powertrain"].bus_load
         assert load == pytest.approx(small_outputs.can["powertrain"].bus_load(2.0 - 0.001), rel=0.01)
 
@@ -190,6 +195,7 @@ class TestSocketcand(_Back2Back):
     SPEEDUP = 20.0
 
 
+@pytest.mark.vcan
 class TestSocketcan(_Back2Back):
     TRANSPORT = "socketcan"
 
