@@ -7,13 +7,14 @@ Bad arguments end with a one-line error, never a traceback.
 
 from __future__ import annotations
 
-import re
+import json
 import subprocess
 import sys
 
 import can
 import numpy as np
 import pytest
+from live_synth import TIMING_JUDGED
 from vcan_env import quick_campaign_seed, quick_slice_dir, skip_without_vcan
 
 from benchtwin.chain.acquisition import acquire
@@ -21,12 +22,14 @@ from benchtwin.chain.live.modbus_server import free_port
 from benchtwin.chain.transports.socketcan import af_can_unavailable_reason
 from benchtwin.cli import main
 from benchtwin.config.setup import load_setup
-from benchtwin.recording import Recording
+from benchtwin.recording import Flag, Recording
 from benchtwin.sensors import encode
 from benchtwin.sensors.synthetic import synthetic_trace
 from benchtwin.trace import Trace
 
 pytestmark = pytest.mark.live
+
+LOST = np.uint16(Flag.LOST_FRAME)
 
 #: speed-up of the socketcan round trip (see ROUND_TRIPS)
 SOCKETCAN_SPEEDUP = 0.5
@@ -59,7 +62,7 @@ def _serve_then_record(tmp_path, case, play, out):
     serve = subprocess.Popen(
         [sys.executable, "-m", "benchtwin.cli", "serve", *play, "--setup", case["setup"], "--port", str(port),
          "--modbus-port", str(mb_port), "--speedup", sp, "--wait-clients", "3", "--wait-timeout", "30",
-         "--segments-out", str(tmp_path / "segments.json")],
+         "--segments-out", str(tmp_path / "segments.json"), "--report", str(tmp_path / "serve_report.json")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         rec = subprocess.run(
@@ -90,7 +93,7 @@ def _record_then_serve(tmp_path, case, play, out):
         serve = subprocess.run(
             [sys.executable, "-m", "benchtwin.cli", "serve", *play, "--setup", case["setup"], "--transport",
              "socketcan", "--channel-map", cmap, "--modbus-port", str(mb_port), "--speedup", sp,
-             "--segments-out", str(tmp_path / "segments.json")],
+             "--segments-out", str(tmp_path / "segments.json"), "--report", str(tmp_path / "serve_report.json")],
             capture_output=True, text=True, timeout=1500)
         r_out, r_err = rec.communicate(timeout=300)
     finally:
@@ -112,7 +115,9 @@ def test_serve_and_record_in_two_processes(tmp_path, transport):
     assert r_rc == 0, r_err
     assert s_rc == 0, s_out + s_err  # serve exits 1 when a frame could not be sent
     assert "wrote" in r_out and "Traceback" not in r_err
-    assert re.search(r"^all\s+(\d+)\s+\1\s+0\s", s_out, re.M), s_out  # sent == items, 0 lost
+    pacing = json.loads((tmp_path / "serve_report.json").read_text())["pacing"]
+    assert pacing["completed"] and pacing["lost"] == 0, s_out
+    assert all(st["sent"] == st["items"] for st in pacing["streams"].values()), s_out
     live = Recording.load(out)
     setup = load_setup(case["setup"])
     batch = acquire(encode(trace, setup, seed=seed), setup)
@@ -135,7 +140,14 @@ def test_serve_and_record_in_two_processes(tmp_path, transport):
             continue
         assert len(lv) == len(b), name
         np.testing.assert_array_equal(lv.values, b.values, err_msg=name)
-        np.testing.assert_array_equal(lv.flags, b.flags, err_msg=name)
+        if TIMING_JUDGED:
+            np.testing.assert_array_equal(lv.flags, b.flags, err_msg=name)
+        else:
+            # a stream without a counter is judged by its arrival spacing (a gap over 1.5 periods sets
+            # LOST_FRAME); a software-emulated guest that plays slower than the speed-up stretches the gaps.
+            # Every other flag must be equal, and every lost frame of the batch flagged live too
+            np.testing.assert_array_equal(lv.flags & ~LOST, b.flags & ~LOST, err_msg=name)
+            assert np.all(lv.flags[(b.flags & LOST) != 0] & LOST), name
         compared += 1
     assert compared > 10
     for name in ("battery_current_a", "shaft_torque_nm", "vehicle_speed_kmh", "engine_coolant_in_degc"):

@@ -31,8 +31,9 @@ pytestmark = [pytest.mark.live, pytest.mark.vcan]
 
 #: a frame that no test table carries: sent until a tool shows it, so the tool is known to be listening
 PROBE_ID = 0x7FF
-#: candump -L: ``(1700000000.123456) vcan0 123#DEADBEEF``
-CANDUMP_LINE = re.compile(r"^\((\d+\.\d+)\) (\S+) ([0-9A-F]{3}|[0-9A-F]{8})#([0-9A-F]*)\s*$")
+#: candump -L: ``(1700000000.123456) vcan0 123#DEADBEEF``; python-can's .log writer adds `` R`` or `` T`` (frames
+#: sent from this machine, as everything on a vcan is)
+CANDUMP_LINE = re.compile(r"^\((\d+\.\d+)\) (\S+) ([0-9A-F]{3}|[0-9A-F]{8})#([0-9A-F]*)(?: [RT])?\s*$")
 
 
 @pytest.fixture(autouse=True)
@@ -40,6 +41,15 @@ def _vcan():
     skip_without_vcan(("vcan0", "vcan1"))
     if shutil.which("candump") is None or shutil.which("cansend") is None:
         pytest.skip("can-utils (candump, cansend) not installed")
+
+
+def _default_sigint() -> None:
+    """In the child: Ctrl-C (SIGINT) back to its default, so that the tool stops as it would in a terminal.
+
+    A test run started in the background (the guest's init script) ignores SIGINT, the children inherit
+    that, and Python then installs no KeyboardInterrupt handler: can.logger would never stop and flush.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _cansend(iface: str, frame: str) -> None:
@@ -51,7 +61,7 @@ class _Candump:
 
     def __init__(self, *ifaces: str) -> None:
         self.proc = subprocess.Popen(["candump", "-L", *ifaces], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True, bufsize=1)
+                                     text=True, bufsize=1, preexec_fn=_default_sigint)
         self.rows: list[tuple[str, int, bytes]] = []
         self._t = threading.Thread(target=self._read, daemon=True)
         self._t.start()
@@ -129,7 +139,8 @@ def test_transport_frames_seen_by_candump_and_can_logger(small_outputs, tmp_path
     log = tmp_path / "vcan0.log"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     logger = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "socketcan", "-c", "vcan0", "-f", str(log)],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                              preexec_fn=_default_sigint)
     dump = _Candump("vcan0", "vcan1")
     try:
         out = []
@@ -158,10 +169,10 @@ def test_transport_frames_seen_by_candump_and_can_logger(small_outputs, tmp_path
         if logger.poll() is None:
             logger.send_signal(signal.SIGINT)
         try:
-            logger.communicate(timeout=60)
+            logger_rest = logger.communicate(timeout=60)[0]
         except subprocess.TimeoutExpired:
             logger.kill()
-            logger.communicate()
+            logger_rest = "(killed: did not stop on SIGINT)" + logger.communicate()[0]
     assert rep.completed and rep.lost == 0
     # candump: every frame of both buses, each bus in order (the thermo node's TPDOs also ride on vcan1)
     assert [r for r in rows if r[0] == "vcan0"] == pt
@@ -173,4 +184,5 @@ def test_transport_frames_seen_by_candump_and_can_logger(small_outputs, tmp_path
         m = CANDUMP_LINE.match(line)
         if m and int(m.group(3), 16) != PROBE_ID:
             logged.append((m.group(2), int(m.group(3), 16), bytes.fromhex(m.group(4))))
-    assert logged == pt
+    text = log.read_text() if log.exists() else "(no log file)"
+    assert logged == pt, "".join(out) + logger_rest + f"\n{len(text.splitlines())} log lines:\n" + text[:600]
