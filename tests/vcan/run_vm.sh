@@ -9,7 +9,8 @@
 #
 # Exit status: 0 and one "SKIPPED" line where this machine cannot boot a guest (not root, packages or
 # virtme-ng cannot be installed, QEMU does not start); otherwise the guest's pytest status (a failing
-# test fails the step), 124 if the guest run exceeds VCAN_TIMEOUT seconds.
+# test fails the step), 124 if the guest run exceeds VCAN_TIMEOUT seconds. VCAN_K: a pytest -k expression
+# to run only some of the vcan tests.
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 ROOT=$PWD
@@ -65,6 +66,7 @@ T_IMG=$(( $(now) - t ))
 t=$(now)
 cat >"$WORK/guest.env" <<ENV
 export NUMBA_CPU_NAME=generic NUMBA_CACHE_DIR=$WORK/numba BENCHTWIN_VCAN_TRACE=$WORK/quick_slice
+export VCAN_K='${VCAN_K:-}'
 ENV
 (. "$WORK/guest.env" && PYTHONPATH=tests/chain/live "$PY" -c "
 import vcan_env
