@@ -33,7 +33,7 @@ export NUMBA_CACHE_DIR=${NUMBA_CACHE_DIR:-/tmp/vcan-numba}
 export BENCHTWIN_EMULATED=1   # wall-clock pacing is not judged under software emulation
 t1=$(date +%s)
 .venv/bin/python -m pytest -p no:cacheprovider --basetemp=/tmp/vcan-pytest \
-    -m vcan -v -rs --timeout=1500 ${VCAN_K:+-k "$VCAN_K"} \
+    -m vcan -v -rs --durations=0 --timeout=1500 ${VCAN_K:+-k "$VCAN_K"} \
     tests/chain/live/test_live_back2back.py tests/chain/live/test_live_vcan_tools.py \
     tests/chain/live/test_live_record_cli.py
 rc=$?

@@ -14,7 +14,7 @@
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 ROOT=$PWD
-VCAN_TIMEOUT=${VCAN_TIMEOUT:-900}
+VCAN_TIMEOUT=${VCAN_TIMEOUT:-1200}
 VNG_VENV=${VNG_VENV:-$ROOT/.venv-vng}
 PY=$ROOT/.venv/bin/python
 T0=$(date +%s)
