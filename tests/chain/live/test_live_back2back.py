@@ -1,7 +1,8 @@
 """One suite, run back to back over every transport (python-can back2back_test style).
 
-Each subclass changes only ``TRANSPORT``; the socketcan one skips cleanly where the kernel has no
-AF_CAN (as on the development and CI machines).
+Each subclass changes only ``TRANSPORT``; the socketcan one (marked ``vcan``, on vcan0 and vcan1)
+skips cleanly where the kernel has no AF_CAN or no vcan interfaces (as on the development and CI
+machines) and runs under a kernel with vcan through ``make test-vcan``.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import can
 import numpy as np
 import pytest
 from live_synth import MIN_EDS
+from vcan_env import skip_without_vcan
 
 from benchtwin.chain.live.canopen_node import ThermoAcquisition
 from benchtwin.chain.live.session import LiveSession
@@ -60,6 +62,8 @@ class _Back2Back:
 
     @pytest.fixture(autouse=True)
     def _available(self):
+        if self.TRANSPORT == "socketcan":
+            skip_without_vcan(("vcan0", "vcan1"))  # the transport's default interfaces of the two buses
         reason = get_transport(self.TRANSPORT).unavailable_reason()
         if reason is not None:
             pytest.skip(f"transport {self.TRANSPORT!r} unavailable here: {reason}")
@@ -188,6 +192,7 @@ class TestSocketcand(_Back2Back):
     SPEEDUP = 20.0
 
 
+@pytest.mark.vcan
 class TestSocketcan(_Back2Back):
     TRANSPORT = "socketcan"
 
