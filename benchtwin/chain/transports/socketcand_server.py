@@ -329,6 +329,8 @@ class SocketcandServer:
             body = bytes(c.inbuf[start + 1:end]).decode("ascii", "replace").strip()
             del c.inbuf[:end + 1]
             self._command(c, body)
+            if not c.alive:  # refused and closed: the rest of its input is not read
+                return
 
     def _malformed(self, c: _Client, what: bytes | str) -> None:
         c.malformed += 1
@@ -353,19 +355,16 @@ class SocketcandServer:
         elif word == "open":
             name = body[4:].strip()
             if c.state != "greeted":
-                self._malformed(c, body)
-                self._reply(c, "< error bus already open >")
+                self._refuse(c, body, "< error bus already open >")
             elif name not in self.inbound:
-                self._malformed(c, body)
-                self._reply(c, f"< error no such bus {name}; buses: {','.join(self.channels)} >")
+                self._refuse(c, body, f"< error no such bus {name}; buses: {','.join(self.channels)} >")
             else:
                 c.channel = name
                 c.state = "open"
                 self._reply(c, "< ok >")
         elif word == "rawmode":
             if c.state != "open":
-                self._malformed(c, body)
-                self._reply(c, "< error open a bus first >")
+                self._refuse(c, body, "< error open a bus first >")
                 return
             c.armed_at = time.monotonic() + self.arm_delay_s
             c.state = "raw"
@@ -379,8 +378,18 @@ class SocketcandServer:
             # in raw mode an error text would be parsed as an error frame by some clients: count it only
             self._malformed(c, body)
         else:
-            self._malformed(c, body)
-            self._reply(c, f"< error unsupported command {word} >")
+            self._refuse(c, body, f"< error unsupported command {word} >")
+
+    def _refuse(self, c: _Client, body: str, answer: str) -> None:
+        """A malformed command: the client gets ``< error ... >`` and is closed; every other client goes on.
+
+        (In raw mode a malformed ``send`` is only counted: an error text in the frame stream would be
+        parsed as a frame by some clients.)
+        """
+        self._malformed(c, body)
+        self._reply(c, answer)
+        c.alive = False
+        self._drop(c)
 
     def _close_client(self, c: _Client, unregister: bool = True) -> None:
         if unregister:
