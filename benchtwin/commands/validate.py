@@ -69,9 +69,11 @@ def print_report(report: object, *, show_all: bool) -> None:
         firing = m.get("fuel_firing_g")
         f_firing = f" ({100 * (d['predicted']['fuel_g'] / firing - 1):+.2f} % without engine starts)" \
             if firing else ""
+        el = (f"{100 * e['electric_of_fuel_energy']:+.2f} % of the fuel energy (charge-sustaining)"
+              if e.get("charge_sustaining") else f"{100 * e['electric']:+.2f} %")
         print(f"  predicted {d['name']} ({d['gear_source']} gears): fuel {100 * e['fuel']:+.2f} %{f_firing}, "
-              f"electric energy {100 * e['electric']:+.2f} %, final SOC {e['soc_points']:+.2f} pt, "
-              f"CO2 {100 * e['co2']:+.2f} %")
+              f"electric energy {d['predicted']['electric_wh']:.0f} Wh vs {m['electric_wh']:.0f} Wh: {el}, "
+              f"final SOC {e['soc_points']:+.2f} pt, CO2 {100 * e['co2']:+.2f} %")
     for note in report.prediction.get("notes", []):
         if note.startswith(("no prediction", "second drive")):
             print(f"  {note}")

@@ -53,8 +53,12 @@ class DriveResult:
             m = self.measured[k]
             return (self.predicted[k] - m) / abs(m) if abs(m) > 1e-9 else float("nan")
 
+        fuel_e_wh = self.measured["fuel_g"] * 42.8e3 / 3600.0
+        d_el = self.predicted["electric_wh"] - self.measured["electric_wh"]
         return {"fuel": rel("fuel_g"), "electric": rel("electric_wh"), "co2": rel("co2_g"),
-                "soc_points": self.predicted["final_soc_pct"] - self.measured["final_soc_pct"]}
+                "soc_points": self.predicted["final_soc_pct"] - self.measured["final_soc_pct"],
+                "electric_of_fuel_energy": d_el / fuel_e_wh if fuel_e_wh > 0 else float("nan"),
+                "charge_sustaining": float(abs(self.measured["electric_wh"]) < 0.1 * fuel_e_wh)}
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""

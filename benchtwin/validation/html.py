@@ -102,7 +102,9 @@ def _prediction_section(pred: dict[str, Any]) -> str:
             dist = max(m.get("distance_km", 0.0), 1e-9)
             rows += [("CO2 (g/km)", p["co2_g"] / dist, m["co2_g"] / dist, f"{100 * e['co2']:+.2f} %"),
                      ("battery electric energy (Wh)", p["electric_wh"], m["electric_wh"],
-                      f"{100 * e['electric']:+.2f} %"),
+                      f"{100 * e['electric']:+.2f} %" + (
+                          f" of the net; {100 * e['electric_of_fuel_energy']:+.2f} % of the fuel energy "
+                          "(charge-sustaining)" if e.get("charge_sustaining") else "")),
                      ("initial SOC (%)", p["initial_soc_pct"], m["initial_soc_pct"],
                       f"{p['initial_soc_pct'] - m['initial_soc_pct']:+.2f} pt"),
                      ("final SOC (%)", p["final_soc_pct"], m["final_soc_pct"], f"{e['soc_points']:+.2f} pt")]
