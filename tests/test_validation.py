@@ -90,6 +90,13 @@ def test_ideal_chain_recovers_every_parameter(paper_trace: Trace) -> None:
     assert len(rel) == 8 and all(c.tolerance <= 1e-3 for c in rel)
     looser = [c for c in report.checks if c.group not in ("chain", "r2") and c.mode == "rel" and c.tolerance > 1e-3]
     assert all(c.note for c in looser)
+    # the identified maps predict the WLTC held out of identification and a second WLTC from a low SOC
+    assert report.prediction["held_out"] == "wltc_class3b"
+    for drive in ("wltc_class3b", "wltc_low_soc"):
+        for what in ("fuel", "electric", "final_soc"):
+            assert f"{drive}.{what}" in names
+    assert {"submodel.motor_loss_rms", "submodel.battery_voltage_rms", "submodel.bsfc_rms_covered"} <= names
+    assert all(c.note for c in report.checks if c.group == "prediction")
 
 
 def test_realistic_bench_within_tolerance_and_paper_r2(paper_trace: Trace) -> None:

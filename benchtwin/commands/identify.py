@@ -186,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
         from benchtwin.identification.figures import render_figures
 
         fig_errors: dict[str, str] = {}
-        figures = render_figures(result, out / "figures", errors=fig_errors)
+        figures = render_figures(result, out / "figures", errors=fig_errors, specs=specs)
         if fig_errors:
             result.meta["figure_errors"] = fig_errors
     result.meta["figures"] = sorted(str(p.relative_to(out)) for p in figures.values())

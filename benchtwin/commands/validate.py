@@ -2,8 +2,11 @@
 
 Prints every check (chain channels against the Trace, each identified parameter against the vehicle file,
 torque-converter curves, shift lines, the BSFC map and, for a realistic setup, R^2 against the paper's)
-and exits 0 when all pass, 1 otherwise. With ``--out`` the raw bus logs, ``recording.mf4``,
-``params.json`` and ``validation.json`` are written (and the figures with ``--figures``).
+and exits 0 when all pass, 1 otherwise. A campaign with a driving cycle beside its identification tests is
+also identified without that cycle, and the map-based vehicle model built from that identification predicts
+the cycle and a second drive (checks of group ``prediction``). With ``--out`` the raw bus logs,
+``recording.mf4``, ``params.json``, ``validation.json`` and ``report.html`` (one self-contained page: verdict,
+prediction, checks, chain, figures) are written (and the figure files with ``--figures``).
 """
 
 from __future__ import annotations
@@ -41,7 +44,8 @@ def print_report(report: object, *, show_all: bool) -> None:
     print(f"benchtwin validate: {m['vehicle']} | setup {m['setup']} | campaign {m['campaign']} | "
           f"profile {m['profile']}")
     t = report.timings_s
-    print(f"  simulate {t['simulate']:.1f} s, chain {t['chain']:.1f} s, identify {t['identify']:.1f} s; "
+    pred_t = f", predict {t['predict']:.1f} s" if "predict" in t else ""
+    print(f"  simulate {t['simulate']:.1f} s, chain {t['chain']:.1f} s, identify {t['identify']:.1f} s{pred_t}; "
           f"{report.chain['plant_seconds']:.0f} s of tests")
     loads = ", ".join(f"{k} {100 * v:.1f} %" for k, v in sorted(report.chain.get("bus_load", {}).items()))
     print(f"  bus load: {loads}")
@@ -60,6 +64,19 @@ def print_report(report: object, *, show_all: bool) -> None:
     if report.identification is not None and report.identification.errors:
         for k, v in sorted(report.identification.errors.items()):
             print(f"  not identified: {k}: {v}")
+    for d in report.prediction.get("drives", []):
+        e, m = d["errors"], d["measured"]
+        firing = m.get("fuel_firing_g")
+        f_firing = f" ({100 * (d['predicted']['fuel_g'] / firing - 1):+.2f} % without engine starts)" \
+            if firing else ""
+        el = (f"{100 * e['electric_of_fuel_energy']:+.2f} % of the fuel energy (charge-sustaining)"
+              if e.get("charge_sustaining") else f"{100 * e['electric']:+.2f} %")
+        print(f"  predicted {d['name']} ({d['gear_source']} gears): fuel {100 * e['fuel']:+.2f} %{f_firing}, "
+              f"electric energy {d['predicted']['electric_wh']:.0f} Wh vs {m['electric_wh']:.0f} Wh: {el}, "
+              f"final SOC {e['soc_points']:+.2f} pt, CO2 {100 * e['co2']:+.2f} %")
+    for note in report.prediction.get("notes", []):
+        if note.startswith(("no prediction", "second drive")):
+            print(f"  {note}")
     print()
     if show_all:
         print(report.format_table())
@@ -105,5 +122,6 @@ def run(args: argparse.Namespace) -> int:
                       figures=bool(args.figures and args.out), progress=True)
     print_report(report, show_all=args.all)
     if args.out is not None:
-        print(f"\nwrote {args.out}/validation.json, params.json, recording.mf4 and the raw bus logs")
+        print(f"\nwrote {args.out}/report.html (open it in a browser), validation.json, params.json, recording.mf4 "
+              f"and the raw bus logs")
     return 0 if report.passed else 1

@@ -39,6 +39,9 @@ class VehicleSpecs(StrictModel):
         Lower heating value of the fuel (diesel about 42.8e6 J/kg).
     test_mass_kg:
         Inertia class / test mass.
+    em_max_torque_nm, em_max_power_w, em_max_speed_rpm:
+        The motor's catalogue rating (Table 1: 440 Nm, 90 kW, 6000 rpm); optional, used to draw the
+        full-load curve T = min(T_max, P_max / omega) beside the efficiency map.
     """
 
     gear_ratios: list[float] = Field(min_length=1)
@@ -51,6 +54,9 @@ class VehicleSpecs(StrictModel):
     em_rotor_volume_m3: float = Field(gt=0, lt=0.1)
     fuel_lhv_j_per_kg: float = Field(default=42.8e6, gt=0)
     test_mass_kg: float = Field(gt=0)
+    em_max_torque_nm: float | None = Field(default=None, gt=0)
+    em_max_power_w: float | None = Field(default=None, gt=0)
+    em_max_speed_rpm: float | None = Field(default=None, gt=0)
 
     @field_validator("gear_ratios")
     @classmethod

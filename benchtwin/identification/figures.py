@@ -24,17 +24,21 @@ fig24      brake blending maps (24)                        ``brakes.*`` with ble
 
 from __future__ import annotations
 
+import inspect
+import io
 from collections.abc import Callable
 from pathlib import Path
+from typing import BinaryIO
 
 import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.identification._fit import FitResult, IdentificationResult
 
-__all__ = ["FIGURES", "render_figures"]
+__all__ = ["FIGURES", "render_figures", "render_figures_png"]
 
 
 def _new(nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.0, 4.8)) -> tuple[Figure, np.ndarray]:
@@ -47,8 +51,10 @@ def _new(nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (7.0, 4.8))
     return fig, axes
 
 
-def _save(fig: Figure, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
+def _save(fig: Figure, path: Path | BinaryIO) -> Path | BinaryIO:
+    """Write the figure as PNG to a file path, or into a binary stream (rendering into memory)."""
+    if isinstance(path, Path):
+        path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, format="png")
     return path
 
@@ -117,23 +123,68 @@ def figure_motor_willans(result: IdentificationResult, path: Path) -> Path | Non
     return _save(fig, path)
 
 
-def figure_motor_efficiency(result: IdentificationResult, path: Path) -> Path | None:
-    """Figure 11: motor efficiency contours over speed x torque with the measured points."""
+def _full_load(specs: VehicleSpecs | None, n_max: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The motor's full-load curve ``T = min(T_max, P_max / omega)`` from the public rating, or None."""
+    if specs is None or specs.em_max_torque_nm is None:
+        return None
+    n = np.linspace(0.0, specs.em_max_speed_rpm or n_max, 200)
+    t = np.full_like(n, specs.em_max_torque_nm)
+    if specs.em_max_power_w is not None:
+        w = n * np.pi / 30.0
+        t = np.minimum(t, np.divide(specs.em_max_power_w, w, out=np.full_like(w, np.inf), where=w > 0))
+    return n, t
+
+
+def figure_motor_efficiency(result: IdentificationResult, path: Path, specs: VehicleSpecs | None = None
+                            ) -> Path | None:
+    """Figure 11: motor efficiency contours over speed x torque with the measured points.
+
+    The contours are the identified Willans line's efficiency ``e T w / (T w + W_loss)`` up to the motor's
+    full-load curve (from the public rating in ``specs``, when given); the region the campaign visited is
+    the convex hull of the measured points.
+    """
     fits = [f for _, f in sorted(_fits(result, "motor").items())
             if _has(f, "map_speed_rpm", "map_torque_nm", "map_eta")]
     if not fits:
         return None
     f = fits[0]
     fig, (ax,) = _new()
-    eta = np.asarray(f.data["map_eta"], dtype=float)
+    pts_n = np.asarray(f.data.get("speed_rpm", []), dtype=float)
+    pts_t = np.asarray(f.data.get("torque_nm", []), dtype=float)
+    full = _full_load(specs, float(np.max(f.data["map_speed_rpm"])))
+    if full is not None and "e" in f.params and "W_loss" in f.params:
+        sg = np.linspace(max(full[0][1], 1.0), full[0][-1], 80)
+        tg = np.linspace(0.0, float(np.max(full[1])), 81)[1:]
+        N, T = np.meshgrid(sg, tg)
+        P = T * N * np.pi / 30.0
+        eta = f.value("e") * P / (P + f.value("W_loss"))
+        eta[np.interp(sg, *full)[None, :] * (1 + 1e-9) < T] = np.nan
+        x, y = sg, tg
+    else:
+        eta = np.asarray(f.data["map_eta"], dtype=float)
+        x, y = f.data["map_speed_rpm"], f.data["map_torque_nm"]
     levels = [lv for lv in (0.70, 0.80, 0.85, 0.88, 0.90, 0.92, 0.93, 0.94, 0.95, 0.96)
               if np.nanmin(eta) < lv < np.nanmax(eta)] if np.isfinite(eta).any() else []
-    cs = ax.contour(f.data["map_speed_rpm"], f.data["map_torque_nm"], eta, levels=levels or 8, cmap="viridis")
+    cs = ax.contour(x, y, eta, levels=levels or 8, cmap="viridis")
     ax.clabel(cs, fontsize=7, fmt="%.2f")
-    if _has(f, "speed_rpm", "torque_nm"):
-        ax.plot(f.data["speed_rpm"], f.data["torque_nm"], "r.", ms=3, label="measured points")
-    if _has(f, "envelope_speed_rpm", "envelope_torque_nm"):
-        ax.plot(f.data["envelope_speed_rpm"], f.data["envelope_torque_nm"], "k--", lw=1, label="envelope seen")
+    if pts_n.size:
+        ax.plot(pts_n, pts_t, "r.", ms=3, label="measured points")
+    ok = np.isfinite(pts_n) & np.isfinite(pts_t)
+    if ok.sum() >= 3:
+        from scipy.spatial import ConvexHull, QhullError
+
+        xy = np.column_stack([pts_n[ok], pts_t[ok]])
+        try:
+            hull = ConvexHull(xy)
+        except QhullError:
+            hull = None
+        if hull is not None:
+            ring = np.append(hull.vertices, hull.vertices[0])
+            ax.plot(xy[ring, 0], xy[ring, 1], "k--", lw=1, label="region visited (convex hull)")
+    if full is not None:
+        ax.plot(full[0], full[1], "b-", lw=1.5,
+                label=f"full load (rating: {specs.em_max_torque_nm:.0f} Nm"  # type: ignore[union-attr]
+                      + (f", {specs.em_max_power_w / 1e3:.0f} kW)" if specs.em_max_power_w else ")"))  # type: ignore[union-attr]
     ax.set_xlabel("motor speed (rpm)")
     ax.set_ylabel("motor torque (Nm)")
     ax.set_title("Motor efficiency map from the Willans line")
@@ -399,8 +450,25 @@ FIGURES: dict[str, Callable[[IdentificationResult, Path], Path | None]] = {
 }
 
 
+def _draw(result: IdentificationResult, target_of: Callable[[str], Path | BinaryIO], specs: VehicleSpecs | None,
+          errors: dict[str, str] | None) -> dict[str, Path | BinaryIO]:
+    written: dict[str, Path | BinaryIO] = {}
+    for stem, func in FIGURES.items():
+        kwargs = {"specs": specs} if "specs" in inspect.signature(func).parameters else {}
+        try:
+            p = func(result, target_of(stem), **kwargs)
+        except (ValueError, TypeError, KeyError, IndexError) as exc:
+            if errors is None:
+                raise
+            errors[stem] = f"{type(exc).__name__}: {exc}"
+            continue
+        if p is not None:
+            written[stem] = p
+    return written
+
+
 def render_figures(result: IdentificationResult, out_dir: str | Path,
-                   errors: dict[str, str] | None = None) -> dict[str, Path]:
+                   errors: dict[str, str] | None = None, specs: VehicleSpecs | None = None) -> dict[str, Path]:
     """Draw every figure the result has data for into ``out_dir``.
 
     Parameters
@@ -412,6 +480,8 @@ def render_figures(result: IdentificationResult, out_dir: str | Path,
     errors:
         When given, a figure that cannot be drawn (unexpected arrays) is skipped and its error
         message stored here under its file stem, so one bad figure does not stop the others.
+    specs:
+        Public specs, for what a figure draws from the catalogue (the motor's full-load curve).
 
     Returns
     -------
@@ -419,15 +489,17 @@ def render_figures(result: IdentificationResult, out_dir: str | Path,
         File stem -> path written (figures without data are left out).
     """
     out_dir = Path(out_dir)
-    written: dict[str, Path] = {}
-    for stem, func in FIGURES.items():
-        try:
-            p = func(result, out_dir / f"{stem}.png")
-        except (ValueError, TypeError, KeyError, IndexError) as exc:
-            if errors is None:
-                raise
-            errors[stem] = f"{type(exc).__name__}: {exc}"
-            continue
-        if p is not None:
-            written[stem] = p
-    return written
+    return _draw(result, lambda stem: out_dir / f"{stem}.png", specs, errors)  # type: ignore[return-value]
+
+
+def render_figures_png(result: IdentificationResult, errors: dict[str, str] | None = None,
+                       specs: VehicleSpecs | None = None) -> dict[str, bytes]:
+    """Draw every figure into memory: file stem -> PNG bytes (for a self-contained HTML report)."""
+    buffers: dict[str, io.BytesIO] = {}
+
+    def target(stem: str) -> io.BytesIO:
+        buffers[stem] = io.BytesIO()
+        return buffers[stem]
+
+    written = _draw(result, target, specs, errors)
+    return {stem: buffers[stem].getvalue() for stem in written}

@@ -6,6 +6,8 @@ It answers the questions a test engineer asks before instrumenting a car:
 * does the planned campaign identify every parameter, and how close does it get
   (:mod:`~benchtwin.validation.parameters`)?
 * which telemetry gain K_TEL should the propeller-shaft torque use (:mod:`~benchtwin.validation.gain`)?
+* what do the identified maps predict for a drive identification never saw, and which map is off
+  (:mod:`~benchtwin.validation.predict`, :mod:`~benchtwin.validation.holdout`)?
 
 :func:`~benchtwin.validation.run.validate` runs the whole chain and returns a
 :class:`~benchtwin.validation.report.ValidationReport`.

@@ -75,6 +75,9 @@ class ValidationReport:
         Wall time of each stage.
     meta:
         Vehicle, setup, campaign names, profile.
+    prediction:
+        The map-based model's prediction of held-out drives (``drives``: predicted, measured, errors per drive;
+        ``notes``; ``series``/``series_measured``: time series of the held-out cycle for the figures).
     """
 
     checks: list[Check] = field(default_factory=list)
@@ -82,6 +85,7 @@ class ValidationReport:
     chain: dict[str, Any] = field(default_factory=dict)
     timings_s: dict[str, float] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+    prediction: dict[str, Any] = field(default_factory=dict)
 
     @property
     def passed(self) -> bool:
@@ -102,6 +106,7 @@ class ValidationReport:
             "timings_s": self.timings_s,
             "chain": self.chain,
             "checks": [c.to_dict() for c in self.checks],
+            "prediction": {k: v for k, v in self.prediction.items() if not k.startswith("series")},
             "identification": self.identification.to_dict() if self.identification else None,
         }
 
@@ -128,12 +133,6 @@ class ValidationReport:
         n_fail = len(self.failures())
         out.append(f"{len(self.checks)} checks, {len(self.checks) - n_fail} passed, {n_fail} failed")
         return "\n".join(out)
-
-
-def _fmt(x: float) -> str:
-    if not isinstance(x, (int, float)) or not math.isfinite(x):
-        return "-"
-    return f"{x:.6g}"
 
 
 def _fmt(x: float) -> str:

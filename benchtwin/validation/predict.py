@@ -1,0 +1,485 @@
+"""A map-based, backward-facing vehicle model built from an identification result only.
+
+This is the step the paper names as the use of its identification (section 5: "a valuable dataset that
+can be later inserted into a map-based vehicle model"), done as FASTSim or CO2MPAS do: from the speed
+trace of a drive the model computes, per time step and backwards from the wheels,
+
+1. the wheel force, ``F0 + F1 v + F2 v^2 + m_test dv/dt`` (the dyno's road load identified from the
+   coastdown, the test mass from the public specs), plus the hydraulic brake force the recorded caliper
+   pressures give through the identified brake gains;
+2. the gear: the recorded gear (a replay) or the identified shift lines driven by the recorded pedal;
+3. the gearbox input torque by eq. 14 with that gear's identified ``eta_m`` and ``C0`` (drive fit when
+   the output torque is positive, coast fit when negative);
+4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
+   pump speed that carries the turbine torque), rigid when it is closed;
+5. the split between engine and motor: a replay of the measured strategy (engine on/off, K0 and the
+   engine's CAN torque), the motor taking the rest, so that what is tested are the maps;
+6. the motor's DC power from the identified Willans lines, plus the measured 12 V load through the
+   identified DC/DC efficiency;
+7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
+   literature maps, ``soc_per_ah``);
+8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
+   linear towards zero load), and CO2 from the fuel mass.
+
+It reads nothing but an :class:`~benchtwin.identification._fit.IdentificationResult`, the public
+:class:`~benchtwin.config.specs.VehicleSpecs` and the measured inputs of the drive
+(:class:`DriveInputs`); the vehicle file's parameters never enter. What the maps cannot know is left
+out and said so in :attr:`Prediction.notes`: the rotating inertia of motor, converter and engine (not in
+the public specs), the fuel of an engine start, the converter's idle-speed holding at crawling speed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from benchtwin.config.specs import VehicleSpecs
+from benchtwin.errors import IdentificationError
+from benchtwin.identification._fit import FitResult, IdentificationResult
+from benchtwin.identification.keys import FitKey
+
+__all__ = ["CO2_G_PER_G_DIESEL", "DIESEL_DENSITY_KG_PER_L", "DriveInputs", "MapVehicle", "Prediction"]
+
+#: CO2 per gram of diesel burnt (2.64 kg CO2 per litre at 0.832 kg/l is 3.17 g/g; the carbon balance gives 3.16)
+CO2_G_PER_G_DIESEL = 3.16
+#: diesel density, kg/l (EN 590 reference fuel, about 0.832)
+DIESEL_DENSITY_KG_PER_L = 0.832
+
+_RPM = np.pi / 30.0
+_KMH = 1.0 / 3.6
+
+
+@dataclass
+class DriveInputs:
+    """The measured inputs of one drive, on one uniform time base.
+
+    Attributes
+    ----------
+    t_s:
+        Time, s (uniform).
+    speed_kmh:
+        Vehicle speed.
+    gear:
+        Engaged gear (0 neutral), replayed when the model is run with ``gear_source="recorded"``.
+    lockup_closed, k0_closed, engine_on:
+        Clutch and engine states of the measurement (0/1).
+    engine_torque_nm, engine_speed_rpm:
+        The engine's reported torque and speed (the strategy's split, replayed).
+    pedal_pct:
+        Accelerator pedal (for the shift lines).
+    brake_front_bar, brake_rear_bar:
+        Mean caliper pressure per axle (0 when not measured).
+    p_lv_w:
+        DC/DC low-voltage output power (12 V loads), W.
+    initial_soc_pct:
+        Displayed SOC at the start of the drive.
+    name:
+        What the drive is.
+    """
+
+    t_s: np.ndarray
+    speed_kmh: np.ndarray
+    gear: np.ndarray
+    lockup_closed: np.ndarray
+    k0_closed: np.ndarray
+    engine_on: np.ndarray
+    engine_torque_nm: np.ndarray
+    engine_speed_rpm: np.ndarray
+    pedal_pct: np.ndarray
+    brake_front_bar: np.ndarray
+    brake_rear_bar: np.ndarray
+    p_lv_w: np.ndarray
+    initial_soc_pct: float
+    name: str = "drive"
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.t_s).size
+        for k in ("t_s", "speed_kmh", "gear", "lockup_closed", "k0_closed", "engine_on", "engine_torque_nm",
+                  "engine_speed_rpm", "pedal_pct", "brake_front_bar", "brake_rear_bar", "p_lv_w"):
+            arr = np.asarray(getattr(self, k), dtype=float)
+            if arr.shape != (n,):
+                raise ValueError(f"DriveInputs.{k} has shape {arr.shape}, expected ({n},)")
+            setattr(self, k, np.nan_to_num(arr, nan=0.0))
+        if n < 3:
+            raise ValueError("DriveInputs: a drive needs at least 3 samples")
+
+    @property
+    def dt_s(self) -> float:
+        """Time step."""
+        return float(np.median(np.diff(self.t_s)))
+
+
+@dataclass
+class Prediction:
+    """What the map-based model predicts for one drive.
+
+    Attributes
+    ----------
+    fuel_g, co2_g:
+        Fuel burnt and CO2 emitted over the drive.
+    electric_wh:
+        Battery terminal energy (integral of V I, positive when discharging).
+    final_soc_pct:
+        Displayed SOC at the end.
+    distance_km:
+        Distance driven.
+    series:
+        Time series of the model (``t_s``, ``gear``, ``motor_torque_nm``, ``motor_speed_rpm``,
+        ``engine_torque_nm``, ``engine_speed_rpm``, ``fuel_gps``, ``battery_current_a``,
+        ``battery_voltage_v``, ``soc_pct``, ``motor_elec_power_w``).
+    notes:
+        What the model replayed, assumed or could not know.
+    """
+
+    fuel_g: float
+    co2_g: float
+    electric_wh: float
+    final_soc_pct: float
+    distance_km: float
+    series: dict[str, np.ndarray] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def fuel_l(self) -> float:
+        """Fuel volume, litres."""
+        return self.fuel_g / 1000.0 / DIESEL_DENSITY_KG_PER_L
+
+    @property
+    def co2_g_per_km(self) -> float:
+        """CO2 per km driven."""
+        return self.co2_g / self.distance_km if self.distance_km > 0 else float("nan")
+
+    def summary(self) -> dict[str, Any]:
+        """The scalar results, JSON-ready."""
+        return {"fuel_g": self.fuel_g, "fuel_l": self.fuel_l, "co2_g": self.co2_g,
+                "co2_g_per_km": self.co2_g_per_km, "electric_wh": self.electric_wh,
+                "final_soc_pct": self.final_soc_pct, "distance_km": self.distance_km, "notes": list(self.notes)}
+
+
+def _fit(result: IdentificationResult, name: str, *params: str) -> FitResult | None:
+    f = result.fits.get(name)
+    if f is None or not all(p in f.params and math.isfinite(f.value(p)) for p in params):
+        return None
+    return f
+
+
+class MapVehicle:
+    """The vehicle model assembled from identified maps and the public specs.
+
+    Parameters
+    ----------
+    result:
+        The identification result (only its fits are read).
+    specs:
+        Public specification: ratios, wheel radius, displacement, cells in series, test mass, LHV.
+
+    Raises
+    ------
+    IdentificationError
+        When a map the model cannot do without (road load, transmission, motor, battery) is missing.
+    """
+
+    def __init__(self, result: IdentificationResult, specs: VehicleSpecs) -> None:
+        self.specs = specs
+        self.notes: list[str] = []
+        missing = []
+        rl = _fit(result, "road_load", "F0", "F1", "F2")
+        if rl is None:
+            missing.append("road_load (F0, F1, F2)")
+        else:
+            self.f0, self.f1, self.f2 = rl.value("F0"), rl.value("F1"), rl.value("F2")
+        # transmission: (eta_m, C0) per gear and direction
+        self.tx: dict[tuple[int, str], tuple[float, float]] = {}
+        for g in range(1, len(specs.gear_ratios) + 1):
+            for d in ("drive", "coast"):
+                f = _fit(result, str(FitKey.transmission(g, d)), "eta_m", "C0")
+                if f is not None and 0.5 < f.value("eta_m") <= 1.0:
+                    self.tx[(g, d)] = (f.value("eta_m"), f.value("C0"))
+        if not any(d == "drive" for _, d in self.tx):
+            missing.append("transmission (no gear's eta_m/C0)")
+        mot = _fit(result, "motor.motoring", "e", "W_loss")
+        gen = _fit(result, "motor.generating", "e_gen", "W_loss_gen")
+        if mot is None:
+            missing.append("motor.motoring (e, W_loss)")
+        else:
+            self.e, self.w_loss = mot.value("e"), mot.value("W_loss")
+            self.eta_dcdc = mot.value("eta_dcdc") if "eta_dcdc" in mot.params else float("nan")
+        if gen is None:
+            if mot is not None:
+                self.e_gen, self.w_loss_gen = 1.0 / self.e, -self.w_loss
+                self.notes.append("motor.generating not identified: the motoring line mirrored")
+        else:
+            self.e_gen, self.w_loss_gen = gen.value("e_gen"), gen.value("W_loss_gen")
+            if not (mot is not None and 0.5 < self.eta_dcdc <= 1.0) and "eta_dcdc" in gen.params:
+                self.eta_dcdc = gen.value("eta_dcdc")
+        if not 0.5 < getattr(self, "eta_dcdc", float("nan")) <= 1.0:
+            self.eta_dcdc = 1.0
+            self.notes.append("eta_dcdc not identified: the 12 V load is counted at 100 %")
+        bat = _fit(result, "battery", "alpha")
+        if bat is None or not all(k in bat.data for k in ("map_soc", "map_ocv", "map_r_dch", "map_r_ch")):
+            missing.append("battery (eq. 30 maps)")
+        else:
+            self.soc_nodes = np.asarray(bat.data["map_soc"], float)
+            self.ocv_cell = np.asarray(bat.data["map_ocv"], float)
+            r_d = np.asarray(bat.data["map_r_dch"], float)
+            r_c = np.asarray(bat.data["map_r_ch"], float)
+            # a direction that was not identified borrows the other's resistance
+            self.r_dch = r_d if np.all(np.isfinite(r_d)) else r_c
+            self.r_ch = r_c if np.all(np.isfinite(r_c)) else r_d
+            k = bat.value("soc_per_ah") if "soc_per_ah" in bat.params else float("nan")
+            if not (math.isfinite(k) and k > 0):
+                raise IdentificationError("prediction: battery.soc_per_ah (the usable capacity) not identified")
+            self.soc_per_ah = k
+        if missing:
+            raise IdentificationError("prediction needs " + ", ".join(missing))
+        self._engine_map(result)
+        conv = _fit(result, "torque_converter.converter", *(f"a{i}" for i in range(6)))
+        coup = _fit(result, "torque_converter.coupling", "a6", "a7", "a8")
+        self.tc_a = None
+        if conv is not None:
+            a = [conv.value(f"a{i}") for i in range(6)]
+            a += [coup.value(f"a{i}") for i in (6, 7, 8)] if coup is not None else [a[0], a[1], a[2]]
+            self.tc_a = np.asarray(a, float)
+            self.tc_gamma = conv.value("gamma_coupling") if "gamma_coupling" in conv.params else 0.85
+        else:
+            self.notes.append("torque converter not identified: treated as rigid when open")
+        ff = _fit(result, "brakes.front", "m_f")
+        fr = _fit(result, "brakes.rear", "m_r")
+        self.brake = ((ff.value("m_f"), ff.value("c_f") if "c_f" in ff.params else 0.0),
+                      (fr.value("m_r"), fr.value("c_r") if "c_r" in fr.params else 0.0)) if ff and fr else None
+        if self.brake is None:
+            self.notes.append("brake gains not identified: hydraulic braking force taken as zero")
+        self.shift_lines: dict[tuple[int, str], tuple[float, float]] = {}
+        for name, f in result.fits.items():
+            if not name.startswith("shifts.") or f.status != "ok":
+                continue
+            if _fit(result, name, "c0_kmh", "c1_kmh_per_pct") is None:
+                continue
+            key = FitKey.parse(name)
+            self.shift_lines[(int(key.gear), str(key.direction))] = (f.value("c0_kmh"), f.value("c1_kmh_per_pct"))
+
+    # ------------------------------------------------------------------ engine
+    def _engine_map(self, result: IdentificationResult) -> None:
+        f = result.fits.get("engine.bsfc")
+        self.pmf = None
+        if f is None or not all(k in f.data for k in ("map_speed_rpm", "map_bmep_bar", "map_bsfc")):
+            self.notes.append("BSFC map not identified: no fuel predicted")
+            return
+        sg = np.asarray(f.data["map_speed_rpm"], float)
+        bg = np.asarray(f.data["map_bmep_bar"], float)
+        z = np.asarray(f.data["map_bsfc"], float)
+        if z.shape != (bg.size, sg.size):
+            z = z.T
+        q = 3.6e9 / self.specs.fuel_lhv_j_per_kg
+        with np.errstate(invalid="ignore"):
+            pmf = z * bg[:, None] / q  # fuel mean effective pressure, bar (rows BMEP, columns speed)
+        keep = np.all(np.isfinite(pmf), axis=1) & (bg > 0)
+        if keep.sum() < 2:
+            self.notes.append("BSFC map has fewer than two usable BMEP rows: no fuel predicted")
+            return
+        self.pmf_speed, self.pmf_bmep, self.pmf = sg, bg[keep], pmf[keep]
+
+    def fuel_gps(self, speed_rpm: np.ndarray, torque_nm: np.ndarray) -> np.ndarray:
+        """Fuel mass flow (g/s) of the firing engine from the identified map.
+
+        The map is read as fuel MEP over speed x BMEP (bilinear, speed clamped to the map); below its
+        lowest BMEP row the fuel MEP goes on linearly to zero load (the Willans form of a diesel), and
+        a motoring engine (torque <= 0) burns the zero-load flow.
+        """
+        n = np.asarray(speed_rpm, float)
+        if self.pmf is None:
+            return np.zeros_like(n)
+        vd, k = self.specs.engine_displacement_m3, self.specs.engine_strokes
+        # BMEP = pi k T / V_d (k strokes: 4 pi T / V_d for a four-stroke)
+        b = np.maximum(np.asarray(torque_nm, float), 0.0) * (np.pi * k) / vd / 1e5
+        sg, bg, P = self.pmf_speed, self.pmf_bmep, self.pmf
+        nc = np.clip(n, sg[0], sg[-1])
+        j = np.clip(np.searchsorted(sg, nc) - 1, 0, sg.size - 2)
+        u = (nc - sg[j]) / (sg[j + 1] - sg[j])
+        col = P[:, j] * (1 - u) + P[:, j + 1] * u  # (n_bmep, n_samples)
+        bc = np.clip(b, bg[0], bg[-1])
+        i = np.clip(np.searchsorted(bg, bc) - 1, 0, bg.size - 2)
+        idx = np.arange(n.size)
+        w = (bc - bg[i]) / (bg[i + 1] - bg[i])
+        pm = col[i, idx] * (1 - w) + col[i + 1, idx] * w
+        low = b < bg[0]
+        if low.any():  # linear towards zero load with the slope of the two lowest rows
+            slope = (col[1, idx] - col[0, idx]) / (bg[1] - bg[0])
+            pm = np.where(low, col[0, idx] + slope * (b - bg[0]), pm)
+        pm = np.maximum(pm, 0.0)
+        p_fuel_w = pm * 1e5 * vd / (np.pi * k) * n * _RPM
+        return p_fuel_w / self.specs.fuel_lhv_j_per_kg * 1e3
+
+    # ------------------------------------------------------------------ transmission and converter
+    def _eta_c0(self, gear: int, direction: str) -> tuple[float, float]:
+        if (gear, direction) in self.tx:
+            return self.tx[(gear, direction)]
+        if (gear, "drive") in self.tx:
+            return self.tx[(gear, "drive")]
+        gears = sorted(g for g, d in self.tx if d == "drive")
+        near = min(gears, key=lambda g: abs(g - gear))
+        return self.tx[(near, "drive")]
+
+    def input_torque_nm(self, gear: np.ndarray, out_torque_nm: np.ndarray) -> np.ndarray:
+        """Gearbox input torque from the output (propeller shaft) torque, eq. 14 per gear and direction."""
+        t_in = np.zeros_like(out_torque_nm)
+        for g in np.unique(gear[gear > 0]).astype(int):
+            i_g = self.specs.gear_ratios[g - 1]
+            m = gear == g
+            to = out_torque_nm[m]
+            eta_d, c0_d = self._eta_c0(g, "drive")
+            eta_c, c0_c = self._eta_c0(g, "coast")
+            t_in[m] = np.where(to >= 0, to / (i_g * eta_d) + c0_d, eta_c * (to / i_g + c0_c))
+        return t_in
+
+    def pump_nm(self, w_t: np.ndarray, t_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pump speed and torque that carry turbine torque ``t_t`` at turbine speed ``w_t`` (converter open)."""
+        if self.tc_a is None:
+            return w_t.copy(), t_t.copy()
+        a, gam = self.tc_a, self.tc_gamma
+        w_p = w_t.copy()
+        t_p = t_t.copy()
+        pos = t_t > 0
+
+        def root(qa: float, qb: np.ndarray, qc: np.ndarray) -> np.ndarray:
+            disc = np.maximum(qb**2 - 4 * qa * qc, 0.0)
+            return (-qb + np.sqrt(disc)) / (2 * qa) if qa > 0 else np.full_like(qb, np.nan)
+
+        wt, tt = w_t[pos], t_t[pos]
+        # coupling mode: T_t = T_p = a6 wp^2 + a7 wp wt + a8 wt^2
+        x_c = root(a[6], a[7] * wt, a[8] * wt**2 - tt)
+        ok_c = np.isfinite(x_c) & (x_c > 0) & (wt >= gam * np.where(x_c > 0, x_c, np.inf))
+        # converter mode: T_t = a3 wp^2 + a4 wp wt + a5 wt^2
+        x_v = root(a[3], a[4] * wt, a[5] * wt**2 - tt)
+        wp = np.where(ok_c, x_c, x_v)
+        wp = np.where(np.isfinite(wp), np.maximum(wp, wt), wt)
+        tp = np.where(ok_c, tt, a[0] * wp**2 + a[1] * wp * wt + a[2] * wt**2)
+        w_p[pos], t_p[pos] = wp, np.maximum(tp, 0.0)
+        return w_p, t_p
+
+    # ------------------------------------------------------------------ shift lines
+    def shift_gears(self, drive: DriveInputs) -> np.ndarray:
+        """Gears from the identified shift lines (hysteresis between up and down lines), the recorded pedal."""
+        n_g = len(self.specs.gear_ratios)
+        rec = drive.gear.astype(int)
+        g = max(int(rec[0]), 1)
+        out = np.zeros(rec.size, dtype=int)
+        for k in range(rec.size):
+            v, p = drive.speed_kmh[k], drive.pedal_pct[k]
+            if rec[k] == 0:
+                out[k] = 0
+                continue
+            for _ in range(n_g):
+                up = self.shift_lines.get((g, "up"))
+                down = self.shift_lines.get((g, "down"))
+                if g < n_g and up is not None and v >= up[0] + up[1] * p:
+                    g += 1
+                elif g > 1 and down is not None and v <= down[0] + down[1] * p:
+                    g -= 1
+                else:
+                    break
+            if v < 1.0:
+                g = 1
+            out[k] = g
+        return out
+
+    # ------------------------------------------------------------------ battery
+    def battery(self, p_w: np.ndarray, dt_s: float, soc0_pct: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Current, terminal voltage and displayed SOC for the battery power ``p_w`` (eq. 30, coulomb counting)."""
+        n_cells = self.specs.n_cells_series
+        i_out = np.zeros_like(p_w)
+        v_out = np.zeros_like(p_w)
+        s_out = np.zeros_like(p_w)
+        s = soc0_pct
+        for k, p in enumerate(p_w):
+            ocv = float(np.interp(s, self.soc_nodes, self.ocv_cell))
+            r = float(np.interp(s, self.soc_nodes, self.r_dch if p > 0 else self.r_ch))
+            pc = p / n_cells
+            disc = ocv * ocv - 4.0 * r * pc
+            i = (ocv - math.sqrt(disc)) / (2.0 * r) if disc > 0 and r > 0 else pc / ocv
+            s_out[k] = s
+            i_out[k] = i
+            v_out[k] = (ocv - i * r) * n_cells
+            s -= self.soc_per_ah * i * dt_s / 3600.0
+        return i_out, v_out, np.append(s_out[1:], s)
+
+    # ------------------------------------------------------------------ the drive
+    def run(self, drive: DriveInputs, *, gear_source: str = "recorded") -> Prediction:
+        """Predict fuel, electric energy and SOC of one drive.
+
+        Parameters
+        ----------
+        drive:
+            The measured inputs.
+        gear_source:
+            ``recorded`` (replay the engaged gear) or ``shift_lines`` (the identified shift lines).
+        """
+        sp = self.specs
+        notes = list(self.notes)
+        dt = drive.dt_s
+        v = drive.speed_kmh * _KMH
+        # acceleration: central difference smoothed over 1 s (the speed trace is quantised)
+        k = max(round(1.0 / dt), 1)
+        v_s = np.convolve(np.pad(v, (k // 2, k - 1 - k // 2), mode="edge"), np.ones(k) / k, mode="valid") \
+            if k > 1 else v
+        a = np.gradient(v_s, dt)
+        v_kmh = drive.speed_kmh
+        moving = v > 0.05
+        f_road = np.where(moving, self.f0 + self.f1 * v_kmh + self.f2 * v_kmh**2, 0.0)
+        f_need = f_road + sp.test_mass_kg * a
+        f_brake = np.zeros_like(v)
+        if self.brake is not None:
+            (mf, cf), (mr, cr) = self.brake
+            tq = (np.where(drive.brake_front_bar > 0.3, mf * drive.brake_front_bar + cf, 0.0)
+                  + np.where(drive.brake_rear_bar > 0.3, mr * drive.brake_rear_bar + cr, 0.0))
+            f_brake = np.where(moving, np.maximum(tq, 0.0) / sp.wheel_radius_m, 0.0)
+        f_pt = np.where(moving, f_need + f_brake, 0.0)
+        if gear_source == "shift_lines":
+            if not self.shift_lines:
+                raise IdentificationError("prediction: no shift line identified")
+            gear = self.shift_gears(drive)
+            notes.append("gear from the identified shift lines")
+        elif gear_source == "recorded":
+            gear = drive.gear.astype(int)
+            notes.append("gear replayed from the recording")
+        else:
+            raise ValueError(f"gear_source {gear_source!r}: allowed are 'recorded' and 'shift_lines'")
+        gear = np.clip(gear, 0, len(sp.gear_ratios))
+        t_out = f_pt * sp.wheel_radius_m / sp.final_drive_ratio
+        t_out = np.where(gear > 0, t_out, 0.0)
+        ratio = np.array([0.0, *list(sp.gear_ratios)])[gear]
+        w_t = v / sp.wheel_radius_m * sp.final_drive_ratio * ratio
+        t_t = self.input_torque_nm(gear, t_out)
+        t_t = np.where(moving & (gear > 0), t_t, 0.0)
+        lock = drive.lockup_closed > 0.5
+        w_p, t_p = w_t.copy(), t_t.copy()
+        open_ = ~lock & (gear > 0) & moving
+        if open_.any():
+            w_p[open_], t_p[open_] = self.pump_nm(w_t[open_], t_t[open_])
+        on = drive.engine_on > 0.5
+        k0 = drive.k0_closed > 0.5
+        t_e = np.where(on, drive.engine_torque_nm, 0.0)
+        w_e = np.where(on & k0, w_p, drive.engine_speed_rpm * _RPM)
+        t_m = np.where(k0, t_p - t_e, t_p)
+        w_m = w_p
+        p_mech = t_m * w_m
+        p_el = np.where(t_m >= 0, (p_mech + self.w_loss) / self.e, self.e_gen * p_mech + self.w_loss_gen)
+        p_el = np.where((w_m < 1.0) & (np.abs(t_m) < 0.5), 0.0, p_el)
+        p_bat = p_el + drive.p_lv_w / self.eta_dcdc
+        i_b, v_b, soc = self.battery(p_bat, dt, drive.initial_soc_pct)
+        fuel = np.where(on, self.fuel_gps(w_e / _RPM, t_e), 0.0)
+        fuel_g = float(np.sum(fuel) * dt)
+        notes.append("engine on/off, K0 and engine torque replayed from the recording (the strategy's split)")
+        notes.append("not modelled (not in the public specs): rotating inertia of motor, converter and engine; "
+                     "fuel of engine starts")
+        series = {"t_s": drive.t_s, "gear": gear.astype(float), "motor_torque_nm": t_m, "motor_speed_rpm": w_m / _RPM,
+                  "engine_torque_nm": t_e, "engine_speed_rpm": w_e / _RPM, "fuel_gps": fuel,
+                  "battery_current_a": i_b, "battery_voltage_v": v_b, "soc_pct": soc, "motor_elec_power_w": p_el,
+                  "wheel_force_n": f_pt}
+        return Prediction(fuel_g=fuel_g, co2_g=fuel_g * CO2_G_PER_G_DIESEL,
+                          electric_wh=float(np.sum(v_b * i_b) * dt / 3600.0), final_soc_pct=float(soc[-1]),
+                          distance_km=float(np.sum(v) * dt / 1000.0), series=series, notes=notes)

@@ -1,0 +1,145 @@
+"""The map-based vehicle model on synthetic maps with answers computed by hand, and its isolation from the truth."""
+
+from __future__ import annotations
+
+import ast
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchtwin.config.specs import VehicleSpecs
+from benchtwin.errors import IdentificationError
+from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate
+from benchtwin.validation.predict import CO2_G_PER_G_DIESEL, DriveInputs, MapVehicle
+
+SPECS = VehicleSpecs(gear_ratios=[5.36, 3.25, 2.26, 1.64, 1.22, 1.00, 0.87, 0.72, 0.61], final_drive_ratio=2.65,
+                     wheel_radius_m=0.352, engine_displacement_m3=1.95e-3, n_cells_series=96,
+                     em_rotor_radius_m=0.085, em_rotor_volume_m3=3.405e-3, test_mass_kg=2000.0)
+
+F0, F1, F2 = 150.0, 0.8, 0.03
+ETA_M, C0 = 0.98, 3.0
+E, W_LOSS, E_GEN, W_LOSS_GEN, ETA_DCDC = 0.95, 600.0, 0.94, 400.0, 0.9
+OCV_CELL, R_CELL, SOC_PER_AH = 3.8, 0.001, 2.5
+PMF0, PMF1 = 1.2, 2.5  # fuel MEP = PMF0 + PMF1 * BMEP (bar): a Willans engine
+
+
+def _fit(params: dict[str, float], **data: np.ndarray) -> FitResult:
+    p = {k: ParameterEstimate(k, v, 0.0, (v, v), 1.0, 10) for k, v in params.items()}
+    return FitResult(p, 1.0, 1.0, 0.0, 10, data=dict(data))
+
+
+def synthetic_result() -> IdentificationResult:
+    """Identified maps with round numbers: flat battery maps, a linear fuel MEP, one eta_m/C0 for every gear."""
+    res = IdentificationResult()
+    res.fits["road_load"] = _fit({"F0": F0, "F1": F1, "F2": F2})
+    for g in range(1, 10):
+        res.fits[f"transmission.gear{g}"] = _fit({"eta_m": ETA_M, "C0": C0})
+    res.fits["motor.motoring"] = _fit({"e": E, "W_loss": W_LOSS, "eta_dcdc": ETA_DCDC})
+    res.fits["motor.generating"] = _fit({"e_gen": E_GEN, "W_loss_gen": W_LOSS_GEN})
+    soc = np.array([0.0, 100.0])
+    res.fits["battery"] = _fit({"alpha": 1.0, "soc_per_ah": SOC_PER_AH}, map_soc=soc, map_ocv=np.full(2, OCV_CELL),
+                               map_r_dch=np.full(2, R_CELL), map_r_ch=np.full(2, R_CELL))
+    sg, bg = np.linspace(800, 4500, 8), np.linspace(1.0, 20.0, 6)
+    q = 3.6e9 / SPECS.fuel_lhv_j_per_kg
+    bsfc = q * (PMF0 + PMF1 * bg[:, None]) / bg[:, None] * np.ones((1, sg.size))
+    res.fits["engine.bsfc"] = _fit({"bsfc_min": float(bsfc.min())}, map_speed_rpm=sg, map_bmep_bar=bg, map_bsfc=bsfc)
+    return res
+
+
+def cruise(n: int = 600, speed_kmh: float = 60.0, gear: int = 6, engine_torque_nm: float = 0.0,
+           p_lv_w: float = 400.0, soc0: float = 50.0) -> DriveInputs:
+    on = 1.0 if engine_torque_nm else 0.0
+    z = np.zeros(n)
+    return DriveInputs(t_s=np.arange(n) * 0.1, speed_kmh=np.full(n, speed_kmh), gear=np.full(n, gear),
+                       lockup_closed=np.ones(n), k0_closed=np.full(n, on), engine_on=np.full(n, on),
+                       engine_torque_nm=np.full(n, engine_torque_nm), engine_speed_rpm=z, pedal_pct=np.full(n, 20.0),
+                       brake_front_bar=z, brake_rear_bar=z, p_lv_w=np.full(n, p_lv_w), initial_soc_pct=soc0,
+                       name="cruise")
+
+
+def _by_hand(speed_kmh: float, gear: int, engine_torque_nm: float, p_lv_w: float, duration_s: float
+             ) -> tuple[float, float, float]:
+    """Fuel (g), battery energy (Wh) and SOC change (points) of a steady cruise, from the maps above."""
+    v = speed_kmh / 3.6
+    force = F0 + F1 * speed_kmh + F2 * speed_kmh**2
+    i_g = SPECS.gear_ratios[gear - 1]
+    t_out = force * SPECS.wheel_radius_m / SPECS.final_drive_ratio
+    t_in = t_out / (i_g * ETA_M) + C0
+    w = v / SPECS.wheel_radius_m * SPECS.final_drive_ratio * i_g
+    t_m = t_in - engine_torque_nm
+    p_el = (t_m * w + W_LOSS) / E if t_m >= 0 else E_GEN * t_m * w + W_LOSS_GEN
+    p_bat = p_el + p_lv_w / ETA_DCDC
+    pc = p_bat / SPECS.n_cells_series
+    current = (OCV_CELL - math.sqrt(OCV_CELL**2 - 4 * R_CELL * pc)) / (2 * R_CELL)
+    volts = (OCV_CELL - current * R_CELL) * SPECS.n_cells_series
+    fuel = 0.0
+    if engine_torque_nm:
+        bmep = 4 * math.pi * engine_torque_nm / SPECS.engine_displacement_m3 / 1e5
+        p_fuel = (PMF0 + PMF1 * bmep) * 1e5 * SPECS.engine_displacement_m3 / (4 * math.pi) * w
+        fuel = p_fuel / SPECS.fuel_lhv_j_per_kg * 1e3 * duration_s
+    return fuel, volts * current * duration_s / 3600.0, -SOC_PER_AH * current * duration_s / 3600.0
+
+
+def test_electric_cruise_matches_the_hand_calculation() -> None:
+    model = MapVehicle(synthetic_result(), SPECS)
+    drive = cruise()
+    pred = model.run(drive)
+    fuel, e_wh, dsoc = _by_hand(60.0, 6, 0.0, 400.0, 60.0)
+    assert pred.fuel_g == 0.0 and fuel == 0.0
+    assert pred.electric_wh == pytest.approx(e_wh, rel=1e-9)
+    assert pred.final_soc_pct - 50.0 == pytest.approx(dsoc, rel=1e-3)
+    assert pred.distance_km == pytest.approx(1.0, rel=1e-9)
+
+
+@pytest.mark.parametrize("engine_torque_nm", [80.0, 200.0])
+def test_hybrid_cruise_fuel_and_charge_by_hand(engine_torque_nm: float) -> None:
+    """The engine's replayed torque burns map fuel; above the demand the motor generates and the battery charges."""
+    model = MapVehicle(synthetic_result(), SPECS)
+    pred = model.run(cruise(engine_torque_nm=engine_torque_nm, gear=5, speed_kmh=80.0))
+    fuel, e_wh, dsoc = _by_hand(80.0, 5, engine_torque_nm, 400.0, 60.0)
+    assert pred.fuel_g == pytest.approx(fuel, rel=1e-9)
+    assert pred.co2_g == pytest.approx(fuel * CO2_G_PER_G_DIESEL, rel=1e-12)
+    assert pred.electric_wh == pytest.approx(e_wh, rel=1e-9)
+    assert pred.final_soc_pct - 50.0 == pytest.approx(dsoc, rel=1e-3)
+    if engine_torque_nm == 200.0:
+        assert e_wh < 0 and pred.final_soc_pct > 50.0  # charging
+
+
+def test_shift_lines_pick_the_gear() -> None:
+    res = synthetic_result()
+    for g, (up, down) in enumerate(zip([15, 25, 35, 45, 55, 65, 80, 95], [8, 17, 26, 36, 46, 55, 67, 82]), start=1):
+        res.fits[f"shifts.up_{g}_{g + 1}"] = _fit({"c0_kmh": float(up), "c1_kmh_per_pct": 0.0})
+        res.fits[f"shifts.down_{g + 1}_{g}"] = _fit({"c0_kmh": float(down), "c1_kmh_per_pct": 0.0})
+    model = MapVehicle(res, SPECS)
+    drive = cruise(speed_kmh=60.0, gear=3)
+    gears = model.shift_gears(drive)
+    assert set(gears.tolist()) == {6}  # 55 <= 60 < 65: sixth, reached from the third at once
+    pred = model.run(drive, gear_source="shift_lines")
+    assert pred.electric_wh == pytest.approx(_by_hand(60.0, 6, 0.0, 400.0, 60.0)[1], rel=1e-9)
+
+
+def test_a_missing_map_is_named() -> None:
+    res = synthetic_result()
+    del res.fits["road_load"]
+    with pytest.raises(IdentificationError, match="road_load"):
+        MapVehicle(res, SPECS)
+
+
+def test_the_model_never_reads_the_vehicle_file() -> None:
+    """predict.py imports nothing that knows the truth: only the public specs and identification results."""
+    src = Path(__file__).resolve().parents[1] / "benchtwin" / "validation" / "predict.py"
+    tree = ast.parse(src.read_text(encoding="utf-8"))
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            imported.add(node.module)
+        elif isinstance(node, ast.Import):
+            imported.update(a.name for a in node.names)
+    ours = {m for m in imported if m.startswith("benchtwin")}
+    allowed = ("benchtwin.config.specs", "benchtwin.errors", "benchtwin.identification")
+    assert ours and all(m.startswith(allowed) for m in ours), ours
+    assert "VehicleConfig" not in src.read_text(encoding="utf-8")
+    # and it runs on an IdentificationResult plus VehicleSpecs alone
+    assert MapVehicle(synthetic_result(), SPECS).run(cruise()).electric_wh > 0
