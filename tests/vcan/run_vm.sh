@@ -71,12 +71,13 @@ ENV
 (. "$WORK/guest.env" && PYTHONPATH=tests/chain/live "$PY" -c "
 import vcan_env
 from benchtwin.chain.acquisition import acquire
+from benchtwin.chain.batch import deliver
 from benchtwin.config.setup import load_setup
 from benchtwin.sensors import encode
 from benchtwin.trace import Trace
 d = vcan_env.save_quick_slice('$WORK/quick_slice')
 setup = load_setup('paper')
-acquire(encode(Trace.load(d), setup, seed=vcan_env.quick_campaign_seed()), setup)
+acquire(deliver(encode(Trace.load(d), setup, seed=vcan_env.quick_campaign_seed()), setup), setup)
 ") >"$WORK/prepare.log" 2>&1 || { cat "$WORK/prepare.log" >&2; echo "test-vcan: FAILED: preparing the run" >&2; exit 1; }
 T_PREP=$(( $(now) - t ))
 
