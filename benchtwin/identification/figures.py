@@ -494,7 +494,17 @@ def render_figures(result: IdentificationResult, out_dir: str | Path,
 
 def render_figures_png(result: IdentificationResult, errors: dict[str, str] | None = None,
                        specs: VehicleSpecs | None = None) -> dict[str, bytes]:
-    """Draw every figure into memory: file stem -> PNG bytes (for a self-contained HTML report)."""
+    """Draw every figure into memory: file stem -> PNG bytes (for a self-contained HTML report).
+
+    Parameters
+    ----------
+    result:
+        The identification result whose fits are drawn.
+    errors:
+        Fit name -> error message of the methods that could not fit (shown instead of their figure).
+    specs:
+        Public specs (the motor's full-load curve on the efficiency map, when they give its rating).
+    """
     buffers: dict[str, io.BytesIO] = {}
 
     def target(stem: str) -> io.BytesIO:

@@ -29,7 +29,8 @@ def combined() -> tuple[Recording, dict]:
 
 
 def _specs_toml(path) -> None:
-    lines = [f"{k} = {v!r}" if not isinstance(v, list) else f"{k} = {v}" for k, v in SPECS.model_dump().items()]
+    lines = [f"{k} = {v!r}" if not isinstance(v, list) else f"{k} = {v}" for k, v in SPECS.model_dump().items()
+             if v is not None]  # TOML has no null: an optional spec left out is None
     path.write_text("[specs]\n" + "\n".join(lines) + "\n", encoding="utf-8")
 
 
