@@ -172,7 +172,7 @@ class ThermoModule(Device):
             good, proto, nbad = split_bad(s.dlc, tp.length)
             sink.protocol_error(s.where, nbad)
             t = s.t[good]
-            base = proto | timing_flags(t, period)
+            base = proto | timing_flags(t, period, s.words[good])
             mark_after(base, t, s.drops, FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"])
             vals = layout.unpack_words(tp, s.words[good])
             for (index, sub), raw in vals.items():

@@ -175,7 +175,7 @@ class _DbcDevice(Device):
             if counters:
                 base |= counter_flags(raw[counters[0]], codec.signals[counters[0]].length)
             else:
-                base |= timing_flags(t, period)
+                base |= timing_flags(t, period, s.words[good])
             mark_after(base, t, s.drops, FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"])
             for name, r in raw.items():
                 src = sources[name]

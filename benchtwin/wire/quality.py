@@ -75,14 +75,18 @@ def counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
     return flags
 
 
-def timing_flags(t: np.ndarray, period_s: float) -> np.ndarray:
-    """LOST_FRAME where the spacing exceeds 1.5 periods, DUPLICATE where it is under a quarter period
-    (streams without a counter: a frame sent twice follows its first copy at once)."""
+def timing_flags(t: np.ndarray, period_s: float, words: np.ndarray | None = None) -> np.ndarray:
+    """LOST_FRAME where the spacing exceeds 1.5 periods, DUPLICATE where it is under a quarter period and the
+    payload (``words``, when given) repeats the one before (streams without a counter: a frame sent twice
+    follows its first copy at once, with the same bytes)."""
     flags = np.zeros(t.shape[0], dtype=np.uint16)
     if t.shape[0] > 1 and period_s > 0:
         dt = np.diff(t)
         flags[1:][dt > 1.5 * period_s] |= FLAG["LOST_FRAME"]
-        flags[1:][dt < 0.25 * period_s] |= FLAG["DUPLICATE"]
+        dup = dt < 0.25 * period_s
+        if words is not None:
+            dup &= words[1:] == words[:-1]
+        flags[1:][dup] |= FLAG["DUPLICATE"]
     return flags
 
 
