@@ -114,7 +114,9 @@ def test_as_fast_as_possible():
     t = np.arange(0, 100.0, 0.001)
     n = []
     rep = LiveScheduler([Stream("fast", t, lambda i0, i1: n.append(i1 - i0) or (i1 - i0))], speedup=np.inf).run()
-    assert sum(n) == len(t) and rep.completed and rep.wall_s < 5.0
+    # not paced: 100 s of plant time in far less than 100 s of wall time, however busy the machine (the speed
+    # itself is a benchmark)
+    assert sum(n) == len(t) and rep.completed and rep.wall_s < 50.0
 
 
 def test_realtime_priority_is_validated_and_restored():
