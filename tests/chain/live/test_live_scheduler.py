@@ -110,13 +110,14 @@ def test_bad_arguments():
         LiveScheduler([Stream("x", [0.0], lambda a, b: 1), Stream("x", [0.0], lambda a, b: 1)])
 
 
+@pytest.mark.timeout(600)
 def test_as_fast_as_possible():
-    t = np.arange(0, 100.0, 0.001)
+    """Unpaced: 10,000 s of plant time (100,000 items) delivered whole. Paced, it would take hours and hit the
+    timeout; how fast it goes is a benchmark, not asserted here."""
+    t = np.arange(0, 10_000.0, 0.1)
     n = []
     rep = LiveScheduler([Stream("fast", t, lambda i0, i1: n.append(i1 - i0) or (i1 - i0))], speedup=np.inf).run()
-    # not paced: 100 s of plant time in far less than 100 s of wall time, however busy the machine (the speed
-    # itself is a benchmark)
-    assert sum(n) == len(t) and rep.completed and rep.wall_s < 50.0
+    assert sum(n) == len(t) and rep.completed and rep.lost == 0
 
 
 def test_realtime_priority_is_validated_and_restored():
