@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import re
+import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -75,3 +78,18 @@ def serve_ok_but_for_speed(rc: int, err: str) -> bool:
 #: wall-clock pacing says nothing about benchtwin, so the timing checks are left out and only what was
 #: delivered (counts, order, ids, bytes) is judged
 TIMING_JUDGED = os.environ.get("BENCHTWIN_EMULATED", "") != "1"
+
+
+def wait_for_line(proc: subprocess.Popen, pattern: str, timeout: float, lines: list[str]) -> None:
+    """Read ``proc``'s stdout into ``lines`` until a line matches ``pattern``; AssertionError on exit or timeout."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        line = proc.stdout.readline()
+        if not line:
+            if proc.poll() is not None:
+                raise AssertionError(f"exited early:\n{''.join(lines)}\n{proc.stderr.read()}")
+            continue
+        lines.append(line)
+        if re.search(pattern, line):
+            return
+    raise AssertionError(f"no line matching {pattern!r} within {timeout} s:\n{''.join(lines)}")

@@ -19,7 +19,7 @@ import can
 import cantools
 import numpy as np
 import pytest
-from live_synth import serve_ok_but_for_speed
+from live_synth import serve_ok_but_for_speed, wait_for_line
 from pymodbus.client import ModbusTcpClient
 
 from benchtwin.chain.live.canopen_node import ThermoAcquisition
@@ -36,20 +36,6 @@ DURATION_S = 2.0
 SPEEDUP = 2.0
 
 
-def _wait_for_line(proc: subprocess.Popen, pattern: str, timeout: float, lines: list[str]) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        line = proc.stdout.readline()
-        if not line:
-            if proc.poll() is not None:
-                raise AssertionError(f"serve exited early:\n{''.join(lines)}\n{proc.stderr.read()}")
-            continue
-        lines.append(line)
-        if re.search(pattern, line):
-            return
-    raise AssertionError(f"no line matching {pattern!r} within {timeout} s:\n{''.join(lines)}")
-
-
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("xproc")
@@ -62,7 +48,7 @@ def served(tmp_path_factory):
     lines: list[str] = []
     logger = None
     try:
-        _wait_for_line(serve, r"^endpoints:", 60, lines)
+        wait_for_line(serve, r"^endpoints:", 60, lines)
         log_path = tmp / "vehicle.log"
         logger = subprocess.Popen(
             [sys.executable, "-m", "can.logger", "-i", "socketcand", "-c", "vehicle", "--bus-kwargs",
@@ -73,7 +59,7 @@ def served(tmp_path_factory):
         thermo = ThermoAcquisition(setup.thermo.node_id, EDS_PATH, inst)
         mb = ModbusTcpClient("127.0.0.1", port=mb_port, timeout=2)
         assert mb.connect()
-        _wait_for_line(serve, r"^playing", 30, lines)
+        wait_for_line(serve, r"^playing", 30, lines)
         counters, holding = [], None
         while True:  # poll while it plays
             r = mb.read_input_registers(0, count=INPUT_COUNT, device_id=setup.pressure.unit_id)

@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 import pytest
+from live_synth import wait_for_line
 
 from benchtwin.chain.live.bench import read_spool
 from benchtwin.chain.live.modbus_server import free_port
@@ -32,20 +33,6 @@ PLANT_S = 12.0
 SPEEDUP = 2.0  # 6 s of wall time per run
 #: wall seconds after the start of play at which the recorder is killed (three "random" moments, fixed seed)
 KILL_AFTER_S = [float(x) for x in np.random.default_rng(20260101).uniform(0.5, 4.5, 3)]
-
-
-def _read_until(proc: subprocess.Popen, pattern: str, timeout: float, lines: list[str]) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        line = proc.stdout.readline()
-        if not line:
-            if proc.poll() is not None:
-                raise AssertionError(f"exited early:\n{''.join(lines)}\n{proc.stderr.read()}")
-            continue
-        lines.append(line)
-        if re.search(pattern, line):
-            return
-    raise AssertionError(f"no line matching {pattern!r} within {timeout} s:\n{''.join(lines)}")
 
 
 @pytest.fixture(scope="module")
@@ -68,14 +55,14 @@ def test_kill_9_of_the_recorder_leaves_a_recoverable_spool(kill_after, served, t
     record = None
     s_lines: list[str] = []
     try:
-        _read_until(serve, r"^endpoints:", 120, s_lines)
+        wait_for_line(serve, r"^endpoints:", 120, s_lines)
         record = subprocess.Popen(
             [sys.executable, "-m", "benchtwin.cli", "record", "--setup", "ideal", "--port", str(port),
              "--modbus-port", str(mb_port), "--speedup", str(SPEEDUP), "--segments", str(seg), "--out", str(out)],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1)
         r_lines: list[str] = []
-        _read_until(record, r"^recording", 60, r_lines)
-        _read_until(serve, r"^playing", 60, s_lines)
+        wait_for_line(record, r"^recording", 60, r_lines)
+        wait_for_line(serve, r"^playing", 60, s_lines)
         time.sleep(kill_after)
         record.kill()  # SIGKILL: no handler, no flush, no goodbye
         kill_wall = time.time()
