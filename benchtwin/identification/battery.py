@@ -44,7 +44,9 @@ from benchtwin.recording import Recording
 
 __all__ = [
     "CellMaps",
+    "battery_samples",
     "coulomb_soc",
+    "eq30_design",
     "identify_battery",
     "identify_battery_map_free",
     "identify_battery_ocv_rest",
@@ -166,8 +168,9 @@ def _segment_mask(rec: Recording, t: np.ndarray, kinds: tuple[str, ...] | None) 
     return mask, names
 
 
-def _battery_samples(rec: Recording, *, soc: bool, rate_hz: float | None, kinds: tuple[str, ...] | None
-                     ) -> tuple[dict[str, np.ndarray], np.ndarray, list[str], int]:
+def battery_samples(rec: Recording, *, soc: bool, rate_hz: float | None, kinds: tuple[str, ...] | None
+                    ) -> tuple[dict[str, np.ndarray], np.ndarray, list[str], int]:
+    """V, I (and displayed SOC) on the fits' common grid, the usable mask, segment names and bad samples."""
     names = ["battery_voltage_v", "battery_current_a"] + (["displayed_soc_pct"] if soc else [])
     for n in names:
         if n not in rec:
@@ -179,6 +182,18 @@ def _battery_samples(rec: Recording, *, soc: bool, rate_hz: float | None, kinds:
     use = seg_mask & ~bad
     v["t"] = t
     return v, use, segs, int((seg_mask & bad).sum())
+
+
+def eq30_design(soc_pct: np.ndarray, current_a: np.ndarray, maps: CellMaps) -> dict[str, np.ndarray]:
+    """Columns of eq. 30 per cell at SOC ``soc_pct`` and current ``current_a`` (positive discharge).
+
+    ``alpha``: ``OCV_lit(s)``; ``beta_discharge``: ``-I R_lit,dch(s)`` where ``I > 0`` (else 0);
+    ``beta_charge``: ``-I R_lit,ch(s)`` where ``I < 0``. Shared by :func:`identify_battery` and the planner.
+    """
+    s = np.asarray(soc_pct, dtype=float)
+    i = np.asarray(current_a, dtype=float)
+    return {"alpha": maps.ocv(s), "beta_discharge": -i * maps.r_discharge(s) * (i > 0),
+            "beta_charge": -i * maps.r_charge(s) * (i < 0)}
 
 
 def identify_battery(
@@ -246,7 +261,7 @@ def identify_battery(
             raise DataError("identify_battery needs specs (n_cells_series) or n_cells")
         n_cells = specs.n_cells_series
     maps = maps or load_literature_maps()
-    d, use, segs, n_bad = _battery_samples(rec, soc=True, rate_hz=rate_hz, kinds=segment_kinds)
+    d, use, segs, n_bad = battery_samples(rec, soc=True, rate_hz=rate_hz, kinds=segment_kinds)
     soc_all, k_soc, k_se, n_blocks = d["displayed_soc_pct"], float("nan"), float("nan"), 0
     if refine_displayed_soc:
         soc_all, k_soc, k_se, n_blocks = refine_soc(d["t"], d["battery_current_a"], d["displayed_soc_pct"], use)
@@ -255,8 +270,7 @@ def identify_battery(
         raise InsufficientDataError(f"battery: {s.size} usable samples, need {min_points}")
     v_cell = v / n_cells
     dch, ch = i > 0, i < 0
-    cols = {"alpha": maps.ocv(s), "beta_discharge": -i * maps.r_discharge(s) * dch,
-            "beta_charge": -i * maps.r_charge(s) * ch}
+    cols = eq30_design(s, i, maps)
     reasons = []
     for name, m, what in (("beta_discharge", dch, "discharge"), ("beta_charge", ch, "charge")):
         if int(m.sum()) < min_direction_points:
@@ -423,7 +437,7 @@ def identify_battery_map_free(
     MissingChannelError, InsufficientDataError, NoExcitationError, CollinearError
     """
     has_soc = "displayed_soc_pct" in rec
-    d, use, segs, n_bad = _battery_samples(rec, soc=has_soc, rate_hz=rate_hz, kinds=segment_kinds)
+    d, use, segs, n_bad = battery_samples(rec, soc=has_soc, rate_hz=rate_hz, kinds=segment_kinds)
     t, i, v = d["t"], d["battery_current_a"], d["battery_voltage_v"]
     if has_soc:
         s = d["displayed_soc_pct"]

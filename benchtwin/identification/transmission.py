@@ -29,7 +29,8 @@ from benchtwin.identification.keys import FitKey
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
-__all__ = ["TransmissionPoints", "fit_transmission_efficiency", "identify_transmission", "transmission_points"]
+__all__ = ["TransmissionPoints", "direction_points", "efficiency_design", "fit_transmission_efficiency",
+           "identify_transmission", "transmission_points"]
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -59,6 +60,8 @@ class TransmissionPoints:
         Why points were dropped (counts), for the fit's reasons.
     n_flagged:
         Grid samples excluded because a source sample was flagged.
+    windows:
+        The steady windows the points are means over (one per point).
     """
 
     gear: np.ndarray
@@ -72,6 +75,7 @@ class TransmissionPoints:
     segments: list[str]
     reasons: list[str]
     n_flagged: int
+    windows: SteadyWindows | None = None
 
 
 def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWindows | None = None,
@@ -157,7 +161,52 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
         reasons.append(f"{int((still & usable).sum())} windows at standstill")
     usable &= ~still
     return TransmissionPoints(gear, c_in, w_in, t_out, w_out, p_in, p_out, usable,
-                              [w.segment for w in steady.windows], reasons, steady.n_excluded)
+                              [w.segment for w in steady.windows], reasons, steady.n_excluded, steady)
+
+
+def efficiency_design(c: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Design matrix and row weights of eq. 15-17 for torques ``c`` (Nm, positive).
+
+    Columns ``[1, -1/C]`` for the unknowns ``[eta_m, eta_m C0]``; weights ``C^2`` normalised to mean 1
+    (None when ``weighted`` is false). Shared by :func:`fit_transmission_efficiency` and the planner.
+    """
+    c = np.asarray(c, dtype=float)
+    A = np.column_stack([np.ones_like(c), -1.0 / c])
+    return A, (c**2 / np.mean(c**2) if weighted else None)
+
+
+def direction_points(pts: TransmissionPoints, gear: int, direction: str, ratio: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The points of one gear and direction that the fit uses.
+
+    Parameters
+    ----------
+    pts:
+        Steady points from :func:`transmission_points`.
+    gear, direction:
+        Gear and ``"drive"`` (``P_out > 0``) or ``"coast"`` (``P_out < 0``).
+    ratio:
+        The gear's ratio ``i_g``.
+
+    Returns
+    -------
+    m, dom, c, eta
+        Mask over all points of the gear and direction; mask over those inside the model's domain
+        (``0 < eta < 1.2``, ``C > 0``); the torque referred to the input and the efficiency of the
+        masked points (drive ``C_in``, ``P_out/P_in``; coast ``|T_out| / i_g``, ``P_in/P_out``).
+    """
+    sel = pts.usable & (pts.gear == gear)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if direction == "drive":
+            m = sel & (pts.p_out > 0) & (pts.p_in > 0)
+            c = pts.c_in[m]
+            eta = pts.p_out[m] / pts.p_in[m]
+        else:
+            m = sel & (pts.p_out < 0) & (pts.p_in < 0)
+            c = np.abs(pts.t_out[m]) / ratio
+            eta = pts.p_in[m] / pts.p_out[m]
+    dom = (eta > 0.0) & (eta < 1.2) & (c > 0)
+    return m, dom, c, eta
 
 
 def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "transmission",
@@ -197,9 +246,9 @@ def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "
         raise InsufficientDataError(f"{what}: {c.size} steady points; need at least {max(min_points, 3)}")
     inv = 1.0 / c
     check_spread(inv, min_rel_spread * float(np.mean(np.abs(inv))), what, "1/C_in", "1/Nm")
-    A = np.column_stack([np.ones_like(c), -inv])
+    A, w = efficiency_design(c, weighted=weighted)
     fit = linear_fit(A, eta, ["eta_m", "eta_m_C0"], units=["-", "Nm"], segments=segments, min_points=min_points,
-                     n_excluded=n_excluded, what=what, weights=c**2 / np.mean(c**2) if weighted else None)
+                     n_excluded=n_excluded, what=what, weights=w)
     derived(fit, "C0", lambda x: x[1] / x[0], unit="Nm")
     cc = np.linspace(max(float(c.min()) * 0.8, 1e-3), float(c.max()) * 1.1, 200)
     fit.data.update(c=c, eta=eta, eta_fit=fit.data["y_fit"], c_curve=cc,
@@ -249,18 +298,9 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
     n_dropped = int((~pts.usable).sum())
     for gg in wanted:
         ig = ratios[gg - 1] if 1 <= gg <= ratios.size else float("nan")
-        sel = pts.usable & (pts.gear == gg)
         for direction in ("drive", "coast"):
             key = str(FitKey.transmission(gg, direction))
-            if direction == "drive":
-                m = sel & (pts.p_out > 0) & (pts.p_in > 0)
-                c = pts.c_in[m]
-                eta = pts.p_out[m] / pts.p_in[m]
-            else:
-                m = sel & (pts.p_out < 0) & (pts.p_in < 0)
-                c = np.abs(pts.t_out[m]) / ig
-                eta = pts.p_in[m] / pts.p_out[m]
-            dom = (eta > 0.0) & (eta < 1.2) & (c > 0)
+            m, dom, c, eta = direction_points(pts, gg, direction, ig)
             n_dom = int((~dom).sum())
             segs = sorted({s for s, k in zip(np.asarray(pts.segments, dtype=object)[m], dom) if k and s})
             try:
