@@ -1,0 +1,257 @@
+"""Per-family planners: the design of each fit at the truth's operating points, and its excitation.
+
+Each function takes the noise-free truth Recording (:func:`~benchtwin.studies.plan_noise.truth_recording`)
+and the noise of the setup's channels (:func:`~benchtwin.studies.plan_noise.noise_budget`) and returns
+one :class:`PlannedParameter` per parameter: see :mod:`benchtwin.studies.plan`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from benchtwin.config.vehicle import VehicleConfig
+from benchtwin.errors import BenchtwinError
+from benchtwin.identification.battery import (
+    BATTERY_SEGMENT_KINDS,
+    battery_samples,
+    eq30_design,
+    load_literature_maps,
+    refine_soc,
+)
+from benchtwin.identification.keys import FitKey
+from benchtwin.identification.shifts import find_shift_events
+from benchtwin.identification.transmission import RPM, direction_points, efficiency_design, transmission_points
+from benchtwin.recording import Recording
+from benchtwin.segments import Segment
+from benchtwin.studies.plan_noise import ChannelNoise, sample_variances, sandwich_covariance, window_mean_variance
+
+__all__ = ["PlannedParameter", "plan_battery", "plan_presence", "plan_shifts", "plan_transmission"]
+
+
+@dataclass
+class PlannedParameter:
+    """The plan of one parameter.
+
+    Attributes
+    ----------
+    name:
+        ``fit.parameter`` as identification names it (e.g. ``transmission.gear5.eta_m``).
+    unit:
+        Unit of the value.
+    value:
+        The value identification gives on noise-free data at the planned points (NaN when not fitted).
+    se:
+        Predicted standard error from the sensor noise (NaN: not predicted or not identifiable).
+    identifiable:
+        Whether the planned tests excite the parameter enough for its fit.
+    reason:
+        Why not (or what the prediction rests on).
+    suggestion:
+        The test to add, in the campaign's TOML terms ('' when none is needed).
+    n_points:
+        Rows of the fit (steady windows or grid samples).
+    """
+
+    name: str
+    unit: str
+    value: float
+    se: float
+    identifiable: bool
+    reason: str = ""
+    suggestion: str = ""
+    n_points: int = 0
+
+    @property
+    def rel_se(self) -> float:
+        """Standard error relative to the value."""
+        return abs(self.se / self.value) if self.value and math.isfinite(self.value) else float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (NaN as null)."""
+        d = asdict(self)
+        d["rel_se"] = self.rel_se
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+
+def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
+                       segments: list[Segment]) -> list[PlannedParameter]:
+    specs = vehicle.specs
+    ratios = np.asarray(specs.gear_ratios, dtype=float)
+    out: list[PlannedParameter] = []
+    try:
+        pts = transmission_points(rec, specs)
+    except BenchtwinError as exc:  # a campaign without any steady transmission point
+        pts, why = None, f"no steady point: {exc}"
+    k_w = specs.final_drive_ratio / 3.6 / specs.wheel_radius_m
+    ramp_gears = {int(s.settings.get("gear", 0)) for s in segments if s.kind == "ramp_up"}
+    for g in range(1, ratios.size + 1):
+        for direction in ("drive", "coast"):
+            key = str(FitKey.transmission(g, direction))
+            test = (f"add a [[tests]] kind = \"ramp_up\" with gear = {g}"
+                    + (" and brake_steps_pct = [5.0, 10.0, 20.0] (regenerative coast points)" if direction == "coast"
+                       else " and pedal_steps_pct over at least three levels, lockup = \"closed\""))
+            if g in ramp_gears and direction == "coast":
+                test = f"add brake_steps_pct = [5.0, 10.0, 20.0] to the ramp_up test in gear {g}"
+            names = [(f"{key}.eta_m", "-"), (f"{key}.C0", "Nm")]
+            if pts is None:
+                out += [PlannedParameter(n, u, float("nan"), float("nan"), False, why, test) for n, u in names]
+                continue
+            m, dom, c, eta = direction_points(pts, g, direction, ratios[g - 1])
+            c, eta = c[dom], eta[dom]
+            idx = np.flatnonzero(m)[dom]
+            rel_spread = float(np.ptp(1.0 / c) / np.mean(1.0 / c)) if c.size else 0.0
+            if c.size < 3 or rel_spread < 0.1:
+                why = (f"{c.size} steady {direction} points in gear {g} (need 3)" if c.size < 3 else
+                       f"1/C spans {rel_spread:.2f} of its mean (need 0.1): one torque level only")
+                out += [PlannedParameter(n, u, float("nan"), float("nan"), False, why, test, int(c.size))
+                        for n, u in names]
+                continue
+            A, w = efficiency_design(c)
+            x0 = np.linalg.lstsq(A * np.sqrt(w)[:, None], eta * np.sqrt(w), rcond=None)[0]
+            eta_m, k = float(x0[0]), float(x0[1])
+            wins = pts.windows
+            assert wins is not None
+            st = np.array([wins.windows[j].start_s for j in idx])
+            en = np.array([wins.windows[j].end_s for j in idx])
+
+            def mean_var(name: str, st: np.ndarray = st, en: np.ndarray = en) -> np.ndarray:
+                sv = sample_variances(rec, noise, name)
+                return np.zeros(st.size) if sv is None else window_mean_variance(rec, name, sv, st, en)
+
+            k0 = np.nan_to_num(wins.state("k0_closed")[idx], nan=1.0) > 0.5  # engine torque counted in C_in
+            v_cin = mean_var("em_torque_nm") + k0 * mean_var("engine_torque_nm")
+            v_tout = mean_var("shaft_torque_nm")
+            v_wout = mean_var("vehicle_speed_kmh") * k_w**2
+            v_win = mean_var("em_speed_rpm") * RPM**2
+            c_in, t_out = pts.c_in[idx], pts.t_out[idx]
+            w_in, w_out = pts.w_in[idx], pts.w_out[idx]
+            if direction == "drive":
+                s2 = ((eta / t_out) ** 2 * v_tout + (eta / c_in + k / c_in**2) ** 2 * v_cin
+                      + (eta / w_out) ** 2 * v_wout + (eta / w_in) ** 2 * v_win)
+            else:
+                ig = ratios[g - 1]
+                s2 = ((eta / t_out + np.sign(t_out) * k / (c**2 * ig)) ** 2 * v_tout + (eta / c_in) ** 2 * v_cin
+                      + (eta / w_out) ** 2 * v_wout + (eta / w_in) ** 2 * v_win)
+            cov = sandwich_covariance(A, w, s2)
+            grad_c0 = np.array([-k / eta_m**2, 1.0 / eta_m])
+            se_eta = math.sqrt(max(cov[0, 0], 0.0))
+            se_c0 = math.sqrt(max(float(grad_c0 @ cov @ grad_c0), 0.0))
+            why = f"{c.size} steady windows, C {c.min():.0f}..{c.max():.0f} Nm"
+            out.append(PlannedParameter(names[0][0], "-", eta_m, se_eta, True, why, "", int(c.size)))
+            out.append(PlannedParameter(names[1][0], "Nm", k / eta_m, se_c0, True, why, "", int(c.size)))
+    return out
+
+
+def plan_battery(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
+                  segments: list[Segment]) -> list[PlannedParameter]:
+    specs = vehicle.specs
+    test = ("add a [[tests]] kind = \"constant_drive\" (mode = \"electric\" to discharge; mode = \"hybrid\" at a "
+            "low SOC to charge)")
+    names = [("battery.alpha", "-"), ("battery.beta_discharge", "-"), ("battery.beta_charge", "-")]
+    if not any(s.kind in BATTERY_SEGMENT_KINDS for s in segments):
+        return [PlannedParameter(n, u, float("nan"), float("nan"), False, "no constant_drive test", test)
+                for n, u in names]
+    maps = load_literature_maps()
+    d, use, _segs, _n_bad = battery_samples(rec, soc=True, rate_hz=None, kinds=BATTERY_SEGMENT_KINDS)
+    soc, *_ = refine_soc(d["t"], d["battery_current_a"], d["displayed_soc_pct"], use)
+    s, i = soc[use], d["battery_current_a"][use]
+    cols = eq30_design(s, i, maps)
+    out: list[PlannedParameter] = []
+    fitted = ["alpha"]
+    for name, m, what in (("beta_discharge", i > 0, "discharge"), ("beta_charge", i < 0, "charge")):
+        n = int(m.sum())
+        span = float(np.ptp(i[m])) if n else 0.0
+        if n < 10 or span < 10.0:
+            why = (f"only {n} {what} samples in the constant drives (need 10)" if n < 10 else
+                   f"{what} current spans {span:.3g} A (need 10 A)")
+            out.append(PlannedParameter(f"battery.{name}", "-", float("nan"), float("nan"), False, why,
+                                        test.replace("(mode", f"that {what}s the pack (mode")))
+            if n < 10:
+                continue
+        fitted.append(name)
+    A = np.column_stack([cols[n] for n in fitted])
+    y = d["battery_voltage_v"][use] / specs.n_cells_series
+    x0 = np.linalg.lstsq(A, y, rcond=None)[0]
+    # each grid sample interpolates two readings of each channel
+    t = d["t"][use]
+    s2 = np.zeros(t.size)
+    dmodel_di = np.zeros(t.size)
+    for j, name in enumerate(fitted):
+        if name == "beta_discharge":
+            dmodel_di -= x0[j] * maps.r_discharge(s) * (i > 0)
+        elif name == "beta_charge":
+            dmodel_di -= x0[j] * maps.r_charge(s) * (i < 0)
+    for role, sens in (("battery_voltage_v", np.full(t.size, 1.0 / specs.n_cells_series)),
+                       ("battery_current_a", dmodel_di)):
+        sv = sample_variances(rec, noise, role)
+        if sv is None:
+            continue
+        ts = rec[role].timestamps
+        k = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 2)
+        a = np.clip((t - ts[k]) / np.maximum(ts[k + 1] - ts[k], 1e-12), 0.0, 1.0)
+        s2 += sens**2 * ((1.0 - a) ** 2 * sv[k] + a**2 * sv[k + 1])
+    cov = sandwich_covariance(A, None, s2)
+    why = f"{t.size} samples of the constant drives"
+    for j, name in enumerate(fitted):
+        out.append(PlannedParameter(f"battery.{name}", "-", float(x0[j]), math.sqrt(max(cov[j, j], 0.0)), True,
+                                    why, "", int(t.size)))
+    order = {n: k for k, (n, _u) in enumerate(names)}
+    return sorted(out, key=lambda p: order.get(p.name, 99))
+
+
+def plan_shifts(rec: Recording, n_gears: int, segments: list[Segment]) -> list[PlannedParameter]:
+    """Excitation of the shift lines: every pair and direction needs 3 events spread over 10 % of pedal."""
+    out: list[PlannedParameter] = []
+    try:
+        ev = find_shift_events(rec)
+    except BenchtwinError:  # no target-gear channel: every pair unexcited
+        ev = {"from_gear": np.array([]), "to_gear": np.array([]), "pedal_pct": np.array([])}
+    keep = np.asarray(ev.get("good", []), dtype=bool) & np.asarray(ev.get("crossing", []), dtype=bool)
+    fr = np.asarray(ev.get("from_gear", []), dtype=float)[keep]
+    to = np.asarray(ev.get("to_gear", []), dtype=float)[keep]
+    ped = np.asarray(ev.get("pedal_pct", []), dtype=float)[keep]
+    for g in range(1, n_gears):
+        for name, a, b, hint in ((f"shifts.up_{g}_{g + 1}", g, g + 1,
+                                  "add [[tests]] kind = \"acceleration\" at other pedal_pct values (e.g. 20, 50, 80) "
+                                  "with end_speed_kmh above the upshift"),
+                                 (f"shifts.down_{g + 1}_{g}", g + 1, g,
+                                  "add [[tests]] kind = \"ramp_down\" at other pedal_pct values (or a deceleration) "
+                                  "from start_speed_kmh above the downshift")):
+            m = (fr == a) & (to == b)
+            n = int(m.sum())
+            spread = float(np.ptp(ped[m])) if n else 0.0
+            ok = n >= 3 and spread >= 10.0
+            why = f"{n} events, pedal spread {spread:.0f} %" + ("" if ok else " (need 3 events over 10 % of pedal)")
+            out.append(PlannedParameter(name, "km/h", float("nan"), float("nan"), ok, why + "; SE not predicted",
+                                        "" if ok else hint, n))
+    return out
+
+
+def plan_presence(segments: list[Segment]) -> list[PlannedParameter]:
+    """Families whose standard errors are not predicted: whether their tests are planned."""
+    kinds = {s.kind for s in segments}
+    ramp = [s for s in segments if s.kind == "ramp_up"]
+    rows = (
+        ("road_load.*", "coastdown" in kinds, "a coastdown", "add [[tests]] kind = \"coastdown\" from start_speed_kmh "
+                                                              "= 130"),
+        ("brakes.*", "neutral_braking" in kinds, "a neutral_braking test",
+         "add [[tests]] kind = \"neutral_braking\" with brake_steps_pct = [5.0, 10.0, 20.0, 30.0]"),
+        ("engine.*", any(s.settings.get("engine") in ("on", "auto") and s.settings.get("mode") != "electric"
+                         for s in ramp), "a ramp_up with the engine on",
+         "add [[tests]] kind = \"ramp_up\" with mode = \"hybrid\", engine = \"on\", k0 = \"closed\""),
+        ("motor.* (drive)", any(s.settings.get("pedal_steps_pct") for s in ramp), "ramp_up pedal steps",
+         "add [[tests]] kind = \"ramp_up\" with pedal_steps_pct"),
+        ("motor.* (regeneration)", any(s.settings.get("brake_steps_pct") for s in ramp), "ramp_up brake steps",
+         "add brake_steps_pct to a ramp_up test"),
+        ("torque_converter.*", bool(kinds & {"acceleration", "deceleration"}), "accelerations or decelerations "
+                                                                                "(lock-up open)",
+         "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"),
+    )
+    return [PlannedParameter(name, "", float("nan"), float("nan"), ok,
+                             f"{'has' if ok else 'no'} {what}; SE not predicted", "" if ok else hint)
+            for name, ok, what, hint in rows]

@@ -1,0 +1,134 @@
+"""The noise model of planning: the random error of each recorded channel, and how it reaches a fit.
+
+Each recorded channel's random error per reading comes from the setup's error budget
+(:meth:`~benchtwin.sensors.base.Device.error_budget`): white noise ``sigma`` and quantisation ``q`` (the
+wire's step or the sensor's own, the larger), as the variance of the quantised noisy reading at the
+reading's own noise-free value (:func:`reading_variance`). A steady window's mean has the mean of its
+readings' variances over its ``n`` good readings, divided by ``n``; a grid sample interpolated between
+two readings at fraction ``a`` has ``(1-a)^2`` and ``a^2`` of theirs. A fit's covariance is the sandwich
+of its weighted least squares (:func:`sandwich_covariance`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from benchtwin.config.setup import ChannelErrors, SetupConfig
+from benchtwin.recording import Channel, Recording
+from benchtwin.sensors.imperfections import hold_sample
+from benchtwin.sensors.registry import devices
+from benchtwin.trace import Trace
+
+__all__ = ["ChannelNoise", "noise_budget", "reading_variance", "sample_variances", "sandwich_covariance",
+           "truth_recording", "window_mean_variance"]
+
+
+def reading_variance(sigma: float, q: float, y: np.ndarray | float | None = None) -> np.ndarray | float:
+    """Variance of the random part of a reading: white noise ``sigma`` quantised to steps ``q``.
+
+    The reading is ``q rint((y + n) / q)`` with ``n ~ N(0, sigma^2)`` and ``y`` the sensor's noise-free
+    output (truth with its gain and offset errors). With ``y`` given, the exact variance over ``n`` at
+    each ``y``; without, its average over the position of ``y`` within a step. ``q = 0``: ``sigma^2``;
+    ``sigma = 0``: 0 (the quantisation error of a fixed value is the same for every seed);
+    ``sigma >= q``: ``sigma^2 + q^2/12`` (Sheppard's correction, exact to a few parts in a thousand there).
+    """
+    if y is None:
+        pos = (np.arange(64) + 0.5) / 64.0 * q if q > 0 else np.zeros(1)
+        return float(np.mean(reading_variance(sigma, q, pos)))
+    y = np.asarray(y, dtype=float)
+    if sigma <= 0.0:
+        return np.zeros(y.shape)
+    if q <= 0.0:
+        return np.full(y.shape, float(sigma**2))
+    if sigma >= q:
+        return np.full(y.shape, float(sigma**2 + q**2 / 12.0))
+    k = np.arange(-int(6 * sigma / q) - 2, int(6 * sigma / q) + 3)
+    centre = np.rint(y / q)
+    d = (y / q - centre)[..., None]  # position within the step, in steps
+    # P(reading = (centre + k) q): the noise moves y into the step around (centre + k) q
+    p = stats.norm.cdf((k + 0.5 - d) * q / sigma) - stats.norm.cdf((k - 0.5 - d) * q / sigma)
+    m1 = p @ (k * q)
+    m2 = p @ (k * q) ** 2
+    return np.clip(m2 - m1**2, 0.0, None)
+
+
+@dataclass(frozen=True)
+class ChannelNoise:
+    """The random error of one role's readings: noise, quantisation, and the gain and offset before them."""
+
+    sigma: float
+    q: float
+    gain: float = 0.0
+    offset: float = 0.0
+
+    def variances(self, truth_values: np.ndarray) -> np.ndarray:
+        """Variance of each reading whose noise-free truth is ``truth_values``."""
+        return np.asarray(reading_variance(self.sigma, self.q, (1.0 + self.gain) * truth_values + self.offset))
+
+
+def noise_budget(setup: SetupConfig) -> tuple[dict[str, Any], dict[str, ChannelNoise]]:
+    """Role -> TruthChannel, and role -> the random error of its readings, from every device of the setup."""
+    truth: dict[str, Any] = {}
+    noise: dict[str, ChannelNoise] = {}
+    for d in devices(setup):
+        tcs = d.truth_channels()
+        truth.update(tcs)
+        for role, (err, _link, _extra) in d.error_budget().items():
+            tc = tcs.get(role)
+            res = tc.resolution if tc is not None else 0.0
+            if isinstance(err, ChannelErrors) and err.noise_std > 0:
+                noise[role] = ChannelNoise(err.noise_std, max(res, err.quantisation_step), err.gain_error_frac,
+                                            err.offset)
+    return truth, noise
+
+
+def sample_variances(rec: Recording, noise: Mapping[str, ChannelNoise], name: str) -> np.ndarray | None:
+    """Per-reading variance of channel ``name`` of the truth Recording (None: noise-free)."""
+    if name not in rec or name not in noise:
+        return None
+    return noise[name].variances(rec[name].values)
+
+
+def truth_recording(rec: Recording, trace: Trace, truth: Mapping[str, Any]) -> Recording:
+    """The Recording with every channel that measures a Trace channel replaced by that truth.
+
+    The timestamps, flags and segments stay those of the bench; channels without a truth stay as recorded.
+    """
+    out = Recording(segments=list(rec.segments), meta=dict(rec.meta))
+    for name, ch in rec.channels.items():
+        tc = truth.get(name)
+        if tc is None or tc.trace not in trace:
+            out.add(ch)
+            continue
+        x = trace[tc.trace] * tc.factor
+        v = hold_sample(trace.time_s, x, ch.timestamps) if tc.hold else np.interp(ch.timestamps, trace.time_s, x)
+        out.add(Channel(name, ch.unit, ch.timestamps, v, ch.flags, ch.source))
+    return out
+
+
+def window_mean_variance(rec: Recording, name: str, var: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                          ) -> np.ndarray:
+    """Variance of the mean of channel ``name``'s good readings inside each window ``[start, end)``."""
+    ch = rec[name]
+    order = np.argsort(ch.timestamps, kind="stable")
+    ts = ch.timestamps[order]
+    good = ch.good[order]
+    cn = np.cumsum(np.concatenate(([0], good.astype(int))))
+    cv = np.cumsum(np.concatenate(([0.0], np.where(good, var[order], 0.0))))
+    lo = np.searchsorted(ts, starts, side="left")
+    hi = np.searchsorted(ts, ends, side="left")
+    n = np.maximum(cn[hi] - cn[lo], 1)
+    return (cv[hi] - cv[lo]) / n**2
+
+
+def sandwich_covariance(A: np.ndarray, w: np.ndarray | None, s2: np.ndarray) -> np.ndarray:
+    """Covariance of weighted least squares with row weights ``w`` when row ``i`` has variance ``s2[i]``."""
+    w = np.ones(A.shape[0]) if w is None else w
+    Aw = A * w[:, None]
+    B = np.linalg.inv(A.T @ Aw)
+    return B @ (Aw.T @ (Aw * s2[:, None])) @ B
