@@ -30,6 +30,7 @@ SUBCOMMANDS: tuple[str, ...] = (
     "validate",
     "gain",
     "sweep",
+    "plan",
     "faults",
 )
 
