@@ -38,7 +38,7 @@ def reading_variance(sigma: float, q: float, y: np.ndarray | float | None = None
     ``sigma >= q``: ``sigma^2 + q^2/12`` (Sheppard's correction, exact to a few parts in a thousand there).
     """
     if y is None:
-        pos = (np.arange(64) + 0.5) / 64.0 * q if q > 0 else np.zeros(1)
+        pos = (np.arange(1024) + 0.5) / 1024.0 * q if q > 0 else np.zeros(1)
         return float(np.mean(reading_variance(sigma, q, pos)))
     y = np.asarray(y, dtype=float)
     if sigma <= 0.0:
