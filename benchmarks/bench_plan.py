@@ -1,0 +1,112 @@
+"""The plan against the seed sweep: predicted standard errors against the spread of the estimates over seeds.
+
+Run with ``.venv/bin/python benchmarks/bench_plan.py [--campaign paper] [--setup paper] [--seeds 20]
+[--families transmission,battery,...]`` (under the shared lock on a shared machine: the paper campaign
+costs a few CPU seconds per family and seed). Prints a Markdown section to append to benchmarks/RESULTS.md.
+
+:func:`~benchtwin.studies.plan.plan_campaign` predicts each parameter's standard error from the setup's
+noise; then each family is validated on its own tests (``validate(..., families=[f], trace=...)``) once per
+seed on one plant run (the campaign's cached Trace; the seed varies the sensor noise, which is what the plan
+predicts), and the sample standard deviation of each estimate over the seeds is set beside the prediction.
+With N seeds, ``(N-1) s^2 / sigma^2 ~ chi2(N-1)``: the script prints the two-sided 99 % interval of
+``s / sigma`` so a ratio can be read against it. A family row ``name.*`` with a predicted standard error of 0
+(every channel it reads free of random error) is compared with the largest spread of any of its estimates.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import subprocess
+import time
+
+import numpy as np
+from scipy import stats
+
+from benchtwin.config import load_campaign, load_vehicle, scenario_path
+from benchtwin.config.setup import load_setup
+from benchtwin.emulator.cache import cached_campaign
+from benchtwin.studies.plan import plan_campaign
+from benchtwin.validation.run import validate
+
+#: the plan's parts for each validation family (the family's parameters are named ``<family>.``)
+PLAN_PART = {"transmission": "transmission", "battery": "battery", "shifts": "shifts", "brakes": "brakes",
+             "engine": "engine", "road_load": "road_load", "motor": "motor", "torque_converter": "torque_converter"}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--campaign", default="paper", help="shipped campaign name (default paper)")
+    ap.add_argument("--setup", default="paper", help="shipped setup name (default paper)")
+    ap.add_argument("--seeds", type=int, default=20, help="seeds of the sweep (default 20)")
+    ap.add_argument("--first-seed", type=int, default=1000, help="first seed (default 1000)")
+    ap.add_argument("--families", default="transmission,battery", help="comma-separated validation families")
+    args = ap.parse_args()
+
+    vehicle = load_vehicle()
+    setup = load_setup(scenario_path("setups", f"{args.setup}.toml"))
+    campaign = load_campaign(scenario_path("campaigns", f"{args.campaign}.toml"))
+    fams = args.families.split(",")
+    trace, _hit = cached_campaign(vehicle, campaign)
+    load0 = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    # one plan per family: its chain runs over the family's own tests, as the family's validation does
+    parameters = [p for f in fams
+                  for p in plan_campaign(vehicle, setup, campaign, trace=trace, families=[PLAN_PART[f]]).parameters]
+    t_plan = time.perf_counter() - t0
+    est: dict[str, list[float]] = {}
+    t0 = time.perf_counter()
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        for fam in fams:
+            rep = validate(vehicle, setup, campaign.model_copy(update={"seed": seed}), trace=trace, families=[fam])
+            for fname, fit in rep.identification.fits.items():
+                for p in fit.params.values():
+                    est.setdefault(f"{fname}.{p.name}", []).append(p.value)
+    t_sweep = time.perf_counter() - t0
+    n = args.seeds
+    lo, hi = (math.sqrt(stats.chi2.ppf(a, n - 1) / (n - 1)) for a in (0.005, 0.995))
+    rows = []
+    for p in parameters:
+        if not (p.identifiable and math.isfinite(p.se)):
+            continue
+        if p.name.endswith(".*"):
+            pre = p.name[:-1]
+            sds = [float(np.std(v, ddof=1)) for k, v in est.items() if k.startswith(pre) and len(v) == n
+                   and np.all(np.isfinite(v))]
+            if sds:
+                rows.append((p.name, p.se, max(sds), f"{len(sds)} estimates, largest spread"))
+            continue
+        v = est.get(p.name)
+        if v is None or len(v) != n or not np.all(np.isfinite(v)):
+            rows.append((p.name, p.se, float("nan"), "not estimated on every seed"))
+            continue
+        rows.append((p.name, p.se, float(np.std(v, ddof=1)), f"mean {np.mean(v):.6g}"))
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    print("## Planned standard errors against the spread over seeds (benchmarks/bench_plan.py)\n")
+    print(f"- date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine {platform.machine()}, "
+          f"{os.cpu_count()} cores, Python {platform.python_version()}, commit {commit}")
+    print(f"- campaign {campaign.name} (seed {campaign.seed} for the plant), setup {setup.name}, families "
+          f"{', '.join(fams)}; plan {t_plan:.1f} s, sweep of {n} seeds x {len(fams)} families {t_sweep:.0f} s, "
+          f"load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after")
+    print(f"- N = {n}: a correct prediction gives s / sigma in [{lo:.3f}, {hi:.3f}] with 99 % probability "
+          f"(chi-square, {n - 1} degrees of freedom); the check is the factor 1.5, i.e. [0.667, 1.5]\n")
+    print("| parameter | predicted SE | std over seeds | ratio | within 1.5 | note |")
+    print("|---|---|---|---|---|---|")
+    n_ok = 0
+    for name, se, sd, note in rows:
+        if se == 0.0:
+            ok = sd == 0.0
+            ratio = "-"
+        else:
+            r = sd / se
+            ok = bool(1 / 1.5 < r < 1.5)
+            ratio = f"{r:.3f}"
+        n_ok += ok
+        print(f"| {name} | {se:.4g} | {sd:.4g} | {ratio} | {'yes' if ok else 'NO'} | {note} |")
+    print(f"\n- {n_ok} of {len(rows)} predictions within the factor 1.5 (a 0 must be exactly 0)")
+
+
+if __name__ == "__main__":
+    main()
