@@ -31,10 +31,6 @@ from benchtwin.emulator.cache import cached_campaign
 from benchtwin.studies.plan import plan_campaign
 from benchtwin.validation.run import validate
 
-#: the plan's parts for each validation family (the family's parameters are named ``<family>.``)
-PLAN_PART = {"transmission": "transmission", "battery": "battery", "shifts": "shifts", "brakes": "brakes",
-             "engine": "engine", "road_load": "road_load", "motor": "motor", "torque_converter": "torque_converter"}
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -53,36 +49,36 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     # one plan per family: its chain runs over the family's own tests, as the family's validation does
-    parameters = [p for f in fams
-                  for p in plan_campaign(vehicle, setup, campaign, trace=trace, families=[PLAN_PART[f]]).parameters]
+    plans = {f: plan_campaign(vehicle, setup, campaign, trace=trace, families=[f]).parameters for f in fams}
     t_plan = time.perf_counter() - t0
-    est: dict[str, list[float]] = {}
+    est: dict[str, dict[str, list[float]]] = {f: {} for f in fams}
     t0 = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         for fam in fams:
             rep = validate(vehicle, setup, campaign.model_copy(update={"seed": seed}), trace=trace, families=[fam])
             for fname, fit in rep.identification.fits.items():
                 for p in fit.params.values():
-                    est.setdefault(f"{fname}.{p.name}", []).append(p.value)
+                    est[fam].setdefault(f"{fname}.{p.name}", []).append(p.value)
     t_sweep = time.perf_counter() - t0
     n = args.seeds
     lo, hi = (math.sqrt(stats.chi2.ppf(a, n - 1) / (n - 1)) for a in (0.005, 0.995))
     rows = []
-    for p in parameters:
-        if not (p.identifiable and math.isfinite(p.se)):
-            continue
-        if p.name.endswith(".*"):
-            pre = p.name[:-1]
-            sds = [float(np.std(v, ddof=1)) for k, v in est.items() if k.startswith(pre) and len(v) == n
-                   and np.all(np.isfinite(v))]
-            if sds:
-                rows.append((p.name, p.se, max(sds), f"{len(sds)} estimates, largest spread"))
-            continue
-        v = est.get(p.name)
-        if v is None or len(v) != n or not np.all(np.isfinite(v)):
-            rows.append((p.name, p.se, float("nan"), "not estimated on every seed"))
-            continue
-        rows.append((p.name, p.se, float(np.std(v, ddof=1)), f"mean {np.mean(v):.6g}"))
+    for fam in fams:
+        for p in plans[fam]:
+            if not (p.identifiable and math.isfinite(p.se)):
+                continue
+            if p.name.endswith(".*"):
+                pre = p.name[:-1]
+                sds = [float(np.std(v, ddof=1)) for k, v in est[fam].items() if k.startswith(pre) and len(v) == n
+                       and np.all(np.isfinite(v))]
+                if sds:
+                    rows.append((p.name, p.se, max(sds), f"{len(sds)} estimates, largest spread"))
+                continue
+            v = est[fam].get(p.name)
+            if v is None or len(v) != n or not np.all(np.isfinite(v)):
+                rows.append((p.name, p.se, float("nan"), "not estimated on every seed"))
+                continue
+            rows.append((p.name, p.se, float(np.std(v, ddof=1)), f"mean {np.mean(v):.6g}"))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     print("## Planned standard errors against the spread over seeds (benchmarks/bench_plan.py)\n")
     print(f"- date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine {platform.machine()}, "

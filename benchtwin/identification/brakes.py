@@ -33,10 +33,11 @@ from benchtwin.identification._signals import (
     segments_span,
     smooth_derivative,
 )
-from benchtwin.identification.steady import Tolerance, find_steady_windows
+from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
-__all__ = ["brake_gains_from", "fit_brake_gain", "identify_brake_blending", "identify_brake_gains", "identify_brakes"]
+__all__ = ["brake_gain_windows", "brake_gains_from", "fit_brake_gain", "identify_brake_blending",
+           "identify_brake_gains", "identify_brakes"]
 
 _FRONT = ("brake_pressure_fl_bar", "brake_pressure_fr_bar")
 _REAR = ("brake_pressure_rl_bar", "brake_pressure_rr_bar")
@@ -82,6 +83,28 @@ def fit_brake_gain(p_bar: np.ndarray, torque_nm: np.ndarray, axle: str, *, segme
     return fit
 
 
+def brake_gain_windows(rec: Recording, *, kinds: Iterable[str] | None = ("neutral_braking",), rate_hz: float = 20.0,
+                       tolerances: dict[str, Tolerance] | None = None, window_s: float = 1.0,
+                       min_duration_s: float = 1.5, trim_s: float = 0.25) -> tuple[SteadyWindows, list[str], list[str]]:
+    """The steady neutral-braking windows the gains are fitted on, and the front and rear pressure channels.
+
+    Windows with the rollers turning (> 5 km/h) and, when the gear is recorded, in neutral. Shared by
+    :func:`identify_brake_gains` and the planner; the arguments are those of :func:`identify_brake_gains`.
+    """
+    front = _axle_channels(rec, _FRONT, "front")
+    rear = _axle_channels(rec, _REAR, "rear")
+    forces = ["dyno_force_front_n", "dyno_force_rear_n"]
+    tol = {"dyno_speed_kmh": Tolerance(0.5, 0.0, 0.5)}
+    tol.update(tolerances or {})
+    sw = find_steady_windows(rec, [*front, *rear, *forces, "dyno_speed_kmh"], states=("gear_actual",), kinds=kinds,
+                             rate_hz=rate_hz, tolerances=tol, window_s=window_s, min_duration_s=min_duration_s,
+                             trim_s=trim_s)
+    keep = sw.means("dyno_speed_kmh") > 5.0
+    if "gear_actual" in sw.grid:
+        keep &= np.nan_to_num(sw.state("gear_actual"), nan=-1) == 0
+    return sw.select(keep), front, rear
+
+
 def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable[str] | None = ("neutral_braking",),
                          rate_hz: float = 20.0, intercept: bool = True, min_points: int = 4,
                          tolerances: dict[str, Tolerance] | None = None, window_s: float = 1.0,
@@ -108,18 +131,8 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
         ``brakes.front`` (``m_f``, ``c_f``), ``brakes.rear`` (``m_r``, ``c_r``) and
         ``brakes.distribution`` (``k_f``, ``k_r``).
     """
-    front = _axle_channels(rec, _FRONT, "front")
-    rear = _axle_channels(rec, _REAR, "rear")
-    forces = ["dyno_force_front_n", "dyno_force_rear_n"]
-    tol = {"dyno_speed_kmh": Tolerance(0.5, 0.0, 0.5)}
-    tol.update(tolerances or {})
-    sw = find_steady_windows(rec, [*front, *rear, *forces, "dyno_speed_kmh"], states=("gear_actual",), kinds=kinds,
-                             rate_hz=rate_hz, tolerances=tol, window_s=window_s, min_duration_s=min_duration_s,
-                             trim_s=trim_s)
-    keep = sw.means("dyno_speed_kmh") > 5.0
-    if "gear_actual" in sw.grid:
-        keep &= np.nan_to_num(sw.state("gear_actual"), nan=-1) == 0
-    sw = sw.select(keep)
+    sw, front, rear = brake_gain_windows(rec, kinds=kinds, rate_hz=rate_hz, tolerances=tolerances, window_s=window_s,
+                                         min_duration_s=min_duration_s, trim_s=trim_s)
     r = specs.wheel_radius_m
     p_f = np.mean([sw.raw_average(rec, c) for c in front], axis=0) if len(sw) else np.array([])
     p_r = np.mean([sw.raw_average(rec, c) for c in rear], axis=0) if len(sw) else np.array([])

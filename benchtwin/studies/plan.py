@@ -51,10 +51,17 @@ from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.cache import cached_campaign
 from benchtwin.recording import Recording
-from benchtwin.studies.plan_fits import PlannedParameter, plan_battery, plan_presence, plan_shifts, plan_transmission
+from benchtwin.studies.plan_fits import (
+    PlannedParameter,
+    plan_battery,
+    plan_brakes,
+    plan_presence,
+    plan_shifts,
+    plan_transmission,
+)
 from benchtwin.studies.plan_noise import noise_budget, reading_variance, truth_recording
 from benchtwin.trace import Trace
-from benchtwin.validation.families import family_spans, merge_recordings, span_seed
+from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
 
 __all__ = ["Plan", "PlannedParameter", "plan_campaign", "reading_variance", "truth_recording"]
 
@@ -102,7 +109,7 @@ def _fmt(x: float) -> str:
 
 def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *,
                   trace: Trace | None = None, cache: bool | str = True,
-                  families: Iterable[str] = ("transmission", "battery", "shifts", "other")) -> Plan:
+                  families: Iterable[str] | None = None) -> Plan:
     """Predict the standard error of every parameter and flag those no planned test excites.
 
     Parameters
@@ -114,14 +121,21 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
     cache:
         Take the Trace from the disk cache (True: default directory; a path; False: simulate).
     families:
-        Which parts to plan: ``transmission`` and ``battery`` (predicted standard errors), ``shifts``
-        and ``other`` (excitation only).
+        Identification families to plan (:data:`~benchtwin.validation.families.FAMILIES`; default all).
+        The chain runs over the tests of the kinds they need, as a family run of the validation does;
+        with every family, the transmission also sees the constant drives, as the whole identification.
 
     Returns
     -------
     Plan
+
+    Raises
+    ------
+    ConfigError
+        An unknown family.
     """
-    fams = set(families)
+    fams = resolve_families(families) or list(FAMILIES.values())
+    names = [f.name for f in fams]
     if trace is None:
         if cache is False:
             from benchtwin.emulator import simulate_campaign
@@ -129,30 +143,25 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         else:
             trace, _hit = cached_campaign(vehicle, campaign, directory=None if cache is True else cache)
     truth, noise = noise_budget(setup)
-    kinds: set[str] = set()
-    if "transmission" in fams:
-        kinds |= {"ramp_up"}
-    if "battery" in fams:
-        kinds |= {"constant_drive"}
-    if "shifts" in fams:
-        kinds |= {"acceleration", "deceleration", "ramp_down", "cycle"}
-    spans = family_spans(trace.segments, kinds)
+    spans = family_spans(trace.segments, {k for f in fams for k in f.kinds})
     plan = Plan(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
-                      "seed": campaign.seed, "families": sorted(fams),
+                      "seed": campaign.seed, "families": names,
                       "noise": {k: {"noise_std": v.sigma, "step": v.q} for k, v in sorted(noise.items())}})
-    rec = None
+    segments = list(trace.segments)
+    rec = Recording(segments=segments)
     if spans:
         recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k))
                 for k, (a, b) in enumerate(spans)]
         rec = truth_recording(merge_recordings(recs), trace, truth)
-    segments = list(trace.segments)
-    empty = Recording(segments=segments)
-    if "transmission" in fams:
-        plan.parameters += plan_transmission(rec if rec is not None else empty, vehicle, noise, segments)
-    if "battery" in fams:
-        plan.parameters += plan_battery(rec if rec is not None else empty, vehicle, noise, segments)
-    if "shifts" in fams:
-        plan.parameters += plan_shifts(rec if rec is not None else empty, len(vehicle.specs.gear_ratios), segments)
-    if "other" in fams:
-        plan.parameters += plan_presence(segments)
+    for fam in fams:
+        if fam.name == "transmission":
+            plan.parameters += plan_transmission(rec, vehicle, noise, segments)
+        elif fam.name == "battery":
+            plan.parameters += plan_battery(rec, vehicle, noise, segments)
+        elif fam.name == "brakes":
+            plan.parameters += plan_brakes(rec, vehicle, noise, segments)
+        elif fam.name == "shifts":
+            plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
+        else:
+            plan.parameters += plan_presence(fam.name, segments, noise, fam.roles())
     return plan

@@ -8,7 +8,7 @@ one :class:`PlannedParameter` per parameter: see :mod:`benchtwin.studies.plan`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -23,6 +23,7 @@ from benchtwin.identification.battery import (
     load_literature_maps,
     refine_soc,
 )
+from benchtwin.identification.brakes import brake_gain_windows
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.shifts import find_shift_events
 from benchtwin.identification.transmission import RPM, direction_points, efficiency_design, transmission_points
@@ -30,7 +31,8 @@ from benchtwin.recording import Recording
 from benchtwin.segments import Segment
 from benchtwin.studies.plan_noise import ChannelNoise, sample_variances, sandwich_covariance, window_mean_variance
 
-__all__ = ["PlannedParameter", "plan_battery", "plan_presence", "plan_shifts", "plan_transmission"]
+__all__ = ["PlannedParameter", "noise_free", "plan_battery", "plan_brakes", "plan_presence", "plan_shifts",
+           "plan_transmission"]
 
 
 @dataclass
@@ -204,8 +206,87 @@ def plan_battery(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Cha
     return sorted(out, key=lambda p: order.get(p.name, 99))
 
 
-def plan_shifts(rec: Recording, n_gears: int, segments: list[Segment]) -> list[PlannedParameter]:
-    """Excitation of the shift lines: every pair and direction needs 3 events spread over 10 % of pedal."""
+def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
+                segments: list[Segment]) -> list[PlannedParameter]:
+    """Brake gains ``T = m p + c`` per axle on the steady neutral-braking windows, and ``k_f``.
+
+    The roller torque is noise-free on the dyno's CAN; the axle pressure (mean of its calipers) is the
+    regressor, so its noise enters through the slope (errors in variables: ``s_i^2 = m^2 var(p_i)``).
+    """
+    test = "add [[tests]] kind = \"neutral_braking\" with brake_steps_pct = [5.0, 10.0, 20.0, 30.0]"
+    names = [("brakes.front.m_f", "Nm/bar"), ("brakes.front.c_f", "Nm"), ("brakes.rear.m_r", "Nm/bar"),
+             ("brakes.rear.c_r", "Nm"), ("brakes.distribution.k_f", "-")]
+    try:
+        sw, front, rear = brake_gain_windows(rec)
+    except BenchtwinError as exc:
+        return [PlannedParameter(n, u, float("nan"), float("nan"), False, f"no braking window: {exc}", test)
+                for n, u in names]
+    st = np.array([w.start_s for w in sw.windows])
+    en = np.array([w.end_s for w in sw.windows])
+    r = vehicle.specs.wheel_radius_m
+    out: list[PlannedParameter] = []
+    gains: dict[str, tuple[float, float]] = {}
+    for axle, chans, force, (m_name, c_name) in (("front", front, "dyno_force_front_n", names[:2]),
+                                                 ("rear", rear, "dyno_force_rear_n", names[2:4])):
+        if not len(sw):
+            p = t = np.array([])
+        else:
+            p = np.mean([sw.raw_average(rec, c) for c in chans], axis=0)
+            t = -sw.raw_average(rec, force) * r
+        ok = np.isfinite(p) & np.isfinite(t)
+        p, t = p[ok], t[ok]
+        spread = float(np.ptp(p)) if p.size else 0.0
+        if p.size < 4 or spread < 5.0:
+            why = (f"{p.size} steady neutral-braking windows (need 4)" if p.size < 4 else
+                   f"{axle} pressure spans {spread:.3g} bar (need 5 bar)")
+            out += [PlannedParameter(n, u, float("nan"), float("nan"), False, why, test, int(p.size))
+                    for n, u in (m_name, c_name)]
+            continue
+        A = np.column_stack([p, np.ones_like(p)])
+        x0 = np.linalg.lstsq(A, t, rcond=None)[0]
+        var_p = np.zeros(p.size)
+        for c in chans:
+            sv = sample_variances(rec, noise, c)
+            if sv is not None:
+                var_p += window_mean_variance(rec, c, sv, st[ok], en[ok]) / len(chans) ** 2
+        cov = sandwich_covariance(A, None, x0[0] ** 2 * var_p)
+        why = f"{p.size} steady windows, {p.min():.1f}..{p.max():.1f} bar"
+        out.append(PlannedParameter(m_name[0], m_name[1], float(x0[0]), math.sqrt(max(cov[0, 0], 0.0)), True, why,
+                                    "", int(p.size)))
+        out.append(PlannedParameter(c_name[0], c_name[1], float(x0[1]), math.sqrt(max(cov[1, 1], 0.0)), True, why,
+                                    "", int(p.size)))
+        gains[axle] = (float(x0[0]), math.sqrt(max(cov[0, 0], 0.0)))
+    if len(gains) == 2:
+        (mf, sf), (mr, sr) = gains["front"], gains["rear"]
+        tot = mf + mr
+        se = math.sqrt((mr / tot**2 * sf) ** 2 + (mf / tot**2 * sr) ** 2)  # the identification's delta method
+        out.append(PlannedParameter(names[4][0], "-", mf / tot, se, True, "from both gains", "", 0))
+    else:
+        out.append(PlannedParameter(names[4][0], "-", float("nan"), float("nan"), False, "needs both axle gains",
+                                    test))
+    return out
+
+
+def noise_free(roles: Iterable[str], noise: Mapping[str, ChannelNoise]) -> bool:
+    """Whether none of the roles carries a random error on the setup (the estimate is then the same every seed)."""
+    return not any(r in noise for r in roles)
+
+
+def _zero_or_nan(roles: Iterable[str], noise: Mapping[str, ChannelNoise]) -> tuple[float, str]:
+    roles = sorted(set(roles))
+    if noise_free(roles, noise):
+        return 0.0, "every channel it reads is free of random error on this setup: the same estimate every seed"
+    return float("nan"), f"SE not predicted (reads noisy {', '.join(r for r in roles if r in noise)})"
+
+
+def plan_shifts(rec: Recording, n_gears: int, noise: Mapping[str, ChannelNoise], roles: Iterable[str]
+                ) -> list[PlannedParameter]:
+    """Excitation of the shift lines: every pair and direction needs 3 events spread over 10 % of pedal.
+
+    One row per pair and direction (``shifts.up_1_2.*``); its standard error is 0 when no channel the
+    method reads carries a random error, else not predicted.
+    """
+    se0, note = _zero_or_nan(roles, noise)
     out: list[PlannedParameter] = []
     try:
         ev = find_shift_events(rec)
@@ -227,31 +308,35 @@ def plan_shifts(rec: Recording, n_gears: int, segments: list[Segment]) -> list[P
             spread = float(np.ptp(ped[m])) if n else 0.0
             ok = n >= 3 and spread >= 10.0
             why = f"{n} events, pedal spread {spread:.0f} %" + ("" if ok else " (need 3 events over 10 % of pedal)")
-            out.append(PlannedParameter(name, "km/h", float("nan"), float("nan"), ok, why + "; SE not predicted",
-                                        "" if ok else hint, n))
+            out.append(PlannedParameter(name + ".*", "km/h", float("nan"), se0 if ok else float("nan"), ok,
+                                        why + ("; " + note if ok else ""), "" if ok else hint, n))
     return out
 
 
-def plan_presence(segments: list[Segment]) -> list[PlannedParameter]:
-    """Families whose standard errors are not predicted: whether their tests are planned."""
-    kinds = {s.kind for s in segments}
-    ramp = [s for s in segments if s.kind == "ramp_up"]
-    rows = (
-        ("road_load.*", "coastdown" in kinds, "a coastdown", "add [[tests]] kind = \"coastdown\" from start_speed_kmh "
-                                                              "= 130"),
-        ("brakes.*", "neutral_braking" in kinds, "a neutral_braking test",
-         "add [[tests]] kind = \"neutral_braking\" with brake_steps_pct = [5.0, 10.0, 20.0, 30.0]"),
-        ("engine.*", any(s.settings.get("engine") in ("on", "auto") and s.settings.get("mode") != "electric"
-                         for s in ramp), "a ramp_up with the engine on",
-         "add [[tests]] kind = \"ramp_up\" with mode = \"hybrid\", engine = \"on\", k0 = \"closed\""),
-        ("motor.* (drive)", any(s.settings.get("pedal_steps_pct") for s in ramp), "ramp_up pedal steps",
-         "add [[tests]] kind = \"ramp_up\" with pedal_steps_pct"),
-        ("motor.* (regeneration)", any(s.settings.get("brake_steps_pct") for s in ramp), "ramp_up brake steps",
-         "add brake_steps_pct to a ramp_up test"),
-        ("torque_converter.*", bool(kinds & {"acceleration", "deceleration"}), "accelerations or decelerations "
-                                                                                "(lock-up open)",
-         "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"),
-    )
-    return [PlannedParameter(name, "", float("nan"), float("nan"), ok,
-                             f"{'has' if ok else 'no'} {what}; SE not predicted", "" if ok else hint)
-            for name, ok, what, hint in rows]
+#: excitation of the families without a design of their own here: (test present?, what, the test to add)
+_PRESENCE: dict[str, tuple[Callable[[list[Segment]], bool], str, str]] = {
+    "road_load": (lambda segs: any(s.kind == "coastdown" for s in segs), "a coastdown",
+                  "add [[tests]] kind = \"coastdown\" from start_speed_kmh = 130"),
+    "engine": (lambda segs: any(s.kind == "ramp_up" and s.settings.get("mode") != "electric"
+                                and s.settings.get("engine") in ("on", "auto") for s in segs),
+               "a ramp_up with the engine on",
+               "add [[tests]] kind = \"ramp_up\" with mode = \"hybrid\", engine = \"on\", k0 = \"closed\""),
+    "motor": (lambda segs: any(s.kind == "ramp_up" and s.settings.get("pedal_steps_pct") for s in segs)
+              and any(s.kind == "ramp_up" and s.settings.get("brake_steps_pct") for s in segs),
+              "ramp_up pedal steps (motoring) and brake steps (generating)",
+              "add [[tests]] kind = \"ramp_up\" with pedal_steps_pct and brake_steps_pct (both motor quadrants)"),
+    "torque_converter": (lambda segs: any(s.kind in ("acceleration", "deceleration") for s in segs),
+                         "accelerations or decelerations (lock-up open)",
+                         "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"),
+}
+
+
+def plan_presence(family: str, segments: list[Segment], noise: Mapping[str, ChannelNoise],
+                  roles: Iterable[str]) -> list[PlannedParameter]:
+    """One row ``<family>.*``: whether its tests are planned, and a standard error of 0 when it reads no noisy
+    channel (else not predicted)."""
+    has, what, hint = _PRESENCE[family]
+    ok = bool(has(segments))
+    se0, note = _zero_or_nan(roles, noise)
+    return [PlannedParameter(f"{family}.*", "", float("nan"), se0 if ok else float("nan"), ok,
+                             f"{'has' if ok else 'no'} {what}" + ("; " + note if ok else ""), "" if ok else hint)]
