@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -33,23 +33,27 @@ from benchtwin.identification.steady import SteadyWindows, Tolerance, find_stead
 from benchtwin.recording import Recording
 
 __all__ = ["MotorPoints", "efficiency_map", "fit_willans_generating", "fit_willans_motoring", "identify_motor",
-           "motor_points"]
+           "motor_points", "side_points"]
 
 RPM = 2.0 * math.pi / 60.0
 _LV = ("dcdc_lv_current_a", "dcdc_lv_voltage_v")
 
 
 class MotorPoints:
-    """Steady motor points: torque (Nm), speed (rpm), HPCU HV power and DC/DC LV power (W), segments."""
+    """Steady motor points: torque (Nm), speed (rpm), HPCU HV power and DC/DC LV power (W), segments.
+
+    ``windows`` are the steady windows the points are means over (one per point), when known.
+    """
 
     def __init__(self, torque_nm: np.ndarray, speed_rpm: np.ndarray, p_hpcu_w: np.ndarray, p_lv_w: np.ndarray | None,
-                 segments: list[str], n_flagged: int = 0) -> None:
+                 segments: list[str], n_flagged: int = 0, windows: SteadyWindows | None = None) -> None:
         self.torque_nm = np.asarray(torque_nm, dtype=float)
         self.speed_rpm = np.asarray(speed_rpm, dtype=float)
         self.p_hpcu_w = np.asarray(p_hpcu_w, dtype=float)
         self.p_lv_w = None if p_lv_w is None else np.asarray(p_lv_w, dtype=float)
         self.segments = list(segments)
         self.n_flagged = n_flagged
+        self.windows = windows
 
 
 def motor_points(rec: Recording, *, steady: SteadyWindows | None = None,
@@ -69,7 +73,7 @@ def motor_points(rec: Recording, *, steady: SteadyWindows | None = None,
     speed = steady.raw_average(rec, "em_speed_rpm")
     p_hpcu = steady.raw_average(rec, "hpcu_current_a", "hpcu_voltage_v")
     p_lv = steady.raw_average(rec, *_LV) if all(c in rec for c in _LV) else None
-    return MotorPoints(torque, speed, p_hpcu, p_lv, [w.segment for w in steady.windows], steady.n_excluded)
+    return MotorPoints(torque, speed, p_hpcu, p_lv, [w.segment for w in steady.windows], steady.n_excluded, steady)
 
 
 def _norm(specs: VehicleSpecs, torque: np.ndarray, speed_rpm: np.ndarray, power: np.ndarray
@@ -276,6 +280,19 @@ def efficiency_map(e: float, w_loss: float, torque_nm: np.ndarray, speed_rpm: np
             "envelope_torque_nm": np.asarray(env_t)}
 
 
+def side_points(pts: MotorPoints, min_torque_nm: float = 5.0
+                ) -> list[tuple[str, np.ndarray, Callable[..., FitResult]]]:
+    """``(side, mask of the points, Willans fit)`` for motoring and generating, as :func:`identify_motor` uses them.
+
+    Finite points turning faster than 50 rpm with ``|T| > min_torque_nm`` (shared with the planner).
+    """
+    ok = np.isfinite(pts.torque_nm) & np.isfinite(pts.speed_rpm) & np.isfinite(pts.p_hpcu_w) & (pts.speed_rpm > 50)
+    if pts.p_lv_w is not None:
+        ok &= np.isfinite(pts.p_lv_w)
+    return [("motoring", ok & (pts.torque_nm > min_torque_nm), fit_willans_motoring),
+            ("generating", ok & (pts.torque_nm < -min_torque_nm), fit_willans_generating)]
+
+
 def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints | None = None,
                    eta_dcdc: float | None = None, min_torque_nm: float = 5.0, min_points: int = 5,
                    form: str = "normalised", **kwargs: object) -> IdentificationResult:
@@ -312,12 +329,8 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
     pts = points if points is not None else motor_points(rec, **kwargs)  # type: ignore[arg-type]
     out = IdentificationResult()
     failures: dict[str, IdentificationError] = {}
-    ok = np.isfinite(pts.torque_nm) & np.isfinite(pts.speed_rpm) & np.isfinite(pts.p_hpcu_w) & (pts.speed_rpm > 50)
-    if pts.p_lv_w is not None:
-        ok &= np.isfinite(pts.p_lv_w)
     segs = np.asarray(pts.segments, dtype=object)
-    for side, sel, func in (("motoring", ok & (pts.torque_nm > min_torque_nm), fit_willans_motoring),
-                            ("generating", ok & (pts.torque_nm < -min_torque_nm), fit_willans_generating)):
+    for side, sel, func in side_points(pts, min_torque_nm):
         key = f"motor.{side}"
         try:
             fit = func(specs, pts.torque_nm[sel], pts.speed_rpm[sel], pts.p_hpcu_w[sel],

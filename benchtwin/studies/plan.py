@@ -55,6 +55,7 @@ from benchtwin.studies.plan_fits import (
     PlannedParameter,
     plan_battery,
     plan_brakes,
+    plan_motor,
     plan_presence,
     plan_shifts,
     plan_transmission,
@@ -160,6 +161,8 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
         elif fam.name == "brakes":
             plan.parameters += plan_brakes(rec, vehicle, noise, segments)
+        elif fam.name == "motor":
+            plan.parameters += plan_motor(rec, vehicle, noise, segments)
         elif fam.name == "shifts":
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
         else:

@@ -25,14 +25,21 @@ from benchtwin.identification.battery import (
 )
 from benchtwin.identification.brakes import brake_gain_windows
 from benchtwin.identification.keys import FitKey
+from benchtwin.identification.motor import motor_points, side_points
 from benchtwin.identification.shifts import find_shift_events
 from benchtwin.identification.transmission import RPM, direction_points, efficiency_design, transmission_points
 from benchtwin.recording import Recording
 from benchtwin.segments import Segment
-from benchtwin.studies.plan_noise import ChannelNoise, sample_variances, sandwich_covariance, window_mean_variance
+from benchtwin.studies.plan_noise import (
+    ChannelNoise,
+    product_mean_variance,
+    sample_variances,
+    sandwich_covariance,
+    window_mean_variance,
+)
 
-__all__ = ["PlannedParameter", "noise_free", "plan_battery", "plan_brakes", "plan_presence", "plan_shifts",
-           "plan_transmission"]
+__all__ = ["PlannedParameter", "noise_free", "plan_battery", "plan_brakes", "plan_motor", "plan_presence",
+           "plan_shifts", "plan_transmission"]
 
 
 @dataclass
@@ -267,6 +274,66 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
     return out
 
 
+def plan_motor(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
+               segments: list[Segment]) -> list[PlannedParameter]:
+    """Willans lines, motoring and generating, by the delta method on the identification's own fits.
+
+    The regressors hold the HPCU power (and the DC/DC power): noisy products of IVT readings, in a
+    normalised form and with derived parameters (``e``, ``W_loss``, ``eta_dcdc``, ``eta_peak``). Rather
+    than re-deriving each, the fit function is differentiated at the noise-free planned points: with
+    ``J`` the derivative of every parameter with respect to each point's window-mean powers,
+    ``Var = sum_i J_i^2 var_i`` (the linearised covariance of the same estimator).
+    """
+    specs = vehicle.specs
+    hint = {"motoring": "add [[tests]] kind = \"ramp_up\" with pedal_steps_pct over several levels (motoring points)",
+            "generating": "add brake_steps_pct to a ramp_up test (generating points)"}
+    try:
+        pts = motor_points(rec)
+    except BenchtwinError as exc:
+        return [PlannedParameter(f"motor.{side}.*", "", float("nan"), float("nan"), False,
+                                 f"no steady motor point: {exc}", hint[side]) for side in hint]
+    wins = pts.windows
+    assert wins is not None
+    st = np.array([w.start_s for w in wins.windows])
+    en = np.array([w.end_s for w in wins.windows])
+    var_h = product_mean_variance(rec, noise, "hpcu_current_a", "hpcu_voltage_v", st, en)
+    lv = pts.p_lv_w is not None
+    var_lv = product_mean_variance(rec, noise, "dcdc_lv_current_a", "dcdc_lv_voltage_v", st, en) if lv else None
+    out: list[PlannedParameter] = []
+    for side, sel, func in side_points(pts):
+        t, n, ph = pts.torque_nm[sel], pts.speed_rpm[sel], pts.p_hpcu_w[sel]
+        pl = pts.p_lv_w[sel] if pts.p_lv_w is not None else None
+
+        def fit(ph: np.ndarray, pl: np.ndarray | None, t: np.ndarray = t, n: np.ndarray = n,
+                func: Callable[..., Any] = func) -> dict[str, float]:
+            f = func(specs, t, n, ph, pl)
+            return {k: p.value for k, p in f.params.items()}
+
+        try:
+            x0 = fit(ph, pl)
+        except BenchtwinError as exc:
+            out.append(PlannedParameter(f"motor.{side}.*", "", float("nan"), float("nan"), False, str(exc),
+                                        hint[side], int(sel.sum())))
+            continue
+        var = dict.fromkeys(x0, 0.0)
+        for inputs, v in ((ph, var_h[sel]), (pl, None if var_lv is None else var_lv[sel])):
+            if inputs is None or v is None:
+                continue
+            for j in np.flatnonzero(v > 0):
+                h = 1e-3 * max(abs(float(inputs[j])), 1.0)
+                up, dn = inputs.copy(), inputs.copy()
+                up[j] += h
+                dn[j] -= h
+                fu = fit(up, pl) if inputs is ph else fit(ph, up)
+                fd = fit(dn, pl) if inputs is ph else fit(ph, dn)
+                for k in var:
+                    var[k] += ((fu[k] - fd[k]) / (2 * h)) ** 2 * float(v[j])
+        why = f"{int(sel.sum())} steady {side} points, {np.abs(t).min():.0f}..{np.abs(t).max():.0f} Nm"
+        out += [PlannedParameter(f"motor.{side}.{k}", "", x0[k], math.sqrt(var[k]), True, why, "", int(sel.sum()))
+                for k in x0]
+    return out
+
+
 def noise_free(roles: Iterable[str], noise: Mapping[str, ChannelNoise]) -> bool:
     """Whether none of the roles carries a random error on the setup (the estimate is then the same every seed)."""
     return not any(r in noise for r in roles)
@@ -321,10 +388,6 @@ _PRESENCE: dict[str, tuple[Callable[[list[Segment]], bool], str, str]] = {
                                 and s.settings.get("engine") in ("on", "auto") for s in segs),
                "a ramp_up with the engine on",
                "add [[tests]] kind = \"ramp_up\" with mode = \"hybrid\", engine = \"on\", k0 = \"closed\""),
-    "motor": (lambda segs: any(s.kind == "ramp_up" and s.settings.get("pedal_steps_pct") for s in segs)
-              and any(s.kind == "ramp_up" and s.settings.get("brake_steps_pct") for s in segs),
-              "ramp_up pedal steps (motoring) and brake steps (generating)",
-              "add [[tests]] kind = \"ramp_up\" with pedal_steps_pct and brake_steps_pct (both motor quadrants)"),
     "torque_converter": (lambda segs: any(s.kind in ("acceleration", "deceleration") for s in segs),
                          "accelerations or decelerations (lock-up open)",
                          "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"),

@@ -24,8 +24,17 @@ from benchtwin.sensors.imperfections import hold_sample
 from benchtwin.sensors.registry import devices
 from benchtwin.trace import Trace
 
-__all__ = ["ChannelNoise", "noise_budget", "reading_variance", "sample_variances", "sandwich_covariance",
-           "truth_recording", "window_mean_variance"]
+__all__ = [
+    "ChannelNoise",
+    "noise_budget",
+    "product_mean_variance",
+    "reading_variance",
+    "sample_variances",
+    "sandwich_covariance",
+    "truth_recording",
+    "window_mean",
+    "window_mean_variance",
+]
 
 
 def reading_variance(sigma: float, q: float, y: np.ndarray | float | None = None) -> np.ndarray | float:
@@ -132,3 +141,36 @@ def sandwich_covariance(A: np.ndarray, w: np.ndarray | None, s2: np.ndarray) -> 
     Aw = A * w[:, None]
     B = np.linalg.inv(A.T @ Aw)
     return B @ (Aw.T @ (Aw * s2[:, None])) @ B
+
+
+def window_mean(rec: Recording, name: str, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Mean of channel ``name``'s good readings inside each window ``[start, end)`` (NaN when none)."""
+    ch = rec[name]
+    order = np.argsort(ch.timestamps, kind="stable")
+    ts, good = ch.timestamps[order], ch.good[order]
+    cn = np.cumsum(np.concatenate(([0], good.astype(int))))
+    cs = np.cumsum(np.concatenate(([0.0], np.where(good, ch.values[order], 0.0))))
+    lo = np.searchsorted(ts, starts, side="left")
+    hi = np.searchsorted(ts, ends, side="left")
+    n = cn[hi] - cn[lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, (cs[hi] - cs[lo]) / np.maximum(n, 1), np.nan)
+
+
+def product_mean_variance(rec: Recording, noise: Mapping[str, ChannelNoise], a: str, b: str, starts: np.ndarray,
+                          ends: np.ndarray) -> np.ndarray:
+    """Variance of a window's mean power ``a x b`` as the identification averages it.
+
+    On shared timestamps the mean of the sample-by-sample product (each product's variance
+    ``b^2 var_a + a^2 var_b + var_a var_b``); otherwise the product of the two means.
+    """
+    ca, cb = rec[a], rec[b]
+    va = sample_variances(rec, noise, a)
+    vb = sample_variances(rec, noise, b)
+    va = np.zeros(len(ca)) if va is None else va
+    vb = np.zeros(len(cb)) if vb is None else vb
+    if ca.timestamps.shape == cb.timestamps.shape and np.array_equal(ca.timestamps, cb.timestamps):
+        return window_mean_variance(rec, a, cb.values**2 * va + ca.values**2 * vb + va * vb, starts, ends)
+    ma, mb = window_mean(rec, a, starts, ends), window_mean(rec, b, starts, ends)
+    return (mb**2 * window_mean_variance(rec, a, va, starts, ends)
+            + ma**2 * window_mean_variance(rec, b, vb, starts, ends))
