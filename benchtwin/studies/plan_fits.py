@@ -402,4 +402,5 @@ def plan_presence(family: str, segments: list[Segment], noise: Mapping[str, Chan
     ok = bool(has(segments))
     se0, note = _zero_or_nan(roles, noise)
     return [PlannedParameter(f"{family}.*", "", float("nan"), se0 if ok else float("nan"), ok,
-                             f"{'has' if ok else 'no'} {what}" + ("; " + note if ok else ""), "" if ok else hint)]
+                             f"{'planned' if ok else 'missing'}: {what}" + ("; " + note if ok else ""),
+                             "" if ok else hint)]

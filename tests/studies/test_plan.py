@@ -106,7 +106,10 @@ def test_a_gear_without_coast_points_is_flagged_with_the_test_to_add(
         assert rows[name]["identifiable"] is True and rows[name]["se"] > 0
     # no constant drive: the battery is not excited; no acceleration: no upshift line
     assert rows["battery.alpha"]["identifiable"] is False and "constant_drive" in rows["battery.alpha"]["suggestion"]
-    assert rows["shifts.up_1_2"]["identifiable"] is False and "acceleration" in rows["shifts.up_1_2"]["suggestion"]
+    assert rows["shifts.up_1_2.*"]["identifiable"] is False and "acceleration" in rows["shifts.up_1_2.*"]["suggestion"]
+    # no brake steps anywhere: the motor's generating region is never visited
+    assert rows["motor.generating.*"]["identifiable"] is False
+    assert "brake_steps_pct" in rows["motor.generating.*"]["suggestion"]
     # a gear no test drives in names a ramp-up in that gear
     assert 'gear = 7' in rows["transmission.gear7.eta_m"]["suggestion"]
 
