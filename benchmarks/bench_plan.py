@@ -10,7 +10,8 @@ seed on one plant run (the campaign's cached Trace; the seed varies the sensor n
 predicts), and the sample standard deviation of each estimate over the seeds is set beside the prediction.
 With N seeds, ``(N-1) s^2 / sigma^2 ~ chi2(N-1)``: the script prints the two-sided 99 % interval of
 ``s / sigma`` so a ratio can be read against it. A family row ``name.*`` with a predicted standard error of 0
-(every channel it reads free of random error) is compared with the largest spread of any of its estimates.
+(every channel it reads free of random error) is compared with the largest spread of any of its estimates
+relative to its value (float rounding leaves about 1e-15).
 """
 
 from __future__ import annotations
@@ -30,6 +31,9 @@ from benchtwin.config.setup import load_setup
 from benchtwin.emulator.cache import cached_campaign
 from benchtwin.studies.plan import plan_campaign
 from benchtwin.validation.run import validate
+
+#: a predicted 0 holds when every estimate agrees over the seeds to this relative spread (float rounding)
+ZERO_REL = 1e-9
 
 
 def main() -> None:
@@ -69,10 +73,11 @@ def main() -> None:
                 continue
             if p.name.endswith(".*"):
                 pre = p.name[:-1]
-                sds = [float(np.std(v, ddof=1)) for k, v in est[fam].items() if k.startswith(pre) and len(v) == n
-                       and np.all(np.isfinite(v))]
+                # the spread relative to the estimate's size: float rounding leaves ~1e-15 where the inputs agree
+                sds = [float(np.std(v, ddof=1) / max(abs(float(np.mean(v))), 1e-300)) for k, v in est[fam].items()
+                       if k.startswith(pre) and len(v) == n and np.all(np.isfinite(v))]
                 if sds:
-                    rows.append((p.name, p.se, max(sds), f"{len(sds)} estimates, largest spread"))
+                    rows.append((p.name, p.se, max(sds), f"{len(sds)} estimates, largest relative spread"))
                 continue
             v = np.asarray(est[fam].get(p.name, []), dtype=float)
             v = v[np.isfinite(v)]
@@ -95,7 +100,7 @@ def main() -> None:
     n_ok = 0
     for name, se, sd, note in rows:
         if se == 0.0:
-            ok = sd == 0.0
+            ok = sd <= ZERO_REL
             ratio = "-"
         else:
             r = sd / se
@@ -103,7 +108,8 @@ def main() -> None:
             ratio = f"{r:.3f}"
         n_ok += ok
         print(f"| {name} | {se:.4g} | {sd:.4g} | {ratio} | {'yes' if ok else 'NO'} | {note} |")
-    print(f"\n- {n_ok} of {len(rows)} predictions within the factor 1.5 (a 0 must be exactly 0)")
+    print(f"\n- {n_ok} of {len(rows)} predictions within the factor 1.5 (a predicted 0: every estimate the same over "
+          f"the seeds to a relative {ZERO_REL:g}, float rounding)")
 
 
 if __name__ == "__main__":
