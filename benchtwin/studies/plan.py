@@ -13,28 +13,33 @@ parameter the identification fits, without identifying anything from measured da
    :func:`~benchtwin.identification.transmission.direction_points`,
    :func:`~benchtwin.identification.transmission.efficiency_design`,
    :func:`~benchtwin.identification.battery.battery_samples`,
-   :func:`~benchtwin.identification.battery.eq30_design`): the design matrix ``A`` at the points a
-   fit will use, with its row weights ``W``.
-3. Each recorded channel's random error per sample is taken from the setup's error budget
-   (:meth:`~benchtwin.sensors.base.Device.error_budget`): white noise ``sigma`` and quantisation
-   ``q`` (the wire's step or the sensor's own, the larger), as the variance of the quantised noisy
-   reading averaged over the reading's position within a step (:func:`reading_variance`:
-   ``sigma^2 + q^2/12`` for ``sigma >> q``, about ``q sigma / sqrt(pi)`` for ``sigma << q``, 0 without
-   noise: a noise-free quantised reading of a steady value is a bias, the same for every seed). A
-   steady window's mean over ``n`` samples has ``1/n`` of it; a grid sample interpolated between two
-   readings at fraction ``a`` has ``a^2 + (1-a)^2`` of it.
+   :func:`~benchtwin.identification.battery.eq30_design`,
+   :func:`~benchtwin.identification.brakes.brake_gain_windows`,
+   :func:`~benchtwin.identification.motor.motor_points`, :func:`~benchtwin.identification.motor.side_points`):
+   the design matrix ``A`` at the points a fit will use, with its row weights ``W``.
+3. Each recorded channel's random error per reading is taken from the setup's error budget
+   (:mod:`benchtwin.studies.plan_noise`): white noise and quantisation, as the exact variance of the
+   quantised noisy reading at its own noise-free value (0 without noise: the quantisation error of a
+   noise-free reading is a bias, the same for every seed). A steady window's mean of ``n`` readings has
+   the mean of their variances over ``n``; a grid sample interpolated between two readings at fraction
+   ``a`` has ``(1-a)^2`` and ``a^2`` of theirs.
 4. The residual of each row is linearised in the channels it is made of (errors in the dependent and
-   the independent variables, e.g. the shaft torque in both ``eta`` and ``C`` of a coast point), which
-   gives a per-row variance ``s_i^2``; the estimator's covariance is the sandwich
-   ``(A'WA)^-1 A'W diag(s^2) W A (A'WA)^-1`` (``sigma^2 (A'A)^-1`` for equal rows and no weights).
+   the independent variables, e.g. the shaft torque in both ``eta`` and ``C`` of a coast point, the
+   caliper pressure in a brake gain), which gives a per-row variance ``s_i^2``; the estimator's
+   covariance is the sandwich ``(A'WA)^-1 A'W diag(s^2) W A (A'WA)^-1`` (``sigma^2 (A'A)^-1`` for equal
+   rows and no weights). The motor's Willans fits (noisy power products inside a normalised design, and
+   derived parameters) are linearised by differentiating the identification's own fit at the planned
+   points instead (the delta method on the same estimator).
 
 The prediction is the spread of the estimates over seeds of the sensor noise on one plant run, the
 figure a sweep over seeds measures; it holds no bias (gain and offset errors, model error) and no
 lack of fit (the identification's own standard errors carry the residual scatter, which includes it).
 
 Parameters whose fit will not get the points it needs are flagged *not identifiable*, with the reason
-and the test to add in the campaign's TOML terms. Families without a predicted standard error yet
-(motor, engine, road load, brakes, torque converter, shift lines) are checked for excitation only.
+and the test to add in the campaign's TOML terms. A family that reads no channel with a random error
+on the setup (engine, road load and shift lines on the paper bench) gets a standard error of 0: the
+same estimate for every seed. The torque converter's standard errors are not predicted (its pipeline
+resamples, rejects outliers and refines the coupling point); its excitation is checked.
 """
 
 from __future__ import annotations
