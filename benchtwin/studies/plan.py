@@ -129,7 +129,7 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
     families:
         Identification families to plan (:data:`~benchtwin.validation.families.FAMILIES`; default all).
         The chain runs over the tests of the kinds they need, as a family run of the validation does;
-        with every family, the transmission also sees the constant drives, as the whole identification.
+        with every family (None) over those and the cycles, as the whole identification reads them.
 
     Returns
     -------
@@ -149,7 +149,10 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         else:
             trace, _hit = cached_campaign(vehicle, campaign, directory=None if cache is True else cache)
     truth, noise = noise_budget(setup)
-    spans = family_spans(trace.segments, {k for f in fams for k in f.kinds})
+    kinds = {k for f in fams for k in f.kinds}
+    if families is None:
+        kinds.add("cycle")  # the whole identification also reads a campaign's cycles (shift events, steady points)
+    spans = family_spans(trace.segments, kinds)
     plan = Plan(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
                       "seed": campaign.seed, "families": names,
                       "noise": {k: {"noise_std": v.sigma, "step": v.q} for k, v in sorted(noise.items())}})
