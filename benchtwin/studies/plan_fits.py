@@ -88,7 +88,15 @@ class PlannedParameter:
 
 
 def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
-                       segments: list[Segment]) -> list[PlannedParameter]:
+                      segments: list[Segment]) -> list[PlannedParameter]:
+    """``eta_m`` and ``C0`` of every gear, drive and coast (eq. 15-17), on the identification's steady points.
+
+    Each point's efficiency is a ratio of window means of the shaft torque, the input torque and the two
+    speeds; its residual is linearised in all four (the shaft torque enters both ``eta`` and ``C`` of a
+    coast point), and the weighted fit's sandwich covariance gives ``eta_m``; ``C0 = (eta_m C0) / eta_m``
+    by the delta method. A gear or direction with fewer than 3 points, or one torque level only, is not
+    identifiable: the suggestion is a ramp-up in that gear (with brake steps for the coast side).
+    """
     specs = vehicle.specs
     ratios = np.asarray(specs.gear_ratios, dtype=float)
     out: list[PlannedParameter] = []
@@ -157,7 +165,14 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
 
 
 def plan_battery(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
-                  segments: list[Segment]) -> list[PlannedParameter]:
+                 segments: list[Segment]) -> list[PlannedParameter]:
+    """``alpha``, ``beta_discharge``, ``beta_charge`` of eq. 30 on the constant drives' grid samples.
+
+    Each grid sample interpolates two readings of the shunt's voltage and current; the residual carries
+    the voltage noise over the cell count and the current noise through the resistance term (errors in
+    the regressor). A current direction with fewer than 10 samples, or spanning less than 10 A, is not
+    identifiable: the suggestion is a constant drive that discharges or charges the pack.
+    """
     specs = vehicle.specs
     test = ("add a [[tests]] kind = \"constant_drive\" (mode = \"electric\" to discharge; mode = \"hybrid\" at a "
             "low SOC to charge)")
