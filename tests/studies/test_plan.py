@@ -13,8 +13,16 @@ from scipy import stats
 from benchtwin.cli import main
 from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
 from benchtwin.emulator.cache import cached_campaign
+from benchtwin.recording import Channel, Flag, Recording
+from benchtwin.sensors.base import TruthChannel
 from benchtwin.studies.plan import plan_campaign
-from benchtwin.studies.plan_noise import reading_variance, sandwich_covariance
+from benchtwin.studies.plan_noise import (
+    reading_variance,
+    sandwich_covariance,
+    truth_recording,
+    window_mean_variance,
+)
+from benchtwin.trace import Trace
 from benchtwin.validation.run import validate
 
 
@@ -45,6 +53,35 @@ def test_sandwich_with_equal_rows_is_the_textbook_covariance() -> None:
     # weights equal to the inverse variances give (A' W A)^-1
     s2 = np.array([1.0, 2.0, 4.0, 1.0, 0.5])
     assert np.allclose(sandwich_covariance(A, 1.0 / s2, s2), np.linalg.inv(A.T @ (A / s2[:, None])))
+
+
+def test_truth_recording_keeps_the_bench_clock_and_flags() -> None:
+    trace = Trace(np.arange(0.0, 10.0, 0.01), {"shaft_torque_nm": np.arange(0.0, 10.0, 0.01) * 3.0,
+                                               "gear": np.repeat([1.0, 2.0], 500)})
+    ts = np.array([0.005, 2.0, 7.5])
+    flags = np.array([0, int(Flag.SATURATED), 0], dtype=np.uint16)
+    rec = Recording()
+    rec.add(Channel("shaft_torque_nm", "Nm", ts, np.array([9.0, 9.0, 9.0]), flags, "telemetry"))
+    rec.add(Channel("gear_actual", "", ts, np.zeros(3), None, "vehicle"))
+    rec.add(Channel("other", "", ts, np.ones(3), None, "x"))
+    truth = {"shaft_torque_nm": TruthChannel("shaft_torque_nm", 1.0, False, 2.1),
+             "gear_actual": TruthChannel("gear", 1.0, True, 1.0)}
+    out = truth_recording(rec, trace, truth)
+    assert np.allclose(out["shaft_torque_nm"].values, ts * 3.0)  # interpolated truth at the bench's timestamps
+    assert out["gear_actual"].values.tolist() == [1.0, 1.0, 2.0]  # states held, not interpolated
+    assert out["shaft_torque_nm"].flags.tolist() == flags.tolist() and out["other"].values.tolist() == [1.0] * 3
+
+
+def test_window_mean_variance_counts_only_good_readings() -> None:
+    ts = np.arange(10.0)
+    flags = np.zeros(10, dtype=np.uint16)
+    flags[3] = int(Flag.SATURATED)
+    rec = Recording()
+    rec.add(Channel("x", "", ts, np.zeros(10), flags, "s"))
+    var = np.arange(1.0, 11.0)
+    got = window_mean_variance(rec, "x", var, np.array([0.0, 5.0]), np.array([5.0, 10.0]))
+    # window [0, 5): readings 0, 1, 2, 4 (3 flagged): (1 + 2 + 3 + 5) / 4^2; window [5, 10): (6 + ... + 10) / 5^2
+    assert got.tolist() == pytest.approx([11.0 / 16.0, 40.0 / 25.0])
 
 
 @pytest.mark.slow
