@@ -91,18 +91,20 @@ class ParameterEstimate:
         if not math.isfinite(self.u_total) and self.u_type_b == 0.0:
             self.u_total = self.std_error
 
-    def combine_type_b(self, contributions: dict[str, float]) -> None:
+    def combine_type_b(self, contributions: dict[str, float], dof: dict[str, float] | None = None) -> None:
         """Combine the type B contributions with the statistical uncertainty (GUM, JCGM 100 sections 5 and G).
 
         The statistical degrees of freedom are read back from ``ci95`` (its half-width is ``t(nu_A)``
-        standard errors); type B components count as exactly known (infinite degrees of freedom), so the
-        Welch-Satterthwaite formula gives ``nu_eff = nu_A (u_total / std_error)^4`` and the coverage factor
-        ``k = t_0.975(nu_eff)``.
+        standard errors); type B components count as exactly known (infinite degrees of freedom) unless
+        ``dof`` says otherwise (a component estimated from a few Monte Carlo draws), and the coverage factor
+        is ``k = t_0.975(nu_eff)`` at the Welch-Satterthwaite effective degrees of freedom.
 
         Parameters
         ----------
         contributions:
             Source -> standard uncertainty of the parameter from that source (sign ignored).
+        dof:
+            Source -> degrees of freedom of that contribution (missing: infinite).
         """
         self.type_b = {k: abs(float(v)) for k, v in contributions.items() if math.isfinite(v)}
         u_b = math.sqrt(sum(v * v for v in self.type_b.values()))
@@ -113,7 +115,9 @@ class ParameterEstimate:
             self.ci95_total = (float("nan"), float("nan"))
             return
         self.u_total = math.sqrt(se * se + u_b * u_b)
-        k = coverage_factor(dof_of_interval(self.ci95, se), se, self.u_total)
+        dof = dof or {}
+        terms = [(se, dof_of_interval(self.ci95, se))] + [(v, dof.get(k, math.inf)) for k, v in self.type_b.items()]
+        k = coverage_factor(self.u_total, terms)
         self.ci95_total = (self.value - k * self.u_total, self.value + k * self.u_total)
 
     def to_dict(self) -> dict[str, Any]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 from scipy import optimize, stats
 
@@ -25,22 +26,24 @@ def dof_of_interval(ci95: tuple[float, float], se: float) -> float:
     return float(optimize.brentq(lambda nu: float(stats.t.ppf(0.975, nu)) - k, 1.0, 1e9))
 
 
-def coverage_factor(dof_stat: float, u_stat: float, u_total: float) -> float:
+def coverage_factor(u_total: float, terms: Iterable[tuple[float, float]]) -> float:
     """Coverage factor of a 95 % interval of a combined uncertainty (Welch-Satterthwaite, JCGM 100 G.4).
 
     Parameters
     ----------
-    dof_stat:
-        Degrees of freedom of the statistical (type A) part.
-    u_stat, u_total:
-        The type A and the combined standard uncertainty; the rest (type B) has infinite degrees of freedom.
+    u_total:
+        The combined standard uncertainty.
+    terms:
+        ``(u_i, nu_i)`` of every component: the statistical part with its degrees of freedom, type B
+        components with ``inf`` (exactly known) or the number of Monte Carlo draws that estimated them.
 
     Returns
     -------
     float
-        ``t_0.975(nu_eff)`` with ``nu_eff = dof_stat (u_total / u_stat)^4`` (1.96 when infinite).
+        ``t_0.975(nu_eff)`` with ``nu_eff = u_total^4 / sum(u_i^4 / nu_i)`` (1.96 when infinite).
     """
-    if not (u_stat > 0) or not math.isfinite(dof_stat):
+    den = sum(u**4 / nu for u, nu in terms if u > 0 and math.isfinite(nu) and nu > 0)
+    if not (den > 0) or not (u_total > 0):
         return Z95
-    nu = dof_stat * (u_total / u_stat) ** 4
+    nu = u_total**4 / den
     return Z95 if nu > 1e9 else float(stats.t.ppf(0.975, max(nu, 1.0)))
