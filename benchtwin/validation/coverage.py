@@ -18,6 +18,7 @@ from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import split_param
 from benchtwin.validation.parameters import truth_expectations
+from benchtwin.validation.report import by_family
 
 __all__ = ["CoverageRow", "coverage_by_family", "interval_coverage"]
 
@@ -38,6 +39,8 @@ class CoverageRow:
         Standard uncertainty of the fit's scatter and the combined one (type A and B).
     inside_stat, inside_total:
         Whether the truth lies inside ``ci95`` and inside ``ci95_total``.
+    ci95, ci95_total:
+        The two intervals.
     """
 
     family: str
@@ -48,10 +51,17 @@ class CoverageRow:
     u_total: float
     inside_stat: bool
     inside_total: bool
+    ci95: tuple[float, float] = (math.nan, math.nan)
+    ci95_total: tuple[float, float] = (math.nan, math.nan)
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict."""
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+        def clean(v: Any) -> Any:
+            if isinstance(v, tuple):
+                return [clean(x) for x in v]
+            return None if isinstance(v, float) and not math.isfinite(v) else v
+
+        return {k: clean(v) for k, v in asdict(self).items()}
 
 
 def _inside(ci: Iterable[float] | None, truth: float) -> bool:
@@ -89,17 +99,11 @@ def interval_coverage(result: IdentificationResult, vehicle: VehicleConfig) -> l
         ci_total = getattr(p, "ci95_total", None) or p.ci95
         u_total = getattr(p, "u_total", p.std_error)
         rows.append(CoverageRow(family, e.key, float(e.truth), float(p.value), float(p.std_error), float(u_total),
-                                _inside(p.ci95, e.truth), _inside(ci_total, e.truth)))
+                                _inside(p.ci95, e.truth), _inside(ci_total, e.truth),
+                                (float(p.ci95[0]), float(p.ci95[1])), (float(ci_total[0]), float(ci_total[1]))))
     return rows
 
 
-def coverage_by_family(rows: Iterable[CoverageRow]) -> dict[str, dict[str, int]]:
+def coverage_by_family(rows: Iterable[CoverageRow | dict[str, Any]]) -> dict[str, dict[str, int]]:
     """Family -> ``{"n": ..., "inside_stat": ..., "inside_total": ...}`` (counts), plus ``all``."""
-    out: dict[str, dict[str, int]] = {}
-    for r in rows:
-        for fam in (r.family, "all"):
-            d = out.setdefault(fam, {"n": 0, "inside_stat": 0, "inside_total": 0})
-            d["n"] += 1
-            d["inside_stat"] += int(r.inside_stat)
-            d["inside_total"] += int(r.inside_total)
-    return out
+    return by_family([r.to_dict() if isinstance(r, CoverageRow) else r for r in rows])
