@@ -54,7 +54,11 @@ def main() -> None:
             failed = [c.name for c in rep.checks if not c.passed]
             misses += [f"{camp}/{st}: {r.key} value {r.value:.6g} truth {r.truth:.6g} u_stat {r.u_stat:.3g} "
                        f"u_total {r.u_total:.3g}" for r in rows if not r.inside_total]
-            print(f"- {camp}/{st}: {len(rep.checks)} checks, failed: {', '.join(failed) or 'none'}")
+            sec = rep.identification.meta.get("seconds", {})
+            tb = rep.identification.meta.get("type_b", {})
+            print(f"- {camp}/{st}: {len(rep.checks)} checks, failed: {', '.join(failed) or 'none'}; identify "
+                  f"{rep.timings_s.get('identify', float('nan')):.2f} s wall, of which type B "
+                  f"{sec.get('type_b', 0.0):.2f} s ({tb.get('reruns', 0)} re-runs)")
     fams = [*sorted({f for d in table.values() for f in d if f != "all"}), "all"]
     cols = list(table)
     print("\n| family | " + " | ".join(f"{c}/{s} stat | {c}/{s} total" for c, s in cols) + " |")
