@@ -48,6 +48,9 @@ __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b
 META_KEY = "declared_uncertainty"
 #: Monte Carlo draws of the rounding errors (their estimate of u carries this many degrees of freedom)
 RESOLUTION_DRAWS = 6
+#: width of the level intervals sharing one rounding error, in steps: a reading whose noise flickers it by
+#: one step about a steady level keeps one error (its rounding is not dithered by that flicker)
+BIN_STEPS = 2.0
 #: seed of those draws: the same Recording gives the same report
 RESOLUTION_SEED = 20260
 
@@ -129,10 +132,10 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator) ->
 
     A reading rounded to a step ``q`` is off by an error uniform in ``+-q/2`` (JCGM 100 F.2.2.1) that is a
     function of the level: a steady point holds one error, a point at another level another. Each draw
-    gives every interval of width ``q`` of the reading (on a grid of random phase) an independent error
-    ``U(-q/2, q/2)`` and adds to each sample the error of its interval: a steady point moves as a whole,
-    points at other levels move independently, and a channel whose noise spreads it over many steps
-    averages its errors out, as the rounding does.
+    gives every interval of width ``BIN_STEPS q`` of the reading (on a grid of random phase) an independent
+    error ``U(-q/2, q/2)`` and adds to each sample the error of its interval: a steady point moves as a
+    whole (also when its noise flickers it by a step), points at other levels move independently, and a
+    channel whose noise spreads it over many steps averages its errors out, as the rounding does.
     """
     channels = dict(recording.channels)
     for role, q in zip(comp.roles, comp.steps, strict=True):
@@ -143,7 +146,7 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator) ->
             continue
         lo = float(v[fin].min())
         idx = np.zeros(v.shape, dtype=np.int64)
-        idx[fin] = np.floor((v[fin] - lo) / q + rng.uniform(0.0, 1.0)).astype(np.int64)
+        idx[fin] = np.floor((v[fin] - lo) / (BIN_STEPS * q) + rng.uniform(0.0, 1.0)).astype(np.int64)
         errors = rng.uniform(-0.5 * q, 0.5 * q, int(idx.max()) + 1)
         channels[role] = replace(ch, values=v + errors[idx])
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
