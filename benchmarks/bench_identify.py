@@ -16,6 +16,10 @@ CPU time comes from running that method alone (``identify_all(..., methods=[name
 converter with the transmission before it, whose CPU time is subtracted).
 
 Accuracy of part B against the vehicle file is printed as well (validation owns the full comparison).
+
+The estimates are timed without the type B propagation of the declared systematic errors
+(``identify_all(..., type_b=False)``; it re-runs each method once per declared component:
+``--type-b`` times it included; benchmarks/bench_coverage.py prints its cost per validation).
 """
 
 from __future__ import annotations
@@ -46,7 +50,7 @@ def _method_cpu(rec, specs, names: list[str], runs: int) -> dict[str, float]:
         for _ in range(runs):
             wanted = ["transmission", name] if name == "torque_converter" else [name]
             c0 = time.process_time()
-            identify_all(rec, specs, methods=wanted)
+            identify_all(rec, specs, methods=wanted, type_b=False)
             cpu.append(time.process_time() - c0)
         out[name] = statistics.median(cpu)
     if "torque_converter" in out and "transmission" in out:
@@ -105,7 +109,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--setups", default="ideal,paper")
+    ap.add_argument("--type-b", action="store_true", help="include the type B propagation in the timing")
     args = ap.parse_args()
+    tb = args.type_b
     vehicle = load_vehicle(scenario_path("vehicles", "p2_phev_9at.toml"))
     campaign = load_campaign(scenario_path("campaigns", "paper.toml"))
     t0 = time.perf_counter()
@@ -119,7 +125,8 @@ def main() -> None:
         f"- campaign paper.toml: {trace.time_s[-1] / 3600:.2f} h simulated, {len(trace.segments)} tests "
         f"(simulation {t_sim:.1f} s, not part of the timing)",
         f"- timing: median of {args.runs} runs of identify_all after one warm-up run; BLAS threads: "
-        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}",
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; type B propagation "
+        f"{'included' if tb else 'off'}",
         "",
         "| setup | samples in Recording | channels | identify_all wall median (s) | min..max (s) | CPU median (s) "
         "| part B wall (s) | vs goal 2 s | vs CO2MPAS 29 s | load average before/after |",
@@ -130,13 +137,13 @@ def main() -> None:
         setup = load_setup(scenario_path("setups", f"{name}.toml"))
         rec = run_batch(trace, setup)
         n_samples = sum(len(c) for c in rec.channels.values())
-        identify_all(rec, vehicle.specs)  # warm-up
+        identify_all(rec, vehicle.specs, type_b=tb)  # warm-up
         times, cpus, per = [], [], {}
         res = None
         load0 = os.getloadavg()[0]
         for _ in range(args.runs):
             t1, c1 = time.perf_counter(), time.process_time()
-            res = identify_all(rec, vehicle.specs)
+            res = identify_all(rec, vehicle.specs, type_b=tb)
             times.append(time.perf_counter() - t1)
             cpus.append(time.process_time() - c1)
             for m, s in res.meta["seconds"].items():

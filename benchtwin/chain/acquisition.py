@@ -42,7 +42,7 @@ from benchtwin.sensors.base import Device, FrameDecoder
 from benchtwin.wire.frames import FrameTable, PollLog, TransportEvent
 from benchtwin.wire.quality import FLAG, DecodeSink, FrameStream
 
-__all__ = ["AcquisitionInput", "acquire", "detect_lag"]
+__all__ = ["AcquisitionInput", "acquire", "declared_uncertainty", "detect_lag"]
 
 log = logging.getLogger(__name__)
 
@@ -188,6 +188,45 @@ def _bus_load(table: FrameTable) -> float:
     return bits / (table.bitrate * span)
 
 
+def declared_uncertainty(devs: list[Device], roles: set[str]) -> dict[str, dict[str, float]]:
+    """The systematic errors the setup declares for each decoded role, for the identification's type B budget.
+
+    Each declared error is read as the half-width of a rectangular distribution (a data sheet's
+    "+-0.25 % FS"): the value the setup injects is the size of the error the bench may have, not its sign.
+
+    Returns
+    -------
+    dict
+        Role -> ``{"gain_frac": a_g, "offset": a_o, "resolution": q[, "group": device]}``: half-widths of
+        the relative gain error and of the offset (role's unit), and the step of the role's representation
+        (the wire's scaling or the converter step, e.g. the 12-bit AD module at the telemetry's K_TEL, or a
+        declared extra quantisation, whichever is coarser). ``group`` names the device when one declared
+        error table applies to several of its roles (the five pressure transducers): the emulator gives
+        them the same gain and offset, so they are fully correlated. Roles with nothing declared are left
+        out. The noise is not listed: it is random and the fits' scatter carries it.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for d in devs:
+        steps = {role: tc.resolution for role, tc in d.truth_channels().items()}
+        budget = d.error_budget()
+        shared: dict[int, list[str]] = {}
+        for role, (err, _link, _extra) in budget.items():
+            if err is not None and role in roles:
+                shared.setdefault(id(err), []).append(role)
+        for role in sorted(set(steps) | set(budget)):
+            if role not in roles:
+                continue
+            err = budget.get(role, (None, None, 0.0))[0]
+            gain = abs(err.gain_error_frac) if err is not None else 0.0
+            offset = abs(err.offset) if err is not None else 0.0
+            step = max(float(steps.get(role, 0.0)), err.quantisation_step if err is not None else 0.0)
+            if gain > 0 or offset > 0 or step > 0:
+                out[role] = {"gain_frac": float(gain), "offset": float(offset), "resolution": float(step)}
+                if err is not None and len(shared[id(err)]) > 1:
+                    out[role]["group"] = d.name
+    return out
+
+
 def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segment] | None = None,
             meta: dict[str, Any] | None = None, align: bool = True) -> Recording:
     """Decode everything received into a :class:`~benchtwin.recording.Recording`.
@@ -272,6 +311,7 @@ def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segmen
     m["transport_events"] = [{"time_s": e.time_s, "source": e.source, "kind": e.kind, "end_s": e.end_s,
                               "detail": e.detail} for e in data.events]
     m["bus_load"] = {bus: _bus_load(t) for bus, t in data.can.items()}
+    m["declared_uncertainty"] = declared_uncertainty(devs, set(rec.channels))
     rec.meta = m
     rec.start_time = data.start_time
     return rec

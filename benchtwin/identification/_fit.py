@@ -18,11 +18,14 @@ import numpy as np
 from scipy import optimize, stats
 
 from benchtwin.errors import CollinearError, FitFailedError, InsufficientDataError, NoExcitationError
+from benchtwin.identification._gum import Z95, coverage_factor, dof_of_interval
 
 __all__ = [
+    "Z95",
     "FitResult",
     "IdentificationResult",
     "ParameterEstimate",
+    "coverage_factor",
     "derived",
     "linear_fit",
     "nonlinear_fit",
@@ -53,6 +56,18 @@ class ParameterEstimate:
         Names of the segments the points came from (empty when none were known).
     status:
         ``"ok"`` or ``"flagged"``; ``reason`` says why when flagged.
+    u_type_b:
+        Standard uncertainty from the systematic errors the setup declares (GUM type B), propagated
+        through the fit (:mod:`benchtwin.identification.uncertainty`); 0 when none are declared.
+    u_total:
+        Combined standard uncertainty ``sqrt(std_error^2 + u_type_b^2)``.
+    ci95_total:
+        95 % interval of the combined uncertainty, ``value +- k u_total`` with ``k`` the Student-t
+        quantile at the Welch-Satterthwaite effective degrees of freedom (equal to ``ci95`` when
+        ``u_type_b`` is 0).
+    type_b:
+        The type B budget: source (``shaft_torque_nm.gain``, ``em_torque_nm.offset`` ...) -> its
+        contribution to the parameter's standard uncertainty, in the parameter's unit.
     """
 
     name: str
@@ -65,11 +80,52 @@ class ParameterEstimate:
     segments: list[str] = field(default_factory=list)
     status: str = "ok"
     reason: str = ""
+    u_type_b: float = 0.0
+    u_total: float = float("nan")
+    ci95_total: tuple[float, float] | None = None
+    type_b: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.ci95_total is None:
+            self.ci95_total = (float(self.ci95[0]), float(self.ci95[1]))
+        if not math.isfinite(self.u_total) and self.u_type_b == 0.0:
+            self.u_total = self.std_error
+
+    def combine_type_b(self, contributions: dict[str, float], dof: dict[str, float] | None = None) -> None:
+        """Combine the type B contributions with the statistical uncertainty (GUM, JCGM 100 sections 5 and G).
+
+        The statistical degrees of freedom are read back from ``ci95`` (its half-width is ``t(nu_A)``
+        standard errors); type B components count as exactly known (infinite degrees of freedom) unless
+        ``dof`` says otherwise (a component estimated from a few Monte Carlo draws), and the coverage factor
+        is ``k = t_0.975(nu_eff)`` at the Welch-Satterthwaite effective degrees of freedom.
+
+        Parameters
+        ----------
+        contributions:
+            Source -> standard uncertainty of the parameter from that source (sign ignored).
+        dof:
+            Source -> degrees of freedom of that contribution (missing: infinite).
+        """
+        self.type_b = {k: abs(float(v)) for k, v in contributions.items() if math.isfinite(v)}
+        u_b = math.sqrt(sum(v * v for v in self.type_b.values()))
+        self.u_type_b = u_b
+        se = self.std_error
+        if not math.isfinite(se):
+            self.u_total = float("nan")
+            self.ci95_total = (float("nan"), float("nan"))
+            return
+        self.u_total = math.sqrt(se * se + u_b * u_b)
+        dof = dof or {}
+        terms = [(se, dof_of_interval(self.ci95, se))] + [(v, dof.get(k, math.inf)) for k, v in self.type_b.items()]
+        k = coverage_factor(self.u_total, terms)
+        self.ci95_total = (self.value - k * self.u_total, self.value + k * self.u_total)
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict."""
         d = asdict(self)
         d["ci95"] = list(self.ci95)
+        d["ci95_total"] = list(self.ci95_total) if self.ci95_total is not None else None
+        d["type_b"] = {k: v for k, v in self.type_b.items() if math.isfinite(v)}
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 

@@ -81,6 +81,34 @@ def _kv_table(title: str, d: dict[str, Any], fmt: str = ".4g") -> str:
     return f"<table><tr><th colspan=2>{_e(title)}</th></tr>{rows}</table>"
 
 
+def _interval_section(report: ValidationReport) -> str:
+    """Each scalar parameter's statistical and total 95 % interval against the truth (GUM type A and B)."""
+    rows = report.coverage
+    if not rows:
+        return ""
+    tb = (report.identification.meta.get("type_b", {}) if report.identification is not None else {})
+    note = ("The statistical interval carries the fit's scatter only (type A); the total one adds the systematic "
+            "errors the setup declares (gain, offset, resolution: type B), propagated through each fit.")
+    if not tb.get("declared"):
+        note += " " + str(tb.get("note", "No systematic uncertainties were declared: total = statistical."))
+    n = len(rows)
+    k_s, k_t = sum(r["inside_stat"] for r in rows), sum(r["inside_total"] for r in rows)
+    out = [f"<h2>95 % intervals against the truth</h2><p>{_e(note)} Truth inside: statistical {k_s}/{n}, "
+           f"total {k_t}/{n}.</p>",
+           "<table><tr><th>parameter</th><th>identified</th><th>truth</th><th>u stat</th><th>u total</th>"
+           "<th>95 % statistical</th><th>95 % total</th><th>truth inside (stat / total)</th></tr>"]
+    for r in rows:
+        def ci(c: Any) -> str:
+            return f"[{_num(c[0])}, {_num(c[1])}]" if c is not None else "-"
+        inside = f"{'yes' if r['inside_stat'] else 'no'} / {'yes' if r['inside_total'] else 'no'}"
+        out.append(f"<tr><td>{_e(r['key'])}</td><td class=n>{_num(r['value'])}</td><td class=n>{_num(r['truth'])}</td>"
+                   f"<td class=n>{_num(r['u_stat'], '.3g')}</td><td class=n>{_num(r['u_total'], '.3g')}</td>"
+                   f"<td class=n>{_e(ci(r.get('ci95')))}</td><td class=n>{_e(ci(r.get('ci95_total')))}</td>"
+                   f"<td>{_e(inside)}</td></tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
 def _prediction_section(pred: dict[str, Any]) -> str:
     out = ["<h2>Prediction of held-out drives (map-based model)</h2>"]
     drives = pred.get("drives", [])
@@ -174,6 +202,7 @@ def render_html(report: ValidationReport, specs: VehicleSpecs | None = None, *, 
     if report.prediction:
         parts.append(_prediction_section(report.prediction))
     parts.append("<h2>All checks</h2>" + _checks_table(report.checks))
+    parts.append(_interval_section(report))
     ch = report.chain
     parts.append("<h2>Acquisition chain</h2>")
     parts.append(f"<p>plant time {_num(ch.get('plant_seconds'), '.1f')} s</p>")

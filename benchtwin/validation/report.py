@@ -8,7 +8,7 @@ from typing import Any
 
 from benchtwin.identification._fit import IdentificationResult
 
-__all__ = ["Check", "ValidationReport"]
+__all__ = ["Check", "ValidationReport", "by_family"]
 
 
 @dataclass
@@ -78,6 +78,9 @@ class ValidationReport:
     prediction:
         The map-based model's prediction of held-out drives (``drives``: predicted, measured, errors per drive;
         ``notes``; ``series``/``series_measured``: time series of the held-out cycle for the figures).
+    coverage:
+        Every scalar parameter with a truth: its statistical and total 95 % intervals and whether they hold
+        the truth (:func:`benchtwin.validation.coverage.interval_coverage`, as dicts).
     """
 
     checks: list[Check] = field(default_factory=list)
@@ -86,6 +89,7 @@ class ValidationReport:
     timings_s: dict[str, float] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
     prediction: dict[str, Any] = field(default_factory=dict)
+    coverage: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
@@ -107,6 +111,7 @@ class ValidationReport:
             "chain": self.chain,
             "checks": [c.to_dict() for c in self.checks],
             "prediction": {k: v for k, v in self.prediction.items() if not k.startswith("series")},
+            "interval_coverage": {"by_family": by_family(self.coverage), "parameters": self.coverage},
             "identification": self.identification.to_dict() if self.identification else None,
         }
 
@@ -133,6 +138,18 @@ class ValidationReport:
         n_fail = len(self.failures())
         out.append(f"{len(self.checks)} checks, {len(self.checks) - n_fail} passed, {n_fail} failed")
         return "\n".join(out)
+
+
+def by_family(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Coverage counts per family (and ``all``) of coverage rows (dicts with ``family``, ``inside_*``)."""
+    out: dict[str, dict[str, int]] = {}
+    for r in rows:
+        for fam in (r["family"], "all"):
+            d = out.setdefault(fam, {"n": 0, "inside_stat": 0, "inside_total": 0})
+            d["n"] += 1
+            d["inside_stat"] += int(r["inside_stat"])
+            d["inside_total"] += int(r["inside_total"])
+    return out
 
 
 def _fmt(x: float) -> str:

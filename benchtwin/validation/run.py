@@ -22,6 +22,7 @@ from benchtwin.identification.run import identify_all
 from benchtwin.recording import Flag
 from benchtwin.trace import Trace
 from benchtwin.validation.chain import chain_checks
+from benchtwin.validation.coverage import interval_coverage
 from benchtwin.validation.families import (
     family_checks,
     family_spans,
@@ -123,6 +124,7 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     params = compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup,
                                 paper_sets=paper_sets)
     report.checks += params if fams is None else family_checks(params, fams)
+    report.coverage = [r.to_dict() for r in interval_coverage(result, vehicle)]
     if fams is None:  # held-out drives need the whole campaign (a family run is a fast inner loop)
         t4 = time.perf_counter()
         report.checks += _prediction(report, vehicle, setup, campaign, trace, rec, prof)

@@ -1,0 +1,49 @@
+"""GUM helpers: the coverage factor of a combined uncertainty and the degrees of freedom of a Student-t interval."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+from scipy import optimize, stats
+
+__all__ = ["Z95", "coverage_factor", "dof_of_interval"]
+
+#: two-sided 95 % quantile of the normal distribution
+Z95 = float(stats.norm.ppf(0.975))
+
+
+def dof_of_interval(ci95: tuple[float, float], se: float) -> float:
+    """Degrees of freedom of a Student-t 95 % interval of half-width ``t(nu) se`` (inf when <= the normal one)."""
+    half = 0.5 * (float(ci95[1]) - float(ci95[0]))
+    if not (se > 0 and math.isfinite(half)):
+        return float("inf")
+    k = half / se
+    if k <= Z95 * (1.0 + 1e-9):
+        return float("inf")
+    if k >= float(stats.t.ppf(0.975, 1.0)):
+        return 1.0
+    return float(optimize.brentq(lambda nu: float(stats.t.ppf(0.975, nu)) - k, 1.0, 1e9))
+
+
+def coverage_factor(u_total: float, terms: Iterable[tuple[float, float]]) -> float:
+    """Coverage factor of a 95 % interval of a combined uncertainty (Welch-Satterthwaite, JCGM 100 G.4).
+
+    Parameters
+    ----------
+    u_total:
+        The combined standard uncertainty.
+    terms:
+        ``(u_i, nu_i)`` of every component: the statistical part with its degrees of freedom, type B
+        components with ``inf`` (exactly known) or the number of Monte Carlo draws that estimated them.
+
+    Returns
+    -------
+    float
+        ``t_0.975(nu_eff)`` with ``nu_eff = u_total^4 / sum(u_i^4 / nu_i)`` (1.96 when infinite).
+    """
+    den = sum(u**4 / nu for u, nu in terms if u > 0 and math.isfinite(nu) and nu > 0)
+    if not (den > 0) or not (u_total > 0):
+        return Z95
+    nu = u_total**4 / den
+    return Z95 if nu > 1e9 else float(stats.t.ppf(0.975, max(nu, 1.0)))

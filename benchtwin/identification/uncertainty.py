@@ -1,0 +1,226 @@
+"""GUM type B: the setup's declared systematic errors propagated into every identified parameter.
+
+A fit's standard error carries only the scatter of its points (type A). A sensor's gain error or offset,
+the same over the whole recording, does not scatter: it moves every point alike and the fit follows it.
+The acquisition writes what the setup declares for each role into ``Recording.meta
+["declared_uncertainty"]`` (:func:`benchtwin.chain.acquisition.declared_uncertainty`):
+
+=============  ==========================================  ====================================
+declared       read as                                     standard uncertainty (JCGM 100 4.3.7)
+=============  ==========================================  ====================================
+``gain_frac``  relative gain error, rectangular +-a         ``a / sqrt(3)`` (relative)
+``offset``     offset, rectangular +-a                      ``a / sqrt(3)``
+``resolution`` step q of the wire or converter, +-q/2       ``q / sqrt(12)`` (JCGM 100 F.2.2.1)
+=============  ==========================================  ====================================
+
+For each method and each gain or offset of each role the method reads, the method is run again on
+the Recording with that channel perturbed by one standard uncertainty (``x (1 + u_g)`` or ``x + u_o``);
+the change of every parameter is its sensitivity times ``u``, i.e. its contribution (JCGM 100 5.1.3,
+with the sensitivity by a finite difference, which also follows the fits' point selection, outlier
+rejection and derived parameters). An error one declaration gives to several roles (``group``) moves
+them together (correlation 1). The rounding to each role's step is not one offset: a steady point
+holds one rounding error, the next point another, and a fit's intercept weighs them with signs. It is
+propagated by a few Monte Carlo draws of independent rounding errors per level (:func:`dithered`,
+JCGM 101), the RMS change of the parameter being its contribution, with as many degrees of freedom as
+draws. Contributions are combined in quadrature with the standard error
+(:meth:`~benchtwin.identification._fit.ParameterEstimate.combine_type_b`), the coverage factor from the
+Welch-Satterthwaite effective degrees of freedom.
+
+A Recording without a declared budget (a real log) gets no type B term: its total interval is the
+statistical one, and ``meta["type_b"]`` says so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from benchtwin.identification._fit import IdentificationResult
+from benchtwin.recording import Recording
+
+__all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
+
+#: meta key the acquisition writes the declared budget under
+META_KEY = "declared_uncertainty"
+#: Monte Carlo draws of the rounding errors (their estimate of u carries this many degrees of freedom)
+RESOLUTION_DRAWS = 6
+#: width of the level intervals sharing one rounding error, in steps: a reading whose noise flickers it by
+#: one step about a steady level keeps one error (its rounding is not dithered by that flicker)
+BIN_STEPS = 2.0
+#: seed of those draws: the same Recording gives the same report
+RESOLUTION_SEED = 20260
+
+
+@dataclass(frozen=True)
+class Component:
+    """One type B component: the roles it moves together, its kind and its standard uncertainty.
+
+    Attributes
+    ----------
+    source:
+        Key of the parameters' budget: ``<role>.<kind>``, or ``<group>.<kind>`` for an error shared by
+        several roles.
+    roles:
+        The channels moved together (several for a shared, fully correlated error).
+    kind:
+        ``gain`` (relative, the channel is scaled by ``1 + u``), ``offset`` (``+ u``) or ``resolution``
+        (Monte Carlo, see :func:`dithered`).
+    u:
+        Standard uncertainty (gain, offset).
+    steps:
+        Resolution: the step of each role.
+    """
+
+    source: str
+    roles: tuple[str, ...]
+    kind: str
+    u: float
+    steps: tuple[float, ...] = ()
+
+
+def components(recording: Recording, roles: Iterable[str]) -> list[Component]:
+    """The type B components of ``roles`` that the Recording declares (see the module docstring).
+
+    A gain and an offset are a component each. An error a group of roles shares (``group`` in the
+    declaration) is one component moving every role of the group the Recording holds (correlation 1,
+    JCGM 100 5.2). The resolutions of all roles are one Monte Carlo component (:func:`dithered`).
+
+    Parameters
+    ----------
+    recording:
+        The Recording; its ``meta["declared_uncertainty"]`` is read.
+    roles:
+        Roles of interest (those absent from the Recording are skipped).
+    """
+    table: Mapping[str, Mapping[str, Any]] = recording.meta.get(META_KEY) or {}
+    out: dict[str, Component] = {}
+    steps: dict[str, float] = {}
+    for role in roles:
+        d = table.get(role)
+        if d is None or role not in recording:
+            continue
+        gain = float(d.get("gain_frac", 0.0) or 0.0)
+        offset = float(d.get("offset", 0.0) or 0.0)
+        step = float(d.get("resolution", 0.0) or 0.0)
+        group = d.get("group")
+        if group:
+            members = tuple(r for r, e in table.items() if e.get("group") == group and r in recording)
+            if gain > 0:
+                out.setdefault(f"{group}.gain", Component(f"{group}.gain", members, "gain", gain / math.sqrt(3.0)))
+            if offset > 0:
+                out.setdefault(f"{group}.offset",
+                               Component(f"{group}.offset", members, "offset", offset / math.sqrt(3.0)))
+        else:
+            if gain > 0:
+                out[f"{role}.gain"] = Component(f"{role}.gain", (role,), "gain", gain / math.sqrt(3.0))
+            if offset > 0:
+                out[f"{role}.offset"] = Component(f"{role}.offset", (role,), "offset", offset / math.sqrt(3.0))
+        if step > 0:
+            steps[role] = step
+    comps = list(out.values())
+    if steps:
+        comps.append(Component("resolution", tuple(steps), "resolution", 0.0, tuple(steps.values())))
+    return comps
+
+
+def dithered(recording: Recording, comp: Component, rng: np.random.Generator) -> Recording:
+    """One Monte Carlo draw of the rounding errors of the component's roles (GUM Supplement 1, JCGM 101).
+
+    A reading rounded to a step ``q`` is off by an error uniform in ``+-q/2`` (JCGM 100 F.2.2.1) that is a
+    function of the level: a steady point holds one error, a point at another level another. Each draw
+    gives every interval of width ``BIN_STEPS q`` of the reading (on a grid of random phase) an independent
+    error ``U(-q/2, q/2)`` and adds to each sample the error of its interval: a steady point moves as a
+    whole (also when its noise flickers it by a step), points at other levels move independently, and a
+    channel whose noise spreads it over many steps averages its errors out, as the rounding does.
+    """
+    channels = dict(recording.channels)
+    for role, q in zip(comp.roles, comp.steps, strict=True):
+        ch = recording.channels[role]
+        v = ch.values
+        fin = np.isfinite(v)
+        if not fin.any() or not q > 0:
+            continue
+        lo = float(v[fin].min())
+        idx = np.zeros(v.shape, dtype=np.int64)
+        idx[fin] = np.floor((v[fin] - lo) / (BIN_STEPS * q) + rng.uniform(0.0, 1.0)).astype(np.int64)
+        errors = rng.uniform(-0.5 * q, 0.5 * q, int(idx.max()) + 1)
+        channels[role] = replace(ch, values=v + errors[idx])
+    return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
+                     start_time=recording.start_time)
+
+
+def perturbed(recording: Recording, comp: Component) -> Recording:
+    """A shallow copy of the Recording with the component's channels moved by one standard uncertainty."""
+    channels = dict(recording.channels)
+    for role in comp.roles:
+        ch = recording.channels[role]
+        values = ch.values * (1.0 + comp.u) if comp.kind == "gain" else ch.values + comp.u
+        channels[role] = replace(ch, values=values)
+    return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
+                     start_time=recording.start_time)
+
+
+def propagate_type_b(result: IdentificationResult, recording: Recording,
+                     plan: Iterable[tuple[Iterable[str], Iterable[str], Callable[[Recording], IdentificationResult]]],
+                     ) -> dict[str, Any]:
+    """Add the type B budget to every parameter of ``result`` (in place).
+
+    Parameters
+    ----------
+    result:
+        The nominal identification result.
+    recording:
+        The Recording it came from.
+    plan:
+        Per method: the names of the fits it produced, the roles it reads, and a function that runs it
+        (with whatever it depends on) on another Recording and returns its fits.
+
+    Returns
+    -------
+    dict
+        Summary for ``result.meta["type_b"]``: components propagated, re-runs, and why a parameter
+        has no type B term when the Recording declares none.
+    """
+    table = recording.meta.get(META_KEY)
+    if not table:
+        return {"declared": False, "note": "the recording declares no systematic uncertainties (e.g. a real log "
+                                           "without a budget): the total interval equals the statistical one"}
+    contrib: dict[str, dict[str, float]] = {}
+    dof: dict[str, dict[str, float]] = {}
+    reruns, failed = 0, []
+    for fits, roles, run in plan:
+        fits = sorted(fits)
+        nominal = {f"{fk}.{pk}": p for fk in fits if fk in result.fits for pk, p in result.fits[fk].params.items()}
+        if not nominal:
+            continue
+        for comp in components(recording, roles):
+            draws = RESOLUTION_DRAWS if comp.kind == "resolution" else 1
+            rng = np.random.default_rng(RESOLUTION_SEED)
+            deltas: dict[str, list[float]] = {}
+            for _ in range(draws):
+                reruns += 1
+                rec = dithered(recording, comp, rng) if comp.kind == "resolution" else perturbed(recording, comp)
+                try:
+                    other = run(rec).parameters()
+                except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
+                    failed.append(f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}")
+                    continue
+                for key, p in nominal.items():
+                    q = other.get(key)
+                    if q is not None and math.isfinite(q.value) and math.isfinite(p.value):
+                        deltas.setdefault(key, []).append(q.value - p.value)
+            for key, d in deltas.items():
+                contrib.setdefault(key, {})[comp.source] = float(np.sqrt(np.mean(np.square(d))))
+                if comp.kind == "resolution":
+                    dof.setdefault(key, {})[comp.source] = float(len(d))
+    for fk, fit in result.fits.items():
+        for pk, p in fit.params.items():
+            c = contrib.get(f"{fk}.{pk}")
+            if c:
+                p.combine_type_b(c, dof.get(f"{fk}.{pk}"))
+    return {"declared": True, "roles": sorted(table), "reruns": reruns, "resolution_draws": RESOLUTION_DRAWS,
+            "failed": failed}
