@@ -133,22 +133,26 @@ def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: Identifi
     cap = o.pop("capacity_ah", None)
     nodes = o.pop("soc_nodes_pct", None)
     min_rest_s = float(o.pop("min_rest_s", 600.0))
+    start = o.pop("start_soc_pct", None)
     if "displayed_soc_pct" not in rec and cap is None:
         nodes = None
     out = IdentificationResult()
     out.fits["battery_map_free"] = identify_battery_map_free(rec, n_cells=n_cells, capacity_ah=cap,
-                                                             soc_nodes_pct=nodes, **o)
+                                                             soc_nodes_pct=nodes, start_soc_pct=start, **o)
     try:
         out.fits["battery_r0"] = identify_battery_r0_steps(rec, n_cells=n_cells, capacity_ah=cap,
-                                                           soc_nodes_pct=nodes)
+                                                           soc_nodes_pct=nodes, start_soc_pct=start)
     except IdentificationError as exc:
         out.errors["battery_r0"] = f"{type(exc).__name__}: {exc}"
     if "displayed_soc_pct" in rec or cap is not None:
         try:
             out.fits["battery_ocv_rest"] = identify_battery_ocv_rest(rec, n_cells=n_cells, capacity_ah=cap,
-                                                                     min_rest_s=min_rest_s)
+                                                                     min_rest_s=min_rest_s, start_soc_pct=start)
         except IdentificationError as exc:
             out.errors["battery_ocv_rest"] = f"{type(exc).__name__}: {exc}"
+    ref = out.fits["battery_map_free"].data.get("soc_reference")
+    if ref is not None:
+        out.meta["soc_reference"] = ref
     return out
 
 
@@ -261,6 +265,8 @@ def _merge(result: IdentificationResult, name: str, out: Any) -> None:
         result.errors.update(out.errors)
         if out.meta:
             result.meta.setdefault("methods_meta", {})[name] = out.meta
+            if "soc_reference" in out.meta:
+                result.meta["soc_reference"] = out.meta["soc_reference"]
     elif isinstance(out, FitResult):
         result.fits[name] = out
     elif isinstance(out, Mapping):
