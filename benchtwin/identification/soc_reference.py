@@ -59,11 +59,13 @@ def charge_counted_ah(t_s: np.ndarray, current_a: np.ndarray) -> np.ndarray:
     return np.cumsum(dq)
 
 
-def _rest_voltage(t: np.ndarray, i: np.ndarray, v: np.ndarray, rest: np.ndarray, at_end: bool,
-                  min_rest_s: float) -> float:
-    """Mean voltage over the last 10 s of the first (or last) rest of at least ``min_rest_s``; NaN if none."""
+def _rest_voltage(t: np.ndarray, v: np.ndarray, rest: np.ndarray, at_end: bool, min_rest_s: float,
+                  bound: int) -> float:
+    """Mean voltage over the last 10 s of the first rest of at least ``min_rest_s`` ending by sample ``bound``
+    (or the last one starting from it, ``at_end``); NaN if none."""
     edges = np.flatnonzero(np.diff(np.r_[0, rest.astype(np.int8), 0]))
-    runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if t[b - 1] - t[a] >= min_rest_s]
+    runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if t[b - 1] - t[a] >= min_rest_s
+            and (a >= bound if at_end else b <= bound)]
     if not runs:
         return float("nan")
     a, b = runs[-1] if at_end else runs[0]
@@ -121,7 +123,9 @@ def reference_soc(t_s: np.ndarray, current_a: np.ndarray, capacity_ah: float, *,
     k_max, k_min = int(np.argmax(pct)), int(np.argmin(pct))
     taken = -float(pct[: k_max + 1].min()) if k_max > 0 else 0.0
     excess = float(pct[-1])  # net charge in over the log, % of capacity
-    ends_with_recharge = k_max > k_min and k_max >= pct.size - 1 - max(pct.size // 100, 1) and excess > min_excess_pct
+    # the highest count comes after the lowest and holds to the end (rests after the recharge are normal)
+    held = float(pct.max() - pct[-1]) <= 0.1 * min_excess_pct
+    ends_with_recharge = k_max > k_min and held and excess > min_excess_pct
     if not ends_with_recharge:
         where = "at the start" if k_max == 0 else f"at {t_s[k_max] - t_s[0]:.0f} s"
         return SocReference(by_max, "max_charge",
@@ -135,8 +139,12 @@ def reference_soc(t_s: np.ndarray, current_a: np.ndarray, capacity_ah: float, *,
     v = np.asarray(voltage_v, dtype=float)
     thr = rest_current_a if rest_current_a is not None else max(0.01 * float(np.nanmax(np.abs(i))), 0.05)
     rest = np.abs(np.nan_to_num(i, nan=np.inf)) <= thr
-    v_start = _rest_voltage(t_s, i, v, rest, False, min_rest_s)
-    v_end = _rest_voltage(t_s, i, v, rest, True, min_rest_s)
+    # a rest "at the start" comes before the count has moved by min_excess_pct, one "at the end" after it has
+    # settled within min_excess_pct of its final value
+    moved = np.flatnonzero(np.abs(pct) > min_excess_pct)
+    unsettled = np.flatnonzero(np.abs(pct - pct[-1]) > min_excess_pct)
+    v_start = _rest_voltage(t_s, v, rest, False, min_rest_s, int(moved[0]) + 1 if moved.size else pct.size)
+    v_end = _rest_voltage(t_s, v, rest, True, min_rest_s, int(unsettled[-1]) if unsettled.size else 0)
     if not (np.isfinite(v_start) and np.isfinite(v_end)):
         return SocReference(by_max, "max_charge", f"{head}; no rest of {min_rest_s:g} s at both ends to compare: "
                             "100 % at the end (ambiguous: if the log started full, every SOC is low by up to the "
