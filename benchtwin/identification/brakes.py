@@ -85,14 +85,16 @@ def fit_brake_gain(p_bar: np.ndarray, torque_nm: np.ndarray, axle: str, *, segme
 def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable[str] | None = ("neutral_braking",),
                          rate_hz: float = 20.0, intercept: bool = True, min_points: int = 4,
                          tolerances: dict[str, Tolerance] | None = None, window_s: float = 1.0,
-                         min_duration_s: float = 1.5, trim_s: float = 0.25) -> IdentificationResult:
+                         min_duration_s: float = 1.5, trim_s: float = 0.25,
+                         max_motor_torque_nm: float = 2.0) -> IdentificationResult:
     """Front and rear pressure-to-torque gains and the distribution k_f, k_r from neutral braking.
 
     Parameters
     ----------
     rec:
         The Recording: caliper pressures (at least one per axle), ``dyno_force_front_n``,
-        ``dyno_force_rear_n``, ``dyno_speed_kmh`` (``gear_actual`` used when present: neutral only).
+        ``dyno_force_rear_n``, ``dyno_speed_kmh`` (``gear_actual`` used when present: neutral only; without
+        it, ``em_torque_nm``: no motor torque).
     specs:
         ``wheel_radius_m``.
     kinds:
@@ -101,6 +103,9 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
         Fit the rolling-loss intercept.
     window_s, min_duration_s, trim_s:
         Steady-state detection (pressure steps are often held only a few seconds).
+    max_motor_torque_nm:
+        Without a gear signal (a BEV's one fixed ratio has no neutral), a window counts as neutral braking
+        when its mean motor torque is within this of zero (no regenerative share in the dyno force).
 
     Returns
     -------
@@ -113,12 +118,20 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
     forces = ["dyno_force_front_n", "dyno_force_rear_n"]
     tol = {"dyno_speed_kmh": Tolerance(0.5, 0.0, 0.5)}
     tol.update(tolerances or {})
+    no_gear = "gear_actual" not in rec and "em_torque_nm" in rec
     sw = find_steady_windows(rec, [*front, *rear, *forces, "dyno_speed_kmh"], states=("gear_actual",), kinds=kinds,
                              rate_hz=rate_hz, tolerances=tol, window_s=window_s, min_duration_s=min_duration_s,
-                             trim_s=trim_s)
+                             trim_s=trim_s, extra=("em_torque_nm",) if no_gear else ())
     keep = sw.means("dyno_speed_kmh") > 5.0
     if "gear_actual" in sw.grid:
         keep &= np.nan_to_num(sw.state("gear_actual"), nan=-1) == 0
+    elif no_gear and len(sw):
+        keep &= np.abs(np.nan_to_num(sw.raw_average(rec, "em_torque_nm"), nan=np.inf)) <= max_motor_torque_nm
+    if len(sw) and not any(seg.kind in set(kinds or ()) for seg in rec.segments):
+        # no neutral-braking segment to stay in: unbraked windows are coasting at any speed, whose rolling loss
+        # is not the one at the braking speed, so only braked windows count
+        p_all = np.mean([sw.raw_average(rec, c) for c in [*front, *rear]], axis=0)
+        keep &= np.nan_to_num(p_all, nan=0.0) > 0.5
     sw = sw.select(keep)
     r = specs.wheel_radius_m
     p_f = np.mean([sw.raw_average(rec, c) for c in front], axis=0) if len(sw) else np.array([])
