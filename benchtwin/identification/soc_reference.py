@@ -52,7 +52,13 @@ class SocReference:
 
 
 def charge_counted_ah(t_s: np.ndarray, current_a: np.ndarray) -> np.ndarray:
-    """Charge put into the pack since the first sample, Ah (current positive discharging; trapezoidal rule)."""
+    """Charge put into the pack since the first sample, Ah (trapezoidal rule).
+
+    Parameters
+    ----------
+    t_s, current_a:
+        Time (s) and current (A, positive discharging).
+    """
     t_s = np.asarray(t_s, dtype=float)
     i = np.nan_to_num(np.asarray(current_a, dtype=float))
     dq = np.r_[0.0, -0.5 * (i[1:] + i[:-1]) * np.diff(t_s)] / 3600.0
