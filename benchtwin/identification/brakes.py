@@ -128,10 +128,14 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
     elif no_gear and len(sw):
         keep &= np.abs(np.nan_to_num(sw.raw_average(rec, "em_torque_nm"), nan=np.inf)) <= max_motor_torque_nm
     if len(sw) and not any(seg.kind in set(kinds or ()) for seg in rec.segments):
-        # no neutral-braking segment to stay in: unbraked windows are coasting at any speed, whose rolling loss
-        # is not the one at the braking speed, so only braked windows count
-        p_all = np.mean([sw.raw_average(rec, c) for c in [*front, *rear]], axis=0)
-        keep &= np.nan_to_num(p_all, nan=0.0) > 0.5
+        # no neutral-braking segment to stay in: an unbraked window gives the rolling-loss intercept only at the
+        # speed of the braked ones (within 1 km/h); elsewhere its rolling loss is another one
+        p_all = np.nan_to_num(np.mean([sw.raw_average(rec, c) for c in [*front, *rear]], axis=0), nan=0.0)
+        v_all = sw.means("dyno_speed_kmh")
+        braked = keep & (p_all > 0.5)
+        if braked.any():
+            near = (v_all >= v_all[braked].min() - 1.0) & (v_all <= v_all[braked].max() + 1.0)
+            keep &= braked | near
     sw = sw.select(keep)
     r = specs.wheel_radius_m
     p_f = np.mean([sw.raw_average(rec, c) for c in front], axis=0) if len(sw) else np.array([])
