@@ -174,3 +174,18 @@ def test_a_conventional_log_identifies_transmission_engine_and_shifts(quick_idea
             np.testing.assert_allclose(f.value("c0_kmh") + f.value("c1_kmh_per_pct") * p,
                                        v0[g - 1] + s1[g - 1] * p, atol=1.0, err_msg=key)
     assert n_ok >= 8
+
+
+def test_contradictory_specs_are_a_one_line_error(tmp_path, capsys):
+    log = tmp_path / "log.csv"
+    log.write_text("time_s,volts,amps\n0,350,1\n1,349,2\n2,348,3\n", encoding="utf-8")
+    smap = tmp_path / "map.toml"
+    smap.write_text('[source]\ntime_column = "time_s"\n[channels.battery_voltage_v]\ncolumn = "volts"\n'
+                    '[channels.battery_current_a]\ncolumn = "amps"\n'
+                    '[specs]\nlayout = "conventional"\ngear_ratios = [3.0, 1.0]\nfinal_drive_ratio = 3.2\n'
+                    "wheel_radius_m = 0.31\ntest_mass_kg = 1500\nengine_displacement_m3 = 1.6e-3\n"
+                    "n_cells_series = 96\n", encoding="utf-8")
+    assert main(["identify", str(log), "--signal-map", str(smap), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "layout 'conventional' has no use for key(s) n_cells_series" in err
