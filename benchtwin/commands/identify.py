@@ -39,6 +39,9 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     p.add_argument("--option", "-O", action="append", default=[], metavar="METHOD.KEY=VALUE",
                    help="a method's keyword option, value as a TOML literal, e.g. "
                         "torque_converter.max_pump_accel_rpm_s=300 or shifts.min_events=4 (repeatable)")
+    p.add_argument("--start-soc", type=float, default=None, metavar="PCT",
+                   help="SOC at the log's first sample, %% (anchors the coulomb count of a log without an SOC "
+                        "channel; default: chosen from the data by a stated rule, reported in params.json)")
     p.add_argument("--no-figures", action="store_true", help="write params.json only")
     p.set_defaults(func=run)
     return p
@@ -142,6 +145,9 @@ def _summary(result: Any) -> list[str]:
         lines.append(f"  {key:<34} error    {msg}")
     for key, why in result.meta.get("skipped", {}).items():
         lines.append(f"  {key:<34} skipped  {why}")
+    ref = result.meta.get("soc_reference")
+    if ref:
+        lines.append(f"  SOC reference: {ref['rule']}: {ref['note']}")
     return lines
 
 
@@ -164,7 +170,8 @@ def run(args: argparse.Namespace) -> int:
         if smap.battery is not None:
             b = smap.battery
             hints = {"capacity_ah": b.capacity_ah, "soc_nodes_pct": b.soc_nodes_pct,
-                     "min_abs_current_a": b.min_abs_current_a, "min_rest_s": b.min_rest_s}
+                     "min_abs_current_a": b.min_abs_current_a, "min_rest_s": b.min_rest_s,
+                     "start_soc_pct": b.start_soc_pct}
             options["battery_map_free"] = {**hints, **options.get("battery_map_free", {})}
     else:
         if args.recording.suffix.lower() not in (".mf4", ".mdf"):
@@ -173,6 +180,10 @@ def run(args: argparse.Namespace) -> int:
         rec = Recording.load(args.recording)
     if args.specs is not None:
         specs = _load_specs(args.specs)
+    if args.start_soc is not None:
+        if not 0.0 <= args.start_soc <= 100.0:
+            raise ConfigError(f"--start-soc {args.start_soc:g}: a SOC within 0..100 %")
+        options.setdefault("battery_map_free", {})["start_soc_pct"] = args.start_soc
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     result = identify_all(rec, specs, methods=methods, options=options)
     result.meta["recording"] = str(args.recording)

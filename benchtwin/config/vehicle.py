@@ -285,19 +285,22 @@ class VehicleConfig(StrictModel):
 
     @model_validator(mode="after")
     def _per_gear_lengths(self) -> VehicleConfig:
-        n = len(self.specs.gear_ratios)
+        if self.specs.layout != "p2_phev":
+            raise ValueError(f"specs.layout = {self.specs.layout!r}: the emulator's plant is a P2 PHEV "
+                             "(layout = \"p2_phev\")")
+        n = len(self.specs.gear_ratios or ())
         if len(self.transmission.eta_m) != n or len(self.transmission.c0_nm) != n:
             raise ValueError(f"transmission.eta_m and transmission.c0_nm need one value per gear ({n})")
         if len(self.shift_schedule.up_v0_kmh) != n - 1:
             raise ValueError(f"shift_schedule lists need one value per gear pair ({n - 1})")
-        if self.specs.test_mass_kg <= 0:
+        if self.specs.test_mass_kg is None or self.specs.test_mass_kg <= 0:
             raise ValueError("specs.test_mass_kg must be > 0")
         return self
 
     @property
     def n_gears(self) -> int:
         """Number of forward gears."""
-        return len(self.specs.gear_ratios)
+        return len(self.specs.gear_ratios or ())
 
 
 def load_vehicle(path: str | Path | None = None) -> VehicleConfig:

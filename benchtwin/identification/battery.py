@@ -40,6 +40,7 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError, MissingChannelError, NoExcitationError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit, serial_inflation
 from benchtwin.identification._signals import native_rate, segment_mask, strict_resample
+from benchtwin.identification.soc_reference import SocReference, reference_soc
 from benchtwin.recording import Recording
 
 __all__ = [
@@ -395,6 +396,7 @@ def identify_battery_map_free(
     rate_hz: float | None = None,
     min_node_points: int = 10,
     segment_kinds: tuple[str, ...] | None = None,
+    start_soc_pct: float | None = None,
 ) -> FitResult:
     """Identify OCV(SOC), R_dch(SOC) and R_ch(SOC) directly, without literature maps.
 
@@ -413,8 +415,11 @@ def identify_battery_map_free(
     soc_nodes_pct:
         SOC nodes; default one node (constant OCV and R).
     capacity_ah:
-        When the log has no ``displayed_soc_pct``, SOC is coulomb-counted with this capacity
-        (:func:`coulomb_soc`, 100 % at the maximum charge content of the log).
+        When the log has no ``displayed_soc_pct``, SOC is coulomb-counted with this capacity, anchored by
+        the rules of :func:`benchtwin.identification.soc_reference.reference_soc` (the rule used is in
+        ``data['soc_reference']``).
+    start_soc_pct:
+        Declared SOC at the first sample (anchors the coulomb count instead of the data's rule).
     min_abs_current_a:
         Samples with ``0 < |I| <`` this are left out (near-zero current carries relaxation
         voltage, not OCV, on a dynamic trace); rest samples with ``I == 0`` exactly are kept.
@@ -439,10 +444,11 @@ def identify_battery_map_free(
     has_soc = "displayed_soc_pct" in rec
     d, use, segs, n_bad = battery_samples(rec, soc=has_soc, rate_hz=rate_hz, kinds=segment_kinds)
     t, i, v = d["t"], d["battery_current_a"], d["battery_voltage_v"]
-    if has_soc:
-        s = d["displayed_soc_pct"]
-    elif capacity_ah is not None:
-        s = coulomb_soc(t, i, capacity_ah)
+    ref: SocReference | None = None
+    if has_soc or capacity_ah is not None:
+        ref = reference_soc(t, i, capacity_ah or 1.0, voltage_v=v, start_soc_pct=start_soc_pct,
+                            soc_channel_pct=d["displayed_soc_pct"] if has_soc else None)
+        s = ref.soc_pct
     else:
         s = np.full(t.shape, 50.0)
     nodes = np.array([50.0] if soc_nodes_pct is None else soc_nodes_pct, dtype=float)
@@ -496,7 +502,17 @@ def identify_battery_map_free(
     fit.data.update({"soc_nodes": nodes, "ocv_nodes": out["ocv"], "r_dch_nodes": out["r_dch"],
                      "r_ch_nodes": out["r_ch"], "t": t, "v_meas": v * n_cells,
                      "v_model": fit.data["y_fit"] * n_cells, "current": i, "soc": s})
+    _note_soc_reference(fit, ref, nodes.size > 1)
     return fit
+
+
+def _note_soc_reference(fit: FitResult, ref: SocReference | None, soc_used: bool) -> None:
+    """Record how SOC was anchored (``data['soc_reference']``; a reason when the SOC axis is used)."""
+    if ref is None:
+        return
+    fit.data["soc_reference"] = {"rule": ref.rule, "note": ref.note, "ambiguous": ref.ambiguous}
+    if soc_used:
+        fit.reasons.append(f"SOC reference ({ref.rule}): {ref.note}")
 
 
 def identify_battery_r0_steps(
@@ -508,6 +524,7 @@ def identify_battery_r0_steps(
     capacity_ah: float | None = None,
     soc_nodes_pct: np.ndarray | list[float] | None = None,
     min_steps: int = 3,
+    start_soc_pct: float | None = None,
 ) -> FitResult:
     """Ohmic resistance R0 from current steps (HPPC pulse edges): ``dV = -R0 dI`` across one sample.
 
@@ -526,6 +543,8 @@ def identify_battery_r0_steps(
     soc_nodes_pct, capacity_ah:
         When given (with an SOC channel or a capacity for coulomb counting), R0 is also reported
         per SOC bin centred on the nodes (``r0_ohm_soc050``...).
+    start_soc_pct:
+        Declared SOC at the first sample (anchors the coulomb count).
     min_steps:
         Minimum number of steps (per bin).
 
@@ -556,10 +575,12 @@ def identify_battery_r0_steps(
     dV = (v[k] - v[k - 1]) / n_cells
     fit = linear_fit(-dI[:, None], dV, ["r0_ohm"], units=["ohm"], min_points=min_steps, what="battery R0 steps")
     soc = None
+    ref = None
     if "displayed_soc_pct" in rec:
         soc = rec["displayed_soc_pct"].at(t[k], hold=True)
     elif capacity_ah is not None:
-        soc = coulomb_soc(t, i, capacity_ah)[k]
+        ref = reference_soc(t, i, capacity_ah, voltage_v=v, start_soc_pct=start_soc_pct)
+        soc = ref.soc_pct[k]
     if soc is not None and soc_nodes_pct is not None:
         nodes = np.asarray(soc_nodes_pct, dtype=float)
         edges = np.r_[-np.inf, 0.5 * (nodes[1:] + nodes[:-1]), np.inf]
@@ -575,6 +596,7 @@ def identify_battery_r0_steps(
             r_nodes[j] = p.value
         fit.data.update({"soc_nodes": nodes, "r0_nodes": r_nodes})
     fit.data.update({"di": dI, "dv": dV, "soc": soc if soc is not None else np.full(k.size, np.nan)})
+    _note_soc_reference(fit, ref, soc_nodes_pct is not None)
     return fit
 
 
@@ -586,6 +608,7 @@ def identify_battery_ocv_rest(
     min_rest_s: float = 600.0,
     rest_current_a: float = 0.05,
     average_s: float = 10.0,
+    start_soc_pct: float | None = None,
 ) -> FitResult:
     """OCV(SOC) from the ends of long rests (the HPPC definition of OCV).
 
@@ -601,6 +624,8 @@ def identify_battery_ocv_rest(
         Divide the voltage by this (1: pack values).
     capacity_ah, min_rest_s, rest_current_a, average_s:
         As above.
+    start_soc_pct:
+        Declared SOC at the first sample (anchors the coulomb count).
 
     Returns
     -------
@@ -619,10 +644,12 @@ def identify_battery_ocv_rest(
     ci, cv = rec["battery_current_a"], rec["battery_voltage_v"]
     t, i = ci.timestamps, ci.values
     v = cv.values if np.array_equal(cv.timestamps, t) else cv.at(t)
+    ref = None
     if "displayed_soc_pct" in rec:
         soc = rec["displayed_soc_pct"].at(t, hold=True)
     elif capacity_ah is not None:
-        soc = coulomb_soc(t, i, capacity_ah)
+        ref = reference_soc(t, i, capacity_ah, voltage_v=v, start_soc_pct=start_soc_pct)
+        soc = ref.soc_pct
     else:
         raise MissingChannelError("OCV from rests needs displayed_soc_pct or capacity_ah for coulomb counting")
     rest = (np.abs(i) <= rest_current_a) & ci.good & np.isfinite(v)
@@ -647,4 +674,5 @@ def identify_battery_ocv_rest(
         params[name] = ParameterEstimate(name, o_, se, (o_ - 2 * se, o_ + 2 * se), float("nan"), n, "V")
     fit = FitResult(params, float("nan"), float("nan"), float("nan"), sum(p[3] for p in points),
                     data={"soc": s_arr, "ocv": o_arr})
+    _note_soc_reference(fit, ref, True)
     return fit

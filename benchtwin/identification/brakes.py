@@ -85,7 +85,8 @@ def fit_brake_gain(p_bar: np.ndarray, torque_nm: np.ndarray, axle: str, *, segme
 
 def brake_gain_windows(rec: Recording, *, kinds: Iterable[str] | None = ("neutral_braking",), rate_hz: float = 20.0,
                        tolerances: dict[str, Tolerance] | None = None, window_s: float = 1.0,
-                       min_duration_s: float = 1.5, trim_s: float = 0.25) -> tuple[SteadyWindows, list[str], list[str]]:
+                       min_duration_s: float = 1.5, trim_s: float = 0.25,
+                       max_motor_torque_nm: float = 2.0) -> tuple[SteadyWindows, list[str], list[str]]:
     """The steady neutral-braking windows the gains are fitted on, and the front and rear pressure channels.
 
     Windows with the rollers turning (> 5 km/h) and, when the gear is recorded, in neutral. Shared by
@@ -96,26 +97,40 @@ def brake_gain_windows(rec: Recording, *, kinds: Iterable[str] | None = ("neutra
     forces = ["dyno_force_front_n", "dyno_force_rear_n"]
     tol = {"dyno_speed_kmh": Tolerance(0.5, 0.0, 0.5)}
     tol.update(tolerances or {})
+    no_gear = "gear_actual" not in rec and "em_torque_nm" in rec
     sw = find_steady_windows(rec, [*front, *rear, *forces, "dyno_speed_kmh"], states=("gear_actual",), kinds=kinds,
                              rate_hz=rate_hz, tolerances=tol, window_s=window_s, min_duration_s=min_duration_s,
-                             trim_s=trim_s)
+                             trim_s=trim_s, extra=("em_torque_nm",) if no_gear else ())
     keep = sw.means("dyno_speed_kmh") > 5.0
     if "gear_actual" in sw.grid:
         keep &= np.nan_to_num(sw.state("gear_actual"), nan=-1) == 0
+    elif no_gear and len(sw):
+        keep &= np.abs(np.nan_to_num(sw.raw_average(rec, "em_torque_nm"), nan=np.inf)) <= max_motor_torque_nm
+    if len(sw) and not any(seg.kind in set(kinds or ()) for seg in rec.segments):
+        # no neutral-braking segment to stay in: an unbraked window gives the rolling-loss intercept only at the
+        # speed of the braked ones (within 1 km/h); elsewhere its rolling loss is another one
+        p_all = np.nan_to_num(np.mean([sw.raw_average(rec, c) for c in [*front, *rear]], axis=0), nan=0.0)
+        v_all = sw.means("dyno_speed_kmh")
+        braked = keep & (p_all > 0.5)
+        if braked.any():
+            near = (v_all >= v_all[braked].min() - 1.0) & (v_all <= v_all[braked].max() + 1.0)
+            keep &= braked | near
     return sw.select(keep), front, rear
 
 
 def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable[str] | None = ("neutral_braking",),
                          rate_hz: float = 20.0, intercept: bool = True, min_points: int = 4,
                          tolerances: dict[str, Tolerance] | None = None, window_s: float = 1.0,
-                         min_duration_s: float = 1.5, trim_s: float = 0.25) -> IdentificationResult:
+                         min_duration_s: float = 1.5, trim_s: float = 0.25,
+                         max_motor_torque_nm: float = 2.0) -> IdentificationResult:
     """Front and rear pressure-to-torque gains and the distribution k_f, k_r from neutral braking.
 
     Parameters
     ----------
     rec:
         The Recording: caliper pressures (at least one per axle), ``dyno_force_front_n``,
-        ``dyno_force_rear_n``, ``dyno_speed_kmh`` (``gear_actual`` used when present: neutral only).
+        ``dyno_force_rear_n``, ``dyno_speed_kmh`` (``gear_actual`` used when present: neutral only; without
+        it, ``em_torque_nm``: no motor torque).
     specs:
         ``wheel_radius_m``.
     kinds:
@@ -124,6 +139,9 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
         Fit the rolling-loss intercept.
     window_s, min_duration_s, trim_s:
         Steady-state detection (pressure steps are often held only a few seconds).
+    max_motor_torque_nm:
+        Without a gear signal (a BEV's one fixed ratio has no neutral), a window counts as neutral braking
+        when its mean motor torque is within this of zero (no regenerative share in the dyno force).
 
     Returns
     -------
@@ -132,7 +150,8 @@ def identify_brake_gains(rec: Recording, specs: VehicleSpecs, *, kinds: Iterable
         ``brakes.distribution`` (``k_f``, ``k_r``).
     """
     sw, front, rear = brake_gain_windows(rec, kinds=kinds, rate_hz=rate_hz, tolerances=tolerances, window_s=window_s,
-                                         min_duration_s=min_duration_s, trim_s=trim_s)
+                                         min_duration_s=min_duration_s, trim_s=trim_s,
+                                         max_motor_torque_nm=max_motor_torque_nm)
     r = specs.wheel_radius_m
     p_f = np.mean([sw.raw_average(rec, c) for c in front], axis=0) if len(sw) else np.array([])
     p_r = np.mean([sw.raw_average(rec, c) for c in rear], axis=0) if len(sw) else np.array([])

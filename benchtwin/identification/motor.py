@@ -32,11 +32,19 @@ from benchtwin.identification._signals import check_spread, raise_all_failed
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
-__all__ = ["MotorPoints", "efficiency_map", "fit_willans_generating", "fit_willans_motoring", "identify_motor",
-           "motor_points", "side_points"]
+__all__ = ["MotorPoints", "dc_input_roles", "efficiency_map", "fit_willans_generating", "fit_willans_motoring",
+           "identify_motor", "motor_points", "side_points"]
 
 RPM = 2.0 * math.pi / 60.0
 _LV = ("dcdc_lv_current_a", "dcdc_lv_voltage_v")
+_HPCU = ("hpcu_current_a", "hpcu_voltage_v")
+#: without an inverter-side sensor (a BEV's log often has only the pack's), the pack's power is the DC input
+_PACK = ("battery_current_a", "battery_voltage_v")
+
+
+def dc_input_roles(rec: Recording) -> tuple[str, str]:
+    """The current and voltage roles that measure the motor's DC input: the HPCU's, else the pack's."""
+    return _HPCU if all(c in rec for c in _HPCU) or not all(c in rec for c in _PACK) else _PACK
 
 
 class MotorPoints:
@@ -62,16 +70,18 @@ def motor_points(rec: Recording, *, steady: SteadyWindows | None = None,
                  max_duration_s: float | None = None) -> MotorPoints:
     """Steady motor points of a Recording (window means over each source's own samples).
 
-    The DC/DC low-voltage power is included when both DC/DC channels are present.
+    The DC/DC low-voltage power is included when both DC/DC channels are present. The DC input is the
+    HPCU's current and voltage, or the pack's when the HPCU's are not recorded (:func:`dc_input_roles`).
     """
+    dc = dc_input_roles(rec)
     if steady is None:
         steady = find_steady_windows(rec, ["em_speed_rpm", "em_torque_nm"],
                                      states=("gear_actual", "k0_closed", "lockup_closed", "hybrid_mode"),
-                                     extra=("hpcu_current_a", "hpcu_voltage_v"), kinds=kinds, rate_hz=rate_hz,
+                                     extra=dc, kinds=kinds, rate_hz=rate_hz,
                                      tolerances=tolerances, max_duration_s=max_duration_s)
     torque = steady.raw_average(rec, "em_torque_nm")
     speed = steady.raw_average(rec, "em_speed_rpm")
-    p_hpcu = steady.raw_average(rec, "hpcu_current_a", "hpcu_voltage_v")
+    p_hpcu = steady.raw_average(rec, *dc)
     p_lv = steady.raw_average(rec, *_LV) if all(c in rec for c in _LV) else None
     return MotorPoints(torque, speed, p_hpcu, p_lv, [w.segment for w in steady.windows], steady.n_excluded, steady)
 
@@ -301,8 +311,9 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
     Parameters
     ----------
     rec:
-        The Recording: ``em_torque_nm``, ``em_speed_rpm``, ``hpcu_current_a``, ``hpcu_voltage_v`` and
-        (for eta_dcdc) ``dcdc_lv_current_a``, ``dcdc_lv_voltage_v``.
+        The Recording: ``em_torque_nm``, ``em_speed_rpm``, ``hpcu_current_a``, ``hpcu_voltage_v`` (else
+        ``battery_current_a``, ``battery_voltage_v``: the pack's power taken as the DC input, which then also
+        holds the auxiliaries' draw) and (for eta_dcdc) ``dcdc_lv_current_a``, ``dcdc_lv_voltage_v``.
     specs:
         Rotor radius and volume.
     points:
@@ -340,6 +351,9 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
             out.errors[key] = f"{type(exc).__name__}: {exc}"
             failures[key] = exc
             continue
+        if dc_input_roles(rec) == _PACK and points is None:
+            fit.reasons.append("HPCU current and voltage not recorded: the pack's power is taken as the motor's DC "
+                               "input (auxiliaries other than the DC/DC are counted as motor losses)")
         out.fits[key] = fit
     if not out.fits:
         raise_all_failed("motor (motoring and generating)", failures)

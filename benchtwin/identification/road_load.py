@@ -37,12 +37,17 @@ from benchtwin.recording import Recording
 
 __all__ = ["coastdown_runs", "fit_road_load", "identify_road_load"]
 
+_PRESSURES = ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar", "brake_pressure_rr_bar")
+
 
 def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: Iterable[str] | None = ("coastdown",),
                    rate_hz: float | None = None, v_min: float = 15.0, v_max: float | None = None, smooth_s: float = 3.0,
-                   min_run_s: float = 20.0, min_drop_kmh: float = 20.0
+                   min_run_s: float = 20.0, min_drop_kmh: float = 20.0, max_motor_torque_nm: float = 2.0
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int, str]:
     """The coastdown runs of a Recording.
+
+    Without a gear signal (a BEV's one fixed ratio has no neutral), coasting is where the motor torque stays
+    within ``max_motor_torque_nm`` of zero and no brake pressure is applied.
 
     Returns
     -------
@@ -53,14 +58,20 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
     if rate_hz is None:
         rate_hz = native_rate(rec[ch])
-    g = gather(rec, [ch], rate_hz, optional=("gear_actual", "pedal_pct", "brake_pedal_pct"), what="road load",
-               span=segments_span(rec, kinds))
+    no_gear = "gear_actual" not in rec
+    extra = ("em_torque_nm", *_PRESSURES) if no_gear else ()
+    g = gather(rec, [ch], rate_hz, optional=("gear_actual", "pedal_pct", "brake_pedal_pct", *extra),
+               what="road load", span=segments_span(rec, kinds))
     v = g[ch]
     cand = ~g.bad & (v > v_min)
     if v_max is not None:
         cand &= v < v_max
     if "gear_actual" in g:
         cand &= np.nan_to_num(g["gear_actual"], nan=-1.0) == 0
+    if no_gear and "em_torque_nm" in g:
+        cand &= np.abs(np.nan_to_num(g["em_torque_nm"], nan=np.inf)) <= max_motor_torque_nm
+    for p in (c for c in extra if c in _PRESSURES and c in g):
+        cand &= np.nan_to_num(g[p], nan=np.inf) <= 0.5
     for pedal in ("pedal_pct", "brake_pedal_pct"):
         if pedal in g:
             cand &= np.nan_to_num(g[pedal], nan=100.0) <= 0.5
@@ -119,7 +130,8 @@ def identify_road_load(rec: Recording, specs: VehicleSpecs, *, method: str = "re
     ----------
     rec:
         The Recording (``dyno_speed_kmh`` or ``vehicle_speed_kmh``; ``gear_actual``, ``pedal_pct``,
-        ``brake_pedal_pct`` used when present).
+        ``brake_pedal_pct`` used when present; without ``gear_actual``, ``em_torque_nm`` and the brake
+        pressures tell coasting, see :func:`coastdown_runs`).
     specs:
         ``test_mass_kg``.
     method:

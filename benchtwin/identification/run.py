@@ -5,9 +5,11 @@
 =================  ===========================================  =================================
 method             needs (roles)                                fits
 =================  ===========================================  =================================
-transmission       vehicle/motor/engine speed and torque,       ``transmission.gear<g>[_coast]``
-                   shaft torque, gear, lock-up, K0
-motor              motor speed/torque, HPCU V/I                 ``motor.*``
+transmission       vehicle speed, shaft torque, gear, lock-up,  ``transmission.gear<g>[_coast]``
+                   K0; motor and engine torque (P2) or engine
+                   speed and torque (conventional)
+motor              motor speed/torque, HPCU V/I (or the pack's  ``motor.*``
+                   V/I when the HPCU's are not logged)
 engine             engine speed/torque, fuel flow               ``engine.*``
 road_load          vehicle speed (coastdown)                    ``road_load.*``
 brakes             four caliper pressures, dyno forces          ``brakes.*``
@@ -19,7 +21,9 @@ torque_converter   speeds, torques, gear, lock-up (uses the     ``torque_convert
 shifts             target gear, speed, pedal                    ``shifts.up_1_2`` ...
 =================  ===========================================  =================================
 
-A method whose roles are missing is *skipped* (listed in ``meta['skipped']`` with the missing roles);
+A method whose roles are missing, or whose spec keys the vehicle's layout does not have (a BEV has no engine
+displacement or gear list, a conventional car no pack or rotor), is *skipped* (listed in ``meta['skipped']``
+with the missing roles or keys);
 a method that runs but cannot give trustworthy numbers records its error message in ``errors``
 instead of stopping the run.
 """
@@ -77,6 +81,11 @@ class Method:
         Of these, at least one must be present (empty: no such condition).
     needs_specs:
         Whether the method needs the VehicleSpecs.
+    spec_keys:
+        VehicleSpecs keys the method needs (a layout without them, e.g. a BEV's gear ratios, skips it).
+    alternatives:
+        Sets of roles of which at least one whole set must be present (the same quantity measured where
+        the layout has it, e.g. the motor's DC input at the HPCU or at the pack); empty: no such condition.
     run:
         ``run(rec, specs, result_so_far, options) -> FitResult | dict[str, FitResult] | IdentificationResult``.
     """
@@ -86,6 +95,8 @@ class Method:
     run: Callable[[Recording, VehicleSpecs | None, IdentificationResult, Mapping[str, Any]], Any]
     needs_specs: bool = True
     any_roles: tuple[str, ...] = ()
+    spec_keys: tuple[str, ...] = ()
+    alternatives: tuple[tuple[str, ...], ...] = ()
 
 
 def transmission_table(result: IdentificationResult) -> dict[int, tuple[float, float]]:
@@ -123,22 +134,26 @@ def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: Identifi
     cap = o.pop("capacity_ah", None)
     nodes = o.pop("soc_nodes_pct", None)
     min_rest_s = float(o.pop("min_rest_s", 600.0))
+    start = o.pop("start_soc_pct", None)
     if "displayed_soc_pct" not in rec and cap is None:
         nodes = None
     out = IdentificationResult()
     out.fits["battery_map_free"] = identify_battery_map_free(rec, n_cells=n_cells, capacity_ah=cap,
-                                                             soc_nodes_pct=nodes, **o)
+                                                             soc_nodes_pct=nodes, start_soc_pct=start, **o)
     try:
         out.fits["battery_r0"] = identify_battery_r0_steps(rec, n_cells=n_cells, capacity_ah=cap,
-                                                           soc_nodes_pct=nodes)
+                                                           soc_nodes_pct=nodes, start_soc_pct=start)
     except IdentificationError as exc:
         out.errors["battery_r0"] = f"{type(exc).__name__}: {exc}"
     if "displayed_soc_pct" in rec or cap is not None:
         try:
             out.fits["battery_ocv_rest"] = identify_battery_ocv_rest(rec, n_cells=n_cells, capacity_ah=cap,
-                                                                     min_rest_s=min_rest_s)
+                                                                     min_rest_s=min_rest_s, start_soc_pct=start)
         except IdentificationError as exc:
             out.errors["battery_ocv_rest"] = f"{type(exc).__name__}: {exc}"
+    ref = out.fits["battery_map_free"].data.get("soc_reference")
+    if ref is not None:
+        out.meta["soc_reference"] = ref
     return out
 
 
@@ -151,28 +166,33 @@ def _torque_converter(rec: Recording, specs: VehicleSpecs | None, res: Identific
 
 def _shifts(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
     o = dict(opts)
-    if specs is not None:
+    if specs is not None and specs.gear_ratios is not None:
         o.setdefault("n_gears", len(specs.gear_ratios))
     return identify_shift_thresholds(rec, **o)
 
 
-_TX = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "engine_torque_nm", "shaft_torque_nm", "gear_actual")
+_TX = ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual")
+#: the gearbox input: motor and engine (P2 hybrid), or the engine alone (conventional)
+_TX_INPUT = (("em_speed_rpm", "em_torque_nm", "engine_torque_nm"), ("engine_speed_rpm", "engine_torque_nm"))
+_RATIOS = ("gear_ratios", "final_drive_ratio", "wheel_radius_m")
 
 #: every method in run order (transmission before the torque converter, which uses it)
 METHODS: tuple[Method, ...] = (
-    Method("transmission", _TX, _direct(identify_transmission)),
-    Method("motor", ("em_speed_rpm", "em_torque_nm", "hpcu_current_a", "hpcu_voltage_v"),
-           _direct(identify_motor)),
+    Method("transmission", _TX, _direct(identify_transmission), spec_keys=_RATIOS, alternatives=_TX_INPUT),
+    Method("motor", ("em_speed_rpm", "em_torque_nm"), _direct(identify_motor),
+           spec_keys=("em_rotor_radius_m", "em_rotor_volume_m3"),
+           alternatives=(("hpcu_current_a", "hpcu_voltage_v"), ("battery_current_a", "battery_voltage_v"))),
     Method("engine", ("engine_speed_rpm", "engine_torque_nm", "fuel_mass_flow_gps"),
-           _direct(identify_engine)),
+           _direct(identify_engine), spec_keys=("engine_displacement_m3",)),
     Method("road_load", ("vehicle_speed_kmh",), _direct(identify_road_load),
-           any_roles=("dyno_speed_kmh", "dyno_force_front_n")),
+           any_roles=("dyno_speed_kmh", "dyno_force_front_n"), spec_keys=("test_mass_kg",)),
     Method("brakes", ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",
-                      "brake_pressure_rr_bar"), _direct(identify_brakes)),
-    Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _direct(identify_battery)),
+                      "brake_pressure_rr_bar"), _direct(identify_brakes), spec_keys=("wheel_radius_m",)),
+    Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _direct(identify_battery),
+           spec_keys=("n_cells_series",)),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
     Method("torque_converter", ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm",
-                                "gear_actual"), _torque_converter),
+                                "gear_actual"), _torque_converter, spec_keys=_RATIOS),
     Method("shifts", ("gear_target", "vehicle_speed_kmh", "pedal_pct"), _shifts, needs_specs=False),
 )
 
@@ -246,6 +266,8 @@ def _merge(result: IdentificationResult, name: str, out: Any) -> None:
         result.errors.update(out.errors)
         if out.meta:
             result.meta.setdefault("methods_meta", {})[name] = out.meta
+            if "soc_reference" in out.meta:
+                result.meta["soc_reference"] = out.meta["soc_reference"]
     elif isinstance(out, FitResult):
         result.fits[name] = out
     elif isinstance(out, Mapping):
@@ -387,7 +409,8 @@ def stuck_channels(recording: Recording) -> dict[str, float]:
 def _run_method(m: Method, recording: Recording, specs: VehicleSpecs | None, result: IdentificationResult,
                 options: Mapping[str, Mapping[str, Any]]) -> None:
     """Run one method into ``result``: skipped, fitted, or its error recorded (never raised)."""
-    stuck = [r for r in m.roles if r in result.meta.get("stuck_channels", {})]
+    used = list(m.roles) + [r for alt in m.alternatives for r in alt if r not in m.roles and r in recording]
+    stuck = [r for r in dict.fromkeys(used) if r in result.meta.get("stuck_channels", {})]
     if stuck:
         result.meta["skipped"][m.name] = "; ".join(
             f"channel {r} holds {result.meta['stuck_channels'][r]:g} over the whole recording (a stuck sensor or a "
@@ -396,11 +419,18 @@ def _run_method(m: Method, recording: Recording, specs: VehicleSpecs | None, res
     missing = [r for r in m.roles if r not in recording]
     if m.any_roles and not any(r in recording for r in m.any_roles):
         missing.append(" or ".join(m.any_roles))
+    if m.alternatives and not any(all(r in recording for r in alt) for alt in m.alternatives):
+        missing.append(" or ".join("(" + ", ".join(alt) + ")" for alt in m.alternatives))
     if missing:
         result.meta["skipped"][m.name] = f"missing channel(s): {', '.join(missing)}"
         return
     if m.needs_specs and specs is None:
         result.meta["skipped"][m.name] = "needs the vehicle specs (--specs or a [specs] table)"
+        return
+    absent = [k for k in m.spec_keys if specs is not None and getattr(specs, k) is None]
+    if absent:
+        result.meta["skipped"][m.name] = (f"needs spec key(s) {', '.join(absent)}, which the {specs.layout} "  # type: ignore[union-attr]
+                                          "layout's specs do not give")
         return
     t0 = time.perf_counter()
     try:

@@ -26,6 +26,8 @@ A signal map is a TOML file::
     soc_nodes_pct = [20, 50, 80]     # OCV/R nodes (default one node: constant OCV and R)
     min_abs_current_a = 2.0          # leave out near-zero-current samples (relaxation, not OCV)
     min_rest_s = 600                 # rests at least this long give OCV points
+    start_soc_pct = 95.0             # the SOC at the log's first sample, when known (anchors the count;
+                                     # default: chosen from the data, see identification/soc_reference.py)
 
 Units are converted through a small explicit table (:data:`UNITS`): each unit names its quantity
 and its factor and offset to a base unit; a role's unit and the user's unit must be of one quantity.
@@ -163,6 +165,7 @@ class BatteryHints(StrictModel):
     soc_nodes_pct: list[float] | None = None
     min_abs_current_a: float = Field(default=0.0, ge=0)
     min_rest_s: float = Field(default=600.0, gt=0)
+    start_soc_pct: float | None = Field(default=None, ge=0, le=100)
 
 
 class SignalMap(StrictModel):

@@ -2,7 +2,8 @@
 
 From steady points with the lock-up clutch closed (turbine = pump = motor speed):
 
-- input torque ``C_in`` = motor torque + engine torque (only with K0 closed), input speed = motor speed;
+- input torque ``C_in`` = motor torque + engine torque (only with K0 closed), input speed = motor speed
+  (a conventional car, without motor channels: the engine torque and speed);
 - output power on the propeller shaft: shaft torque x shaft speed, the shaft speed from the vehicle
   speed, the wheel radius and the final drive (public specs).
 
@@ -35,6 +36,8 @@ __all__ = ["TransmissionPoints", "direction_points", "efficiency_design", "fit_t
 RPM = 2.0 * math.pi / 60.0
 
 _REQUIRED = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "engine_torque_nm", "shaft_torque_nm")
+#: a conventional car (no traction motor): the engine drives the gearbox input alone
+_REQUIRED_ENGINE_ONLY = ("vehicle_speed_kmh", "engine_speed_rpm", "engine_torque_nm", "shaft_torque_nm")
 _STATES = ("gear_actual", "gear_target", "k0_closed", "lockup_closed")
 
 
@@ -107,18 +110,30 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
     Returns
     -------
     TransmissionPoints
+
+    Notes
+    -----
+    Without motor channels (a conventional car) the input is the engine alone: ``C_in`` is the engine
+    torque and the input speed the engine speed.
     """
+    engine_only = "em_speed_rpm" not in rec and "em_torque_nm" not in rec
     if steady is None:
-        steady = find_steady_windows(rec, list(_REQUIRED), states=_STATES,
-                                     extra=("gear_actual",), optional=("engine_speed_rpm",), kinds=kinds,
-                                     rate_hz=rate_hz, tolerances=tolerances, max_duration_s=max_duration_s)
+        steady = find_steady_windows(rec, list(_REQUIRED_ENGINE_ONLY if engine_only else _REQUIRED), states=_STATES,
+                                     extra=("gear_actual",), optional=() if engine_only else ("engine_speed_rpm",),
+                                     kinds=kinds, rate_hz=rate_hz, tolerances=tolerances,
+                                     max_duration_s=max_duration_s)
     g = steady.grid
     ratios = np.asarray(specs.gear_ratios, dtype=float)
     gear = steady.means("gear_actual").round()
     n = len(steady)
     reasons: list[str] = []
     k0 = steady.state("k0_closed") if "k0_closed" in g else None
-    if k0 is None:
+    if engine_only:
+        k0 = None
+        reasons.append("no motor channels: the engine drives the gearbox input alone (conventional layout)")
+        c_in = steady.raw_average(rec, "engine_torque_nm")
+        w_in = steady.raw_average(rec, "engine_speed_rpm") * RPM
+    elif k0 is None:
         if "engine_speed_rpm" in g:
             # K0 state not recorded: the engine is coupled when it turns with the motor
             eng = steady.means("engine_speed_rpm")
@@ -128,12 +143,13 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
         else:
             k0 = np.ones(n)
             reasons.append("k0_closed and engine speed not recorded: engine torque always counted as input")
-    k0 = np.nan_to_num(k0, nan=0.0) > 0.5
-    # window means over each source's own samples (the grid only locates the windows)
-    t_em = steady.raw_average(rec, "em_torque_nm")
-    t_eng = steady.raw_average(rec, "engine_torque_nm")
-    c_in = np.where(k0, t_em + t_eng, t_em)
-    w_in = steady.raw_average(rec, "em_speed_rpm") * RPM
+    if not engine_only:
+        k0 = np.nan_to_num(k0, nan=0.0) > 0.5
+        # window means over each source's own samples (the grid only locates the windows)
+        t_em = steady.raw_average(rec, "em_torque_nm")
+        t_eng = steady.raw_average(rec, "engine_torque_nm")
+        c_in = np.where(k0, t_em + t_eng, t_em)
+        w_in = steady.raw_average(rec, "em_speed_rpm") * RPM
     p_in = c_in * w_in
     t_out = steady.raw_average(rec, "shaft_torque_nm")
     w_out = steady.raw_average(rec, "vehicle_speed_kmh") / 3.6 / specs.wheel_radius_m * specs.final_drive_ratio

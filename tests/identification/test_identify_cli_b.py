@@ -198,7 +198,7 @@ def test_cli_on_the_leaf_hppc(tmp_path):
 
 
 @pytest.mark.parametrize("module", ["battery", "torque_converter", "shifts", "importers", "signal_map", "run",
-                                    "figures"])
+                                    "figures", "soc_reference"])
 def test_public_functions_document_every_argument(module):
     """Keep the docs honest (as python-control's docstrings test does): every argument is named in the docstring."""
     import importlib

@@ -147,3 +147,39 @@ def test_jdma_torque_converter_quadratic_model(ref):
     assert res["converter"].value("a3") / res["converter"].value("a0") == pytest.approx(2.0, rel=0.02)
     # K-factor at stall in rpm/sqrt(Nm) against the table's 144.4
     assert RPM_PER_RADS / np.sqrt(res["converter"].value("a0")) == pytest.approx(144.4, rel=0.02)
+
+
+def test_conventional_layout_on_the_mercedes_engine_points(ref, tmp_path):
+    """A conventional-layout run on real engine data: the 24 measured steady points of the Mercedes 1.7 l
+    (ADVISOR 2003) held 10 s each as a 10 Hz CSV log, read through a signal map, with specs that have no pack,
+    motor or gear keys beyond the layout's own. Identification finds the steady points itself and gives the
+    Willans lines of test_engine.py's direct fit (e 0.41-0.43 below 4200 rpm, W_loss 5.2 kW at 1200 rpm), the
+    BSFC map; battery, motor and the driveline methods are skipped for their missing channels."""
+    from benchtwin.config.specs import VehicleSpecs
+    from benchtwin.identification.run import identify_all
+    from benchtwin.identification.signal_map import signal_map_from_dict
+
+    pts = np.loadtxt(ref / "engine_mercedes_1p7" / "Mercedes1pt7_engine_steady_state_points.txt", skiprows=1)
+    hold = np.arange(100)
+    t = np.arange(pts.shape[0] * hold.size) / 10.0
+    log = tmp_path / "mercedes.csv"
+    np.savetxt(log, np.column_stack([t, np.repeat(pts[:, 0], hold.size), np.repeat(pts[:, 1], hold.size),
+                                     np.repeat(pts[:, 2], hold.size)]),
+               delimiter=",", header="time_s,rpm,torque,fuel_gps", comments="", fmt="%.6g")
+    smap = signal_map_from_dict({
+        "source": {"time_column": "time_s"},
+        "channels": {"engine_speed_rpm": {"column": "rpm", "unit": "rpm"},
+                     "engine_torque_nm": {"column": "torque", "unit": "Nm"},
+                     "fuel_mass_flow_gps": {"column": "fuel_gps", "unit": "g/s"}},
+        "specs": {"gear_ratios": [3.5, 2.0, 1.3, 1.0, 0.8], "final_drive_ratio": 3.7, "wheel_radius_m": 0.3,
+                  "test_mass_kg": 1300.0, "engine_displacement_m3": 1.689e-3}})
+    assert isinstance(smap.specs, VehicleSpecs) and smap.specs.layout == "conventional"
+    assert smap.specs.n_cells_series is None and smap.specs.em_rotor_radius_m is None
+    res = identify_all(import_log(log, smap), smap.specs)
+    assert {"battery", "motor", "transmission"} <= set(res.meta["skipped"])
+    assert all("missing channel" in why for why in res.meta["skipped"].values())
+    speeds = (1200, 1800, 2400, 3000, 3600, 4200)
+    es = [res.fits[f"engine.willans_{n}rpm"].value("e") for n in speeds]
+    assert all(0.41 <= x <= 0.43 for x in es[:5]) and 0.40 <= es[5] < 0.41
+    np.testing.assert_allclose(res.fits["engine.willans_1200rpm"].value("W_loss"), 5.2e3, atol=150)
+    assert res.fits["engine.bsfc"].n_points == 24
