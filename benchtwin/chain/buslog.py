@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.errors import DataError
-from benchtwin.recording import open_mdf
+from benchtwin.mdf import open_mdf
 from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog
 from benchtwin.wire.merge import merge_frames
 

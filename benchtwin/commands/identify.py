@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         if args.recording.suffix.lower() not in (".mf4", ".mdf"):
             raise ConfigError(f"{args.recording}: not an MF4 Recording; give --signal-map to import a "
                               f"{args.recording.suffix or 'text'} log")
-        rec = Recording.load(args.recording)
+        rec = Recording.open(args.recording)  # channels read per method, not all at once
     if args.specs is not None:
         specs = _load_specs(args.specs)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
