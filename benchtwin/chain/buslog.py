@@ -227,20 +227,14 @@ def _salvage_mf4(path: Path, origin: datetime = DEFAULT_START) -> tuple[np.ndarr
         return np.zeros(0, FRAME_DTYPE), "truncated inside its header: no frame left"
     hd_links = int.from_bytes(raw[64 + 16:64 + 24], "little")
     hd_data = 64 + 24 + 8 * hd_links
-    pos = raw.find(b"##DT", hd_data)
+    found = [p for p in (raw.find(b"##DT", hd_data), raw.find(b"##DZ", hd_data)) if p >= 0]
+    pos = min(found) if found else -1
     if hd_data + 8 > len(raw) or pos < 0:
         return np.zeros(0, FRAME_DTYPE), "truncated before its data: no frame left"
     start_ns = int.from_bytes(raw[hd_data:hd_data + 8], "little")
     if b"benchtwin bus log" not in raw[:pos]:
         return None  # another logger's layout: the records cannot be known without the channel blocks
-    chunks, declared = [], 0
-    while pos + 24 <= len(raw) and raw[pos:pos + 4] == b"##DT":
-        length = int.from_bytes(raw[pos + 8:pos + 16], "little")
-        if length < 24:
-            break
-        declared += length - 24
-        chunks.append(raw[pos + 24:min(pos + length, len(raw))])
-        pos += (length + 7) // 8 * 8
+    chunks, declared = _data_blocks(raw, pos)
     body = b"".join(chunks)
     n = len(body) // _MF4_RECORD.itemsize
     rec = np.frombuffer(body[:n * _MF4_RECORD.itemsize], dtype=_MF4_RECORD)
@@ -249,6 +243,49 @@ def _salvage_mf4(path: Path, origin: datetime = DEFAULT_START) -> tuple[np.ndarr
     at_least = declared // _MF4_RECORD.itemsize
     return frames, (f"truncated: the file ends inside its data (channel blocks missing); {n} frames kept "
                     f"of at least {at_least} its data blocks declare")
+
+
+def _data_blocks(raw: bytes, pos: int) -> tuple[list[bytes], int]:
+    """The record bytes of the data blocks from ``pos`` on, up to the cut, and how many bytes they declare.
+
+    ``##DT`` blocks hold records as they are; ``##DZ`` blocks hold them deflated (zip type 0) or transposed
+    (record bytes by column) and deflated (zip type 1). The deflated stream of a cut DZ block gives its
+    records up to the cut; a cut transposed block gives none (its first bytes are the first column only).
+    """
+    chunks: list[bytes] = []
+    declared = 0
+    while pos + 24 <= len(raw) and raw[pos:pos + 4] in (b"##DT", b"##DZ"):
+        length = int.from_bytes(raw[pos + 8:pos + 16], "little")
+        if length < 24:
+            break
+        end = min(pos + length, len(raw))
+        if raw[pos:pos + 4] == b"##DT":
+            declared += length - 24
+            chunks.append(raw[pos + 24:end])
+        else:
+            if pos + 48 > len(raw):
+                break
+            zip_type = raw[pos + 26]
+            param = int.from_bytes(raw[pos + 28:pos + 32], "little")
+            original = int.from_bytes(raw[pos + 32:pos + 40], "little")
+            declared += original
+            try:
+                body = zlib.decompressobj().decompress(raw[pos + 48:end])
+            except zlib.error:
+                break
+            if zip_type == 1 and param > 1:
+                if len(body) < original:
+                    break  # a cut transposed block: its records cannot be rebuilt
+                rows = original // param
+                body = (np.frombuffer(body[:rows * param], np.uint8).reshape(param, rows).T.tobytes()
+                        + body[rows * param:])
+            elif zip_type not in (0, 1):
+                break
+            chunks.append(body)
+        if end < pos + length:
+            break
+        pos += (length + 7) // 8 * 8
+    return chunks, declared
 
 
 def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1, start_time: datetime = DEFAULT_START) -> Path:
