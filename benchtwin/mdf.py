@@ -133,42 +133,55 @@ class ChannelFile:
         self._times: dict[int, weakref.ref[np.ndarray]] = {}
 
     def mdf(self) -> Any:
-        if self._mdf is None:
-            self._mdf = open_mdf(self.path)
-        return self._mdf
+        """The open asammdf MDF (opened on first use; :class:`DataError` if unreadable)."""
+        with self._lock:
+            if self._mdf is None:
+                self._mdf = open_mdf(self.path)
+            return self._mdf
 
     def close(self) -> None:
+        """Close the file (it is opened again when a channel is next read)."""
         with self._lock:
             if self._mdf is not None:
                 self._mdf.close()
                 self._mdf = None
 
+    def _guarded(self, what: str, fn: Callable[[], np.ndarray]) -> np.ndarray:
+        with self._lock, _QUIET_MDF_DEL:
+            try:
+                return fn()
+            except DataError:
+                raise
+            except Exception as exc:  # asammdf raises many kinds for a damaged data block
+                raise DataError(f"{self.path}: {what} unreadable ({exc or type(exc).__name__})") from None
+
     def times(self, gi: int) -> np.ndarray:
+        """The master (time) channel of channel group ``gi``, float64; one array per group while it is in use."""
         ref = self._times.get(gi)
         ts = ref() if ref is not None else None
         if ts is None:
-            ts = np.asarray(self.mdf().get_master(gi), dtype=np.float64)
+            ts = self._guarded(f"time of channel group {gi}",
+                               lambda: np.asarray(self.mdf().get_master(gi), dtype=np.float64))
             self._times[gi] = weakref.ref(ts)
         return ts
 
-    def samples(self, name: str, gi: int, ci: int, numeric_conversion: bool) -> np.ndarray:
-        if numeric_conversion:  # a numeric conversion (another tool's file): physical values
-            return np.asarray(self.mdf().get(name, group=gi, index=ci).samples)
-        return np.asarray(self.mdf().get(name, group=gi, index=ci, raw=True, samples_only=True)[0])
+    def read(self, name: str, gi: int, ci: int, numeric_conversion: bool = False) -> np.ndarray:
+        """The samples of channel ``ci`` of group ``gi`` as stored (``numeric_conversion``: physical values)."""
+        def get() -> np.ndarray:
+            if numeric_conversion:  # a numeric conversion (another tool's file): physical values
+                return np.asarray(self.mdf().get(name, group=gi, index=ci).samples)
+            return np.asarray(self.mdf().get(name, group=gi, index=ci, raw=True, samples_only=True)[0])
+
+        return self._guarded(f"channel {name!r}", get)
 
     def loader(self, name: str, gi: int, ci: int, numeric_conversion: bool, flags_at: tuple[int, int] | None
                ) -> Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """``load() -> (timestamps, values float64, flags uint16)`` of one Recording channel and its flags channel."""
         def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            with self._lock, _QUIET_MDF_DEL:
-                try:
-                    ts = self.times(gi)
-                    vs = np.asarray(self.samples(name, gi, ci, numeric_conversion), dtype=np.float64)
-                    fl = (np.asarray(self.samples(f"{name}.flags", *flags_at, False), dtype=np.uint16)
-                          if flags_at is not None else np.zeros(vs.shape, dtype=np.uint16))
-                except DataError:
-                    raise
-                except Exception as exc:  # asammdf raises many kinds for a damaged data block
-                    raise DataError(f"{self.path}: channel {name!r} unreadable ({exc or type(exc).__name__})") from None
+            ts = self.times(gi)
+            vs = np.asarray(self.read(name, gi, ci, numeric_conversion), dtype=np.float64)
+            fl = (np.asarray(self.read(f"{name}.flags", *flags_at), dtype=np.uint16)
+                  if flags_at is not None else np.zeros(vs.shape, dtype=np.uint16))
             return ts, vs, fl
 
         return load

@@ -430,7 +430,7 @@ class Recording:
                                 _texts_of(conv)))
         comment = getattr(mdf.header, "description", "") or ""
         rec.start_time = mdf.header.start_time
-        rec._files.append(source)
+        rec.own(source)
         side = path.with_suffix(".segments.json")
         try:
             blob = json.loads(comment)["benchtwin"]
@@ -473,6 +473,10 @@ class Recording:
             ch = self.channels.get(n)
             if isinstance(ch, LazyChannel):
                 ch.drop()
+
+    def own(self, file: ChannelFile) -> None:
+        """Close ``file`` (the source of lazy channels, e.g. an imported log) with this Recording."""
+        self._files.append(file)
 
     def close(self) -> None:
         """Close the files of lazy channels (loaded arrays stay; channels not loaded can no longer be read)."""

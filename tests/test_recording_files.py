@@ -87,7 +87,7 @@ def test_a_damaged_compressed_recording_is_one_clear_error(rec: Recording, tmp_p
     bad.write_bytes(bytes(raw))
     with pytest.raises(DataError, match=r"bad\.mf4"):
         Recording.load(bad)
-    with Recording.open(bad) as lazy, pytest.raises(DataError, match=r"bad\.mf4: channel"):
+    with Recording.open(bad) as lazy, pytest.raises(DataError, match=r"bad\.mf4: .*unreadable"):
         for n in lazy:
             _ = lazy[n].values
 

@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         from benchtwin.identification.signal_map import load_signal_map
 
         smap = load_signal_map(args.signal_map)
-        rec = import_log(args.recording, smap)
+        rec = import_log(args.recording, smap, lazy=True)  # an MF4 log: channels read per method
         specs = smap.specs
         if smap.battery is not None:
             b = smap.battery
