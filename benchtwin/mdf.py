@@ -68,13 +68,17 @@ def _disarm(tb: Any) -> None:
     """
     while tb is not None:
         for value in list(tb.tb_frame.f_locals.values()):
-            if type(value).__name__ in ("MDF4", "MDF3") and not hasattr(value, "_file"):
+            if type(value).__name__ in ("MDF4", "MDF3") and not (hasattr(value, "_file") and hasattr(value, "header")):
                 value._closed = True
         tb = tb.tb_next
 
 
-def open_mdf(path: str | Path, **kwargs: Any) -> Any:
+def open_mdf(path: str | Path, *, stream: Any = None, **kwargs: Any) -> Any:
     """Open an MF4 file with asammdf; a file asammdf cannot read is one :class:`DataError` line.
+
+    ``stream``: the file already opened (binary) to read through instead of the path; asammdf then
+    reads with ordinary reads rather than mapping the whole file into memory (whose pages, once read,
+    count in the process's resident memory: the whole file for a day-long log).
 
     asammdf leaves a half-built object behind when its constructor fails, whose ``__del__`` then
     prints an ignored-exception traceback on stderr (``'MDF4' object has no attribute '_file'``);
@@ -96,7 +100,7 @@ def open_mdf(path: str | Path, **kwargs: Any) -> Any:
     reason = ""
     with _QUIET_MDF_DEL:
         try:
-            return MDF(path, **kwargs)
+            return MDF(path if stream is None else stream, **kwargs)
         except Exception as exc:  # asammdf raises many kinds for a bad file
             reason = str(exc) or type(exc).__name__
             _disarm(exc.__traceback__)
@@ -120,6 +124,10 @@ def check_compression(compression: int) -> int:
     return int(compression)
 
 
+#: bytes of records asammdf reads at a time for one channel of a :class:`ChannelFile`
+READ_FRAGMENT_BYTES = 8 << 20
+
+
 class ChannelFile:
     """One MF4 file kept open for the lazy channels of a Recording: reads one channel (and its flags) at a time.
 
@@ -129,6 +137,7 @@ class ChannelFile:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._mdf: Any = None
+        self._stream: Any = None
         self._lock = threading.RLock()
         self._times: dict[int, weakref.ref[np.ndarray]] = {}
 
@@ -136,7 +145,18 @@ class ChannelFile:
         """The open asammdf MDF (opened on first use; :class:`DataError` if unreadable)."""
         with self._lock:
             if self._mdf is None:
-                self._mdf = open_mdf(self.path)
+                if not self.path.is_file():
+                    open_mdf(self.path)  # says why (no such file, a folder)
+                self._stream = self.path.open("rb")  # read, not mapped: resident memory is what is read now
+                try:
+                    self._mdf = open_mdf(self.path, stream=self._stream)
+                except DataError:
+                    self._stream.close()
+                    self._stream = None
+                    raise
+                # records are read in fragments of this size: reading one channel of a long group holds one
+                # fragment of the group's records at a time, not all of them
+                self._mdf.configure(read_fragment_size=READ_FRAGMENT_BYTES)
             return self._mdf
 
     def close(self) -> None:
@@ -145,6 +165,10 @@ class ChannelFile:
             if self._mdf is not None:
                 self._mdf.close()
                 self._mdf = None
+            if self._stream is not None:
+                self._stream.close()
+                self._stream = None
+
 
     def _guarded(self, what: str, fn: Callable[[], np.ndarray]) -> np.ndarray:
         with self._lock, _QUIET_MDF_DEL:

@@ -286,7 +286,7 @@ def _import_mf4_lazy(path: Path, smap: SignalMap) -> Recording | None:
     origin = str(path)
     rec = Recording(meta={"imported_from": origin, "source_format": smap.source.format or "",
                           "signal_map_roles": sorted(smap.channels), "read_on_demand": True})
-    times: dict[int, np.ndarray] = {}
+    checked: set[int] = set()
     plans = []
     for role, cm in smap.channels.items():
         where = mdf.channels_db.get(cm.column)
@@ -304,7 +304,8 @@ def _import_mf4_lazy(path: Path, smap: SignalMap) -> Recording | None:
         file_unit = str((getattr(conv, "unit", "") if conv is not None else "") or ch.unit or "")
         unit = cm.unit if cm.unit is not None else (file_unit or ROLES[role][0])
         convert_units(np.zeros(0), unit, ROLES[role][0], key=f"channels.{role}.unit")  # a bad unit: now
-        if gi not in times:
+        if gi not in checked:  # one time base at a time: read, checked, let go
+            checked.add(gi)
             t = convert_units(src.times(gi), smap.source.time_unit, "s", key="source.time_unit")
             if not np.isfinite(t).all():
                 src.close()
@@ -316,22 +317,19 @@ def _import_mf4_lazy(path: Path, smap: SignalMap) -> Recording | None:
                 raise DataError(f"{origin}: time of {role} ({cm.column}) goes back from {t[k]:.6g} s to "
                                 f"{t[k + 1]:.6g} s at sample {k + 1} ({back.size} such step(s)): a clock restart or "
                                 "logs joined together; split the log at the restart or give a monotonic time column")
-            times[gi] = t
+            del t
         numeric = conv is not None and getattr(conv, "conversion_type", None) not in (7, 11)
         plans.append((role, cm, gi, ci, unit, numeric, int(mdf.groups[gi].channel_group.cycles_nr)))
-    cache: dict[int, weakref.ref[np.ndarray]] = {}
-    for t_gi in times:  # the converted times are kept (weakly) while a channel of their group is loaded
-        cache[t_gi] = weakref.ref(times[t_gi])
-    held = dict(times)
+    cache: dict[int, weakref.ref[np.ndarray]] = {}  # converted times, shared while a channel of the group is loaded
+    last: list[np.ndarray] = []  # and the last one used, kept: channels are often read group by group
 
     def time_of(gi: int) -> np.ndarray:
-        t = held.pop(gi, None)  # the first user takes the array checked above
-        if t is None:
-            ref = cache.get(gi)
-            t = ref() if ref is not None else None
+        ref = cache.get(gi)
+        t = ref() if ref is not None else None
         if t is None:
             t = convert_units(src.times(gi), smap.source.time_unit, "s", key="source.time_unit")
             cache[gi] = weakref.ref(t)
+        last[:] = [t]
         return t
 
     def loader(role: str, cm: Any, gi: int, ci: int, unit: str, numeric: bool
