@@ -315,8 +315,14 @@ class Recording:
         if any(len(c) == 0 for c in chans):
             empty = [c.name for c in chans if len(c) == 0]
             raise DataError(f"channels without samples: {', '.join(empty)}")
-        lo = max(c.timestamps[0] for c in chans) if start_s is None else start_s
-        hi = min(c.timestamps[-1] for c in chans) if end_s is None else end_s
+        kept = self.loaded()  # lazy channels read here go again once used: one in memory at a time
+        lo, hi = -np.inf, np.inf
+        for c in chans:
+            lo, hi = max(lo, c.timestamps[0]), min(hi, c.timestamps[-1])
+            if c.name not in kept:
+                self.drop([c.name])
+        lo = lo if start_s is None else start_s
+        hi = hi if end_s is None else end_s
         if not hi > lo:
             raise DataError(f"channels {', '.join(names)} do not overlap in time")
         t = np.arange(lo, hi, 1.0 / rate_hz)
@@ -326,6 +332,8 @@ class Recording:
             v = c.at(t, hold=c.name in hold)
             out[c.name] = v
             bad |= ~np.isfinite(v) | ((c.flags_at(t) & int(Flag.bad())) != 0)
+            if c.name not in kept:
+                self.drop([c.name])
         return t, out, bad
 
     def save(self, path: str | Path, *, compression: int = DEFAULT_COMPRESSION) -> Path:

@@ -393,8 +393,11 @@ def gap_mask(rec: Recording, names: list[str], t: np.ndarray, factor: float = 3.
     Interpolating across a pause in the log would invent samples; those grid points are left out.
     """
     out = np.zeros(t.shape, dtype=bool)
+    kept = rec.loaded()  # a lazy Recording: a channel read here goes again once used
     for n in names:
         ts = rec[n].timestamps
+        if n not in kept:
+            rec.drop([n])  # ts stays with this loop
         if ts.size < 3:
             continue
         dt = np.diff(ts)
@@ -418,6 +421,7 @@ def strict_resample(rec: Recording, names: list[str], rate_hz: float, *, hold: t
     one inside a pause of the log carries an invented value. Both are marked bad here.
     """
     t, v, bad = rec.resample(names, rate_hz, hold=hold)
+    kept = rec.loaded()  # a lazy Recording: a channel read here goes again once used
     for n in names:
         ch = rec[n]
         if n in hold or len(ch) < 2:
@@ -426,5 +430,7 @@ def strict_resample(rec: Recording, names: list[str], rate_hz: float, *, hold: t
         if sbad.any():
             nxt = np.clip(np.searchsorted(ch.timestamps, t, side="left"), 0, len(ch) - 1)
             bad |= sbad[nxt] | ((ch.flags[nxt] & int(Flag.bad())) != 0)
+        if n not in kept:
+            rec.drop([n])
     bad |= gap_mask(rec, [n for n in names if n not in hold], t)
     return t, v, bad
