@@ -261,6 +261,9 @@ def import_mf4(path: str | Path, smap: SignalMap, *, lazy: bool = False) -> Reco
     return _to_recording(np.array([]), cols, smap, str(path))
 
 
+#: samples converted at a time by a lazily imported channel
+_BLOCK = 1 << 20
+
 #: channel dtypes kept as float32 in memory when imported lazily: the file holds no more precision than that
 _NARROW = (np.float32, np.int8, np.uint8, np.int16, np.uint16)
 
@@ -337,13 +340,14 @@ def _import_mf4_lazy(path: Path, smap: SignalMap) -> Recording | None:
         def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             t = time_of(gi)
             raw = src.read(cm.column, gi, ci, numeric)
-            vs = convert_units(raw, unit, ROLES[role][0], key=f"channels.{role}.unit")
-            if cm.scale != 1.0:
-                vs *= cm.scale
-            if cm.offset != 0.0:
-                vs += cm.offset
-            if raw.dtype in _NARROW:
-                vs = vs.astype(np.float32)
+            vs = np.empty(raw.shape, np.float32 if raw.dtype in _NARROW else np.float64)
+            for k in range(0, raw.size, _BLOCK):  # in float64 block by block: bounded temporaries
+                part = convert_units(raw[k:k + _BLOCK], unit, ROLES[role][0], key=f"channels.{role}.unit")
+                if cm.scale != 1.0:
+                    part *= cm.scale
+                if cm.offset != 0.0:
+                    part += cm.offset
+                vs[k:k + _BLOCK] = part
             del raw
             lo, hi = plausible_range(role)
             bad = ~((vs >= lo) & (vs <= hi))  # NaN too
