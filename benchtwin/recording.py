@@ -8,110 +8,30 @@ with asammdf: one channel group per source, each channel with its unit, and a co
 
 from __future__ import annotations
 
-import gc
 import json
-import sys
-import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime
 from enum import IntFlag
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from benchtwin.errors import DataError, MissingChannelError
+from benchtwin.mdf import DEFAULT_COMPRESSION, ChannelFile, check_compression, open_mdf
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
-__all__ = ["FLAG_CONVERSION", "Channel", "Flag", "Recording", "open_mdf"]
-
-
-#: numpy dtype kinds of MF4 channels that are not numbers, as a user would call them
-_KINDS = {"V": "records (e.g. CAN frames)", "S": "bytes", "U": "text", "O": "objects"}
-
-
-def _is_mdf_del(unraisable: Any) -> bool:
-    name = getattr(unraisable.object, "__qualname__", "")
-    return isinstance(name, str) and name.startswith(("MDF4.__del__", "MDF3.__del__", "MDF.__del__"))
-
-
-class _QuietMdfDel:
-    """While entered (by any thread), the ignored-exception report of asammdf's ``MDF4.__del__`` is dropped.
-
-    ``sys.unraisablehook`` is process-wide: the threads that read bus logs in parallel share one
-    filter, installed by the first to enter and removed by the last to leave.
-    """
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._users = 0
-        self._previous: Any = None
-
-    def _hook(self, unraisable: Any) -> None:
-        if not _is_mdf_del(unraisable):
-            self._previous(unraisable)
-
-    def __enter__(self) -> None:
-        with self._lock:
-            if self._users == 0:
-                self._previous = sys.unraisablehook
-                sys.unraisablehook = self._hook
-            self._users += 1
-
-    def __exit__(self, *exc: object) -> None:
-        with self._lock:
-            self._users -= 1
-            if self._users == 0:
-                sys.unraisablehook = self._previous
-                self._previous = None
-
-
-_QUIET_MDF_DEL = _QuietMdfDel()
-
-
-def _disarm(tb: Any) -> None:
-    """Mark the half-built MDF objects of a failed constructor closed, so their ``__del__`` has nothing to do.
-
-    The object may outlive this call (a reference cycle, collected whenever the garbage collector next
-    runs, in any thread); its ``close()`` returns at once when ``_closed`` is set.
-    """
-    while tb is not None:
-        for value in list(tb.tb_frame.f_locals.values()):
-            if type(value).__name__ in ("MDF4", "MDF3") and not hasattr(value, "_file"):
-                value._closed = True
-        tb = tb.tb_next
-
-
-def open_mdf(path: str | Path, **kwargs: Any) -> Any:
-    """Open an MF4 file with asammdf; a file asammdf cannot read is one :class:`DataError` line.
-
-    asammdf leaves a half-built object behind when its constructor fails, whose ``__del__`` then
-    prints an ignored-exception traceback on stderr (``'MDF4' object has no attribute '_file'``);
-    that object is marked closed (its ``__del__`` then does nothing) and collected here with exactly
-    that report silenced, before the error is raised.
-
-    Raises
-    ------
-    DataError
-        No such file, or not a readable MF4 file (truncated, foreign, not MF4 at all).
-    """
-    from asammdf import MDF
-
-    path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
-    if path.is_dir():
-        raise DataError(f"{path}: is a folder, not an MF4 file")
-    reason = ""
-    with _QUIET_MDF_DEL:
-        try:
-            return MDF(path, **kwargs)
-        except Exception as exc:  # asammdf raises many kinds for a bad file
-            reason = str(exc) or type(exc).__name__
-            _disarm(exc.__traceback__)
-        gc.collect()  # the half-built object (held by the traceback until here) goes now, quietly
-    raise DataError(f"{path}: not a readable MF4 file ({reason})")
+__all__ = [
+    "DEFAULT_COMPRESSION",
+    "FLAG_CONVERSION",
+    "Channel",
+    "Flag",
+    "LazyChannel",
+    "Recording",
+    "check_compression",
+    "open_mdf",
+]
 
 
 class Flag(IntFlag):
@@ -247,6 +167,73 @@ class Channel:
         return self.flags[idx]
 
 
+class LazyChannel(Channel):
+    """A :class:`Channel` whose arrays are read on first access (from an MF4 file) and can be dropped again.
+
+    Name, unit, source, value texts and the sample count are known without reading the data. Reading is
+    done by ``loader() -> (timestamps, values, flags)``; :meth:`drop` forgets the arrays (the next access
+    reads them again), unless they were replaced (assigned) since: data that is not in the file is never
+    dropped. Changing a loaded array in place is not tracked: drop only what was read for reading.
+    """
+
+    def __init__(self, name: str, unit: str, source: str, n: int,
+                 loader: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+                 value_texts: dict[int, str] | None = None) -> None:
+        self.name = name
+        self.unit = unit
+        self.source = source
+        self.value_texts = value_texts
+        self._n = int(n)
+        self._loader = loader
+        self._arrays: list[np.ndarray] | None = None
+        self._assigned = False
+
+    def _load(self) -> list[np.ndarray]:
+        if self._arrays is None:
+            ts, vs, fl = self._loader()
+            if not (ts.shape == vs.shape == fl.shape == (self._n,)):
+                raise DataError(f"channel {self.name!r}: the file gave {vs.shape[0]} values and {ts.shape[0]} times, "
+                                f"its channel group counts {self._n}")
+            self._arrays = [ts, vs, fl]
+        return self._arrays
+
+    def _set(self, k: int, value: Any, dtype: Any) -> None:
+        arrays = self._load()
+        arrays[k] = np.asarray(value, dtype=dtype)
+        self._n = int(arrays[1].shape[0])
+        self._assigned = True
+
+    timestamps = property(lambda self: self._load()[0],  # type: ignore[assignment]
+                          lambda self, v: self._set(0, v, np.float64))
+    values = property(lambda self: self._load()[1],  # type: ignore[assignment]
+                      lambda self, v: self._set(1, v, np.float64))
+    flags = property(lambda self: self._load()[2],  # type: ignore[assignment]
+                     lambda self, v: self._set(2, v, np.uint16))
+
+    def __len__(self) -> int:
+        return self._n if self._arrays is None else int(self._arrays[1].shape[0])
+
+    def __repr__(self) -> str:
+        state = "loaded" if self._arrays is not None else "not loaded"
+        return f"LazyChannel({self.name!r}, {self.unit!r}, source={self.source!r}, {self._n} samples, {state})"
+
+    @property
+    def loaded(self) -> bool:
+        """Whether the arrays are in memory."""
+        return self._arrays is not None
+
+    def drop(self) -> bool:
+        """Forget the arrays (read again on next access); False (kept) when they were assigned since."""
+        if self._assigned:
+            return False
+        self._arrays = None
+        return True
+
+
+#: MDF 4 channel data types that hold numbers (unsigned, signed, float; little or big endian)
+_NUMERIC_DATA_TYPES = frozenset(range(6))
+
+
 @dataclass
 class Recording:
     """Decoded channels from every source, each on its own time base, plus the segment table.
@@ -268,6 +255,7 @@ class Recording:
     segments: list[Segment] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
     start_time: datetime | None = None
+    _files: list[ChannelFile] = field(default_factory=list, repr=False, compare=False)
 
     def __getitem__(self, name: str) -> Channel:
         try:
@@ -327,8 +315,14 @@ class Recording:
         if any(len(c) == 0 for c in chans):
             empty = [c.name for c in chans if len(c) == 0]
             raise DataError(f"channels without samples: {', '.join(empty)}")
-        lo = max(c.timestamps[0] for c in chans) if start_s is None else start_s
-        hi = min(c.timestamps[-1] for c in chans) if end_s is None else end_s
+        kept = self.loaded()  # lazy channels read here go again once used: one in memory at a time
+        lo, hi = -np.inf, np.inf
+        for c in chans:
+            lo, hi = max(lo, c.timestamps[0]), min(hi, c.timestamps[-1])
+            if c.name not in kept:
+                self.drop([c.name])
+        lo = lo if start_s is None else start_s
+        hi = hi if end_s is None else end_s
         if not hi > lo:
             raise DataError(f"channels {', '.join(names)} do not overlap in time")
         t = np.arange(lo, hi, 1.0 / rate_hz)
@@ -338,10 +332,15 @@ class Recording:
             v = c.at(t, hold=c.name in hold)
             out[c.name] = v
             bad |= ~np.isfinite(v) | ((c.flags_at(t) & int(Flag.bad())) != 0)
+            if c.name not in kept:
+                self.drop([c.name])
         return t, out, bad
 
-    def save(self, path: str | Path) -> Path:
+    def save(self, path: str | Path, *, compression: int = DEFAULT_COMPRESSION) -> Path:
         """Save as MF4 (one channel group per source) with units and flags.
+
+        ``compression`` is asammdf's: 0 none, 1 deflate, 2 transposed deflate (default
+        :data:`DEFAULT_COMPRESSION`; every MDF 4.10 reader, CANape and asammdf among them, reads all three).
 
         The header start time is :attr:`start_time` (the raw logs' start: acquisition time 0), so the
         Recording and the bus logs of a run line up in any MDF tool. Each ``<name>.flags`` channel
@@ -377,50 +376,69 @@ class Recording:
             mdf.header.start_time = self.start_time
         mdf.header.comment = json.dumps({"benchtwin": {"meta": self.meta, "segments": json.loads(
             segments_to_json(self.segments))}}, default=str)
-        path = Path(mdf.save(path, overwrite=True))  # asammdf makes the suffix .mf4: the real name
+        # asammdf makes the suffix .mf4: the real name
+        path = Path(mdf.save(path, overwrite=True, compression=check_compression(compression)))
         mdf.close()
         path.with_suffix(".segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> Recording:
-        """Load a Recording saved by :meth:`save`.
+    def load(cls, path: str | Path, *, channels: Iterable[str] | None = None, lazy: bool = False) -> Recording:
+        """Load a Recording saved by :meth:`save` (or another tool's MF4 of numeric channels).
+
+        Parameters
+        ----------
+        path:
+            The MF4 file.
+        channels:
+            Only these channels (default: all); a name not in the file is a :class:`MissingChannelError`.
+        lazy:
+            Read no data now: each channel is a :class:`LazyChannel` read from the file on first access
+            (the file stays open until :meth:`close`); see :meth:`open`.
 
         Raises
         ------
         DataError
-            If the file cannot be read as MF4.
+            If the file cannot be read as MF4, or a channel holds no numbers (a bus log).
         """
         path = Path(path)
-        mdf = open_mdf(path)
+        source = ChannelFile(path)
+        mdf = source.mdf()
         rec = cls()
-        with mdf:
-            values: dict[str, Any] = {}
-            flags: dict[str, np.ndarray] = {}
-            for gi, group in enumerate(mdf.groups):
-                source = str(getattr(group.channel_group, "acq_name", "") or "")
-                for ci, ch in enumerate(group.channels):
-                    if ch.name == "time" or ch.name.startswith("$"):
-                        continue
-                    sig = mdf.get(ch.name, group=gi, index=ci, raw=True)
-                    if sig.conversion is not None and getattr(sig.conversion, "conversion_type", None) not in (7, 11):
-                        sig = mdf.get(ch.name, group=gi, index=ci)  # a numeric conversion (another tool's file)
-                    if ch.name.endswith(".flags"):
-                        flags[ch.name[:-6]] = np.asarray(sig.samples, dtype=np.uint16)
-                    else:
-                        values[ch.name] = (sig, source)
-            for name, (sig, source) in values.items():
-                try:
-                    samples = np.asarray(sig.samples, dtype=np.float64)
-                except (TypeError, ValueError):  # a CAN frame group, text, a structure: not a Recording
-                    raise DataError(
-                        f"{path}: channel {name!r} holds {_KINDS.get(np.asarray(sig.samples).dtype.kind, 'data')}, "
-                        "not numbers: this is not a benchtwin Recording (a raw bus log: decode it with benchtwin "
-                        "acquire; another tool's log: import it with --signal-map)") from None
-                rec.add(Channel(name, sig.unit or "", sig.timestamps, samples, flags.get(name), source,
-                                _texts_of(sig.conversion)))
-            comment = getattr(mdf.header, "description", "") or ""
-            rec.start_time = mdf.header.start_time
+        found: dict[str, tuple[int, int, Any, str]] = {}
+        flags_of: dict[str, tuple[int, int]] = {}
+        for gi, group in enumerate(mdf.groups):
+            acq = str(getattr(group.channel_group, "acq_name", "") or "")
+            for ci, ch in enumerate(group.channels):
+                if ch.name == "time" or ch.name.startswith("$") or int(getattr(ch, "channel_type", 0)) in (2, 3):
+                    continue  # the master (time) channel
+                if ch.name.endswith(".flags"):
+                    flags_of[ch.name[:-6]] = (gi, ci)
+                else:
+                    found[ch.name] = (gi, ci, ch, acq)
+        wanted = list(found) if channels is None else list(dict.fromkeys(channels))
+        absent = [n for n in wanted if n not in found]
+        if absent:
+            source.close()
+            raise MissingChannelError(f"{path}: no channel {', '.join(map(repr, absent))} "
+                                      f"(has: {', '.join(sorted(found)) or 'none'})")
+        for name in wanted:
+            gi, ci, ch, acq = found[name]
+            if int(getattr(ch, "data_type", 0)) not in _NUMERIC_DATA_TYPES or getattr(ch, "component_addr", 0):
+                source.close()
+                kind = "text" if int(ch.data_type) in (6, 7, 8, 9) else "records (e.g. CAN frames)"
+                raise DataError(
+                    f"{path}: channel {name!r} holds {kind}, not numbers: this is not a benchtwin Recording (a raw "
+                    "bus log: decode it with benchtwin acquire; another tool's log: import it with --signal-map)")
+            conv = ch.conversion
+            numeric = conv is not None and getattr(conv, "conversion_type", None) not in (7, 11)
+            unit = (getattr(conv, "unit", "") if conv is not None else "") or ch.unit or ""
+            n = int(mdf.groups[gi].channel_group.cycles_nr)
+            rec.add(LazyChannel(name, unit, acq, n, source.loader(name, gi, ci, numeric, flags_of.get(name)),
+                                _texts_of(conv)))
+        comment = getattr(mdf.header, "description", "") or ""
+        rec.start_time = mdf.header.start_time
+        rec.own(source)
         side = path.with_suffix(".segments.json")
         try:
             blob = json.loads(comment)["benchtwin"]
@@ -429,4 +447,52 @@ class Recording:
         except (ValueError, KeyError, TypeError):
             if side.exists():
                 rec.segments = segments_from_json(side.read_text(encoding="utf-8"), str(side))
+        if not lazy:
+            try:
+                for ch in rec.channels.values():
+                    chan = cast(LazyChannel, ch)
+                    rec.channels[chan.name] = Channel(chan.name, chan.unit, chan.timestamps, chan.values, chan.flags,
+                                                      chan.source, chan.value_texts)
+            finally:
+                rec.close()
         return rec
+
+    @classmethod
+    def open(cls, path: str | Path, *, channels: Iterable[str] | None = None) -> Recording:
+        """A Recording whose channels are read from the MF4 file on first access (:meth:`load` with ``lazy=True``).
+
+        Names, units, sources, sample counts, segments and metadata are there at once; each channel's
+        arrays are read when first used and can be dropped again with :meth:`drop`. Close the file with
+        :meth:`close` (or use the Recording in a ``with`` block) when done.
+        """
+        return cls.load(path, channels=channels, lazy=True)
+
+    def loaded(self) -> set[str]:
+        """Names of the channels whose arrays are in memory (every channel of an eager Recording)."""
+        return {n for n, c in self.channels.items() if not isinstance(c, LazyChannel) or c.loaded}
+
+    def drop(self, names: Iterable[str] | None = None) -> None:
+        """Forget the arrays of lazy channels (default: all), to be read again from the file when next used.
+
+        Channels held in memory only (not lazy, or assigned since they were read) are kept: nothing
+        recorded is lost.
+        """
+        for n in (self.channels if names is None else names):
+            ch = self.channels.get(n)
+            if isinstance(ch, LazyChannel):
+                ch.drop()
+
+    def own(self, file: ChannelFile) -> None:
+        """Close ``file`` (the source of lazy channels, e.g. an imported log) with this Recording."""
+        self._files.append(file)
+
+    def close(self) -> None:
+        """Close the files of lazy channels (loaded arrays stay; channels not loaded can no longer be read)."""
+        for f in self._files:
+            f.close()
+
+    def __enter__(self) -> Recording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -156,8 +156,11 @@ class Trace:
                 return self.slice_time(seg.start_s, seg.end_s)
         raise MissingChannelError(f"trace has no segment {name!r}")
 
-    def save(self, directory: str | Path) -> Path:
+    def save(self, directory: str | Path, *, compression: int | None = None) -> Path:
         """Save as ``trace.mf4`` (asammdf) plus ``segments.json`` and ``meta.json`` in ``directory``.
+
+        ``compression`` is asammdf's (0 none, 1 deflate, 2 transposed deflate); None:
+        :data:`benchtwin.recording.DEFAULT_COMPRESSION`.
 
         Returns
         -------
@@ -166,6 +169,9 @@ class Trace:
         """
         from asammdf import MDF, Signal
 
+        from benchtwin.mdf import DEFAULT_COMPRESSION, check_compression
+
+        compression = check_compression(DEFAULT_COMPRESSION if compression is None else compression)
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         mdf = MDF(version="4.10")
@@ -177,7 +183,7 @@ class Trace:
         if sigs:
             mdf.append(sigs, comment="benchtwin trace (truth)")
         out = directory / "trace.mf4"
-        mdf.save(out, overwrite=True)
+        mdf.save(out, overwrite=True, compression=compression)
         mdf.close()
         (directory / "segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
         (directory / "meta.json").write_text(json.dumps(self.meta, indent=1, default=str), encoding="utf-8")

@@ -4,7 +4,8 @@ MF4: one file per bus with the ASAM MDF 4 bus-logging layout (a ``CAN_DataFrame`
 the CAN bus-event type, the structure python-can's ``MF4Writer`` writes), appended in one
 ``MDF.append`` from the frame table's columns, so ``can.MF4Reader``, asammdf's
 ``extract_bus_logging`` and the asammdf viewer read it. Timestamps are relative to the header start
-time (the device clocks as seen by the logger). Data bytes are stored 8 wide (classic CAN).
+time (the device clocks as seen by the logger). Data bytes are stored 8 wide (classic CAN). The data
+blocks are compressed (transposed deflate by default: ``##DZ`` blocks, which every MDF 4.1 reader reads).
 
 BLF: exported through python-can's ``BLFWriter`` (per message; for hand-over to Vector tools, not
 for speed), with a ``.blf.json`` sidecar holding the exact first timestamp, the frame count and the
@@ -15,7 +16,8 @@ every frame before the damage. A BLF is checked against the object count in its 
 against the sidecar; a reading error ends the read at the last whole frame. An MF4 whose blocks cannot
 be read (a truncated file: asammdf writes the channel and group blocks after the data) is salvaged when
 it has benchtwin's own record layout: the data blocks that follow the header are read record by record
-up to the cut, and the cycle count of the channel group (when readable) is compared with the records.
+up to the cut (a deflated block up to the cut, a cut transposed block not at all), and the cycle count
+of the channel group (when readable) is compared with the records.
 
 Absolute time: every log of a run starts at one time, the run's start (``start_time``: the campaign
 start :data:`DEFAULT_START` in batch, the acquisition start live); a frame at run time ``t`` is at
@@ -40,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.errors import DataError
-from benchtwin.recording import open_mdf
+from benchtwin.mdf import DEFAULT_COMPRESSION, check_compression, open_mdf
 from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog
 from benchtwin.wire.merge import merge_frames
 
@@ -80,7 +82,7 @@ DEFAULT_START = datetime(2026, 1, 1, tzinfo=UTC)
 
 
 def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_time: datetime = DEFAULT_START,
-              compression: int = 0) -> Path:
+              compression: int = DEFAULT_COMPRESSION) -> Path:
     """Write a frame table as an MF4 bus log in one bulk append.
 
     Parameters
@@ -94,7 +96,10 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
     start_time:
         Header start time (frame timestamps are relative to it).
     compression:
-        asammdf compression (0 none, 1 deflate, 2 transposed deflate).
+        asammdf compression (0 none, 1 deflate, 2 transposed deflate; default
+        :data:`~benchtwin.mdf.DEFAULT_COMPRESSION`, 2: the bus logs of the paper campaign shrink ~40x for
+        ~1.6x the CPU of no compression, see benchmarks/bench_files.py). Every choice reads back the same
+        with ``can.MF4Reader``, asammdf and :func:`read_mf4`.
     """
     from asammdf import MDF, Signal
     from asammdf.blocks.source_utils import Source
@@ -116,7 +121,7 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
                  bus_type=Source.BUS_TYPE_CAN)
     mdf.append(Signal(name="CAN_DataFrame", samples=rec, timestamps=np.ascontiguousarray(f["timestamp"]),
                       source=src), acq_name=table.bus, comment=f"CAN bus {table.bus}")
-    mdf.save(path, overwrite=True, compression=compression)
+    mdf.save(path, overwrite=True, compression=check_compression(compression))
     mdf.close()
     return path
 
@@ -227,20 +232,14 @@ def _salvage_mf4(path: Path, origin: datetime = DEFAULT_START) -> tuple[np.ndarr
         return np.zeros(0, FRAME_DTYPE), "truncated inside its header: no frame left"
     hd_links = int.from_bytes(raw[64 + 16:64 + 24], "little")
     hd_data = 64 + 24 + 8 * hd_links
-    pos = raw.find(b"##DT", hd_data)
+    found = [p for p in (raw.find(b"##DT", hd_data), raw.find(b"##DZ", hd_data)) if p >= 0]
+    pos = min(found) if found else -1
     if hd_data + 8 > len(raw) or pos < 0:
         return np.zeros(0, FRAME_DTYPE), "truncated before its data: no frame left"
     start_ns = int.from_bytes(raw[hd_data:hd_data + 8], "little")
     if b"benchtwin bus log" not in raw[:pos]:
         return None  # another logger's layout: the records cannot be known without the channel blocks
-    chunks, declared = [], 0
-    while pos + 24 <= len(raw) and raw[pos:pos + 4] == b"##DT":
-        length = int.from_bytes(raw[pos + 8:pos + 16], "little")
-        if length < 24:
-            break
-        declared += length - 24
-        chunks.append(raw[pos + 24:min(pos + length, len(raw))])
-        pos += (length + 7) // 8 * 8
+    chunks, declared = _data_blocks(raw, pos)
     body = b"".join(chunks)
     n = len(body) // _MF4_RECORD.itemsize
     rec = np.frombuffer(body[:n * _MF4_RECORD.itemsize], dtype=_MF4_RECORD)
@@ -249,6 +248,49 @@ def _salvage_mf4(path: Path, origin: datetime = DEFAULT_START) -> tuple[np.ndarr
     at_least = declared // _MF4_RECORD.itemsize
     return frames, (f"truncated: the file ends inside its data (channel blocks missing); {n} frames kept "
                     f"of at least {at_least} its data blocks declare")
+
+
+def _data_blocks(raw: bytes, pos: int) -> tuple[list[bytes], int]:
+    """The record bytes of the data blocks from ``pos`` on, up to the cut, and how many bytes they declare.
+
+    ``##DT`` blocks hold records as they are; ``##DZ`` blocks hold them deflated (zip type 0) or transposed
+    (record bytes by column) and deflated (zip type 1). The deflated stream of a cut DZ block gives its
+    records up to the cut; a cut transposed block gives none (its first bytes are the first column only).
+    """
+    chunks: list[bytes] = []
+    declared = 0
+    while pos + 24 <= len(raw) and raw[pos:pos + 4] in (b"##DT", b"##DZ"):
+        length = int.from_bytes(raw[pos + 8:pos + 16], "little")
+        if length < 24:
+            break
+        end = min(pos + length, len(raw))
+        if raw[pos:pos + 4] == b"##DT":
+            declared += length - 24
+            chunks.append(raw[pos + 24:end])
+        else:
+            if pos + 48 > len(raw):
+                break
+            zip_type = raw[pos + 26]
+            param = int.from_bytes(raw[pos + 28:pos + 32], "little")
+            original = int.from_bytes(raw[pos + 32:pos + 40], "little")
+            declared += original
+            try:
+                body = zlib.decompressobj().decompress(raw[pos + 48:end])
+            except zlib.error:
+                break
+            if zip_type == 1 and param > 1:
+                if len(body) < original:
+                    break  # a cut transposed block: its records cannot be rebuilt
+                rows = original // param
+                body = (np.frombuffer(body[:rows * param], np.uint8).reshape(param, rows).T.tobytes()
+                        + body[rows * param:])
+            elif zip_type not in (0, 1):
+                break
+            chunks.append(body)
+        if end < pos + length:
+            break
+        pos += (length + 7) // 8 * 8
+    return chunks, declared
 
 
 def write_blf(table: FrameTable, path: str | Path, *, channel: int = 1, start_time: datetime = DEFAULT_START) -> Path:

@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         from benchtwin.identification.signal_map import load_signal_map
 
         smap = load_signal_map(args.signal_map)
-        rec = import_log(args.recording, smap)
+        rec = import_log(args.recording, smap, lazy=True)  # an MF4 log: channels read per method
         specs = smap.specs
         if smap.battery is not None:
             b = smap.battery
@@ -177,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         if args.recording.suffix.lower() not in (".mf4", ".mdf"):
             raise ConfigError(f"{args.recording}: not an MF4 Recording; give --signal-map to import a "
                               f"{args.recording.suffix or 'text'} log")
-        rec = Recording.load(args.recording)
+        rec = Recording.open(args.recording)  # channels read per method, not all at once
     if args.specs is not None:
         specs = _load_specs(args.specs)
     if args.start_soc is not None:

@@ -10,6 +10,7 @@ differentiate smoothly and check that a regressor really varies.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -22,6 +23,7 @@ from benchtwin.errors import (
     MissingChannelError,
     NoExcitationError,
 )
+from benchtwin.identification._derivative import runs, smooth_derivative
 from benchtwin.recording import Channel, Flag, Recording
 
 __all__ = [
@@ -158,27 +160,45 @@ class _IndexCache:
 
     def __init__(self, t: np.ndarray) -> None:
         self.t = t
-        self._cache: list[tuple[np.ndarray, float, np.ndarray]] = []
+        self._cache: list[tuple[weakref.ref[np.ndarray], float, np.ndarray]] = []
 
     def fidx(self, ts: np.ndarray, shift_s: float = 0.0) -> np.ndarray:
         """Fractional index into ``ts + shift_s`` of every grid time (``ts`` in time order)."""
-        for ts0, s0, f in self._cache:
-            if s0 == shift_s and (ts0 is ts or (ts0.shape == ts.shape and ts0[0] == ts[0] and ts0[-1] == ts[-1]
-                                                and np.array_equal(ts0, ts))):
+        for ref, s0, f in self._cache:
+            # the time bases are held weakly: a lazy Recording's channel dropped after gathering lets its go
+            ts0 = ref()
+            if ts0 is not None and s0 == shift_s and (
+                    ts0 is ts or (ts0.shape == ts.shape and ts0[0] == ts[0] and ts0[-1] == ts[-1]
+                                  and np.array_equal(ts0, ts))):
                 return f
         # np.interp walks sorted queries in one pass (a binary search per query costs more on long logs)
         f = np.interp(self.t, ts + shift_s if shift_s else ts, np.arange(ts.size, dtype=float))
-        self._cache.append((ts, shift_s, f))
+        self._cache = [c for c in self._cache if c[0]() is not None]
+        self._cache.append((weakref.ref(ts), shift_s, f))
         return f
+
+
+#: grid points sampled at a time by :func:`_sample` (bounds its index and weight temporaries on long logs)
+SAMPLE_BLOCK = 1 << 20
 
 
 def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = None, shift_s: float = 0.0
             ) -> tuple[np.ndarray, np.ndarray]:
     """Values of ``ch`` at ``t`` (linear, or zero-order hold; NaN outside its span) and a mask of grid
     samples touched by a flagged or non-finite source sample."""
-    n = len(ch)
     ts, vs, fl = _in_order(ch)
     fidx = (cache if cache is not None else _IndexCache(t)).fidx(ts, shift_s)
+    v = np.empty(t.shape, dtype=float)
+    flagged = np.empty(t.shape, dtype=bool)
+    for k in range(0, t.size, SAMPLE_BLOCK):  # block by block: the same numbers, bounded temporaries
+        part = slice(k, k + SAMPLE_BLOCK)
+        v[part], flagged[part] = _sample_block(ts, vs, fl, t[part], fidx[part], hold, shift_s)
+    return v, flagged
+
+
+def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray, fidx: np.ndarray, hold: bool,
+                  shift_s: float) -> tuple[np.ndarray, np.ndarray]:
+    n = ts.size
     first, last = ts[0] + shift_s, ts[-1] + shift_s
     idx = np.floor(fidx).astype(np.int64)
     idx[t < first] = -1
@@ -249,8 +269,15 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
     if empty:
         raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
     shifts = source_shifts(rec) if align else {}
-    lo = max(float(c.timestamps.min()) + shifts.get(c.source, 0.0) for c in chans)
-    hi = min(float(c.timestamps.max()) + shifts.get(c.source, 0.0) for c in chans)
+    # a lazy Recording (Recording.open, a log imported on demand): a channel read here goes again once it has
+    # given its span and its values on the grid, so one channel at its own rate is in memory at a time
+    kept = rec.loaded()
+    lo, hi = -np.inf, np.inf
+    for c in chans:
+        lo = max(lo, float(c.timestamps.min()) + shifts.get(c.source, 0.0))
+        hi = min(hi, float(c.timestamps.max()) + shifts.get(c.source, 0.0))
+        if c.name not in kept:
+            rec.drop([c.name])
     if span is not None:
         lo, hi = max(lo, float(span[0])), min(hi, float(span[1]))
     if not hi > lo:
@@ -266,6 +293,8 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
         values[c.name] = v
         flagged |= fl
         bad |= fl | ~np.isfinite(v)
+        if c.name not in kept:
+            rec.drop([c.name])
     present = set()
     for n in optional:
         if n in rec and len(rec[n]) and n not in values:
@@ -273,6 +302,8 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
             v[fl] = np.nan
             values[n] = v
             present.add(n)
+            if n not in kept:
+                rec.drop([n])
     return Grid(t, values, bad, flagged, rate_hz, present, shifts)
 
 
@@ -313,100 +344,6 @@ def segment_names(rec: Recording, times: Iterable[float]) -> list[str]:
         if times.size and np.any(s.contains(times)):
             out.add(s.name)
     return sorted(out)
-
-
-def runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Contiguous runs of True in ``mask`` as half-open index ranges ``(i0, i1)``."""
-    m = np.asarray(mask, dtype=bool).astype(np.int8)
-    if m.size == 0:
-        return []
-    d = np.diff(np.concatenate(([0], m, [0])))
-    starts = np.flatnonzero(d == 1)
-    ends = np.flatnonzero(d == -1)
-    return list(zip(starts.tolist(), ends.tolist()))
-
-
-def smooth_derivative(x: np.ndarray, dt: float, window_s: float, *, valid: np.ndarray | None = None,
-                      polyorder: int = 3) -> np.ndarray:
-    """Savitzky-Golay derivative of ``x`` (uniform step ``dt``), computed run by run over ``valid``.
-
-    Samples outside ``valid`` and runs shorter than the window get NaN, so a derivative never
-    spans a flagged sample or a gap. Within a run the result is that of
-    ``scipy.signal.savgol_filter(run, w, polyorder, deriv=1, delta=dt, mode="interp")``: the
-    centred filter inside, the derivative of the polynomial fitted to the first and last ``w``
-    samples at the edges. The filter and the edge fits are linear in the data, so they are applied
-    to every run at once as fixed coefficients (one ``polyfit`` per run edge would cost far more on
-    a long log with thousands of runs).
-
-    Parameters
-    ----------
-    x:
-        Samples on a uniform grid.
-    dt:
-        Grid step, s.
-    window_s:
-        Filter window, s (rounded to an odd number of samples, at least ``polyorder + 2``).
-    valid:
-        Samples that may be used (default: the finite ones).
-    polyorder:
-        Order of the fitted polynomial.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``dx/dt`` per sample, NaN outside the usable runs.
-    """
-    x = np.asarray(x, dtype=float)
-    valid = np.isfinite(x) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(x))
-    w = max(round(window_s / dt) | 1, polyorder + 2 | 1)
-    out = np.full(x.shape, np.nan)
-    spans = np.array(runs(valid), dtype=np.int64).reshape(-1, 2)
-    spans = spans[spans[:, 1] - spans[:, 0] >= w]
-    if spans.size == 0:
-        return out
-    h = w // 2
-    coef = _savgol_dot_coeffs(w, polyorder, dt)
-    xf = np.where(valid, x, 0.0)
-    # centred filter over the whole grid: a window inside a run sees only that run's samples
-    inside = np.zeros(x.size + 1, dtype=np.int64)
-    np.add.at(inside, spans[:, 0] + h, 1)
-    np.add.at(inside, spans[:, 1] - h, -1)
-    inner = np.cumsum(inside[:-1]) > 0
-    centre = np.correlate(xf, coef[h], mode="valid")  # centre[m] belongs to sample m + h
-    idx = np.flatnonzero(inner)
-    out[idx] = centre[idx - h]
-    # edges: the polynomial through the first / last w samples of each run, evaluated at its h outer samples
-    k = np.arange(w)
-    head = xf[spans[:, 0, None] + k] @ coef[:h].T
-    tail = xf[spans[:, 1, None] - w + k] @ coef[w - h:].T
-    out[spans[:, 0, None] + np.arange(h)] = head
-    out[spans[:, 1, None] - h + np.arange(h)] = tail
-    return out
-
-
-_SAVGOL_CACHE: dict[tuple[int, int, float], np.ndarray] = {}
-
-
-def _savgol_dot_coeffs(w: int, polyorder: int, dt: float) -> np.ndarray:
-    """Rows k = 0..w-1: coefficients giving the first derivative at position k of the degree-``polyorder``
-    least-squares polynomial through ``w`` samples (``coef[k] @ window``).
-
-    The polynomial is written in the centred, scaled abscissa ``u = (k - c) / c``, ``c = (w - 1) / 2``, so the
-    Vandermonde matrix stays well conditioned for long windows (as in ``numpy.polynomial.Polynomial.fit``).
-    """
-    key = (w, polyorder, float(dt))
-    c = _SAVGOL_CACHE.get(key)
-    if c is None:
-        half = (w - 1) / 2.0
-        u = (np.arange(w) - half) / half
-        j = np.arange(polyorder + 1)
-        vander = u[:, None] ** j  # w x (p + 1)
-        deriv = np.zeros_like(vander)
-        deriv[:, 1:] = j[1:] * u[:, None] ** (j[1:] - 1)  # d/du of each basis function at every sample
-        c = deriv @ np.linalg.pinv(vander) / (half * dt)
-        if len(_SAVGOL_CACHE) < 64:
-            _SAVGOL_CACHE[key] = c
-    return c
 
 
 def check_spread(x: np.ndarray, min_spread: float, what: str, name: str, unit: str = "") -> None:
@@ -456,8 +393,11 @@ def gap_mask(rec: Recording, names: list[str], t: np.ndarray, factor: float = 3.
     Interpolating across a pause in the log would invent samples; those grid points are left out.
     """
     out = np.zeros(t.shape, dtype=bool)
+    kept = rec.loaded()  # a lazy Recording: a channel read here goes again once used
     for n in names:
         ts = rec[n].timestamps
+        if n not in kept:
+            rec.drop([n])  # ts stays with this loop
         if ts.size < 3:
             continue
         dt = np.diff(ts)
@@ -481,6 +421,7 @@ def strict_resample(rec: Recording, names: list[str], rate_hz: float, *, hold: t
     one inside a pause of the log carries an invented value. Both are marked bad here.
     """
     t, v, bad = rec.resample(names, rate_hz, hold=hold)
+    kept = rec.loaded()  # a lazy Recording: a channel read here goes again once used
     for n in names:
         ch = rec[n]
         if n in hold or len(ch) < 2:
@@ -489,5 +430,7 @@ def strict_resample(rec: Recording, names: list[str], rate_hz: float, *, hold: t
         if sbad.any():
             nxt = np.clip(np.searchsorted(ch.timestamps, t, side="left"), 0, len(ch) - 1)
             bad |= sbad[nxt] | ((ch.flags[nxt] & int(Flag.bad())) != 0)
+        if n not in kept:
+            rec.drop([n])
     bad |= gap_mask(rec, [n for n in names if n not in hold], t)
     return t, v, bad

@@ -11,7 +11,10 @@ import contextlib
 import csv
 import io
 import logging
+import weakref
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -205,7 +208,7 @@ def import_csv(path: str | Path, smap: SignalMap) -> Recording:
     return _to_recording(t, cols, smap, str(path))
 
 
-def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
+def import_mf4(path: str | Path, smap: SignalMap, *, lazy: bool = False) -> Recording:
     """Import an MF4 log (asammdf) into a Recording; each mapped channel keeps its own time base.
 
     The unit of a mapped channel is taken from the file when the signal map gives none.
@@ -216,6 +219,11 @@ def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
         The MF4 file.
     smap:
         The signal map (``column`` = MF4 channel name).
+    lazy:
+        Read no values now: each role is a :class:`~benchtwin.recording.LazyChannel` read from the file
+        (and converted) when first used, and dropped again by identification after each method, so a
+        day-long log is never in memory whole (see :func:`_import_mf4_lazy`). Not with a
+        ``source.time_column`` (the time then comes from another channel): read at once.
 
     Raises
     ------
@@ -225,6 +233,10 @@ def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
     from benchtwin.recording import open_mdf
 
     path = Path(path)
+    if lazy and not smap.source.time_column:
+        rec = _import_mf4_lazy(path, smap)
+        if rec is not None:
+            return rec
     mdf = open_mdf(path)
     cols: dict[str, tuple[np.ndarray, np.ndarray, str]] = {}
     with mdf:
@@ -249,7 +261,117 @@ def import_mf4(path: str | Path, smap: SignalMap) -> Recording:
     return _to_recording(np.array([]), cols, smap, str(path))
 
 
-def import_log(path: str | Path, signal_map: SignalMap | str | Path) -> Recording:
+#: samples converted at a time by a lazily imported channel
+_BLOCK = 1 << 20
+
+#: channel dtypes kept as float32 in memory when imported lazily: the file holds no more precision than that
+_NARROW = (np.float32, np.int8, np.uint8, np.int16, np.uint16)
+
+
+def _import_mf4_lazy(path: Path, smap: SignalMap) -> Recording | None:
+    """The lazy form of :func:`import_mf4` (None: a time base with non-finite times; import it at once).
+
+    The checks that need no values run here: every mapped channel present and numeric, every unit
+    convertible, every time base increasing. Each role's values are read, converted to the role's unit,
+    scaled and checked against its plausible range when first used; samples outside it are flagged
+    OUT_OF_RANGE then (and counted in ``meta["implausible_samples"]``).
+
+    Precision: a channel the file stores as float32 or as an integer of at most 16 bits stays float32 in
+    memory after conversion (half the memory of float64): its relative rounding (6e-8) is far below the
+    resolution the file itself holds (float32: the same 6e-8; 16-bit integers: 1.5e-5 of full scale), so
+    no information is lost. Times stay float64 (float32 steps 8 ms at 24 h: coarser than 100 Hz).
+    """
+    from benchtwin.mdf import ChannelFile
+    from benchtwin.recording import LazyChannel
+
+    src = ChannelFile(path)
+    mdf = src.mdf()
+    origin = str(path)
+    rec = Recording(meta={"imported_from": origin, "source_format": smap.source.format or "",
+                          "signal_map_roles": sorted(smap.channels), "read_on_demand": True})
+    checked: set[int] = set()
+    plans = []
+    for role, cm in smap.channels.items():
+        where = mdf.channels_db.get(cm.column)
+        if not where:
+            src.close()
+            avail = ", ".join(sorted(n for n in mdf.channels_db if not n.startswith("$")))
+            raise MissingChannelError(f"{origin}: signal map channels.{role}.column = {cm.column!r} is not in the log "
+                                      f"(columns: {avail})")
+        gi, ci = where[0]
+        ch = mdf.groups[gi].channels[ci]
+        if int(getattr(ch, "data_type", 0)) > 5 or getattr(ch, "component_addr", 0):
+            src.close()
+            raise DataError(f"{path}: channel {cm.column!r} (for {role}) is not numeric")
+        conv = ch.conversion
+        file_unit = str((getattr(conv, "unit", "") if conv is not None else "") or ch.unit or "")
+        unit = cm.unit if cm.unit is not None else (file_unit or ROLES[role][0])
+        convert_units(np.zeros(0), unit, ROLES[role][0], key=f"channels.{role}.unit")  # a bad unit: now
+        if gi not in checked:  # one time base at a time: read, checked, let go
+            checked.add(gi)
+            t = convert_units(src.times(gi), smap.source.time_unit, "s", key="source.time_unit")
+            if not np.isfinite(t).all():
+                src.close()
+                return None
+            back = np.flatnonzero(np.diff(t) < 0)
+            if back.size:
+                k = int(back[0])
+                src.close()
+                raise DataError(f"{origin}: time of {role} ({cm.column}) goes back from {t[k]:.6g} s to "
+                                f"{t[k + 1]:.6g} s at sample {k + 1} ({back.size} such step(s)): a clock restart or "
+                                "logs joined together; split the log at the restart or give a monotonic time column")
+            del t
+        numeric = conv is not None and getattr(conv, "conversion_type", None) not in (7, 11)
+        plans.append((role, cm, gi, ci, unit, numeric, int(mdf.groups[gi].channel_group.cycles_nr)))
+    cache: dict[int, weakref.ref[np.ndarray]] = {}  # converted times, shared while a channel of the group is loaded
+    last: list[np.ndarray] = []  # and the last one used, kept: channels are often read group by group
+
+    def time_of(gi: int) -> np.ndarray:
+        ref = cache.get(gi)
+        t = ref() if ref is not None else None
+        if t is None:
+            t = convert_units(src.times(gi), smap.source.time_unit, "s", key="source.time_unit")
+            cache[gi] = weakref.ref(t)
+        last[:] = [t]
+        return t
+
+    def loader(role: str, cm: Any, gi: int, ci: int, unit: str, numeric: bool
+               ) -> Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            t = time_of(gi)
+            raw = src.read(cm.column, gi, ci, numeric)
+            vs = np.empty(raw.shape, np.float32 if raw.dtype in _NARROW else np.float64)
+            for k in range(0, raw.size, _BLOCK):  # in float64 block by block: bounded temporaries
+                part = convert_units(raw[k:k + _BLOCK], unit, ROLES[role][0], key=f"channels.{role}.unit")
+                if cm.scale != 1.0:
+                    part *= cm.scale
+                if cm.offset != 0.0:
+                    part += cm.offset
+                vs[k:k + _BLOCK] = part
+            del raw
+            lo, hi = plausible_range(role)
+            bad = ~((vs >= lo) & (vs <= hi))  # NaN too
+            if bad.any():
+                fl = np.where(bad, int(Flag.OUT_OF_RANGE), 0).astype(np.uint16)
+                implausible = int(np.count_nonzero(bad & np.isfinite(vs)))
+                if implausible and role not in rec.meta.get("implausible_samples", {}):
+                    rec.meta.setdefault("implausible_samples", {})[role] = implausible
+                    log.warning("%s: %d sample(s) of %s outside %g..%g %s flagged OUT_OF_RANGE", origin, implausible,
+                                role, lo, hi, ROLES[role][0])
+            else:  # all plausible: one shared zero, no flag array
+                fl = np.broadcast_to(np.zeros(1, np.uint16), vs.shape)
+            return t, vs, fl
+
+        return load
+
+    for role, cm, gi, ci, unit, numeric, n in plans:
+        rec.add(LazyChannel(role, ROLES[role][0], smap.source.source_name, n,
+                            loader(role, cm, gi, ci, unit, numeric)))
+    rec.own(src)
+    return rec
+
+
+def import_log(path: str | Path, signal_map: SignalMap | str | Path, *, lazy: bool = False) -> Recording:
     """Import a CSV or MF4 log through a signal map (format from the map, else the file extension).
 
     Parameters
@@ -259,6 +381,9 @@ def import_log(path: str | Path, signal_map: SignalMap | str | Path) -> Recordin
     signal_map:
         A :class:`SignalMap` or the path of its TOML file.
 
+    lazy:
+        An MF4 log: read each channel when first used (:func:`import_mf4`); a CSV is read at once.
+
     Returns
     -------
     Recording
@@ -266,4 +391,4 @@ def import_log(path: str | Path, signal_map: SignalMap | str | Path) -> Recordin
     """
     smap = signal_map if isinstance(signal_map, SignalMap) else load_signal_map(signal_map)
     fmt = smap.source.format or ("mf4" if Path(path).suffix.lower() in (".mf4", ".mdf", ".dat") else "csv")
-    return import_mf4(path, smap) if fmt == "mf4" else import_csv(path, smap)
+    return import_mf4(path, smap, lazy=lazy) if fmt == "mf4" else import_csv(path, smap)

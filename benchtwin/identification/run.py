@@ -341,8 +341,12 @@ def identify_all(
         for m in METHODS:
             if m.name in wanted:
                 before = set(result.fits)
+                kept = recording.loaded()
                 _run_method(m, recording, specs, result, options)
                 produced[m.name] = set(result.fits) - before
+                # a lazy Recording (Recording.open): what this method read goes, so only one family's channels are
+                # in memory at a time; channels the caller had loaded stay
+                recording.drop(recording.loaded() - kept)
         if type_b:
             t0 = time.perf_counter()
             plan = [(fits, _reads(m.name), _rerun(m.name, specs, options)) for m in METHODS
@@ -397,12 +401,15 @@ def stuck_channels(recording: Recording) -> dict[str, float]:
         samples are not judged).
     """
     out: dict[str, float] = {}
+    kept = recording.loaded()
     for name, ch in recording.channels.items():
-        if name in STATE_ROLES or unit_of_role(name) == "":
+        if name in STATE_ROLES or unit_of_role(name) == "" or len(ch) < STUCK_MIN_SAMPLES:
             continue
         v = ch.values[np.isfinite(ch.values)]
         if v.size >= STUCK_MIN_SAMPLES and v[0] != 0.0 and np.all(v == v[0]):
             out[name] = float(v[0])
+        if name not in kept:
+            recording.drop([name])  # a lazy Recording: one channel in memory at a time
     return out
 
 

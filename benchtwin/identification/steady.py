@@ -161,8 +161,16 @@ class SteadyWindows:
 
         With ``other`` (a channel of the same source on the same timestamps, e.g. the voltage of a
         current), the mean of the sample-by-sample product; on different timestamps, the product of
-        the two means. Timestamps get the grid's clock shifts (:func:`source_shifts`).
+        the two means. Timestamps get the grid's clock shifts (:func:`source_shifts`). A channel of a lazy
+        Recording read here goes again afterwards (one channel at its own rate in memory at a time).
         """
+        kept = rec.loaded()
+        try:
+            return self._raw_average(rec, name, other)
+        finally:
+            rec.drop([n for n in (name, other) if n is not None and n not in kept])
+
+    def _raw_average(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
         shifts = self.grid.shifts
         ch = rec[name]
         shift = shifts.get(ch.source, 0.0)

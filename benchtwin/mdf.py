@@ -1,0 +1,211 @@
+"""MF4 files through asammdf: opening with one clear error, the compression choices, channels read one at a time.
+
+Below :mod:`benchtwin.recording` (which re-exports :func:`open_mdf`); the bus logs, the Trace and the importers
+use it too.
+"""
+
+from __future__ import annotations
+
+import gc
+import sys
+import threading
+import weakref
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchtwin.errors import DataError
+
+__all__ = ["DEFAULT_COMPRESSION", "ChannelFile", "check_compression", "open_mdf"]
+
+
+def _is_mdf_del(unraisable: Any) -> bool:
+    name = getattr(unraisable.object, "__qualname__", "")
+    return isinstance(name, str) and name.startswith(("MDF4.__del__", "MDF3.__del__", "MDF.__del__"))
+
+
+class _QuietMdfDel:
+    """While entered (by any thread), the ignored-exception report of asammdf's ``MDF4.__del__`` is dropped.
+
+    ``sys.unraisablehook`` is process-wide: the threads that read bus logs in parallel share one
+    filter, installed by the first to enter and removed by the last to leave.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._users = 0
+        self._previous: Any = None
+
+    def _hook(self, unraisable: Any) -> None:
+        if not _is_mdf_del(unraisable):
+            self._previous(unraisable)
+
+    def __enter__(self) -> None:
+        with self._lock:
+            if self._users == 0:
+                self._previous = sys.unraisablehook
+                sys.unraisablehook = self._hook
+            self._users += 1
+
+    def __exit__(self, *exc: object) -> None:
+        with self._lock:
+            self._users -= 1
+            if self._users == 0:
+                sys.unraisablehook = self._previous
+                self._previous = None
+
+
+_QUIET_MDF_DEL = _QuietMdfDel()
+
+
+def _disarm(tb: Any) -> None:
+    """Mark the half-built MDF objects of a failed constructor closed, so their ``__del__`` has nothing to do.
+
+    The object may outlive this call (a reference cycle, collected whenever the garbage collector next
+    runs, in any thread); its ``close()`` returns at once when ``_closed`` is set.
+    """
+    while tb is not None:
+        for value in list(tb.tb_frame.f_locals.values()):
+            if type(value).__name__ in ("MDF4", "MDF3") and not (hasattr(value, "_file") and hasattr(value, "header")):
+                value._closed = True
+        tb = tb.tb_next
+
+
+def open_mdf(path: str | Path, *, stream: Any = None, **kwargs: Any) -> Any:
+    """Open an MF4 file with asammdf; a file asammdf cannot read is one :class:`DataError` line.
+
+    ``stream``: the file already opened (binary) to read through instead of the path; asammdf then
+    reads with ordinary reads rather than mapping the whole file into memory (whose pages, once read,
+    count in the process's resident memory: the whole file for a day-long log).
+
+    asammdf leaves a half-built object behind when its constructor fails, whose ``__del__`` then
+    prints an ignored-exception traceback on stderr (``'MDF4' object has no attribute '_file'``);
+    that object is marked closed (its ``__del__`` then does nothing) and collected here with exactly
+    that report silenced, before the error is raised.
+
+    Raises
+    ------
+    DataError
+        No such file, or not a readable MF4 file (truncated, foreign, not MF4 at all).
+    """
+    from asammdf import MDF
+
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such file")
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder, not an MF4 file")
+    reason = ""
+    with _QUIET_MDF_DEL:
+        try:
+            return MDF(path if stream is None else stream, **kwargs)
+        except Exception as exc:  # asammdf raises many kinds for a bad file
+            reason = str(exc) or type(exc).__name__
+            _disarm(exc.__traceback__)
+        gc.collect()  # the half-built object (held by the traceback until here) goes now, quietly
+    raise DataError(f"{path}: not a readable MF4 file ({reason})")
+
+
+#: asammdf compression of the MF4 files benchtwin writes: 2, transposed deflate (benchmarks/bench_files.py:
+#: the Recording and the Trace shrink ~10x for ~2x the write time of no compression, and read faster than
+#: they are written; deflate alone saves far less on float channels)
+DEFAULT_COMPRESSION = 2
+
+_COMPRESSIONS = {0: "none", 1: "deflate", 2: "transposed deflate"}
+
+
+def check_compression(compression: int) -> int:
+    """``compression`` if asammdf knows it (0, 1, 2), else a :class:`DataError` naming the choices."""
+    if isinstance(compression, bool) or compression not in _COMPRESSIONS:
+        raise DataError(f"MF4 compression must be one of {', '.join(f'{k} ({v})' for k, v in _COMPRESSIONS.items())}, "
+                        f"got {compression!r}")
+    return int(compression)
+
+
+#: bytes of records asammdf reads at a time for one channel of a :class:`ChannelFile`
+READ_FRAGMENT_BYTES = 8 << 20
+
+
+class ChannelFile:
+    """One MF4 file kept open for the lazy channels of a Recording: reads one channel (and its flags) at a time.
+
+    Channels of one channel group share one timestamps array while any of them is loaded (held weakly).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._mdf: Any = None
+        self._stream: Any = None
+        self._lock = threading.RLock()
+        self._times: dict[int, weakref.ref[np.ndarray]] = {}
+
+    def mdf(self) -> Any:
+        """The open asammdf MDF (opened on first use; :class:`DataError` if unreadable)."""
+        with self._lock:
+            if self._mdf is None:
+                if not self.path.is_file():
+                    open_mdf(self.path)  # says why (no such file, a folder)
+                self._stream = self.path.open("rb")  # read, not mapped: resident memory is what is read now
+                try:
+                    self._mdf = open_mdf(self.path, stream=self._stream)
+                except DataError:
+                    self._stream.close()
+                    self._stream = None
+                    raise
+                # records are read in fragments of this size: reading one channel of a long group holds one
+                # fragment of the group's records at a time, not all of them
+                self._mdf.configure(read_fragment_size=READ_FRAGMENT_BYTES)
+            return self._mdf
+
+    def close(self) -> None:
+        """Close the file (it is opened again when a channel is next read)."""
+        with self._lock:
+            if self._mdf is not None:
+                self._mdf.close()
+                self._mdf = None
+            if self._stream is not None:
+                self._stream.close()
+                self._stream = None
+
+
+    def _guarded(self, what: str, fn: Callable[[], np.ndarray]) -> np.ndarray:
+        with self._lock, _QUIET_MDF_DEL:
+            try:
+                return fn()
+            except DataError:
+                raise
+            except Exception as exc:  # asammdf raises many kinds for a damaged data block
+                raise DataError(f"{self.path}: {what} unreadable ({exc or type(exc).__name__})") from None
+
+    def times(self, gi: int) -> np.ndarray:
+        """The master (time) channel of channel group ``gi``, float64; one array per group while it is in use."""
+        ref = self._times.get(gi)
+        ts = ref() if ref is not None else None
+        if ts is None:
+            ts = self._guarded(f"time of channel group {gi}",
+                               lambda: np.asarray(self.mdf().get_master(gi), dtype=np.float64))
+            self._times[gi] = weakref.ref(ts)
+        return ts
+
+    def read(self, name: str, gi: int, ci: int, numeric_conversion: bool = False) -> np.ndarray:
+        """The samples of channel ``ci`` of group ``gi`` as stored (``numeric_conversion``: physical values)."""
+        def get() -> np.ndarray:
+            if numeric_conversion:  # a numeric conversion (another tool's file): physical values
+                return np.asarray(self.mdf().get(name, group=gi, index=ci).samples)
+            return np.asarray(self.mdf().get(name, group=gi, index=ci, raw=True, samples_only=True)[0])
+
+        return self._guarded(f"channel {name!r}", get)
+
+    def loader(self, name: str, gi: int, ci: int, numeric_conversion: bool, flags_at: tuple[int, int] | None
+               ) -> Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """``load() -> (timestamps, values float64, flags uint16)`` of one Recording channel and its flags channel."""
+        def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            ts = self.times(gi)
+            vs = np.asarray(self.read(name, gi, ci, numeric_conversion), dtype=np.float64)
+            fl = (np.asarray(self.read(f"{name}.flags", *flags_at), dtype=np.uint16)
+                  if flags_at is not None else np.zeros(vs.shape, dtype=np.uint16))
+            return ts, vs, fl
+
+        return load
