@@ -17,7 +17,7 @@ from _profiles import profile
 from _tolerance import property_checks
 from hypothesis import example, given
 from hypothesis import strategies as st
-from strategies import DrawnSetup, campaign_for, pinned, seeds, setups, vehicles
+from strategies import FAMILY_PICKS, DrawnSetup, campaign_for, pinned, seeds, setups, vehicles
 
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator import simulate_campaign
@@ -59,20 +59,20 @@ def test_transmission_recovers_eta_m_and_c0(vehicle: VehicleConfig, drawn: Drawn
 @profile()
 @given(vehicles(), setups(), seeds)
 def test_motor_recovers_willans_lines(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
-    _run("motor", vehicle, drawn, seed, modes={"electric", "charge"}, max_ramp_ups=4)
+    _run("motor", vehicle, drawn, seed, **FAMILY_PICKS["motor"])
 
 
 @profile()
 @given(vehicles(), setups(), seeds)
 @example(*pinned("engine_petrol_corner"))
 def test_engine_recovers_bsfc(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
-    _run("engine", vehicle, drawn, seed, modes={"hybrid"}, max_ramp_ups=6)
+    _run("engine", vehicle, drawn, seed, **FAMILY_PICKS["engine"])
 
 
 @profile()
 @given(vehicles(), setups(), seeds)
 def test_battery_recovers_alpha_beta(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
-    _run("battery", vehicle, drawn, seed, max_drive_s=400.0)
+    _run("battery", vehicle, drawn, seed, **FAMILY_PICKS["battery"])
 
 
 @profile()
@@ -96,7 +96,7 @@ def test_shift_lines_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: 
 @profile()
 @given(vehicles(), setups(), seeds)
 def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
-    _run("torque_converter", vehicle, drawn, seed, max_ramp_ups=2)
+    _run("torque_converter", vehicle, drawn, seed, **FAMILY_PICKS["torque_converter"])
 
 
 def test_tolerance_grows_with_noise_and_declared_errors() -> None:
