@@ -274,8 +274,8 @@ def campaign_for(vehicle: VehicleConfig, kinds: tuple[str, ...], *, seed: int, g
     pv = PAPER_VEHICLE.specs
     sp = vehicle.specs
     n = vehicle.n_gears
-    ramps = []
-    for t in PAPER_CAMPAIGN.tests:
+    ramps = {}
+    for i, t in enumerate(PAPER_CAMPAIGN.tests):
         if t.kind != "ramp_up" or "ramp_up" not in kinds:
             continue
         g = vehicle_gear(t.gear, n)
@@ -283,14 +283,17 @@ def campaign_for(vehicle: VehicleConfig, kinds: tuple[str, ...], *, seed: int, g
             continue
         em_radps = t.speed_kmh / 3.6 / pv.wheel_radius_m * pv.final_drive_ratio * pv.gear_ratios[t.gear - 1]
         v = em_radps * sp.wheel_radius_m / (sp.final_drive_ratio * sp.gear_ratios[g - 1]) * 3.6
-        ramps.append(t.model_copy(update={"gear": g, "speed_kmh": round(min(v, 180.0), 1),
-                                          "name": f"{t.name}_as_g{g}"}))
+        ramps[i] = t.model_copy(update={"gear": g, "speed_kmh": round(min(v, 180.0), 1), "name": f"{t.name}_as_g{g}"})
     if max_ramp_ups is not None and len(ramps) > max_ramp_ups:
-        idx = sorted(set(np.linspace(0, len(ramps) - 1, max_ramp_ups).round().astype(int).tolist()))
-        ramps = [ramps[i] for i in idx]
-    tests = list(ramps)
-    for t in PAPER_CAMPAIGN.tests:
-        if t.kind in kinds and t.kind != "ramp_up":
+        keys = sorted(ramps)
+        idx = sorted(set(np.linspace(0, len(keys) - 1, max_ramp_ups).round().astype(int).tolist()))
+        ramps = {keys[i]: ramps[keys[i]] for i in idx}
+    tests = []  # in the paper campaign's order (each test starts from the state the previous one left)
+    for i, t in enumerate(PAPER_CAMPAIGN.tests):
+        if t.kind == "ramp_up":
+            if i in ramps:
+                tests.append(ramps[i])
+        elif t.kind in kinds:
             if t.kind == "constant_drive" and max_drive_s is not None:
                 t = t.model_copy(update={"max_duration_s": min(t.max_duration_s, max_drive_s)})
             tests.append(t)
@@ -308,8 +311,13 @@ FAMILY_PICKS: dict[str, dict[str, Any]] = {
     "motor": {"modes": {"electric", "charge"}, "max_ramp_ups": 4},
     "engine": {"modes": {"hybrid"}, "max_ramp_ups": 6},
     "battery": {"max_drive_s": 400.0},
-    "torque_converter": {"max_ramp_ups": 2},
 }
+
+#: the torque converter's example runs every test of the paper campaign but the cycle and the constant drives
+#: (about 7,000 s of plant, 5 s an example): with only its own kinds in a row, the decelerations start from
+#: another state and the converter-mode fit comes back 25 % off on the ideal chain (see test_recovery)
+TC_KINDS: tuple[str, ...] = ("ramp_up", "acceleration", "ramp_down", "deceleration", "neutral_braking",
+                             "coastdown")
 
 
 def pinned(name: str) -> tuple[VehicleConfig, DrawnSetup, int]:
