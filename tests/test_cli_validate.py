@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from benchtwin.cli import main
 
 
@@ -37,3 +39,36 @@ def test_gain_recommends_a_switch_position(capsys) -> None:
     rows = [ln for ln in text.splitlines() if ln.strip()[:4].strip().isdigit()]
     assert len(rows) == 6 and sum("<- recommended" in r for r in rows) == 1
     assert "clips in" in rows[-1]  # K_TEL 8000 (+-273 Nm) cannot carry the launches
+
+
+def test_validate_families_runs_only_those_families(tmp_path, capsys) -> None:
+    out = tmp_path / "f"
+    status = main(["validate", "--campaign", "quick", "--setup", "ideal", "--families", "battery,road_load",
+                   "--out", str(out)])
+    text = capsys.readouterr().out
+    report = json.loads((out / "validation.json").read_text())
+    assert report["meta"]["families"] == ["battery", "road_load"]
+    groups = {c["group"] for c in report["checks"]}
+    assert {"battery", "road_load"} <= groups
+    assert not groups & {"transmission", "motor", "engine", "torque_converter", "shifts", "brakes", "prediction"}
+    assert status == (0 if report["passed"] else 1)
+    assert "predicted" not in text  # a family run has no held-out prediction
+
+
+def test_validate_unknown_family_is_a_usage_error(capsys) -> None:
+    # rejected while parsing (exit status 2, argparse's usage line), before anything is simulated
+    with pytest.raises(SystemExit) as exc:
+        main(["validate", "--campaign", "quick", "--families", "transmission,gearbox"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2
+    assert "'gearbox'" in err and "unknown family" in err and "road_load" in err and "Traceback" not in err
+    with pytest.raises(SystemExit) as exc:
+        main(["validate", "--campaign", "quick", "--families", ","])
+    assert exc.value.code == 2 and "no family named" in capsys.readouterr().err
+
+
+def test_family_names_of_the_command_are_the_library_families() -> None:
+    from benchtwin.commands.validate import FAMILY_NAMES
+    from benchtwin.validation.families import FAMILIES
+
+    assert tuple(FAMILIES) == FAMILY_NAMES

@@ -6,7 +6,9 @@ and exits 0 when all pass, 1 otherwise. A campaign with a driving cycle beside i
 also identified without that cycle, and the map-based vehicle model built from that identification predicts
 the cycle and a second drive (checks of group ``prediction``). With ``--out`` the raw bus logs,
 ``recording.mf4``, ``params.json``, ``validation.json`` and ``report.html`` (one self-contained page: verdict,
-prediction, checks, chain, figures) are written (and the figure files with ``--figures``).
+prediction, checks, chain, figures) are written (and the figure files with ``--figures``). With
+``--families transmission,battery`` only those identification families are validated, each on the campaign's
+tests it needs (the fast inner loop; no held-out prediction).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from pathlib import Path
 
 from benchtwin.commands._common import add_scenario_args, add_seed_arg, load_scenario, writable_dir
 
-__all__ = ["HIGHLIGHTS", "add_subparser", "highlights", "print_report", "run"]
+__all__ = ["FAMILY_NAMES", "HIGHLIGHTS", "add_subparser", "highlights", "print_report", "run"]
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -30,8 +32,33 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     p.add_argument("--out", type=Path, default=None, help="write logs, recording, params.json, validation.json")
     p.add_argument("--figures", action="store_true", help="also render the identification figures (with --out)")
     p.add_argument("--all", action="store_true", help="list every check, not only the failures")
+    p.add_argument("--families", type=_families, default=None, metavar="F1,F2",
+                   help="validate only these identification families, each on its own tests (comma-separated: "
+                        f"{', '.join(_family_names())}); no held-out prediction")
     p.set_defaults(func=run)
     return p
+
+
+#: the identification families ``--families`` accepts (``benchtwin.validation.families.FAMILIES``, named here so
+#: that building the parser imports no identification code; a test keeps the two equal)
+FAMILY_NAMES: tuple[str, ...] = ("transmission", "torque_converter", "engine", "motor", "road_load", "brakes",
+                                 "battery", "shifts")
+
+
+def _family_names() -> tuple[str, ...]:
+    return FAMILY_NAMES
+
+
+def _families(text: str) -> list[str]:
+    """``--families``: a comma-separated list of known family names (argparse error otherwise)."""
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"no family named; allowed: {', '.join(_family_names())}")
+    bad = [n for n in names if n not in _family_names()]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown famil{'y' if len(bad) == 1 else 'ies'} "
+                                         f"{', '.join(map(repr, bad))}; allowed: {', '.join(_family_names())}")
+    return names
 
 
 def print_report(report: object, *, show_all: bool) -> None:
@@ -119,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         writable_dir(args.out, "--out")
     report = validate(vehicle, setup, campaign, profile=args.profile, out_dir=args.out,
-                      figures=bool(args.figures and args.out), progress=True)
+                      figures=bool(args.figures and args.out), progress=True, families=args.families)
     print_report(report, show_all=args.all)
     if args.out is not None:
         print(f"\nwrote {args.out}/report.html (open it in a browser), validation.json, params.json, recording.mf4 "

@@ -8,7 +8,8 @@ well; the fuel mean effective pressure ``pmf = mdot Q_LHV / (omega V_d / (2 pi (
 So the map is fitted on ``pmf(speed, BMEP)`` with a thin-plate-spline radial basis function with a
 linear term (scipy ``RBFInterpolator``) over normalised coordinates, and
 ``BSFC = 3.6e9 / Q_LHV * pmf / BMEP``. Its smoothing is chosen by cross-validation unless given.
-Grid nodes outside the convex hull of the data are marked extrapolated and never used for the
+Grid nodes outside the convex hull of the data, or inside it but beyond the BMEP reach of the speed
+bands on either side (:func:`_bracketed`), are marked extrapolated and never used for the
 best-efficiency region (minimum BSFC and the area within ``+band`` g/kWh of it). Uncertainty of the
 minimum comes from a wild bootstrap of the cross-validated prediction errors.
 
@@ -193,7 +194,7 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     bg = np.linspace(max(blo, 0.0), bhi, 25) if bmep_grid is None else np.asarray(bmep_grid, dtype=float)
     S, B = np.meshgrid(sg, bg)
     nodes = np.column_stack([_scale(S.ravel(), nlo, nhi), _scale(B.ravel(), blo, bhi)])
-    extrap = (hull.find_simplex(nodes) < 0).reshape(S.shape)
+    extrap = (hull.find_simplex(nodes) < 0).reshape(S.shape) | ~_bracketed(n, b, S, B)
     with np.errstate(divide="ignore", invalid="ignore"):
         mapv = np.where(B > 0, q * rbf(nodes).reshape(S.shape) / B, np.nan)
     # the minimum is searched on a fine grid inside the hull
@@ -253,6 +254,40 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     if n.size < 15:
         fit.reasons.append(f"only {n.size} points: the map between them is an interpolation, check the figure")
     return fit
+
+
+def _bracketed(speed_rpm: np.ndarray, bmep: np.ndarray, node_speed: np.ndarray, node_bmep: np.ndarray, *,
+               gap_rpm: float = 150.0) -> np.ndarray:
+    """Whether each map node lies within the BMEP reach of the data's speed bands on both sides of it.
+
+    Data at a few set speeds (ramp-ups) form speed bands (:func:`speed_bands`); the convex hull of
+    such data holds triangles spanning from the top of one band to the top of a lower-reaching one,
+    where the map only extrapolates the lower band along BMEP (a steep full-load corner of a BSFC map
+    held by one point is missed there by several per cent). A node between two bands is bracketed when
+    its BMEP is inside the BMEP range of the nearest band below and of the nearest band above (within
+    a twentieth of the data's BMEP span); a node at a band's speed needs that band only. Scattered
+    data (one band over the whole speed range) leave the hull as it is.
+    """
+    bands = speed_bands(speed_rpm, gap_rpm=gap_rpm)
+    lo = np.array([speed_rpm[g].min() for g in bands])
+    hi = np.array([speed_rpm[g].max() for g in bands])
+    bmin = np.array([bmep[g].min() for g in bands])
+    bmax = np.array([bmep[g].max() for g in bands])
+    slack = 0.05 * float(np.ptp(bmep))
+    ns, nb = np.ravel(node_speed), np.ravel(node_bmep)
+    ok = np.ones(ns.shape, dtype=bool)
+    for k in range(ns.size):
+        inside = (lo <= ns[k]) & (ns[k] <= hi)
+        below = np.flatnonzero(hi < ns[k])
+        above = np.flatnonzero(lo > ns[k])
+        if inside.any():
+            near = np.flatnonzero(inside)
+        else:
+            sides = ([below[np.argmax(hi[below])]] if below.size else []) + \
+                    ([above[np.argmin(lo[above])]] if above.size else [])
+            near = np.array(sides, dtype=int)
+        ok[k] = bool(near.size) and bool(np.all((bmin[near] - slack <= nb[k]) & (nb[k] <= bmax[near] + slack)))
+    return ok.reshape(np.shape(node_speed))
 
 
 def speed_bands(speed_rpm: np.ndarray, *, gap_rpm: float = 150.0, width_rpm: float | None = None

@@ -191,6 +191,13 @@ def _rel_check(group: str, name: str, ident: float, truth: float, mode: str, tol
     return Check(group, name, ident, truth, err, tol, mode, unit, ok, note)
 
 
+def _skipped(result: IdentificationResult, subsystem: str) -> str:
+    """Why the method of a subsystem did not run (``meta['skipped']``), as a check's note; '' if it ran."""
+    skipped = result.meta.get("skipped", {}) if isinstance(result.meta, dict) else {}
+    why = skipped.get(subsystem) if isinstance(skipped, dict) else None
+    return f"not identified: {why}" if why else ""
+
+
 def _budget(setup: SetupConfig | None) -> dict[str, float]:
     """Systematic errors the setup declares, by quantity (gain errors as fractions, offsets in units)."""
     b: dict[str, float] = {k: 0.0 for k in (
@@ -308,7 +315,8 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
                 tol = q
         p = params.get(e.key)
         if p is None:
-            why = result.errors.get(str(fit_key)) or result.errors.get(fit_key.subsystem) or "not identified"
+            why = (result.errors.get(str(fit_key)) or result.errors.get(fit_key.subsystem)
+                   or _skipped(result, fit_key.subsystem) or "not identified")
             checks.append(Check(e.group, e.key, float("nan"), e.truth, float("nan"), tol, mode, e.unit, False, why))
             continue
         c = _rel_check(e.group, e.key, p.value, e.truth, mode, tol, e.unit, e.note)
@@ -415,6 +423,12 @@ def _bsfc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: 
         t_low = map_bmep_min * 1e5 * vehicle.specs.engine_displacement_m3 / (vehicle.specs.engine_strokes * np.pi)
         tol_min += extra
         tol_map += extra + budget["engine_torque_offset"] / t_low
+    if profile == "realistic" and fit is not None and "bmep_at_min" in fit.params:
+        # the ECU torque's offset moves the BSFC of the minimum by offset / torque there, as on the map
+        bmep_at_min = fit.value("bmep_at_min")
+        t_min = bmep_at_min * 1e5 * vehicle.specs.engine_displacement_m3 / (vehicle.specs.engine_strokes * np.pi)
+        if math.isfinite(t_min) and t_min > 0:
+            tol_min += budget["engine_torque_offset"] / t_min
     if fit is None or "bsfc_min" not in fit.params:
         why = result.errors.get("engine.bsfc", result.errors.get("engine", "not identified"))
         return [Check("engine", "engine.bsfc.bsfc_min", float("nan"), float("nan"), float("nan"), tol_min, "rel",

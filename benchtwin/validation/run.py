@@ -20,11 +20,13 @@ from benchtwin.emulator.cache import cached_campaign
 from benchtwin.errors import BenchtwinError, ConfigError
 from benchtwin.identification.run import identify_all
 from benchtwin.recording import Flag
+from benchtwin.sensors import devices
 from benchtwin.trace import Trace
 from benchtwin.validation.chain import chain_checks
 from benchtwin.validation.coverage import interval_coverage
 from benchtwin.validation.families import (
     family_checks,
+    family_setup,
     family_spans,
     merge_recordings,
     resolve_families,
@@ -87,6 +89,7 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     elif trace is None:
         trace = simulate_campaign(vehicle, campaign, progress=progress)
     t1 = time.perf_counter()
+    bench = setup
     if fams is None:
         rec = run_batch(trace, setup, seed=campaign.seed, out_dir=out_dir)
         checked = trace
@@ -97,7 +100,9 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
             raise ConfigError(f"campaign {campaign.name!r} has no test of the kind(s) {', '.join(kinds)} that "
                               f"the families {', '.join(f.name for f in fams)} need")
         slices = [trace.slice_time(a, b) for a, b in spans]
-        recs = [run_batch(sl, setup, seed=span_seed(campaign.seed, k),
+        bench = family_setup(setup, set().union(*(f.reads() for f in fams)))
+        report.meta["devices"] = [d.name for d in devices(bench)]
+        recs = [run_batch(sl, bench, seed=span_seed(campaign.seed, k),
                           out_dir=None if out_dir is None else Path(out_dir) / f"span{k}")
                 for k, sl in enumerate(slices)]
         rec, checked = merge_recordings(recs), stitch_traces(slices)
@@ -118,7 +123,7 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     }
     gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings})
     roles = None if fams is None else set().union(*(f.roles() for f in fams))
-    report.checks = chain_checks(checked, rec, setup, profile=prof, roles=roles)
+    report.checks = chain_checks(checked, rec, bench, profile=prof, roles=roles)
     want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
     paper_sets = paper_estimation_fits(rec, vehicle, trace) if want_paper else {}
     params = compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup,

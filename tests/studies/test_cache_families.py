@@ -40,3 +40,33 @@ def test_unknown_family_names_the_allowed_ones() -> None:
     with pytest.raises(ConfigError, match="allowed: transmission, torque_converter"):
         resolve_families(["gearbox"])
     assert [f.name for f in resolve_families(["battery", "battery"])] == ["battery"]
+
+
+def test_a_family_bench_delivers_what_the_whole_bench_delivers(monkeypatch: pytest.MonkeyPatch) -> None:
+    # a family run keeps only the devices whose channels its methods read; each device draws from its own
+    # stream, so identification must come out identical to a run on the whole bench (a role the family
+    # reads but does not declare would change it: motor's DC/DC LV side, the brakes' dyno forces)
+    import json
+
+    import benchtwin.validation.run as run
+    from benchtwin.config import scenario_path
+    from benchtwin.config.setup import load_setup
+    from benchtwin.emulator import simulate_campaign
+
+    vehicle, campaign = load_vehicle(), load_campaign("quick.toml")
+    setup = load_setup(scenario_path("setups", "paper.toml"))
+    trace = simulate_campaign(vehicle, campaign)
+
+    def ident(family: str) -> tuple[str, list[str]]:
+        rep = run.validate(vehicle, setup, campaign, trace=trace, families=[family], profile="realistic")
+        d = rep.identification.to_dict()
+        d["meta"].pop("seconds")
+        checks = [(c.name, c.passed, c.error) for c in rep.checks if c.group != "chain"]
+        return json.dumps([d, checks], sort_keys=True, default=str), rep.meta["devices"]
+
+    pruned = {f: ident(f) for f in FAMILIES}
+    monkeypatch.setattr(run, "family_setup", lambda s, roles: s)
+    for f in FAMILIES:
+        whole, devices = ident(f)
+        assert pruned[f][0] == whole, f"family {f}: the bench of {pruned[f][1]} identifies differently"
+        assert len(pruned[f][1]) < len(devices)

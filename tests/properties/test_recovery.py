@@ -1,0 +1,170 @@
+"""Recovery is a property: every identified parameter of a family within a stated tolerance, for drawn vehicles
+and setups.
+
+One example = a drawn vehicle and bench, the paper campaign's tests of one family moved to that vehicle
+(:func:`strategies.campaign_for`), simulated (about 0.1 s), pushed through sensors -> chain ->
+identification of that family only, and every check of the family judged with the tolerance of
+:mod:`_tolerance` (floor + noise x k sigma at the paper setup + the setup's declared systematic errors).
+R^2 against the paper's is left out: it falls with the noise by construction.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from _profiles import profile
+from _tolerance import property_checks
+from hypothesis import example, given
+from hypothesis import strategies as st
+from strategies import (
+    FAMILY_PICKS,
+    IDEAL_SETUP,
+    PAPER_VEHICLE,
+    TC_KINDS,
+    DrawnSetup,
+    campaign_for,
+    pinned,
+    seeds,
+    setups,
+    vehicles,
+)
+
+from benchtwin.config.vehicle import VehicleConfig
+from benchtwin.emulator import simulate_campaign
+from benchtwin.validation.families import FAMILIES
+from benchtwin.validation.run import validate
+
+
+def _says_too_little(note: str) -> bool:
+    return any(w in note for w in ("NoExcitationError", "InsufficientDataError", "CollinearError"))
+
+
+def _run(family: str, vehicle: VehicleConfig, drawn: DrawnSetup, seed: int, **pick: object) -> None:
+    fam = FAMILIES[family]
+    campaign = campaign_for(vehicle, fam.kinds, seed=seed, **pick)
+    trace = simulate_campaign(vehicle, campaign)
+    report = validate(vehicle, drawn.setup, campaign, trace=trace, families=[family], profile="realistic")
+    gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up"}) or None
+    checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, gears, {family})
+    assert checks, f"no check of family {family}"
+    # "every identified parameter": a fit the campaign does not excite enough is not identified, and says so
+    # (its reason names the spread or the points it lacks); that is the guards' property, not a recovery
+    # failure. The family must still identify most of its checks.
+    unexcited = [c for c in checks if not math.isfinite(c.identified) and _says_too_little(c.note)]
+    assert len(unexcited) <= len(checks) // 2, f"{family}: {len(unexcited)} of {len(checks)} checks not excited"
+    bad = [c for c in checks if not c.passed and c not in unexcited]
+    assert not bad, (f"{vehicle.name}, noise x{drawn.noise:.2f}, K_TEL {drawn.setup.telemetry.k_tel}: "
+                     + "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g} ({c.note[:80]})" for c in bad))
+
+
+@profile()
+@given(vehicles(), setups(), seeds, st.data())
+def test_transmission_recovers_eta_m_and_c0(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int,
+                                             data: st.DataObject) -> None:
+    # two gears of the vehicle, each with its paper ramp-ups (electric and hybrid): 2-5 tests
+    gears = data.draw(st.sets(st.integers(1, vehicle.n_gears), min_size=2, max_size=2), label="gears")
+    _run("transmission", vehicle, drawn, seed, gears=gears)
+
+
+@profile()
+@given(vehicles(), setups(), seeds)
+def test_motor_recovers_willans_lines(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    _run("motor", vehicle, drawn, seed, **FAMILY_PICKS["motor"])
+
+
+@profile()
+@given(vehicles(), setups(), seeds)
+@example(*pinned("engine_petrol_corner"))
+def test_engine_recovers_bsfc(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    _run("engine", vehicle, drawn, seed, **FAMILY_PICKS["engine"])
+
+
+@profile()
+@given(vehicles(), setups(), seeds)
+def test_battery_recovers_alpha_beta(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    _run("battery", vehicle, drawn, seed, **FAMILY_PICKS["battery"])
+
+
+@profile()
+@given(vehicles(), setups(), seeds)
+def test_brakes_recover_axle_gains(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    _run("brakes", vehicle, drawn, seed)
+
+
+@profile()
+@given(vehicles(), setups(), seeds)
+def test_road_load_recovers_f0_f1_f2(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    _run("road_load", vehicle, drawn, seed)
+
+
+@profile()
+@given(vehicles(), setups(), seeds)
+def test_shift_lines_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    _run("shifts", vehicle, drawn, seed)
+
+
+#: the converter property finds two faults of the torque-converter identification not fixed yet, so it is an
+#: expected failure (not strict: many draws pass); each fault is pinned strictly below
+TC_OPEN = ("torque-converter identification: (1) a loose converter (capacity a0 ~5.5e-3, a6 ~1.3e-2) gets its "
+           "coupling-mode curve 13-56 % off on the ideal chain (the issue's coupling points bending a6..a8); "
+           "(2) the family's tests run in a row without the ramp-downs and neutral braking between them give a "
+           "converter-mode fit 25 % off (the paper vehicle, ideal chain)")
+
+
+@pytest.mark.xfail(reason=TC_OPEN, raises=AssertionError, strict=False)
+@profile(max_examples=2)
+@given(vehicles(), setups(), seeds)
+def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    fam = FAMILIES["torque_converter"]
+    campaign = campaign_for(vehicle, TC_KINDS, seed=seed)
+    trace = simulate_campaign(vehicle, campaign)
+    report = validate(vehicle, drawn.setup, campaign, trace=trace, families=[fam.name], profile="realistic")
+    checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, None, {fam.name})
+    bad = [c for c in checks if not c.passed]
+    assert not bad, "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g}" for c in bad)
+
+
+def _loose_converter() -> VehicleConfig:
+    d = PAPER_VEHICLE.model_dump()
+    d["torque_converter"].update(a_nm_per_radps2=[0.0055, 0.0, -0.0045, 0.00935, -0.008, -0.000515625, 0.0131,
+                                                  -0.0131, 0.0], coupling_speed_ratio=0.80)
+    return VehicleConfig.model_validate(d)
+
+
+@pytest.mark.xfail(reason=TC_OPEN, raises=AssertionError, strict=True)
+def test_loose_converter_coupling_curve_on_the_ideal_chain() -> None:
+    # found by test_torque_converter_curves_recovered (the strategy's lowest capacity and stall ratio)
+    vehicle = _loose_converter()
+    campaign = campaign_for(vehicle, TC_KINDS, seed=0)
+    report = validate(vehicle, IDEAL_SETUP, campaign, trace=simulate_campaign(vehicle, campaign),
+                      families=["torque_converter"])
+    bad = [c.name for c in report.checks if c.group == "torque_converter" and not c.passed]
+    assert not bad, bad
+
+
+@pytest.mark.xfail(reason=TC_OPEN, raises=AssertionError, strict=True)
+def test_converter_fit_of_the_family_tests_alone_on_the_ideal_chain() -> None:
+    campaign = campaign_for(PAPER_VEHICLE, FAMILIES["torque_converter"].kinds, seed=0)
+    report = validate(PAPER_VEHICLE, IDEAL_SETUP, campaign, trace=simulate_campaign(PAPER_VEHICLE, campaign),
+                      families=["torque_converter"])
+    bad = [c.name for c in report.checks if c.group == "torque_converter" and not c.passed]
+    assert not bad, bad
+
+
+def test_tolerance_grows_with_noise_and_declared_errors() -> None:
+    # the tolerance function itself: at noise 0 and no declared error it is the ideal floor plus a quarter of
+    # the paper's noise tolerance; it grows
+    # linearly with the noise and with the declared gain errors (a mutant that drops a term fails here)
+    from strategies import PAPER_SETUP
+
+    from benchtwin.identification._fit import IdentificationResult
+
+    empty = IdentificationResult()
+    t0 = {c.name: c.tolerance for c in property_checks(empty, PAPER_VEHICLE, IDEAL_SETUP, 0.0, None, {"battery"})}
+    t1 = {c.name: c.tolerance for c in property_checks(empty, PAPER_VEHICLE, IDEAL_SETUP, 1.0, None, {"battery"})}
+    tp = {c.name: c.tolerance for c in property_checks(empty, PAPER_VEHICLE, PAPER_SETUP, 1.0, None, {"battery"})}
+    assert np.isclose(t0["battery.alpha"], 1e-3 + 0.25 * 2e-3)
+    assert np.isclose(t1["battery.alpha"], 1e-3 + 2e-3)
+    assert np.isclose(tp["battery.alpha"], 1e-3 + 2e-3 + 0.0005)  # + the paper shunt's 0.05 % voltage gain
