@@ -198,8 +198,11 @@ def check_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> None:
     """
     problems = []
     n = vehicle.n_gears
-    max_rpm = min(vehicle.motor.max_speed_rpm, vehicle.engine.max_speed_rpm)
+    max_rpm_any = min(vehicle.motor.max_speed_rpm, vehicle.engine.max_speed_rpm)
     for k, test in enumerate(campaign.tests):
+        # with K0 held open and the engine held off only the motor spins with the gearbox input
+        electric = getattr(test, "k0", "auto") == "open" and getattr(test, "engine", "auto") == "off"
+        max_rpm = vehicle.motor.max_speed_rpm if electric else max_rpm_any
         gear = getattr(test, "gear", 0)
         label = f"campaign {campaign.name!r}: tests[{k}] ({test.name or test.kind})"
         if gear > n:
