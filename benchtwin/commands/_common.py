@@ -47,7 +47,8 @@ MIN_FREE_BYTES = 64 * 1024 * 1024
 def add_scenario_args(p: argparse.ArgumentParser, *, campaign: str = "paper", setup: str = "paper") -> None:
     """Add ``--vehicle``, ``--setup`` and ``--campaign`` (each a path or a shipped name)."""
     p.add_argument("--vehicle", default=DEFAULT_VEHICLE,
-                   help="vehicle TOML or a shipped name: p2_phev_9at (default), p2_phev_alt")
+                   help="vehicle TOML or a shipped name: p2_phev_9at (default), p2_phev_alt, "
+                   "p2_phev_9at_hifi")
     p.add_argument("--setup", default=setup, help=f"setup TOML or a shipped name: paper, ideal (default: {setup})")
     p.add_argument("--campaign", default=campaign,
                    help=f"campaign TOML or a shipped name: paper, quick, wltc (default: {campaign})")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import itertools
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -22,6 +22,7 @@ __all__ = [
     "BatteryConfig",
     "BrakesConfig",
     "EngineConfig",
+    "HighFidelityConfig",
     "HybridConfig",
     "LowVoltageConfig",
     "MotorConfig",
@@ -266,6 +267,88 @@ class ThermalConfig(StrictModel):
     hpcu_share_of_motor_loss: float = Field(ge=0, le=1)
 
 
+class MotorLossConfig(StrictModel):
+    """High-fidelity motor and inverter losses (not a Willans line), W as functions of torque T and speed w.
+
+    P_loss = k_cu T^2 (copper, q-axis) + k_d (1 - w_b / w)^2 (d-axis current above base speed w_b)
+    + (k_h w + k_e w^2) min(1, w_b / w)^2 (iron: hysteresis and eddy, scaled by the flux squared)
+    + k_f w + k_w w^3 (bearing friction, windage) + P_inv0 + k_sw |T| (inverter standby and switching).
+    """
+
+    copper_w_per_nm2: float = Field(ge=0)
+    d_axis_w: float = Field(ge=0, description="k_d, W: the d-axis copper loss tends to it at high speed")
+    base_speed_rpm: float = Field(gt=0)
+    hysteresis_w_per_radps: float = Field(ge=0)
+    eddy_w_per_radps2: float = Field(ge=0)
+    friction_w_per_radps: float = Field(ge=0)
+    windage_w_per_radps3: float = Field(ge=0)
+    inverter_standby_w: float = Field(ge=0)
+    inverter_switching_w_per_nm: float = Field(ge=0)
+
+
+class BatteryDynamicsConfig(StrictModel):
+    """High-fidelity HV cell: two RC branches, temperature-dependent R0, OCV hysteresis, thermal feedback."""
+
+    r1_ohm_per_cell: float = Field(ge=0)
+    tau1_s: float = Field(gt=0)
+    r2_ohm_per_cell: float = Field(ge=0)
+    tau2_s: float = Field(gt=0)
+    r0_temp_coeff_per_k: float = Field(ge=0, description="R0 x exp(k (25 degC - T))")
+    hysteresis_v_per_cell: float = Field(ge=0)
+    hysteresis_charge_ah: float = Field(gt=0, description="charge throughput that moves the hysteresis by 1/e")
+    initial_temp_degc: float = Field(ge=-40, le=60)
+
+
+class TransmissionSpinConfig(StrictModel):
+    """High-fidelity gearbox: load-independent spin loss C(w, T_oil) = C0 (1 + k_w w) exp(-k_T (T_oil - T_ref))."""
+
+    spin_per_radps: float = Field(ge=0)
+    oil_viscosity_per_k: float = Field(ge=0)
+    oil_reference_degc: float = Field(ge=-40, le=150)
+    oil_heat_capacity_j_per_k: float = Field(gt=0)
+    oil_ua_w_per_k: float = Field(ge=0, description="oil to the engine coolant (heat exchanger)")
+    initial_oil_degc: float = Field(ge=-40, le=150)
+
+
+class ConverterTableConfig(StrictModel):
+    """High-fidelity torque converter: K-factor and torque ratio tabulated over the speed ratio."""
+
+    speed_ratio: list[float] = Field(min_length=3)
+    k_factor_rpm_per_sqrt_nm: list[float] = Field(min_length=3, description="negative: overrun (T_p < 0)")
+    torque_ratio: list[float] = Field(min_length=3)
+
+    @field_validator("speed_ratio")
+    @classmethod
+    def _axis_increasing(cls, v: list[float]) -> list[float]:
+        return _increasing("speed_ratio", v)
+
+    @model_validator(mode="after")
+    def _shapes(self) -> ConverterTableConfig:
+        if not len(self.speed_ratio) == len(self.k_factor_rpm_per_sqrt_nm) == len(self.torque_ratio):
+            raise ValueError("speed_ratio, k_factor_rpm_per_sqrt_nm and torque_ratio must have the same length")
+        if any(k == 0 for k in self.k_factor_rpm_per_sqrt_nm):
+            raise ValueError("k_factor_rpm_per_sqrt_nm must not be 0 (use a large value for no torque)")
+        return self
+
+
+class EngineWarmupConfig(StrictModel):
+    """High-fidelity engine: cold-start fuel penalty from the coolant temperature (fed back from the plant)."""
+
+    cold_penalty_frac: float = Field(ge=0, description="extra fuel at 20 degC coolant, fraction")
+    warm_degc: float = Field(gt=20, le=130, description="no penalty from this coolant temperature up")
+    initial_coolant_degc: float = Field(ge=-40, le=130)
+
+
+class HighFidelityConfig(StrictModel):
+    """Physics of the high-fidelity truth that the paper's model forms do not have (issue 9)."""
+
+    motor: MotorLossConfig
+    battery: BatteryDynamicsConfig
+    transmission: TransmissionSpinConfig
+    torque_converter: ConverterTableConfig
+    engine: EngineWarmupConfig
+
+
 class VehicleConfig(StrictModel):
     """Every true parameter of the emulated vehicle (one TOML file)."""
 
@@ -282,6 +365,8 @@ class VehicleConfig(StrictModel):
     low_voltage: LowVoltageConfig
     hybrid: HybridConfig
     thermal: ThermalConfig
+    fidelity: Literal["paper", "high"] = "paper"
+    high_fidelity: HighFidelityConfig | None = None
 
     @model_validator(mode="after")
     def _per_gear_lengths(self) -> VehicleConfig:
@@ -293,6 +378,9 @@ class VehicleConfig(StrictModel):
             raise ValueError(f"transmission.eta_m and transmission.c0_nm need one value per gear ({n})")
         if len(self.shift_schedule.up_v0_kmh) != n - 1:
             raise ValueError(f"shift_schedule lists need one value per gear pair ({n - 1})")
+        if (self.fidelity == "high") != (self.high_fidelity is not None):
+            raise ValueError('fidelity = "high" needs a [high_fidelity] table, and a [high_fidelity] table needs '
+                             'fidelity = "high"')
         if self.specs.test_mass_kg is None or self.specs.test_mass_kg <= 0:
             raise ValueError("specs.test_mass_kg must be > 0")
         return self

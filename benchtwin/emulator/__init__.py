@@ -77,6 +77,8 @@ from benchtwin.emulator.params import (
     O_Q_ENGINE,
     O_Q_MOTOR,
     O_SOC,
+    O_T_BATT,
+    O_T_COOLANT,
     O_TBF,
     O_TBR,
     O_TE,
@@ -178,6 +180,11 @@ def _initial_state(tables: PlantTables, vehicle: VehicleConfig, campaign: Campai
     st[pl.S_SEGMENT] = -1
     st[pl.S_EFF_MASS_KG] = tables.p[P_MASS_KG]
     st[pl.S_ESAVE_SOC_PCT] = campaign.initial_displayed_soc_pct
+    hf = vehicle.high_fidelity
+    if hf is not None:
+        st[pl.S_BATTERY_DEGC] = hf.battery.initial_temp_degc
+        st[pl.S_COOLANT_DEGC] = hf.engine.initial_coolant_degc
+        st[pl.S_OIL_DEGC] = hf.transmission.initial_oil_degc
     return st
 
 
@@ -191,8 +198,11 @@ def check_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> None:
     """
     problems = []
     n = vehicle.n_gears
-    max_rpm = min(vehicle.motor.max_speed_rpm, vehicle.engine.max_speed_rpm)
+    max_rpm_any = min(vehicle.motor.max_speed_rpm, vehicle.engine.max_speed_rpm)
     for k, test in enumerate(campaign.tests):
+        # with K0 held open and the engine held off only the motor spins with the gearbox input
+        electric = getattr(test, "k0", "auto") == "open" and getattr(test, "engine", "auto") == "off"
+        max_rpm = vehicle.motor.max_speed_rpm if electric else max_rpm_any
         gear = getattr(test, "gear", 0)
         label = f"campaign {campaign.name!r}: tests[{k}] ({test.name or test.kind})"
         if gear > n:
@@ -286,6 +296,13 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
         used.add(col)
     channels.update(simulate_thermal(vehicle.thermal, dt_out, out[O_Q_ENGINE], out[O_Q_MOTOR],
                                      out[O_Q_BATT], campaign.ambient_degc))
+    if vehicle.high_fidelity is not None:
+        # the high-fidelity plant carries the cell and coolant temperatures it feeds back: the thermocouples
+        # read those states (the coolant inlet keeps the post-processed radiator drop)
+        drop = channels["engine_coolant_out_degc"] - channels["engine_coolant_in_degc"]
+        channels["battery_temp_degc"] = out[O_T_BATT].copy()
+        channels["engine_coolant_out_degc"] = out[O_T_COOLANT].copy()
+        channels["engine_coolant_in_degc"] = out[O_T_COOLANT] - drop
     missing = set(TRACE_CHANNELS) - set(channels)
     if missing:  # pragma: no cover - guarded by the tests
         raise SimulationError(f"emulator does not produce {sorted(missing)}")

@@ -14,12 +14,18 @@ import numpy as np
 from numba import njit
 
 __all__ = [
+    "battery_rc_update",
     "bsfc_kg_per_j",
     "clutch_merge",
+    "cold_start_factor",
+    "converter_torques_nm",
     "interp_1d",
     "motor_elec_power_w",
+    "motor_loss_hifi_w",
     "pack_current_a",
     "road_load_force_n",
+    "spin_loss_torque_nm",
+    "tabulated_converter_torques_nm",
     "torque_converter_curves_nm",
     "torque_converter_torques_nm",
     "transmission_output_torque_nm",
@@ -323,3 +329,120 @@ def pack_current_a(open_circuit_v: float, resistance_ohm: float, power_w: float)
     if disc < 0.0:
         disc = 0.0
     return (uoc - np.sqrt(disc)) / (2.0 * rpk)
+
+
+# ---- high-fidelity model forms (vehicle files with fidelity = "high"; docs/fidelity.md) ----
+
+
+@njit(cache=True)
+def tabulated_converter_torques_nm(sr_grid: np.ndarray, capacity_grid: np.ndarray, torque_ratio_grid: np.ndarray,
+                                   pump_speed_radps: float, turbine_speed_radps: float) -> tuple[float, float, float]:
+    """Torque converter from tabulated curves: T_p = c(SR) omega_p^2, T_t = TR(SR) T_p, and dT_p/d(omega_p).
+
+    The capacity c = (30 / pi)^2 / K^2 (K the K-factor in rpm/sqrt(Nm), negative c in overrun) and the
+    torque ratio TR are interpolated linearly over the speed ratio SR = omega_t / omega_p (clamped).
+
+    Parameters
+    ----------
+    sr_grid, capacity_grid, torque_ratio_grid:
+        Increasing speed ratios, capacity c(SR) in Nm/(rad/s)^2 and torque ratio TR(SR).
+    pump_speed_radps, turbine_speed_radps:
+        omega_p and omega_t, rad/s (SR = 0 when omega_p <= 1e-6 rad/s).
+
+    Returns
+    -------
+    pump_torque_nm, turbine_torque_nm, dpump_torque_dspeed_nm_per_radps
+        T_p, T_t (Nm) and dT_p/d(omega_p) at fixed omega_t (2 c omega_p - c'(SR) omega_t), floored at 0.
+    """
+    wp = pump_speed_radps
+    wt = turbine_speed_radps
+    sr = wt / wp if wp > 1e-6 else 0.0
+    c = interp_1d(sr, sr_grid, capacity_grid)
+    tr = interp_1d(sr, sr_grid, torque_ratio_grid)
+    n = sr_grid.shape[0]
+    slope = 0.0
+    if sr_grid[0] <= sr < sr_grid[n - 1]:
+        j = np.searchsorted(sr_grid, sr, side="right") - 1
+        slope = (capacity_grid[j + 1] - capacity_grid[j]) / (sr_grid[j + 1] - sr_grid[j])
+    tp = c * wp * wp
+    dtp = 2.0 * c * wp - slope * wt
+    return tp, tr * tp, max(dtp, 0.0)
+
+
+@njit(cache=True)
+def converter_torques_nm(a_nm_per_radps2: np.ndarray, coupling_speed_ratio: float, sr_grid: np.ndarray,
+                         capacity_grid: np.ndarray, torque_ratio_grid: np.ndarray, pump_speed_radps: float,
+                         turbine_speed_radps: float) -> tuple[float, float, float]:
+    """The plant's converter: the tabulated curves when ``sr_grid`` is not empty, else eq. 35-36.
+
+    Returns
+    -------
+    pump_torque_nm, turbine_torque_nm, dpump_torque_dspeed_nm_per_radps
+        As :func:`torque_converter_torques_nm` (the very same floats for an empty table).
+    """
+    if sr_grid.shape[0] > 0:
+        return tabulated_converter_torques_nm(sr_grid, capacity_grid, torque_ratio_grid, pump_speed_radps,
+                                              turbine_speed_radps)
+    return torque_converter_torques_nm(a_nm_per_radps2, coupling_speed_ratio, pump_speed_radps, turbine_speed_radps)
+
+
+@njit(cache=True)
+def motor_loss_hifi_w(coeffs: np.ndarray, torque_nm: float, speed_radps: float) -> float:
+    """Motor and inverter loss of the high-fidelity plant, W (docs/fidelity.md).
+
+    P_loss = k_cu T^2 + k_d (1 - w_b/w)^2 [w > w_b] + (k_h w + k_e w^2) min(1, w_b/w)^2 + k_f w + k_w w^3
+    + P_inv0 + k_sw |T|; the same loss motoring and generating (P_el = T w + P_loss).
+
+    Parameters
+    ----------
+    coeffs:
+        ``[k_cu, k_d, w_b, k_h, k_e, k_f, k_w, P_inv0, k_sw]`` in W/Nm^2, W, rad/s, W/(rad/s), W/(rad/s)^2,
+        W/(rad/s), W/(rad/s)^3, W, W/Nm.
+    torque_nm, speed_radps:
+        Motor torque (Nm) and speed (rad/s, >= 0).
+
+    Returns
+    -------
+    float
+        Loss power, W.
+    """
+    w = max(speed_radps, 0.0)
+    t = torque_nm
+    wb = coeffs[2]
+    phi = 1.0
+    fw = 0.0
+    if w > wb:
+        phi = wb / w
+        fw = 1.0 - phi
+    return (coeffs[0] * t * t + coeffs[1] * fw * fw + (coeffs[3] * w + coeffs[4] * w * w) * phi * phi
+            + coeffs[5] * w + coeffs[6] * w * w * w + coeffs[7] + coeffs[8] * abs(t))
+
+
+@njit(cache=True)
+def spin_loss_torque_nm(c0_nm: float, spin_per_radps: float, viscosity_per_k: float, oil_reference_degc: float,
+                        input_speed_radps: float, oil_degc: float) -> float:
+    """Load-independent gearbox drag at the input, Nm: C0 (1 + k_w |w_in|) exp(-k_T (T_oil - T_ref)).
+
+    It takes the place of eq. 14's constant C0, so the gear's efficiency eta_m (1 - C / T_in) moves with
+    input speed and oil temperature.
+    """
+    return c0_nm * (1.0 + spin_per_radps * abs(input_speed_radps)) * np.exp(
+        -viscosity_per_k * (oil_degc - oil_reference_degc))
+
+
+@njit(cache=True)
+def battery_rc_update(voltage_v: float, resistance_ohm: float, tau_s: float, current_a: float, dt_s: float) -> float:
+    """Voltage of an RC branch after ``dt_s`` at constant current (exact).
+
+    u' = u e^(-dt/tau) + R I (1 - e^(-dt/tau)), V.
+    """
+    f = np.exp(-dt_s / tau_s)
+    return voltage_v * f + resistance_ohm * current_a * (1.0 - f)
+
+
+@njit(cache=True)
+def cold_start_factor(penalty_frac: float, warm_degc: float, coolant_degc: float) -> float:
+    """Fuel multiplier of a cold engine: 1 + penalty (T_warm - T) / (T_warm - 20 degC), none when warm."""
+    if coolant_degc >= warm_degc:
+        return 1.0
+    return 1.0 + penalty_frac * (warm_degc - coolant_degc) / (warm_degc - 20.0)

@@ -101,7 +101,30 @@ P_DYNO_MAX_POWER_W = 76
 P_DRIVER_FEEDBACK_MAX_N = 77
 P_HYB_MAX_WHEEL_FORCE_N = 78
 P_SHIFT_INERTIA_PHASE_S = 79
-NP = 80
+# high-fidelity plant (vehicle files with fidelity = "high"; all 0 for the paper form)
+P_HIFI = 80  # 0 paper form, 1 high fidelity
+P_AMBIENT_DEGC = 81
+P_HF_R1_OHM = 82  # pack RC branches
+P_HF_TAU1_S = 83
+P_HF_R2_OHM = 84
+P_HF_TAU2_S = 85
+P_HF_R0_TEMP_PER_K = 86
+P_HF_HYST_V = 87  # pack OCV hysteresis half-width
+P_HF_HYST_AS = 88
+P_HF_BATT_HEAT_J_PER_K = 89
+P_HF_BATT_UA_W_PER_K = 90
+P_HF_SPIN_PER_RADPS = 91
+P_HF_OIL_VISC_PER_K = 92
+P_HF_OIL_REF_DEGC = 93
+P_HF_OIL_HEAT_J_PER_K = 94
+P_HF_OIL_UA_W_PER_K = 95
+P_HF_COLD_PENALTY = 96
+P_HF_WARM_DEGC = 97
+P_HF_ENGINE_HEAT_J_PER_K = 98
+P_HF_ENGINE_HEAT_FRAC = 99
+P_HF_RADIATOR_UA_W_PER_K = 100
+P_HF_THERMOSTAT_DEGC = 101
+NP = 102
 
 # ---- command rows (one value per plant step) ----
 C_DYNO_MODE = 0  # 0 road-load, 1 speed-controlled
@@ -169,7 +192,10 @@ O_Q_ENGINE = 41  # heat: fuel power minus brake power, W
 O_Q_MOTOR = 42  # motor + inverter loss, W
 O_Q_BATT = 43  # battery I^2 R, W
 O_VDYN = 44
-NO = 45
+O_T_BATT = 45  # high-fidelity thermal states fed back into the plant, degC (NaN for the paper form)
+O_T_COOLANT = 46
+O_T_OIL = 47
+NO = 48
 
 # ---- energy ledger entries (J) ----
 L_FUEL = 0
@@ -230,6 +256,10 @@ class PlantTables(NamedTuple):
     cell_rd: np.ndarray  # ohm, discharge
     cell_rc: np.ndarray  # ohm, charge
     tc_a: np.ndarray  # torque converter a0..a8, Nm/(rad/s)^2
+    tc_sr: np.ndarray  # high fidelity: converter speed-ratio axis (empty: eq. 35-36)
+    tc_cap: np.ndarray  # capacity (30/pi)^2 / K^2, Nm/(rad/s)^2, negative in overrun
+    tc_tr: np.ndarray  # torque ratio
+    motor_loss: np.ndarray  # high fidelity: motor_loss_hifi_w coefficients (empty: Willans line)
 
 
 def cell_maps() -> np.ndarray:
@@ -346,6 +376,39 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
         p[P_SPEED_CTRL_MASS_KG], dyn.speed_loop_bandwidth_radps, dyn.speed_loop_damping, dt)
     p[P_DYNO_MAX_FORCE_N], p[P_DYNO_MAX_POWER_W] = dyn.max_force_n, dyn.max_power_w
 
+    empty = np.zeros(0)
+    tc_sr, tc_cap, tc_tr, motor_loss = empty, empty, empty, empty
+    hf = vehicle.high_fidelity
+    if hf is not None:
+        th = vehicle.thermal
+        p[P_HIFI] = 1.0
+        p[P_AMBIENT_DEGC] = campaign.ambient_degc
+        n = s.n_cells_series
+        p[P_HF_R1_OHM], p[P_HF_TAU1_S] = n * hf.battery.r1_ohm_per_cell, hf.battery.tau1_s
+        p[P_HF_R2_OHM], p[P_HF_TAU2_S] = n * hf.battery.r2_ohm_per_cell, hf.battery.tau2_s
+        p[P_HF_R0_TEMP_PER_K] = hf.battery.r0_temp_coeff_per_k
+        p[P_HF_HYST_V] = n * hf.battery.hysteresis_v_per_cell
+        p[P_HF_HYST_AS] = hf.battery.hysteresis_charge_ah * 3600.0
+        p[P_HF_BATT_HEAT_J_PER_K], p[P_HF_BATT_UA_W_PER_K] = th.battery_heat_capacity_j_per_k, th.battery_ua_w_per_k
+        p[P_HF_SPIN_PER_RADPS] = hf.transmission.spin_per_radps
+        p[P_HF_OIL_VISC_PER_K] = hf.transmission.oil_viscosity_per_k
+        p[P_HF_OIL_REF_DEGC] = hf.transmission.oil_reference_degc
+        p[P_HF_OIL_HEAT_J_PER_K] = hf.transmission.oil_heat_capacity_j_per_k
+        p[P_HF_OIL_UA_W_PER_K] = hf.transmission.oil_ua_w_per_k
+        p[P_HF_COLD_PENALTY], p[P_HF_WARM_DEGC] = hf.engine.cold_penalty_frac, hf.engine.warm_degc
+        p[P_HF_ENGINE_HEAT_J_PER_K] = th.engine_heat_capacity_j_per_k
+        p[P_HF_ENGINE_HEAT_FRAC] = th.engine_heat_to_coolant_frac
+        p[P_HF_RADIATOR_UA_W_PER_K] = th.engine_radiator_ua_w_per_k
+        p[P_HF_THERMOSTAT_DEGC] = th.engine_thermostat_degc
+        k = np.asarray(hf.torque_converter.k_factor_rpm_per_sqrt_nm, float)
+        tc_sr = np.asarray(hf.torque_converter.speed_ratio, float)
+        tc_cap = np.sign(k) * (30.0 / np.pi) ** 2 / (k * k)
+        tc_tr = np.asarray(hf.torque_converter.torque_ratio, float)
+        m = hf.motor
+        motor_loss = np.array([m.copper_w_per_nm2, m.d_axis_w, m.base_speed_rpm * RPM, m.hysteresis_w_per_radps,
+                               m.eddy_w_per_radps2, m.friction_w_per_radps, m.windage_w_per_radps3,
+                               m.inverter_standby_w, m.inverter_switching_w_per_nm])
+
     cells = cell_maps()
     bsfc = np.asarray(en.bsfc_g_per_kwh, dtype=np.float64) / 3.6e9  # g/kWh -> kg/J
     return PlantTables(
@@ -369,4 +432,8 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
         cell_rd=cells[:, 2].copy(),
         cell_rc=cells[:, 3].copy(),
         tc_a=np.asarray(tc.a_nm_per_radps2, float),
+        tc_sr=tc_sr,
+        tc_cap=tc_cap,
+        tc_tr=tc_tr,
+        motor_loss=motor_loss,
     )

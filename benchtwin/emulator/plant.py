@@ -12,6 +12,11 @@ of :mod:`benchtwin.emulator.steps_control`, :mod:`~benchtwin.emulator.steps_powe
 4. motor power (Willans) -> 12 V system and DC/DC -> HV battery (eq. 29-30) -> energy ledger -> outputs ->
    advance the states.
 
+A vehicle file with ``fidelity = "high"`` sets ``P_HIFI`` and the high-fidelity tables: the same sub-steps
+then take the motor loss model, the RC/hysteresis pack with R0(T), the spin-loss gear drag, the tabulated
+converter and the cold-start fuel factor, and the battery, coolant and oil temperatures are states of the
+loop (docs/fidelity.md). For the paper form every such branch is skipped, so it computes the same floats.
+
 Parameters travel as one record, :class:`~benchtwin.emulator.params.PlantTables` (scalars ``p`` with
 named ``P_*`` indices, lookup tables); the state between steps and calls is ``st`` (``S_*`` below).
 The step and its sub-steps are compiled without numba's reference counting (``_nrt=False``): array
@@ -25,7 +30,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from benchtwin.emulator.models import motor_elec_power_w, road_load_force_n
+from benchtwin.emulator import params as out_rows
+from benchtwin.emulator.models import motor_elec_power_w, motor_loss_hifi_w, road_load_force_n, spin_loss_torque_nm
 from benchtwin.emulator.params import (
     C_AREF,
     C_BRAKE,
@@ -44,51 +50,6 @@ from benchtwin.emulator.params import (
     C_SEG,
     C_VPRE,
     C_VTGT,
-    O_A,
-    O_BRAKE,
-    O_DSET,
-    O_DSOC,
-    O_EON,
-    O_FFRONT,
-    O_FREAR,
-    O_FRL,
-    O_FUEL,
-    O_GA,
-    O_GT,
-    O_HMODE,
-    O_IB,
-    O_ILV,
-    O_ILVB,
-    O_K0,
-    O_LU,
-    O_OCV,
-    O_PEDAL,
-    O_PEL,
-    O_PF,
-    O_PMC,
-    O_PR,
-    O_Q_BATT,
-    O_Q_ENGINE,
-    O_Q_MOTOR,
-    O_SOC,
-    O_TBF,
-    O_TBR,
-    O_TE,
-    O_TIN,
-    O_TM,
-    O_TOUT,
-    O_TP,
-    O_TT,
-    O_V,
-    O_VB,
-    O_VDYN,
-    O_VLV,
-    O_WE,
-    O_WP,
-    O_WS,
-    O_WT,
-    O_WW,
-    O_X,
     P_BATT_CAPACITY_AS,
     P_BRAKE_GAIN_FRONT_NM_PER_BAR,
     P_BRAKE_GAIN_REAR_NM_PER_BAR,
@@ -100,6 +61,10 @@ from benchtwin.emulator.params import (
     P_F2_N_PER_MPS2,
     P_FINAL_DRIVE_RATIO,
     P_FUEL_LHV_J_PER_KG,
+    P_HF_OIL_REF_DEGC,
+    P_HF_OIL_VISC_PER_K,
+    P_HF_SPIN_PER_RADPS,
+    P_HIFI,
     P_LV_CAPACITY_AS,
     P_MOTOR_INERTIA_KGM2,
     P_SOC_MAX_FRAC,
@@ -122,7 +87,10 @@ from benchtwin.emulator.steps_control import (
 from benchtwin.emulator.steps_energy import (
     dyno_forces,
     engine_fuel,
+    hifi_thermal_step,
     hv_battery,
+    hv_battery_dynamics,
+    hv_battery_hifi,
     ledger_driveline,
     ledger_electrical,
     ledger_machines,
@@ -171,7 +139,14 @@ S_STEP = 24  # plant steps run over the campaign
 S_LOCKUP_ENGAGE_S = 25
 S_INERTIA_PHASE_S = 26  # time left in a shift's inertia phase
 S_OLD_GAIN_RAD_PER_M = 27  # pump speed per vehicle speed of the gear before the shift
-N_STATE = 28
+# high-fidelity plant only (0 and unused for the paper form)
+S_RC1_V = 28  # HV pack RC branch voltages
+S_RC2_V = 29
+S_HYSTERESIS = 30  # OCV hysteresis state, -1 (after discharge) .. +1 (after charge)
+S_BATTERY_DEGC = 31
+S_COOLANT_DEGC = 32
+S_OIL_DEGC = 33
+N_STATE = 34
 
 
 @njit(cache=True)
@@ -293,6 +268,13 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     lockup_engage_time_s = st[S_LOCKUP_ENGAGE_S]
     inertia_phase_left_s = st[S_INERTIA_PHASE_S]
     old_gain_rad_per_m = st[S_OLD_GAIN_RAD_PER_M]
+    hifi = p[P_HIFI] > 0.5
+    rc1_v = st[S_RC1_V]
+    rc2_v = st[S_RC2_V]
+    hysteresis = st[S_HYSTERESIS]
+    battery_degc = st[S_BATTERY_DEGC]
+    coolant_degc = st[S_COOLANT_DEGC]
+    oil_degc = st[S_OIL_DEGC]
 
     time_s = kstep * dt
     dyno_mode = int(cmd[C_DYNO_MODE, i])
@@ -354,7 +336,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
 
     # ---- engine fuel (BSFC map, eq. 26-28) ----
     fuel_flow_kgps, fuel_energy_j = engine_fuel(tab, engine_on, k0_closed, engine_torque_nm, pump_speed_radps,
-                                                engine_speed_radps, start_fuel_kg)
+                                                engine_speed_radps, start_fuel_kg, coolant_degc)
 
     # ---- dyno forces ----
     road_load_n, parasitic_n, dyno_applied_n, external_force_n, dyno_set_mps, dyno_force_n, dyno_error_mps = \
@@ -368,26 +350,40 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
         source_torque_nm, pump_inertia_kgm2, gain_rad_per_m, eff_mass_kg, speed_mps, pump_speed_radps,
         turbine_speed_radps, engine_speed_radps)
 
-    # ---- driveline and vehicle ----
+    # ---- driveline and vehicle (gear drag: eq. 14's C0, or the high-fidelity spin loss) ----
+    drag_torque_nm = tab.c0[gear]
+    if hifi and gear > 0:
+        drag_torque_nm = spin_loss_torque_nm(tab.c0[gear], p[P_HF_SPIN_PER_RADPS], p[P_HF_OIL_VISC_PER_K],
+                                             p[P_HF_OIL_REF_DEGC], turbine_speed_radps, oil_degc)
     (accel_mps2, pump_torque_nm, turbine_torque_nm, lockup_torque_nm, input_torque_nm, output_torque_nm,
      pump_torque_eff_nm, lockup_torque_eff_nm, slip_gain_rad_per_m, pump_speed_step_radps) = driveline_step(
         tab, gear, lockup_closed, speed_mps, pump_speed_radps, turbine_speed_radps, source_torque_nm,
         pump_inertia_kgm2, gain_rad_per_m, eff_ratio, old_gain_rad_per_m, inertia_phase_left_s, lockup_capacity_nm,
-        idle_gain_nm_per_radps, eff_mass_kg, external_force_n, brake_force_n)
+        idle_gain_nm_per_radps, eff_mass_kg, external_force_n, brake_force_n, drag_torque_nm)
     wheel_force_n = final_drive_ratio * output_torque_nm / wheel_radius_m
     (accel_mps2, new_speed_mps, stop_force_n, mid_speed_mps, new_pump_speed_radps, mid_pump_speed_radps,
      mid_turbine_speed_radps, mid_shaft_speed_radps) = vehicle_step(
         p, gear, lockup_closed, speed_mps, accel_mps2, pump_speed_radps, pump_speed_step_radps, gain_rad_per_m,
         eff_gain_rad_per_m, eff_mass_kg)
 
-    # ---- motor electrical power (Willans), 12 V system, HV battery (eq. 29-30) ----
-    motor_elec_w = motor_elec_power_w(p[P_WILLANS_E], p[P_WILLANS_LOSS_W], p[P_WILLANS_E_GEN],
-                                      p[P_WILLANS_LOSS_GEN_W], motor_torque_nm, pump_speed_radps)
+    # ---- motor electrical power (Willans, or the high-fidelity loss model), 12 V system, HV battery ----
+    if hifi:
+        motor_elec_w = 0.0
+        if pump_speed_radps >= 1.0 or abs(motor_torque_nm) >= 0.5:
+            motor_elec_w = (motor_torque_nm * pump_speed_radps
+                            + motor_loss_hifi_w(tab.motor_loss, motor_torque_nm, pump_speed_radps))
+    else:
+        motor_elec_w = motor_elec_power_w(p[P_WILLANS_E], p[P_WILLANS_LOSS_W], p[P_WILLANS_E_GEN],
+                                          p[P_WILLANS_LOSS_GEN_W], motor_torque_nm, pump_speed_radps)
     lv_load_w = cmd[C_LVLOAD, i]
     lv_ocv_v, lv_bus_v, lv_battery_current_a, dcdc_lv_current_a, dcdc_lv_power_w, dcdc_hv_power_w = lv_system(
         p, lv_soc_frac, lv_load_w)
-    hv_ocv_v, hv_resistance_ohm, hv_current_a, hv_terminal_v = hv_battery(tab, soc_frac,
-                                                                         motor_elec_w + dcdc_hv_power_w)
+    if hifi:
+        hv_ocv_v, hv_resistance_ohm, hv_current_a, hv_terminal_v = hv_battery_hifi(
+            tab, soc_frac, motor_elec_w + dcdc_hv_power_w, rc1_v, rc2_v, hysteresis, battery_degc)
+    else:
+        hv_ocv_v, hv_resistance_ohm, hv_current_a, hv_terminal_v = hv_battery(tab, soc_frac,
+                                                                             motor_elec_w + dcdc_hv_power_w)
 
     # ---- ledger ----
     ledger_electrical(p, led, fuel_energy_j, hv_ocv_v, hv_resistance_ohm, hv_current_a, lv_ocv_v,
@@ -404,53 +400,56 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     wrote = False
     if kstep % decim == 0:
         o = out[:, iout]
-        o[O_V] = speed_mps
-        o[O_A] = accel_mps2
-        o[O_X] = distance_m
-        o[O_DSET] = dyno_set_mps
+        o[out_rows.O_V] = speed_mps
+        o[out_rows.O_A] = accel_mps2
+        o[out_rows.O_X] = distance_m
+        o[out_rows.O_DSET] = dyno_set_mps
         moving = 1.0 if mid_speed_mps > 0.0 else 0.0
-        o[O_FFRONT] = -moving * front_brake_nm / wheel_radius_m - 0.5 * parasitic_n
-        o[O_FREAR] = wheel_force_n - moving * rear_brake_nm / wheel_radius_m - 0.5 * parasitic_n
-        o[O_FRL] = road_load_force_n(p[P_F0_N], p[P_F1_N_PER_MPS], p[P_F2_N_PER_MPS2], speed_mps)
-        o[O_PEDAL] = pedal_pct
-        o[O_BRAKE] = brake_pct
-        o[O_HMODE] = hybrid_mode
-        o[O_WE] = pump_speed_radps if k0_closed else engine_speed_radps
-        o[O_TE] = engine_torque_nm
-        o[O_EON] = 1.0 if engine_on else 0.0
-        o[O_FUEL] = fuel_flow_kgps
-        o[O_K0] = 1.0 if k0_closed else 0.0
-        o[O_WP] = pump_speed_radps
-        o[O_TM] = motor_torque_nm
-        o[O_PEL] = motor_elec_w
-        o[O_TP] = pump_torque_nm
-        o[O_WT] = turbine_speed_radps
-        o[O_TT] = turbine_torque_nm
-        o[O_LU] = 1.0 if (lockup_closed and gear > 0) else 0.0
-        o[O_GT] = gear_target
-        o[O_GA] = gear
-        o[O_TIN] = input_torque_nm
-        o[O_TOUT] = output_torque_nm
-        o[O_WS] = final_drive_ratio * speed_mps / wheel_radius_m
-        o[O_WW] = speed_mps / wheel_radius_m
-        o[O_PF] = front_brake_nm / p[P_BRAKE_GAIN_FRONT_NM_PER_BAR] * 1e5
-        o[O_PR] = rear_brake_nm / p[P_BRAKE_GAIN_REAR_NM_PER_BAR] * 1e5
-        o[O_PMC] = max(o[O_PF], o[O_PR])
-        o[O_TBF] = front_brake_nm
-        o[O_TBR] = rear_brake_nm
-        o[O_IB] = hv_current_a
-        o[O_VB] = hv_terminal_v
-        o[O_OCV] = hv_ocv_v
-        o[O_SOC] = soc_frac
-        o[O_DSOC] = displayed_soc_pct
-        o[O_ILV] = dcdc_lv_current_a
-        o[O_VLV] = lv_bus_v
-        o[O_ILVB] = lv_battery_current_a
-        o[O_Q_ENGINE] = (fuel_flow_kgps * p[P_FUEL_LHV_J_PER_KG] - engine_torque_nm * pump_speed_radps
+        o[out_rows.O_FFRONT] = -moving * front_brake_nm / wheel_radius_m - 0.5 * parasitic_n
+        o[out_rows.O_FREAR] = wheel_force_n - moving * rear_brake_nm / wheel_radius_m - 0.5 * parasitic_n
+        o[out_rows.O_FRL] = road_load_force_n(p[P_F0_N], p[P_F1_N_PER_MPS], p[P_F2_N_PER_MPS2], speed_mps)
+        o[out_rows.O_PEDAL] = pedal_pct
+        o[out_rows.O_BRAKE] = brake_pct
+        o[out_rows.O_HMODE] = hybrid_mode
+        o[out_rows.O_WE] = pump_speed_radps if k0_closed else engine_speed_radps
+        o[out_rows.O_TE] = engine_torque_nm
+        o[out_rows.O_EON] = 1.0 if engine_on else 0.0
+        o[out_rows.O_FUEL] = fuel_flow_kgps
+        o[out_rows.O_K0] = 1.0 if k0_closed else 0.0
+        o[out_rows.O_WP] = pump_speed_radps
+        o[out_rows.O_TM] = motor_torque_nm
+        o[out_rows.O_PEL] = motor_elec_w
+        o[out_rows.O_TP] = pump_torque_nm
+        o[out_rows.O_WT] = turbine_speed_radps
+        o[out_rows.O_TT] = turbine_torque_nm
+        o[out_rows.O_LU] = 1.0 if (lockup_closed and gear > 0) else 0.0
+        o[out_rows.O_GT] = gear_target
+        o[out_rows.O_GA] = gear
+        o[out_rows.O_TIN] = input_torque_nm
+        o[out_rows.O_TOUT] = output_torque_nm
+        o[out_rows.O_WS] = final_drive_ratio * speed_mps / wheel_radius_m
+        o[out_rows.O_WW] = speed_mps / wheel_radius_m
+        o[out_rows.O_PF] = front_brake_nm / p[P_BRAKE_GAIN_FRONT_NM_PER_BAR] * 1e5
+        o[out_rows.O_PR] = rear_brake_nm / p[P_BRAKE_GAIN_REAR_NM_PER_BAR] * 1e5
+        o[out_rows.O_PMC] = max(o[out_rows.O_PF], o[out_rows.O_PR])
+        o[out_rows.O_TBF] = front_brake_nm
+        o[out_rows.O_TBR] = rear_brake_nm
+        o[out_rows.O_IB] = hv_current_a
+        o[out_rows.O_VB] = hv_terminal_v
+        o[out_rows.O_OCV] = hv_ocv_v
+        o[out_rows.O_SOC] = soc_frac
+        o[out_rows.O_DSOC] = displayed_soc_pct
+        o[out_rows.O_ILV] = dcdc_lv_current_a
+        o[out_rows.O_VLV] = lv_bus_v
+        o[out_rows.O_ILVB] = lv_battery_current_a
+        o[out_rows.O_Q_ENGINE] = (fuel_flow_kgps * p[P_FUEL_LHV_J_PER_KG] - engine_torque_nm * pump_speed_radps
                          if engine_on else 0.0)
-        o[O_Q_MOTOR] = motor_elec_w - motor_torque_nm * pump_speed_radps
-        o[O_Q_BATT] = hv_resistance_ohm * hv_current_a * hv_current_a
-        o[O_VDYN] = speed_mps
+        o[out_rows.O_Q_MOTOR] = motor_elec_w - motor_torque_nm * pump_speed_radps
+        o[out_rows.O_Q_BATT] = hv_resistance_ohm * hv_current_a * hv_current_a
+        o[out_rows.O_VDYN] = speed_mps
+        o[out_rows.O_T_BATT] = battery_degc if hifi else np.nan
+        o[out_rows.O_T_COOLANT] = coolant_degc if hifi else np.nan
+        o[out_rows.O_T_OIL] = oil_degc if hifi else np.nan
         wrote = True
 
     # ---- advance states ----
@@ -465,6 +464,17 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     if inertia_phase_left_s > 0.0:
         inertia_phase_left_s = max(inertia_phase_left_s - dt, 0.0)
     kstep += 1
+    if hifi:
+        rc1_v, rc2_v, hysteresis = hv_battery_dynamics(p, hv_current_a, rc1_v, rc2_v, hysteresis)
+        engine_heat_w = (fuel_flow_kgps * p[P_FUEL_LHV_J_PER_KG] - engine_torque_nm * pump_speed_radps
+                         if engine_on else 0.0)
+        trans_loss_w = 0.0
+        if gear > 0:
+            trans_loss_w = (input_torque_nm * (mid_turbine_speed_radps - slip_gain_rad_per_m * mid_speed_mps)
+                            - output_torque_nm * mid_shaft_speed_radps)
+        battery_degc, coolant_degc, oil_degc = hifi_thermal_step(
+            p, engine_heat_w, hv_resistance_ohm * hv_current_a * hv_current_a, trans_loss_w, battery_degc,
+            coolant_degc, oil_degc)
     stop = (end_latched and speed_mps <= 0.0
             and time_s - latch_time_s > latch_speed_mps / p[P_DRIVER_STOP_DECEL_MPS2] + 3.0)
 
@@ -496,4 +506,10 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     st[S_LOCKUP_ENGAGE_S] = lockup_engage_time_s
     st[S_INERTIA_PHASE_S] = inertia_phase_left_s
     st[S_OLD_GAIN_RAD_PER_M] = old_gain_rad_per_m
+    st[S_RC1_V] = rc1_v
+    st[S_RC2_V] = rc2_v
+    st[S_HYSTERESIS] = hysteresis
+    st[S_BATTERY_DEGC] = battery_degc
+    st[S_COOLANT_DEGC] = coolant_degc
+    st[S_OIL_DEGC] = oil_degc
     return wrote, stop

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from benchtwin.emulator.models import interp_1d, road_load_force_n, torque_converter_torques_nm
+from benchtwin.emulator.models import converter_torques_nm, interp_1d, road_load_force_n
 from benchtwin.emulator.params import (
     L_DYNO,
     P_BATT_MAX_CHARGE_W,
@@ -271,8 +271,8 @@ def torque_demand(tab: PlantTables, pump_speed_radps: float, turbine_speed_radps
         # converter's present torque ratio (launches in low gears)
         tr_now = 1.0
         if not lockup_closed and wp > 1.0:
-            tpn, ttn, _dn = torque_converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], wp,
-                                                        turbine_speed_radps)
+            tpn, ttn, _dn = converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], tab.tc_sr, tab.tc_cap,
+                                                 tab.tc_tr, wp, turbine_speed_radps)
             if tpn > 1e-3:
                 tr_now = max(ttn / tpn, 1.0)
         t_dem = min(t_dem, p[P_HYB_MAX_WHEEL_FORCE_N] * p[P_WHEEL_RADIUS_M]

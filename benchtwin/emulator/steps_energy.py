@@ -9,7 +9,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from benchtwin.emulator.models import bsfc_kg_per_j, interp_1d, pack_current_a, road_load_force_n
+from benchtwin.emulator.models import (
+    battery_rc_update,
+    bsfc_kg_per_j,
+    cold_start_factor,
+    interp_1d,
+    pack_current_a,
+    road_load_force_n,
+)
 from benchtwin.emulator.params import (
     L_BRAKES,
     L_DCDC,
@@ -27,6 +34,7 @@ from benchtwin.emulator.params import (
     L_SHIFT,
     L_TC,
     L_TRANS,
+    P_AMBIENT_DEGC,
     P_BATT_ALPHA,
     P_BATT_BETA_CHARGE,
     P_BATT_BETA_DISCHARGE,
@@ -43,6 +51,24 @@ from benchtwin.emulator.params import (
     P_F1_N_PER_MPS,
     P_F2_N_PER_MPS2,
     P_FUEL_LHV_J_PER_KG,
+    P_HF_BATT_HEAT_J_PER_K,
+    P_HF_BATT_UA_W_PER_K,
+    P_HF_COLD_PENALTY,
+    P_HF_ENGINE_HEAT_FRAC,
+    P_HF_ENGINE_HEAT_J_PER_K,
+    P_HF_HYST_AS,
+    P_HF_HYST_V,
+    P_HF_OIL_HEAT_J_PER_K,
+    P_HF_OIL_UA_W_PER_K,
+    P_HF_R0_TEMP_PER_K,
+    P_HF_R1_OHM,
+    P_HF_R2_OHM,
+    P_HF_RADIATOR_UA_W_PER_K,
+    P_HF_TAU1_S,
+    P_HF_TAU2_S,
+    P_HF_THERMOSTAT_DEGC,
+    P_HF_WARM_DEGC,
+    P_HIFI,
     P_LV_OCV_EMPTY_V,
     P_LV_OCV_FULL_V,
     P_LV_RESISTANCE_OHM,
@@ -59,9 +85,10 @@ from benchtwin.emulator.steps_control import ROAD_LOAD_FADE_MPS
 
 @njit(cache=True, _nrt=False)
 def engine_fuel(tab: PlantTables, engine_on: bool, k0_closed: bool, engine_torque_nm: float, pump_speed_radps: float,
-                engine_speed_radps: float, start_fuel_kg: float) -> tuple[float, float]:
+                engine_speed_radps: float, start_fuel_kg: float, coolant_degc: float) -> tuple[float, float]:
     """Engine fuel (eq. 26-28): BSFC(omega, BMEP = 4 pi T / V_d) T omega when driving through K0, the map's
-    lowest-BMEP flow when motoring or idling free, nothing when off, plus the start's fuel mass.
+    lowest-BMEP flow when motoring or idling free, nothing when off, plus the start's fuel mass. The
+    high-fidelity plant multiplies the running flow by the cold-start factor of the coolant temperature.
 
     Returns
     -------
@@ -83,6 +110,8 @@ def engine_fuel(tab: PlantTables, engine_on: bool, k0_closed: bool, engine_torqu
             bmin = tab.bsfc_b[0]
             tmin = bmin * p[P_DISPLACEMENT_M3] / (4.0 * np.pi)
             fuel_flow += bsfc_kg_per_j(tab.bsfc_w, tab.bsfc_b, tab.bsfc_kgpj, wf, bmin) * tmin * wf
+        if p[P_HIFI] > 0.5:
+            fuel_flow *= cold_start_factor(p[P_HF_COLD_PENALTY], p[P_HF_WARM_DEGC], coolant_degc)
     fuel_e = (fuel_flow * dt + start_fuel_kg) * p[P_FUEL_LHV_J_PER_KG]
     fuel_flow += start_fuel_kg / dt
     return fuel_flow, fuel_e
@@ -170,6 +199,79 @@ def hv_battery(tab: PlantTables, soc_frac: float, hv_power_w: float) -> tuple[fl
     ib = pack_current_a(uoc, rpk, hv_power_w)
     vb = uoc - ib * rpk
     return uoc, rpk, ib, vb
+
+
+@njit(cache=True, _nrt=False)
+def hv_battery_hifi(tab: PlantTables, soc_frac: float, hv_power_w: float, rc1_v: float, rc2_v: float,
+                    hysteresis: float, battery_degc: float) -> tuple:
+    """High-fidelity HV pack: OCV plus hysteresis h U_h, minus two RC branches, minus R0(T) I.
+
+    R0 = n beta R_lit(s) exp(k_T (25 degC - T)); the current solves P = (U_oc + h U_h - u1 - u2 - R0 I) I.
+    The branch voltages and the hysteresis state are advanced by :func:`hv_battery_dynamics`.
+
+    Returns
+    -------
+    tuple
+        ``(open_circuit_v, loss_resistance_ohm, current_a, terminal_v)``, the resistance being
+        (U_oc - U) / I, so that R I^2 is every loss of the pack (R0, RC branches, hysteresis).
+    """
+    p = tab.p
+    uoc, r0, _i, _v = hv_battery(tab, soc_frac, hv_power_w)
+    r0 = r0 * np.exp(p[P_HF_R0_TEMP_PER_K] * (25.0 - battery_degc))
+    src = uoc + hysteresis * p[P_HF_HYST_V] - rc1_v - rc2_v
+    ib = pack_current_a(src, r0, hv_power_w)
+    vb = src - ib * r0
+    r_loss = (uoc - vb) / ib if abs(ib) > 1e-9 else 0.0
+    return uoc, r_loss, ib, vb
+
+
+@njit(cache=True, _nrt=False)
+def hv_battery_dynamics(p: np.ndarray, current_a: float, rc1_v: float, rc2_v: float,
+                        hysteresis: float) -> tuple[float, float, float]:
+    """Advance the RC branch voltages (exact for a constant current over the step) and the hysteresis state,
+    which moves towards -1 while discharging and +1 while charging by 1/e per ``P_HF_HYST_AS`` of charge.
+
+    Returns
+    -------
+    tuple
+        ``(rc1_v, rc2_v, hysteresis)`` at the end of the step.
+    """
+    dt = p[P_DT_S]
+    u1 = battery_rc_update(rc1_v, p[P_HF_R1_OHM], p[P_HF_TAU1_S], current_a, dt)
+    u2 = battery_rc_update(rc2_v, p[P_HF_R2_OHM], p[P_HF_TAU2_S], current_a, dt)
+    h = hysteresis
+    if current_a != 0.0:
+        target = -1.0 if current_a > 0.0 else 1.0
+        h += (target - h) * (1.0 - np.exp(-abs(current_a) * dt / p[P_HF_HYST_AS]))
+    return u1, u2, h
+
+
+@njit(cache=True, _nrt=False)
+def hifi_thermal_step(p: np.ndarray, engine_heat_w: float, battery_heat_w: float, transmission_loss_w: float,
+                      battery_degc: float, coolant_degc: float, oil_degc: float) -> tuple[float, float, float]:
+    """Thermal states the high-fidelity plant feeds back (explicit Euler over the step), degC.
+
+    - HV cells: C_b dT/dt = Q_batt - UA_b (T - (T_amb + 1.5)) (chiller inlet a little above ambient);
+    - engine coolant: C_e dT/dt = f Q_eng - UA_rad o(T) (T - T_amb), thermostat opening o over 8 K
+      (at least 3 %), the lumps of :mod:`benchtwin.emulator.thermal`;
+    - gearbox oil: C_o dT/dt = P_trans_loss - UA_o (T - T_coolant) (oil-to-coolant heat exchanger).
+
+    Returns
+    -------
+    tuple
+        ``(battery_degc, coolant_degc, oil_degc)`` at the end of the step.
+    """
+    dt = p[P_DT_S]
+    amb = p[P_AMBIENT_DEGC]
+    tb = battery_degc + dt * (battery_heat_w - p[P_HF_BATT_UA_W_PER_K] * (battery_degc - (amb + 1.5))) / p[
+        P_HF_BATT_HEAT_J_PER_K]
+    op = min(max((coolant_degc - (p[P_HF_THERMOSTAT_DEGC] - 4.0)) / 8.0, 0.03), 1.0)
+    q_rad = p[P_HF_RADIATOR_UA_W_PER_K] * op * (coolant_degc - amb)
+    tc = coolant_degc + dt * (p[P_HF_ENGINE_HEAT_FRAC] * max(engine_heat_w, 0.0) - q_rad) / p[
+        P_HF_ENGINE_HEAT_J_PER_K]
+    to = oil_degc + dt * (transmission_loss_w - p[P_HF_OIL_UA_W_PER_K] * (oil_degc - coolant_degc)) / p[
+        P_HF_OIL_HEAT_J_PER_K]
+    return tb, tc, to
 
 
 @njit(cache=True, _nrt=False)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from benchtwin.emulator.models import clutch_merge, torque_converter_torques_nm, transmission_output_torque_nm
+from benchtwin.emulator.models import clutch_merge, converter_torques_nm, transmission_output_torque_nm
 from benchtwin.emulator.params import (
     L_K0,
     L_LOCKUP,
@@ -308,7 +308,8 @@ def lockup_engagement(tab: PlantTables, led: np.ndarray, lockup_request: bool, l
     if lockup_request and not lockup_closed and gear > 0 and inertia_phase_left_s <= 0.0:
         lut += dt
         cap_now = p[P_LOCKUP_CAPACITY_NM] * min(lut / p[P_LOCKUP_ENGAGE_S], 1.0)
-        tp0, _tt0, _d0 = torque_converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], wp, wt)
+        tp0, _tt0, _d0 = converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], tab.tc_sr, tab.tc_cap,
+                                              tab.tc_tr, wp, wt)
         tneed = source_torque_nm - tp0 - jp * (wt - wp) / dt
         if abs(tneed) <= cap_now:
             # the lock-up sticks: pump side and vehicle (seen through the gear) share their momentum
@@ -328,7 +329,7 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
                    turbine_speed_radps: float, source_torque_nm: float, pump_inertia_kgm2: float,
                    gain_rad_per_m: float, eff_ratio: float, old_gain_rad_per_m: float, inertia_phase_left_s: float,
                    lockup_capacity_nm: float, idle_gain_nm_per_radps: float, eff_mass_kg: float,
-                   external_force_n: float, brake_force_n: float) -> tuple:
+                   external_force_n: float, brake_force_n: float, drag_torque_nm: float) -> tuple:
     """Driveline and vehicle acceleration over the step.
 
     - Lock-up closed (rigid): pump side and vehicle accelerate together; the gearbox is in drive
@@ -338,6 +339,9 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
       gearbox output (eq. 13-14) through the effective ratio of a slipping shift clutch, and a
       semi-implicit pump-speed step dw = dt (T_src - T_p - T_lu) / (J_p + dt (dT_p/dw + k_idle)).
     - Neutral: the pump side alone.
+
+    ``drag_torque_nm`` is the gear's C0 (eq. 14): the vehicle file's constant for the paper form, the spin
+    loss at the present input speed and oil temperature for the high-fidelity plant.
 
     Returns
     -------
@@ -373,7 +377,7 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
     a = 0.0
     if gear > 0 and lockup_closed:
         eta = tab.eta_m[gear]
-        cc = tab.c0[gear]
+        cc = drag_torque_nm
         ig = tab.ratios[gear]
         fbd = fb if v > 0.0 else 0.0
         den = meff + eta * jp * kg * kg
@@ -397,7 +401,8 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
         tt = tin
     else:
         if gear > 0:
-            tp, tt, dtp = torque_converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], wp, wt)
+            tp, tt, dtp = converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], tab.tc_sr, tab.tc_cap,
+                                               tab.tc_tr, wp, wt)
             dlu = 0.0
             if lockup_capacity_nm > 0.0:
                 tlu = lockup_capacity_nm if wp > wt else -lockup_capacity_nm
@@ -409,7 +414,7 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
                 rnew = tab.ratios[gear]
                 rold = old_gain_rad_per_m * rw / ifd
                 reff = min(rnew, rold) if tin >= 0.0 else max(rnew, rold)
-            tout = transmission_output_torque_nm(reff, tab.eta_m[gear], tab.c0[gear], tin)
+            tout = transmission_output_torque_nm(reff, tab.eta_m[gear], drag_torque_nm, tin)
             slip_w = (eff_ratio - reff) * ifd / rw  # turbine speed above the clutch's output side, per m/s
             num = tsrc - tp - tlu
             dw = dt * num / (jp + dt * (dtp + dlu + d_idle))

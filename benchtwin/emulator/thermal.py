@@ -1,7 +1,9 @@
 """Lumped thermal states for every thermocouple place of the Trace, driven by the loop's heat flows.
 
-The thermal states do not feed back into the plant (no map of the vehicle file depends on temperature),
-so they run after the loop over the output arrays.
+For the paper-form plant the thermal states do not feed back (no map of the vehicle file depends on
+temperature), so they run after the loop over the output arrays. The high-fidelity plant (``fidelity =
+"high"``) integrates the cell, engine-coolant and gearbox-oil temperatures inside the loop, where they feed
+back (``steps_energy.hifi_thermal_step``), and its Trace takes the cell and coolant channels from there.
 """
 
 from __future__ import annotations

@@ -24,6 +24,7 @@ from benchtwin.identification._signals import gather
 from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Channel, Recording
 from benchtwin.trace import Trace
+from benchtwin.validation.hifi import hifi_submodel_checks
 from benchtwin.validation.predict import CO2_G_PER_G_DIESEL, DriveInputs, MapVehicle, Prediction
 from benchtwin.validation.report import Check
 
@@ -401,6 +402,13 @@ def submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, trace:
     check integrates parameters over operating points, its tolerance is theirs propagated to those points.
     """
     tols = tols or {}
+    if vehicle.fidelity == "high":
+        # no true Willans line, eq. 14 or eq. 35-36: motor and gearbox against what the true sub-systems did
+        # over the drive; the converter's curves are checked against the true table with the parameters
+        window = (float(drive.t_s[0]), float(drive.t_s[-1])) if drive is not None else (0.0, -1.0)
+        return (hifi_submodel_checks(result, vehicle, trace, *window)
+                + _bsfc_checks(result, vehicle, model, pred, profile, tols)
+                + _battery_checks(pred, trace, drive, profile) + _shift_checks(result, drive, model))
     return (_motor_checks(result, vehicle, pred, tols) + _transmission_checks(result, vehicle, pred, tols)
             + _bsfc_checks(result, vehicle, model, pred, profile, tols) + _battery_checks(pred, trace, drive, profile)
             + _tc_checks(result, vehicle, profile, tols) + _shift_checks(result, drive, model))

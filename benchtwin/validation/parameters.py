@@ -27,6 +27,7 @@ from benchtwin.identification.transmission import identify_transmission
 from benchtwin.recording import Channel, Recording
 from benchtwin.sensors.telemetry import torque_step_nm
 from benchtwin.trace import Trace
+from benchtwin.validation.hifi import converter_curve_checks, no_truth
 from benchtwin.validation.report import Check
 
 __all__ = ["PAPER_R2", "compare_with_truth", "paper_estimation_fits", "truth_expectations"]
@@ -294,7 +295,9 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
     Returns
     -------
     list of Check
-        Scalar parameters, torque-converter curves, shift lines, the BSFC map and (realistic) R^2.
+        Scalar parameters, torque-converter curves, shift lines, the BSFC map and (realistic) R^2. For a
+        high-fidelity truth (``fidelity = "high"``) the parameters without a true value are left out and the
+        converter's curves are compared with the vehicle file's tabulated curves (validation/hifi.py).
     """
     if profile not in ("ideal", "realistic"):
         raise ConfigError(f"validation profile {profile!r}: allowed are 'ideal' and 'realistic'")
@@ -303,6 +306,8 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
     checks: list[Check] = []
     gear_set = set(gears) if gears is not None else set(range(1, vehicle.n_gears + 1))
     for e in truth_expectations(vehicle):
+        if no_truth(vehicle, e.key):  # a high-fidelity truth: judged by prediction (validation/hifi.py)
+            continue
         fit_key, param = split_param(e.key)
         if fit_key.subsystem == "transmission" and fit_key.gear not in gear_set:
             continue
@@ -324,7 +329,8 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
             c.note = (c.note + "; " if c.note else "") + f"flagged: {p.reason}"
         checks.append(c)
 
-    checks += _tc_checks(result, vehicle, profile)
+    checks += _tc_checks(result, vehicle, profile) if vehicle.fidelity != "high" else converter_curve_checks(
+        result, vehicle)
     checks += _shift_checks(result, vehicle, profile)
     checks += _bsfc_checks(result, vehicle, profile, budget)
     if profile == "realistic":

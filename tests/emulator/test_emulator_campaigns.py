@@ -174,6 +174,20 @@ def test_campaign_that_does_not_fit_the_vehicle_is_refused(vehicle) -> None:
     assert "tests[1] (fast): key 'speed_kmh' = 120.0" in lines[1] and "exceeds" in lines[1]
 
 
+def test_electric_test_may_run_to_the_motor_top_speed_not_the_engine_s(vehicle) -> None:
+    from benchtwin.emulator import check_campaign
+    from benchtwin.errors import ConfigError
+
+    # gear 2 at 85 km/h: 85 / 3.6 / 0.352 * 2.65 * 3.25 rad/s = 5,516 rpm, above the engine's 4,600 rpm and
+    # below the motor's 6,000 rpm
+    rpm = 85 / 3.6 / vehicle.specs.wheel_radius_m * vehicle.specs.final_drive_ratio * 3.25 * 30 / np.pi
+    assert vehicle.engine.max_speed_rpm < rpm < vehicle.motor.max_speed_rpm
+    test = {"kind": "ramp_up", "name": "e", "gear": 2, "speed_kmh": 85.0, "pedal_steps_pct": [5.0]}
+    check_campaign(vehicle, _campaign([{**test, "engine": "off", "k0": "open"}]))
+    with pytest.raises(ConfigError, match="4600 rpm"):
+        check_campaign(vehicle, _campaign([test]))
+
+
 def test_controller_coefficients_are_the_tustin_discretisation_of_the_designed_pi() -> None:
     from benchtwin.emulator.params import _pi_coefficients
 

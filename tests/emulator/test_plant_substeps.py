@@ -129,6 +129,10 @@ def _tables(p: np.ndarray | None = None) -> PlantTables:
         cell_rd=1.2e-3 + 0.4e-3 * (1.0 - soc),
         cell_rc=1.0e-3 + 0.3e-3 * soc,
         tc_a=TC_A.copy(),
+        tc_sr=np.zeros(0),
+        tc_cap=np.zeros(0),
+        tc_tr=np.zeros(0),
+        motor_loss=np.zeros(0),
     )
 
 
@@ -261,13 +265,13 @@ def test_road_load_mode(v_mps: float) -> None:
 def test_engine_fuel_bsfc() -> None:
     tab = _tables()
     bsfc = 220.0 / 3.6e9  # kg/J, flat map
-    flow, energy = engine_fuel(tab, True, True, 150.0, 200.0, 200.0, 0.0)
+    flow, energy = engine_fuel(tab, True, True, 150.0, 200.0, 200.0, 0.0, 20.0)
     assert flow == pytest.approx(bsfc * 150.0 * 200.0, rel=1e-12)  # fuel = BSFC * T omega
     assert energy == pytest.approx(flow * 0.01 * 43.0e6, rel=1e-12)
-    flow_off, energy_off = engine_fuel(tab, False, True, 150.0, 200.0, 200.0, 0.0)
+    flow_off, energy_off = engine_fuel(tab, False, True, 150.0, 200.0, 200.0, 0.0, 20.0)
     assert flow_off == 0.0 and energy_off == 0.0
     # a start adds its fuel mass
-    flow_s, energy_s = engine_fuel(tab, False, False, 0.0, 0.0, 0.0, 1e-3)
+    flow_s, energy_s = engine_fuel(tab, False, False, 0.0, 0.0, 0.0, 1e-3, 20.0)
     assert flow_s == pytest.approx(1e-3 / 0.01) and energy_s == pytest.approx(1e-3 * 43.0e6)
 
 
@@ -356,7 +360,8 @@ def _rigid(tsrc: float, f_ext: float, fb: float, v: float = 20.0) -> tuple:
     tab = _tables()
     kg = 2.5 * 3.0 / 0.33
     jp = 0.3
-    return driveline_step(tab, 2, True, v, kg * v, kg * v, tsrc, jp, kg, 2.5, 0.0, 0.0, 0.0, 0.0, 2000.0, f_ext, fb)
+    return driveline_step(tab, 2, True, v, kg * v, kg * v, tsrc, jp, kg, 2.5, 0.0, 0.0, 0.0, 0.0, 2000.0, f_ext, fb,
+                          tab.c0[2])
 
 
 @pytest.mark.parametrize(("tsrc", "f_ext", "fb"), [(200.0, -400.0, 0.0), (-150.0, -400.0, 500.0)])
@@ -381,7 +386,7 @@ def test_converter_driveline() -> None:
     v, wp, jp, tsrc = 3.0, 150.0, 0.3, 120.0
     wt = kg * v
     a, tp, tt, tlu, tin, tout, tp_eff, _tlu_eff, slip, dw = driveline_step(
-        tab, 1, False, v, wp, wt, tsrc, jp, kg, 4.0, 0.0, 0.0, 0.0, 0.0, 2000.0, -200.0, 0.0)
+        tab, 1, False, v, wp, wt, tsrc, jp, kg, 4.0, 0.0, 0.0, 0.0, 0.0, 2000.0, -200.0, 0.0, tab.c0[1])
     tp_w, tt_w, dtp = torque_converter_torques_nm(TC_A, GAMMA, wp, wt)
     assert (tp, tt, tlu) == (tp_w, tt_w, 0.0) and tin == tt_w
     assert tout == pytest.approx(4.0 * 0.95 * (tin - 6.0), rel=1e-12)  # eq. 14 drive
