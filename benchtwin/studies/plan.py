@@ -65,7 +65,7 @@ from benchtwin.studies.plan_fits import (
     plan_shifts,
     plan_transmission,
 )
-from benchtwin.studies.plan_noise import noise_budget, reading_variance, truth_recording
+from benchtwin.studies.plan_noise import noise_budget, poll_faults, reading_variance, truth_recording
 from benchtwin.trace import Trace
 from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
 
@@ -168,7 +168,7 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
         elif fam.name == "brakes":
-            plan.parameters += plan_brakes(rec, vehicle, noise, segments)
+            plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_faults(setup))
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
         elif fam.name == "shifts":

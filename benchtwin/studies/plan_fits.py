@@ -229,11 +229,13 @@ def plan_battery(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Cha
 
 
 def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
-                segments: list[Segment]) -> list[PlannedParameter]:
+                segments: list[Segment], faults: Mapping[str, float] | None = None) -> list[PlannedParameter]:
     """Brake gains ``T = m p + c`` per axle on the steady neutral-braking windows, and ``k_f``.
 
     The roller torque is noise-free on the dyno's CAN; the axle pressure (mean of its calipers) is the
     regressor, so its noise enters through the slope (errors in variables: ``s_i^2 = m^2 var(p_i)``).
+    ``faults`` (role -> failed-poll probability, :func:`~benchtwin.studies.plan_noise.poll_faults`): when the
+    pressures' polls can fail, each row says that windows split at random per seed, a spread not in the SE.
     """
     test = "add [[tests]] kind = \"neutral_braking\" with brake_steps_pct = [5.0, 10.0, 20.0, 30.0]"
     names = [("brakes.front.m_f", "Nm/bar"), ("brakes.front.c_f", "Nm"), ("brakes.rear.m_r", "Nm/bar"),
@@ -273,6 +275,10 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
                 var_p += window_mean_variance(rec, c, sv, st[ok], en[ok]) / len(chans) ** 2
         cov = sandwich_covariance(A, None, x0[0] ** 2 * var_p)
         why = f"{p.size} steady windows, {p.min():.1f}..{p.max():.1f} bar"
+        p_fail = max((faults or {}).get(c, 0.0) for c in chans)
+        if p_fail > 0:
+            why += (f"; polls fail with p = {p_fail:g}: windows split at random per seed, a spread not in the SE "
+                    "(paper campaign: 2-3x)")
         out.append(PlannedParameter(m_name[0], m_name[1], float(x0[0]), math.sqrt(max(cov[0, 0], 0.0)), True, why,
                                     "", int(p.size)))
         out.append(PlannedParameter(c_name[0], c_name[1], float(x0[1]), math.sqrt(max(cov[1, 1], 0.0)), True, why,

@@ -27,6 +27,7 @@ from benchtwin.trace import Trace
 __all__ = [
     "ChannelNoise",
     "noise_budget",
+    "poll_faults",
     "product_mean_variance",
     "reading_variance",
     "sample_variances",
@@ -78,6 +79,20 @@ class ChannelNoise:
     def variances(self, truth_values: np.ndarray) -> np.ndarray:
         """Variance of each reading whose noise-free truth is ``truth_values``."""
         return np.asarray(reading_variance(self.sigma, self.q, (1.0 + self.gain) * truth_values + self.offset))
+
+
+def poll_faults(setup: SetupConfig) -> dict[str, float]:
+    """Role -> probability that a poll of it fails (timeout or exception answer), for polled devices.
+
+    A failed poll flags a reading; the steady-state detection then splits a window at it, at random from seed
+    to seed, so a fit's rows change with the seed: a spread the planned standard error does not hold.
+    """
+    out: dict[str, float] = {}
+    for d in devices(setup):
+        p = float(getattr(d.cfg, "timeout_prob", 0.0) or 0.0) + float(getattr(d.cfg, "exception_prob", 0.0) or 0.0)
+        if p > 0:
+            out.update(dict.fromkeys(d.truth_channels(), p))
+    return out
 
 
 def noise_budget(setup: SetupConfig) -> tuple[dict[str, Any], dict[str, ChannelNoise]]:

@@ -17,6 +17,7 @@ from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.sensors.base import TruthChannel
 from benchtwin.studies.plan import plan_campaign
 from benchtwin.studies.plan_noise import (
+    poll_faults,
     reading_variance,
     sandwich_covariance,
     truth_recording,
@@ -53,6 +54,13 @@ def test_sandwich_with_equal_rows_is_the_textbook_covariance() -> None:
     # weights equal to the inverse variances give (A' W A)^-1
     s2 = np.array([1.0, 2.0, 4.0, 1.0, 0.5])
     assert np.allclose(sandwich_covariance(A, 1.0 / s2, s2), np.linalg.inv(A.T @ (A / s2[:, None])))
+
+
+def test_failing_polls_are_known_per_role() -> None:
+    """The paper bench's pressure module fails a poll with 0.0005 + 0.0002 (its setup file); the ideal bench never."""
+    paper = poll_faults(load_setup(scenario_path("setups", "paper.toml")))
+    assert paper["brake_pressure_rl_bar"] == pytest.approx(0.0007) and "shaft_torque_nm" not in paper
+    assert poll_faults(load_setup(scenario_path("setups", "ideal.toml"))) == {}
 
 
 def test_truth_recording_keeps_the_bench_clock_and_flags() -> None:
