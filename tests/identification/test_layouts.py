@@ -189,3 +189,13 @@ def test_contradictory_specs_are_a_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "layout 'conventional' has no use for key(s) n_cells_series" in err
+
+
+def test_methods_whose_spec_keys_the_layout_lacks_are_skipped_with_the_reason(quick_ideal):
+    """The P2 log with BEV specs: the engine and driveline channels are there, the keys are not."""
+    vehicle, rec = quick_ideal
+    res = identify_all(rec, _bev_specs(vehicle), methods=["transmission", "engine", "torque_converter", "road_load"])
+    assert set(res.meta["skipped"]) == {"transmission", "engine", "torque_converter"}
+    assert "needs spec key(s) gear_ratios, which the bev layout" in res.meta["skipped"]["transmission"]
+    assert "engine_displacement_m3" in res.meta["skipped"]["engine"]
+    assert "road_load" in res.fits and not res.errors
