@@ -189,3 +189,50 @@ def test_contradictory_specs_are_a_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "layout 'conventional' has no use for key(s) n_cells_series" in err
+
+
+def test_methods_whose_spec_keys_the_layout_lacks_are_skipped_with_the_reason(quick_ideal):
+    """The P2 log with BEV specs: the engine and driveline channels are there, the keys are not."""
+    vehicle, rec = quick_ideal
+    res = identify_all(rec, _bev_specs(vehicle), methods=["transmission", "engine", "torque_converter", "road_load"])
+    assert set(res.meta["skipped"]) == {"transmission", "engine", "torque_converter"}
+    assert "needs spec key(s) gear_ratios, which the bev layout" in res.meta["skipped"]["transmission"]
+    assert "engine_displacement_m3" in res.meta["skipped"]["engine"]
+    assert "road_load" in res.fits and not res.errors
+
+
+def test_a_bev_log_without_an_soc_channel_counts_from_the_declared_start(quick_ideal, tmp_path):
+    """Without the car's SOC signal, the pack is coulomb-counted from [battery] capacity_ah; a start SOC given
+    on the command line anchors the count, and params.json says so."""
+    import tomllib
+
+    vehicle, rec = quick_ideal
+    log = tmp_path / "bev.mf4"
+    _write_bev_mf4(rec, log)
+    data = tomllib.loads(BEV_MAP.read_text(encoding="utf-8"))
+    del data["channels"]["displayed_soc_pct"]
+    data["specs"] = _bev_specs(vehicle).model_dump(exclude_none=True)
+    data["battery"] = {"capacity_ah": vehicle.battery.capacity_ah}
+    smap = tmp_path / "bev_no_soc.toml"
+    smap.write_text(_toml(data), encoding="utf-8")
+    out = tmp_path / "out"
+    assert main(["identify", str(log), "--signal-map", str(smap), "--out", str(out), "--no-figures",
+                 "--methods", "battery,battery_map_free", "--start-soc", "70"]) == 0
+    params = json.loads((out / "params.json").read_text(encoding="utf-8"))
+    assert params["meta"]["soc_reference"]["rule"] == "declared_start"
+    assert "displayed_soc_pct" in params["meta"]["skipped"]["battery"]
+    assert "battery_map_free" in params["fits"]
+
+
+def _toml(data: dict) -> str:
+    """A two-level TOML text (tables of scalars and lists) for the test's signal map."""
+    lines = []
+    for table, body in data.items():
+        if table == "channels":
+            for role, cm in body.items():
+                lines.append(f"[channels.{role}]")
+                lines += [f"{k} = {json.dumps(v)}" for k, v in cm.items()]
+            continue
+        lines.append(f"[{table}]")
+        lines += [f"{k} = {json.dumps(v)}" for k, v in body.items()]
+    return "\n".join(lines) + "\n"
