@@ -158,6 +158,14 @@ class Channel:
         out[t_s > self.timestamps[-1]] = np.nan
         return out
 
+    def with_values(self, values: np.ndarray) -> Channel:
+        """A plain in-memory Channel with these values and this channel's times, flags and metadata.
+
+        Works for every Channel kind (a lazily read one included): the copy holds its arrays in memory.
+        """
+        return Channel(name=self.name, unit=self.unit, timestamps=self.timestamps, values=values, flags=self.flags,
+                       source=self.source, value_texts=self.value_texts)
+
     def flags_at(self, t_s: np.ndarray) -> np.ndarray:
         """Flags of the sample at or before each time in ``t_s`` (zero-order hold)."""
         t_s = np.asarray(t_s, dtype=np.float64)

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -148,7 +148,7 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator) ->
         idx = np.zeros(v.shape, dtype=np.int64)
         idx[fin] = np.floor((v[fin] - lo) / (BIN_STEPS * q) + rng.uniform(0.0, 1.0)).astype(np.int64)
         errors = rng.uniform(-0.5 * q, 0.5 * q, int(idx.max()) + 1)
-        channels[role] = replace(ch, values=v + errors[idx])
+        channels[role] = ch.with_values(v + errors[idx])
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
                      start_time=recording.start_time)
 
@@ -159,7 +159,7 @@ def perturbed(recording: Recording, comp: Component) -> Recording:
     for role in comp.roles:
         ch = recording.channels[role]
         values = ch.values * (1.0 + comp.u) if comp.kind == "gain" else ch.values + comp.u
-        channels[role] = replace(ch, values=values)
+        channels[role] = ch.with_values(values)
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
                      start_time=recording.start_time)
 
@@ -192,7 +192,10 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
     contrib: dict[str, dict[str, float]] = {}
     dof: dict[str, dict[str, float]] = {}
     reruns, failed = 0, []
+    kept = recording.loaded()
     for fits, roles, run in plan:
+        # a lazy Recording (Recording.open): what one method's re-runs read goes before the next method's
+        recording.drop(recording.loaded() - kept)
         fits = sorted(fits)
         nominal = {f"{fk}.{pk}": p for fk in fits if fk in result.fits for pk, p in result.fits[fk].params.items()}
         if not nominal:
@@ -217,6 +220,7 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
                 contrib.setdefault(key, {})[comp.source] = float(np.sqrt(np.mean(np.square(d))))
                 if comp.kind == "resolution":
                     dof.setdefault(key, {})[comp.source] = float(len(d))
+    recording.drop(recording.loaded() - kept)
     for fk, fit in result.fits.items():
         for pk, p in fit.params.items():
             c = contrib.get(f"{fk}.{pk}")
