@@ -198,6 +198,13 @@ class ChannelFile:
 
         return self._guarded(f"channel {name!r}", get)
 
+    def select(self, picks: list[tuple[str, int, int]]) -> list[Any]:
+        """asammdf Signals (raw samples) of ``(name, group, index)`` picks, each group's data read once."""
+        if not picks:
+            return []
+        return list(self._guarded(f"channels {', '.join(repr(p[0]) for p in picks[:3])}...",
+                                  lambda: self.mdf().select(picks, raw=True)))
+
     def loader(self, name: str, gi: int, ci: int, numeric_conversion: bool, flags_at: tuple[int, int] | None
                ) -> Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """``load() -> (timestamps, values float64, flags uint16)`` of one Recording channel and its flags channel."""

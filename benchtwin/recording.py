@@ -430,6 +430,7 @@ class Recording:
             source.close()
             raise MissingChannelError(f"{path}: no channel {', '.join(map(repr, absent))} "
                                       f"(has: {', '.join(sorted(found)) or 'none'})")
+        raw_picks: list[tuple[str, int, int]] = []  # read at once: every stored channel and its flags
         for name in wanted:
             gi, ci, ch, acq = found[name]
             if int(getattr(ch, "data_type", 0)) not in _NUMERIC_DATA_TYPES or getattr(ch, "component_addr", 0):
@@ -440,6 +441,10 @@ class Recording:
                     "bus log: decode it with benchtwin acquire; another tool's log: import it with --signal-map)")
             conv = ch.conversion
             numeric = conv is not None and getattr(conv, "conversion_type", None) not in (7, 11)
+            if not numeric:
+                raw_picks.append((name, gi, ci))
+                if name in flags_of:
+                    raw_picks.append((f"{name}.flags", *flags_of[name]))
             unit = (getattr(conv, "unit", "") if conv is not None else "") or ch.unit or ""
             n = int(mdf.groups[gi].channel_group.cycles_nr)
             rec.add(LazyChannel(name, unit, acq, n, source.loader(name, gi, ci, numeric, flags_of.get(name)),
@@ -457,10 +462,18 @@ class Recording:
                 rec.segments = segments_from_json(side.read_text(encoding="utf-8"), str(side))
         if not lazy:
             try:
+                # one select: each channel group's (compressed) data is read once for all its channels
+                got = {p[0]: sig for p, sig in zip(raw_picks, source.select(raw_picks))}
                 for ch in rec.channels.values():
                     chan = cast(LazyChannel, ch)
-                    rec.channels[chan.name] = Channel(chan.name, chan.unit, chan.timestamps, chan.values, chan.flags,
-                                                      chan.source, chan.value_texts)
+                    sig = got.get(chan.name)
+                    if sig is None:  # a numeric conversion (another tool's file): its own read
+                        ts, vs, fl = chan.timestamps, chan.values, chan.flags
+                    else:
+                        flags = got.get(f"{chan.name}.flags")
+                        ts, vs = sig.timestamps, sig.samples
+                        fl = flags.samples if flags is not None else None
+                    rec.channels[chan.name] = Channel(chan.name, chan.unit, ts, vs, fl, chan.source, chan.value_texts)
             finally:
                 rec.close()
         return rec

@@ -75,6 +75,8 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
     for pedal in ("pedal_pct", "brake_pedal_pct"):
         if pedal in g:
             cand &= np.nan_to_num(g[pedal], nan=100.0) <= 0.5
+    for extra in ("gear_actual", "pedal_pct", "brake_pedal_pct"):
+        g.values.pop(extra, None)  # used up: a grid at the speed's own rate over a long log is large
     seg = segment_mask(rec, g.t, kinds)
     if seg is not None:
         cand &= seg
