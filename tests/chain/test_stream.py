@@ -62,3 +62,28 @@ def test_outputs_path_equals_decoding_the_written_logs(faults: list[dict], tmp_p
         assert [d["bus"] for d in rec.meta["damaged_logs"]] == ["dyno"]
         assert any(e["kind"] == "truncated" for e in rec.meta["transport_events"])
     assert rec.meta["frames"] and set(rec.meta["frames"]) <= {p.stem for p in tmp_path.glob("*.mf4")}
+
+
+def test_mf4_bus_log_written_in_blocks_reads_back_whole(tmp_path: Path) -> None:
+    """A bus log appended in several blocks (the last one short) is the same log: frames, python-can's view."""
+    import can
+
+    from benchtwin.chain.buslog import DEFAULT_START, read_mf4, write_mf4
+    from benchtwin.wire.frames import FRAME_DTYPE, FrameTable
+
+    n = 2_500
+    f = np.zeros(n, FRAME_DTYPE)
+    f["timestamp"] = np.arange(n) * 1e-3
+    f["arbitration_id"] = 0x100 + np.arange(n) % 7
+    f["is_extended"] = np.arange(n) % 11 == 0
+    f["dlc"] = 1 + np.arange(n) % 8
+    f["data"] = np.random.default_rng(1).integers(0, 256, (n, 8), dtype=np.uint8)
+    one = write_mf4(FrameTable("x", f, 500_000), tmp_path / "one.mf4", block_frames=n)
+    blocks = write_mf4(FrameTable("x", f, 500_000), tmp_path / "blocks.mf4", block_frames=1_000)
+    for p in (one, blocks):
+        np.testing.assert_array_equal(read_mf4(p).frames, f)
+    msgs = list(can.MF4Reader(str(blocks)))
+    assert len(msgs) == n
+    k = n - 1
+    assert msgs[k].arbitration_id == f["arbitration_id"][k] and msgs[k].is_extended_id == f["is_extended"][k]
+    assert msgs[k].timestamp - DEFAULT_START.timestamp() == pytest.approx(f["timestamp"][k], abs=1e-6)
