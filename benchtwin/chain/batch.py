@@ -265,7 +265,7 @@ def _read_json(path: Path, what: str) -> Any:
 
 
 def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,
-              blf: bool = False, meta: dict[str, Any] | None = None) -> Recording:
+              blf: bool = False, meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
     """The whole batch chain: encode the trace, deliver, write and re-read the raw logs, acquire.
 
     Parameters
@@ -283,6 +283,8 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
         Also export BLF files.
     meta:
         Extra metadata for the Recording.
+    save_recording:
+        Save ``recording.mf4`` into ``out_dir`` (False: the caller saves it, e.g. beside other work).
     """
     outputs = encode(trace, setup, seed)
     received = deliver(outputs, setup, seed=seed, span_s=(float(trace.time_s[0]), float(trace.time_s[-1])))
@@ -297,7 +299,8 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
         written = pool.submit(write_logs, received, setup, out_dir, blf=blf)
         rec = acquire(as_logged(received, setup), setup)
         written.result()
-    rec.save(Path(out_dir) / "recording.mf4")
+    if save_recording:
+        rec.save(Path(out_dir) / "recording.mf4")
     return rec
 
 
