@@ -104,6 +104,17 @@ def _group(frames: np.ndarray, ids_known: list[int]) -> tuple[dict[int, np.ndarr
     return groups, {int(i): int(c) for i, c in zip(u_ids, u_counts)}
 
 
+def _data_words(frames: np.ndarray) -> np.ndarray:
+    """The 8 data bytes of every frame as one little-endian 8-byte word: a read-only view on the records."""
+    if frames.flags["C_CONTIGUOUS"] and len(frames):
+        offset = frames.dtype.fields["data"][1]
+        words = np.ndarray((len(frames),), dtype="<u8", buffer=frames.data, offset=offset,
+                           strides=(frames.dtype.itemsize,))
+        words.flags.writeable = False
+        return words
+    return np.ascontiguousarray(frames["data"]).view("<u8")[:, 0]
+
+
 def _decoders(devs: list[Device], bus: str) -> dict[int, FrameDecoder]:
     out: dict[int, FrameDecoder] = {}
     for d in devs:
@@ -120,10 +131,11 @@ def _decode_bus(table: FrameTable, devs: list[Device], sink: DecodeSink, drops: 
     sink.counts["frames"][table.bus] = len(table)
     if unknown:
         sink.counts["unknown_ids"][table.bus] = {f"0x{k:X}": v for k, v in unknown.items()}
-    # contiguous columns once; every stream then gathers 8-byte words, not structured records
-    ts = np.ascontiguousarray(frames["timestamp"])
-    dlc = np.ascontiguousarray(frames["dlc"])
-    words = np.ascontiguousarray(frames["data"]).view("<u8")[:, 0]
+    # every stream gathers from views on the records' columns (the data bytes as one 8-byte word): no copy of
+    # the bus's columns beside its frame table
+    ts = frames["timestamp"]
+    dlc = frames["dlc"]
+    words = _data_words(frames)
     for cid, idx in groups.items():
         length = decoders[cid].length
         if length:

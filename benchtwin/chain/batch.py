@@ -34,14 +34,14 @@ from benchtwin.chain.buslog import (
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Recording
-from benchtwin.segments import load_segments, save_segments
+from benchtwin.segments import load_segments, save_segments, segments_from_json, segments_to_json
 from benchtwin.sensors import devices, encode, write_bus_dbcs
 from benchtwin.sensors.imperfections import device_rng, disconnect, span_frame_faults, truncate_log
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, TransportEvent
 from benchtwin.wire.merge import insert_frames
 
-__all__ = ["TRUNCATION_TOLERANCE_S", "deliver", "read_logs", "run_batch", "write_logs"]
+__all__ = ["TRUNCATION_TOLERANCE_S", "as_logged", "deliver", "read_logs", "run_batch", "write_logs"]
 
 #: a bus whose time base ends this much before the segment table or another source is flagged as cut short
 TRUNCATION_TOLERANCE_S = 0.5
@@ -265,7 +265,7 @@ def _read_json(path: Path, what: str) -> Any:
 
 
 def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,
-              blf: bool = False, meta: dict[str, Any] | None = None) -> Recording:
+              blf: bool = False, meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
     """The whole batch chain: encode the trace, deliver, write and re-read the raw logs, acquire.
 
     Parameters
@@ -283,15 +283,51 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
         Also export BLF files.
     meta:
         Extra metadata for the Recording.
+    save_recording:
+        Save ``recording.mf4`` into ``out_dir`` (False: the caller saves it, e.g. beside other work).
     """
     outputs = encode(trace, setup, seed)
     received = deliver(outputs, setup, seed=seed, span_s=(float(trace.time_s[0]), float(trace.time_s[-1])))
+    del outputs  # the delivery holds every frame now (no second copy of the encoders' tables)
     received.segments = list(trace.segments)
     received.meta = {"trace": dict(trace.meta), "seed": seed, **(meta or {})}
-    if out_dir is not None:
-        write_logs(received, setup, out_dir, blf=blf)
-        received, _ = read_logs(out_dir, setup)
-    rec = acquire(received, setup)
-    if out_dir is not None:
+    if out_dir is None:
+        return acquire(received, setup)
+    # the logs are written on one thread while the other decodes what they hold (as_logged), so the frames
+    # are never read back from the files; the Recording equals the one decoded from the written logs
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="write_logs") as pool:
+        written = pool.submit(write_logs, received, setup, out_dir, blf=blf)
+        rec = acquire(as_logged(received, setup), setup)
+        written.result()
+    if save_recording:
         rec.save(Path(out_dir) / "recording.mf4")
     return rec
+
+
+def as_logged(received: AcquisitionInput, setup: SetupConfig) -> AcquisitionInput:
+    """What :func:`read_logs` gives back of the logs :func:`write_logs` writes of ``received``, without the files.
+
+    The same content as the round trip through the files: the buses with frames (in name order, each cut at its
+    injected ``log_truncation``), the poll logs, the meta data and transport events as ``meta.json`` holds them,
+    the segment table, and the buses whose log ends early (``damaged_logs`` and their ``truncated`` events). The
+    frame tables are the delivered ones (a bus without a cut is not copied).
+    """
+    start = received.start_time or DEFAULT_START
+    out = AcquisitionInput(start_time=start)
+    out.meta = json.loads(json.dumps(received.meta, default=str))
+    out.events = [TransportEvent(float(e.time_s), str(e.source), str(e.kind), float(e.end_s), str(e.detail))
+                  for e in received.events]
+    for bus in sorted(received.can):
+        t = received.can[bus]
+        if len(t):
+            bitrate = setup.buses[bus].bitrate if bus in setup.buses else 500_000
+            out.can[bus] = FrameTable(bus, truncate_log(t.frames, setup.faults_of(bus)), bitrate)
+    out.polls = dict(received.polls)
+    out.segments = segments_from_json(segments_to_json(received.segments))
+    damaged = _damaged_logs(out, {bus: (f"{bus}.mf4", None) for bus in out.can})
+    if damaged:
+        out.meta["damaged_logs"] = damaged
+        for dmg in damaged:
+            out.events.append(TransportEvent(dmg["covered_s"][1], dmg["bus"], "truncated", dmg["expected_s"][1],
+                                             f"damaged log {dmg['file']}: {dmg['reason']}"))
+    return out

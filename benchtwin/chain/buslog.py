@@ -1,11 +1,12 @@
 """Raw bus logs: MF4 bus logging written and read in bulk, BLF export, Modbus poll logs.
 
 MF4: one file per bus with the ASAM MDF 4 bus-logging layout (a ``CAN_DataFrame`` channel group of
-the CAN bus-event type, the structure python-can's ``MF4Writer`` writes), appended in one
-``MDF.append`` from the frame table's columns, so ``can.MF4Reader``, asammdf's
-``extract_bus_logging`` and the asammdf viewer read it. Timestamps are relative to the header start
-time (the device clocks as seen by the logger). Data bytes are stored 8 wide (classic CAN). The data
-blocks are compressed (transposed deflate by default: ``##DZ`` blocks, which every MDF 4.1 reader reads).
+the CAN bus-event type, the structure python-can's ``MF4Writer`` writes), appended in blocks
+(``MDF.append`` then ``MDF.extend``, one block of records in memory at a time) from the frame table's
+columns, so ``can.MF4Reader``, asammdf's ``extract_bus_logging`` and the asammdf viewer read it.
+Timestamps are relative to the header start time (the device clocks as seen by the logger). Data bytes
+are stored 8 wide (classic CAN). The data blocks are compressed (transposed deflate by default: ``##DZ``
+blocks, which every MDF 4.1 reader reads).
 
 BLF: exported through python-can's ``BLFWriter`` (per message; for hand-over to Vector tools, not
 for speed), with a ``.blf.json`` sidecar holding the exact first timestamp, the frame count and the
@@ -81,9 +82,25 @@ _MF4_RECORD = np.dtype([("time", "<f8"), *[(n, MF4_FRAME_DTYPE.fields[n][0]) for
 DEFAULT_START = datetime(2026, 1, 1, tzinfo=UTC)
 
 
+def _mf4_records(f: np.ndarray, channel: int) -> np.ndarray:
+    """The CAN_DataFrame records of frames (FRAME_DTYPE)."""
+    rec = np.zeros(len(f), dtype=MF4_FRAME_DTYPE)
+    rec["CAN_DataFrame.BusChannel"] = channel
+    rec["CAN_DataFrame.ID"] = f["arbitration_id"] | np.where(f["is_extended"], np.uint32(0x80000000), np.uint32(0))
+    rec["CAN_DataFrame.IDE"] = f["is_extended"]
+    rec["CAN_DataFrame.DLC"] = f["dlc"]
+    rec["CAN_DataFrame.DataLength"] = np.minimum(f["dlc"], 8)
+    rec["CAN_DataFrame.DataBytes"] = f["data"]
+    return rec
+
+
+#: frames appended to an MF4 bus log at a time (about 15 MB of records)
+MF4_BLOCK_FRAMES = 1 << 19
+
+
 def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_time: datetime = DEFAULT_START,
-              compression: int = DEFAULT_COMPRESSION) -> Path:
-    """Write a frame table as an MF4 bus log in one bulk append.
+              compression: int = DEFAULT_COMPRESSION, block_frames: int = MF4_BLOCK_FRAMES) -> Path:
+    """Write a frame table as an MF4 bus log, appended in blocks of ``block_frames`` frames.
 
     Parameters
     ----------
@@ -100,6 +117,8 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
         :data:`~benchtwin.mdf.DEFAULT_COMPRESSION`, 2: the bus logs of the paper campaign shrink ~40x for
         ~1.6x the CPU of no compression, see benchmarks/bench_files.py). Every choice reads back the same
         with ``can.MF4Reader``, asammdf and :func:`read_mf4`.
+    block_frames:
+        Frames converted and appended at a time (memory beyond the table: one block of records).
     """
     from asammdf import MDF, Signal
     from asammdf.blocks.source_utils import Source
@@ -107,21 +126,24 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     f = table.frames
-    rec = np.zeros(len(f), dtype=MF4_FRAME_DTYPE)
-    rec["CAN_DataFrame.BusChannel"] = channel
-    rec["CAN_DataFrame.ID"] = f["arbitration_id"] | np.where(f["is_extended"], np.uint32(0x80000000), np.uint32(0))
-    rec["CAN_DataFrame.IDE"] = f["is_extended"]
-    rec["CAN_DataFrame.DLC"] = f["dlc"]
-    rec["CAN_DataFrame.DataLength"] = np.minimum(f["dlc"], 8)
-    rec["CAN_DataFrame.DataBytes"] = f["data"]
     mdf = MDF(version="4.10")
     mdf.header.start_time = start_time
     mdf.header.comment = f"benchtwin bus log: bus {table.bus}, {table.bitrate} bit/s"
     src = Source(name=table.bus, path=table.bus, comment=f"CAN bus {table.bus}", source_type=Source.SOURCE_BUS,
                  bus_type=Source.BUS_TYPE_CAN)
-    mdf.append(Signal(name="CAN_DataFrame", samples=rec, timestamps=np.ascontiguousarray(f["timestamp"]),
-                      source=src), acq_name=table.bus, comment=f"CAN bus {table.bus}")
-    mdf.save(path, overwrite=True, compression=check_compression(compression))
+    # in blocks: asammdf keeps what is appended in its temporary file, so only one block of records is in memory
+    compression = check_compression(compression)
+    step = max(1, int(block_frames))
+    for k in range(0, max(len(f), 1), step):
+        part = f[k:k + step]
+        rec = _mf4_records(part, channel)
+        ts = np.ascontiguousarray(part["timestamp"])
+        if k == 0:
+            mdf.append(Signal(name="CAN_DataFrame", samples=rec, timestamps=ts, source=src), acq_name=table.bus,
+                       comment=f"CAN bus {table.bus}")
+        else:
+            mdf.extend(0, [(ts, None), (rec, None)])
+    mdf.save(path, overwrite=True, compression=compression)
     mdf.close()
     return path
 

@@ -38,6 +38,10 @@ Model choices (the forms of docs/models.md are followed exactly)
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from benchtwin.config.campaign import CampaignConfig
@@ -103,12 +107,12 @@ from benchtwin.emulator.params import (
 )
 from benchtwin.emulator.plant import N_STATE, S_STEP, S_TIME_S, kinetic_energy, run_plant
 from benchtwin.emulator.protocols import build_protocol
-from benchtwin.emulator.thermal import simulate_thermal
+from benchtwin.emulator.thermal import simulate_thermal, thermal_state
 from benchtwin.errors import ConfigError, SimulationError
 from benchtwin.segments import Segment
 from benchtwin.trace import TRACE_CHANNELS, Trace
 
-__all__ = ["check_campaign", "energy_balance", "lv_load_profile", "simulate_campaign"]
+__all__ = ["check_campaign", "energy_balance", "iter_campaign", "lv_load_profile", "simulate_campaign"]
 
 #: Trace channel -> loop output column
 _DIRECT: dict[str, int] = {
@@ -219,6 +223,90 @@ def check_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> None:
         raise ConfigError("\n".join(problems))
 
 
+@dataclass
+class _Run:
+    """A campaign being simulated: its tables, per-step commands and the plant's state (carried across tests)."""
+
+    tables: PlantTables
+    dt: float
+    decim: int
+    blocks: list[np.ndarray]
+    segments: list[Any]
+    lv_load: np.ndarray
+    st: np.ndarray
+    led: np.ndarray
+    thermal: np.ndarray
+
+    @property
+    def n_steps(self) -> int:
+        return sum(b.shape[1] for b in self.blocks)
+
+    def run_block(self, k: int, out: np.ndarray, row0: int) -> tuple[int, Segment]:
+        """Run test ``k`` writing its output rows from ``row0``; return the rows written and its segment."""
+        block, seg = self.blocks[k], self.segments[k]
+        k0 = int(self.st[S_STEP])
+        block[C_LVLOAD] = self.lv_load[k0:k0 + block.shape[1]]
+        t_start = self.st[S_TIME_S]
+        written, steps = run_plant(self.tables, block, self.decim, self.st, out, row0, self.led)
+        settings = {key: (float(v + t_start) if key.endswith("_s") and key not in _DURATION_KEYS else v)
+                    for key, v in seg.settings.items()}
+        return written, Segment(float(t_start), float(t_start + steps * self.dt), seg.kind, seg.name, settings)
+
+
+def _start(vehicle: VehicleConfig, campaign: CampaignConfig) -> _Run:
+    check_campaign(vehicle, campaign)
+    tables = build_tables(vehicle, campaign)
+    dt = 1.0 / campaign.plant_rate_hz
+    proto = build_protocol(campaign)
+    children = np.random.SeedSequence(campaign.seed).spawn(len(RANDOM_SUBSYSTEMS))
+    rngs = {name: np.random.default_rng(child) for name, child in zip(RANDOM_SUBSYSTEMS, children, strict=True)}
+    lv_load = lv_load_profile(vehicle.low_voltage, proto.n_steps, dt, rngs["lv_loads"])
+    decim = 1 if campaign.output_rate_hz is None else round(campaign.plant_rate_hz / campaign.output_rate_hz)
+    st = _initial_state(tables, vehicle, campaign)
+    led = np.zeros(NL)
+    led[L_KE0] = kinetic_energy(tables.p, st)
+    return _Run(tables, dt, decim, list(proto.blocks), list(proto.segments), lv_load, st, led,
+                thermal_state(vehicle.thermal, campaign.ambient_degc))
+
+
+def _trace_of(run: _Run, vehicle: VehicleConfig, campaign: CampaignConfig, out: np.ndarray, row0: int,
+              segments: list[Segment]) -> Trace:
+    """The Trace of output rows ``out`` (the campaign's rows from ``row0``); advances the thermal state."""
+    if not np.all(np.isfinite(out[[O_V, O_WP, O_IB, O_SOC]])):
+        raise SimulationError(f"campaign {campaign.name!r}: the plant left its physical domain (non-finite states)")
+    dt_out = run.dt * run.decim
+    time_s = (row0 + np.arange(out.shape[1])) * dt_out
+    channels: dict[str, np.ndarray] = {}
+    used: set[int] = set()
+    for name, col in _DIRECT.items():  # views on the output rows; a row shared by two channels is copied once
+        channels[name] = out[col] if col not in used else out[col].copy()
+        used.add(col)
+    channels.update(simulate_thermal(vehicle.thermal, dt_out, out[O_Q_ENGINE], out[O_Q_MOTOR],
+                                     out[O_Q_BATT], campaign.ambient_degc, run.thermal))
+    if vehicle.high_fidelity is not None:
+        # the high-fidelity plant carries the cell and coolant temperatures it feeds back: the thermocouples
+        # read those states (the coolant inlet keeps the post-processed radiator drop)
+        drop = channels["engine_coolant_out_degc"] - channels["engine_coolant_in_degc"]
+        channels["battery_temp_degc"] = out[O_T_BATT].copy()
+        channels["engine_coolant_out_degc"] = out[O_T_COOLANT].copy()
+        channels["engine_coolant_in_degc"] = out[O_T_COOLANT] - drop
+    missing = set(TRACE_CHANNELS) - set(channels)
+    if missing:  # pragma: no cover - guarded by the tests
+        raise SimulationError(f"emulator does not produce {sorted(missing)}")
+    ordered = {name: channels[name] for name in TRACE_CHANNELS}
+    led = run.led.copy()
+    led[L_KE1] = kinetic_energy(run.tables.p, run.st)
+    meta = {
+        "vehicle": vehicle.name,
+        "campaign": campaign.name,
+        "seed": campaign.seed,
+        "plant_rate_hz": campaign.plant_rate_hz,
+        "output_rate_hz": campaign.plant_rate_hz / run.decim,
+        "energy_ledger_j": {name: float(led[k]) for k, name in enumerate(LEDGER_NAMES)},
+    }
+    return Trace(time_s, ordered, segments, meta)
+
+
 def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progress: bool = False) -> Trace:
     """Run every test of ``campaign`` on ``vehicle`` and return the truth as a Trace.
 
@@ -242,80 +330,54 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     SimulationError
         If the plant leaves its physical domain (non-finite states).
     """
-    check_campaign(vehicle, campaign)
-    tables = build_tables(vehicle, campaign)
-    dt = 1.0 / campaign.plant_rate_hz
-    proto = build_protocol(campaign)
-    n_max = proto.n_steps
-    children = np.random.SeedSequence(campaign.seed).spawn(len(RANDOM_SUBSYSTEMS))
-    rngs = {name: np.random.default_rng(child) for name, child in zip(RANDOM_SUBSYSTEMS, children, strict=True)}
-    lv_load = lv_load_profile(vehicle.low_voltage, n_max, dt, rngs["lv_loads"])
-    decim = 1 if campaign.output_rate_hz is None else round(campaign.plant_rate_hz / campaign.output_rate_hz)
-    out = np.empty((NO, (n_max + decim - 1) // decim + 1))  # one contiguous row per channel
-    led = np.zeros(NL)
-    st = _initial_state(tables, vehicle, campaign)
-    led[L_KE0] = kinetic_energy(tables.p, st)
+    run = _start(vehicle, campaign)
+    n_max = run.n_steps
+    out = np.empty((NO, (n_max + run.decim - 1) // run.decim + 1))  # one contiguous row per channel
     bar = None
     if progress:
         from tqdm import tqdm
 
         # a fixed total: the plant seconds of every test's full block; a test that ends early (its end
         # condition reached) still advances the bar by its whole block, so the total never moves
-        bar = tqdm(total=round(n_max * dt), unit="s sim", desc=campaign.name, leave=False)
+        bar = tqdm(total=round(n_max * run.dt), unit="s sim", desc=campaign.name, leave=False)
     done = 0
     rows = 0
     segments: list[Segment] = []
     try:
-        for block, seg in zip(proto.blocks, proto.segments, strict=True):
-            k0 = int(st[S_STEP])
-            block[C_LVLOAD] = lv_load[k0:k0 + block.shape[1]]
-            t_start = st[S_TIME_S]
-            written, steps = run_plant(tables, block, decim, st, out, rows, led)
+        for k in range(len(run.blocks)):
+            written, seg = run.run_block(k, out, rows)
             rows += written
-            settings = {k: (float(v + t_start) if k.endswith("_s") and k not in _DURATION_KEYS else v)
-                        for k, v in seg.settings.items()}
-            segments.append(Segment(float(t_start), float(t_start + steps * dt), seg.kind, seg.name, settings))
-            done += block.shape[1]
+            segments.append(seg)
+            done += run.blocks[k].shape[1]
             if bar is not None:
-                bar.update(round(done * dt) - bar.n)
+                bar.update(round(done * run.dt) - bar.n)
     finally:
         if bar is not None:
             bar.close()
     out = out[:, :rows] if rows > 0.8 * out.shape[1] else out[:, :rows].copy()  # release an unused tail
-    n_out = rows
-    led[L_KE1] = kinetic_energy(tables.p, st)
-    if not np.all(np.isfinite(out[[O_V, O_WP, O_IB, O_SOC]])):
-        raise SimulationError(f"campaign {campaign.name!r}: the plant left its physical domain (non-finite states)")
+    return _trace_of(run, vehicle, campaign, out, 0, segments)
 
-    dt_out = dt * decim
-    time_s = np.arange(n_out) * dt_out
-    channels: dict[str, np.ndarray] = {}
-    used: set[int] = set()
-    for name, col in _DIRECT.items():  # views on the output rows; a row shared by two channels is copied once
-        channels[name] = out[col] if col not in used else out[col].copy()
-        used.add(col)
-    channels.update(simulate_thermal(vehicle.thermal, dt_out, out[O_Q_ENGINE], out[O_Q_MOTOR],
-                                     out[O_Q_BATT], campaign.ambient_degc))
-    if vehicle.high_fidelity is not None:
-        # the high-fidelity plant carries the cell and coolant temperatures it feeds back: the thermocouples
-        # read those states (the coolant inlet keeps the post-processed radiator drop)
-        drop = channels["engine_coolant_out_degc"] - channels["engine_coolant_in_degc"]
-        channels["battery_temp_degc"] = out[O_T_BATT].copy()
-        channels["engine_coolant_out_degc"] = out[O_T_COOLANT].copy()
-        channels["engine_coolant_in_degc"] = out[O_T_COOLANT] - drop
-    missing = set(TRACE_CHANNELS) - set(channels)
-    if missing:  # pragma: no cover - guarded by the tests
-        raise SimulationError(f"emulator does not produce {sorted(missing)}")
-    ordered = {name: channels[name] for name in TRACE_CHANNELS}
-    meta = {
-        "vehicle": vehicle.name,
-        "campaign": campaign.name,
-        "seed": campaign.seed,
-        "plant_rate_hz": campaign.plant_rate_hz,
-        "output_rate_hz": campaign.plant_rate_hz / decim,
-        "energy_ledger_j": {name: float(led[k]) for k, name in enumerate(LEDGER_NAMES)},
-    }
-    return Trace(time_s, ordered, segments, meta)
+
+def iter_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> Iterator[Trace]:
+    """The campaign's truth test by test: one Trace per test, on the campaign's clock.
+
+    The plant's state (and the thermal lumps', and the 12 V load profile's draws) runs on from one test to the
+    next, so the chunks put end to end are :func:`simulate_campaign`'s Trace bit for bit; only one test's
+    output rows are held at a time. Each chunk's ``meta["energy_ledger_j"]`` is the ledger from the campaign
+    start to the chunk's end.
+
+    Raises
+    ------
+    SimulationError
+        If the plant leaves its physical domain (non-finite states).
+    """
+    run = _start(vehicle, campaign)
+    rows = 0
+    for k, block in enumerate(run.blocks):
+        out = np.empty((NO, (block.shape[1] + run.decim - 1) // run.decim + 1))
+        written, seg = run.run_block(k, out, 0)
+        yield _trace_of(run, vehicle, campaign, out[:, :written], rows, [seg])
+        rows += written
 
 
 def energy_balance(ledger: dict[str, float]) -> dict[str, float]:

@@ -13,20 +13,20 @@ from numba import njit
 
 from benchtwin.config.vehicle import ThermalConfig
 
-__all__ = ["simulate_thermal"]
+__all__ = ["simulate_thermal", "thermal_state"]
 
 CP_COOLANT = 3600.0  # J/(kg K), water-glycol
 
 
 @njit(cache=True)
-def _thermal(dt, q_eng, q_mot, q_batt, amb, t0_eng, th, c_eng, mdot_e, frac, ua_rad, c_b, ua_b, mdot_b, c_ed, ua_ed,
+def _thermal(dt, q_eng, q_mot, q_batt, amb, state, th, c_eng, mdot_e, frac, ua_rad, c_b, ua_b, mdot_b, c_ed, ua_ed,
              mdot_ed, share, out):
     n = q_eng.shape[0]
-    te = t0_eng
-    tb = amb
-    th_h = amb
-    th_m = amb
-    tloop = amb
+    te = state[0]
+    tb = state[1]
+    th_h = state[2]
+    th_m = state[3]
+    tloop = state[4]
     for i in range(n):
         # engine: block/coolant lump with a thermostat that opens over 8 K
         op = min(max((te - (th - 4.0)) / 8.0, 0.03), 1.0)
@@ -54,10 +54,21 @@ def _thermal(dt, q_eng, q_mot, q_batt, amb, t0_eng, th, c_eng, mdot_e, frac, ua_
         th_h += dt * (share * ql - q_h) / (0.4 * c_ed)
         th_m += dt * ((1.0 - share) * ql - q_m) / (0.6 * c_ed)
         tloop += dt * (q_h + q_m - 4.0 * ua_ed * (tloop - amb)) / (0.3 * c_ed)
+    state[0] = te
+    state[1] = tb
+    state[2] = th_h
+    state[3] = th_m
+    state[4] = tloop
+
+
+def thermal_state(cfg: ThermalConfig, ambient_degc: float) -> np.ndarray:
+    """The thermal lumps at the campaign start (engine below its thermostat, the rest at ambient)."""
+    return np.array([cfg.engine_thermostat_degc - 8.0, ambient_degc, ambient_degc, ambient_degc, ambient_degc])
 
 
 def simulate_thermal(cfg: ThermalConfig, dt: float, q_engine_w: np.ndarray, q_motor_w: np.ndarray,
-                     q_battery_w: np.ndarray, ambient_degc: float) -> dict[str, np.ndarray]:
+                     q_battery_w: np.ndarray, ambient_degc: float, state: np.ndarray | None = None
+                     ) -> dict[str, np.ndarray]:
     """Integrate the thermal lumps over the output time base.
 
     Parameters
@@ -70,6 +81,10 @@ def simulate_thermal(cfg: ThermalConfig, dt: float, q_engine_w: np.ndarray, q_mo
         Heat released by the engine (fuel power minus brake power), the motor and inverter, the HV cells.
     ambient_degc:
         Test-cell temperature.
+    state:
+        The lumps' temperatures where the previous part of the campaign left them (:func:`thermal_state`),
+        updated in place to where this part ends (a campaign run in parts equals it run whole); None: the
+        campaign start.
 
     Returns
     -------
@@ -78,12 +93,13 @@ def simulate_thermal(cfg: ThermalConfig, dt: float, q_engine_w: np.ndarray, q_mo
     """
     n = q_engine_w.shape[0]
     out = np.empty((n, 9))
+    st = thermal_state(cfg, ambient_degc) if state is None else state
     _thermal(dt, np.ascontiguousarray(q_engine_w), np.ascontiguousarray(q_motor_w),
-             np.ascontiguousarray(q_battery_w), ambient_degc, cfg.engine_thermostat_degc - 8.0,
-             cfg.engine_thermostat_degc, cfg.engine_heat_capacity_j_per_k, cfg.engine_coolant_flow_kgps,
-             cfg.engine_heat_to_coolant_frac, cfg.engine_radiator_ua_w_per_k, cfg.battery_heat_capacity_j_per_k,
-             cfg.battery_ua_w_per_k, cfg.battery_coolant_flow_kgps, cfg.edrive_heat_capacity_j_per_k,
-             cfg.edrive_ua_w_per_k, cfg.edrive_coolant_flow_kgps, cfg.hpcu_share_of_motor_loss, out)
+             np.ascontiguousarray(q_battery_w), ambient_degc, st, cfg.engine_thermostat_degc,
+             cfg.engine_heat_capacity_j_per_k, cfg.engine_coolant_flow_kgps, cfg.engine_heat_to_coolant_frac,
+             cfg.engine_radiator_ua_w_per_k, cfg.battery_heat_capacity_j_per_k, cfg.battery_ua_w_per_k,
+             cfg.battery_coolant_flow_kgps, cfg.edrive_heat_capacity_j_per_k, cfg.edrive_ua_w_per_k,
+             cfg.edrive_coolant_flow_kgps, cfg.hpcu_share_of_motor_loss, out)
     names = ("engine_coolant_in_degc", "engine_coolant_out_degc", "battery_temp_degc", "battery_coolant_in_degc",
              "battery_coolant_out_degc", "hpcu_coolant_in_degc", "hpcu_coolant_out_degc", "motor_coolant_in_degc",
              "motor_coolant_out_degc")
