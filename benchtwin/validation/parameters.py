@@ -233,7 +233,8 @@ def _budget(setup: SetupConfig | None) -> dict[str, float]:
 def _quantisation_bound(fit: Any, param: str, setup: SetupConfig) -> float:
     """Three standard deviations of ``eta_m`` (relative) or ``C0`` (Nm) due to the shaft-torque converter step.
 
-    Each steady point's shaft torque is rounded to the 12-bit converter's step ``q``; over points at
+    Each steady point's shaft torque is rounded to the 12-bit converter's step ``q`` (or to the coarser
+    ``errors.quantisation_step`` the setup declares for the telemetry); over points at
     different torques the rounding errors behave as independent, uniform in ``+-q/2``
     (sigma ``q / sqrt(12)``). Propagated through the fit's own weighted least squares (eq. 15-17) they
     give the spread a perfect identification would still show. NaN-safe: 0 when the fit lacks its points.
@@ -241,7 +242,8 @@ def _quantisation_bound(fit: Any, param: str, setup: SetupConfig) -> float:
     if fit is None or "c" not in fit.data or "gear_ratio" not in fit.data or "eta_m" not in fit.params:
         return 0.0
     tel = setup.telemetry
-    step = torque_step_nm(tel.shaft, tel.k_tel)
+    # the AD module's step, or the coarser converter step the setup declares in front of it
+    step = max(torque_step_nm(tel.shaft, tel.k_tel), tel.errors.quantisation_step)
     c = np.asarray(fit.data["c"], dtype=float)
     ratio = float(np.asarray(fit.data["gear_ratio"]).ravel()[0])
     eta_m, c0 = fit.value("eta_m"), fit.value("C0")

@@ -168,3 +168,24 @@ def test_tolerance_grows_with_noise_and_declared_errors() -> None:
     assert np.isclose(t0["battery.alpha"], 1e-3 + 0.25 * 2e-3)
     assert np.isclose(t1["battery.alpha"], 1e-3 + 2e-3)
     assert np.isclose(tp["battery.alpha"], 1e-3 + 2e-3 + 0.0005)  # + the paper shunt's 0.05 % voltage gain
+
+
+def test_quantisation_floor_follows_a_coarser_declared_converter() -> None:
+    # found by test_transmission_recovers_eta_m_and_c0 with a 10-bit telemetry converter (declared as a
+    # quantisation step of 4 wire steps) and no noise: gear 1 eta_m 2.75 % off against a floor computed from
+    # the 12-bit step; the floor must scale with the step the setup declares (linear in it)
+    from strategies import PAPER_SETUP
+
+    from benchtwin.identification._fit import FitResult, ParameterEstimate
+    from benchtwin.sensors.telemetry import torque_step_nm
+    from benchtwin.validation.parameters import _quantisation_bound
+
+    c = np.linspace(20.0, 300.0, 12)
+    fit = FitResult({n: ParameterEstimate(n, v, 0.0, (v, v), 1.0, c.size) for n, v in (("eta_m", 0.95), ("C0", 5.0))},
+                    1.0, 1.0, 0.0, c.size, data={"c": c, "gear_ratio": np.array([4.7])})
+    step = torque_step_nm(PAPER_SETUP.telemetry.shaft, PAPER_SETUP.telemetry.k_tel)
+    coarse = PAPER_SETUP.model_copy(update={"telemetry": PAPER_SETUP.telemetry.model_copy(
+        update={"errors": PAPER_SETUP.telemetry.errors.model_copy(update={"quantisation_step": 4 * step})})})
+    for p in ("eta_m", "C0"):
+        q12, q10 = _quantisation_bound(fit, p, PAPER_SETUP), _quantisation_bound(fit, p, coarse)
+        assert q12 > 0 and np.isclose(q10, 4 * q12)
