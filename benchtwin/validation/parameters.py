@@ -92,6 +92,10 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
                                + "; realistic: plus the offsets of the input torques and the shaft torque",
                                lambda b: b["engine_torque_offset"] + b["em_torque_offset"] + b["shaft_offset"]))
     m = vehicle.motor
+    # the HPCU shunt's current offset is a constant power offset (offset x pack voltage, nominal 3.7 V a cell):
+    # it moves the Willans intercepts by that power and the DC/DC term, ~the LV base load, by as much
+    u_pack = 3.7 * vehicle.specs.n_cells_series
+    p_lv = max(vehicle.low_voltage.base_load_w, 1.0)
     exp += [
         _Expect("motor", "motor.motoring.e", m.willans_e, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
                 "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
@@ -99,17 +103,21 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
         _Expect("motor", "motor.motoring.W_loss", m.willans_w_loss_w, "W",
                 {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)},
                 "W_loss is the intercept of the Willans line: 1 % of 650 W is 0.1 % of the ~6.5 kW mean "
-                "electrical power of the points"),
+                "electrical power of the points; realistic: plus the HPCU shunt's current offset as a power",
+                lambda b, w=m.willans_w_loss_w: b["hpcu_current_offset"] * u_pack / w),
         _Expect("motor", "motor.generating.e_gen", m.willans_e_gen, "-",
                 {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
                 "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
                 lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
         _Expect("motor", "motor.generating.W_loss_gen", m.willans_w_loss_gen_w, "W",
-                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss"),
+                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss",
+                lambda b, w=m.willans_w_loss_gen_w: b["hpcu_current_offset"] * u_pack / w),
         _Expect("motor", "motor.motoring.eta_dcdc", vehicle.low_voltage.dcdc_efficiency, "-",
                 {"ideal": ("rel", 1.5e-2), "realistic": ("rel", 3e-2)},
                 "the DC/DC draws 0.3-0.5 kW beside 5-90 kW of motor power through the HPCU shunt: a 0.01 % "
-                "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %"),
+                "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %; realistic: "
+                "plus the HPCU shunt's current offset as a power against the LV base load",
+                lambda b: b["hpcu_current_offset"] * u_pack / p_lv),
     ]
     rl = vehicle.road_load
     for name, val, unit in (("F0", rl.f0_n, "N"), ("F1", rl.f1_n_per_kmh, "N/(km/h)"), ("F2", rl.f2_n_per_kmh2,
@@ -202,8 +210,8 @@ def _budget(setup: SetupConfig | None) -> dict[str, float]:
     """Systematic errors the setup declares, by quantity (gain errors as fractions, offsets in units)."""
     b: dict[str, float] = {k: 0.0 for k in (
         "shaft_gain", "shaft_offset", "engine_torque_gain", "engine_torque_offset", "em_torque_gain",
-        "em_torque_offset", "hpcu_gain", "battery_voltage_gain", "battery_current_gain", "pressure_gain",
-        "fuel_gain")}
+        "em_torque_offset", "hpcu_gain", "hpcu_current_offset", "battery_voltage_gain", "battery_current_gain",
+        "pressure_gain", "fuel_gain")}
     if setup is None:
         return b
     if setup.telemetry is not None:
@@ -221,6 +229,7 @@ def _budget(setup: SetupConfig | None) -> dict[str, float]:
     if "hpcu" in setup.ivt:
         cfg = setup.ivt["hpcu"]
         b["hpcu_gain"] = abs(cfg.current_errors.gain_error_frac) + abs(cfg.voltage_errors.gain_error_frac)
+        b["hpcu_current_offset"] = abs(cfg.current_errors.offset)
     if "battery" in setup.ivt:
         cfg = setup.ivt["battery"]
         b["battery_voltage_gain"] = abs(cfg.voltage_errors.gain_error_frac)

@@ -70,6 +70,7 @@ def test_transmission_recovers_eta_m_and_c0(vehicle: VehicleConfig, drawn: Drawn
 
 @profile()
 @given(vehicles(), setups(), seeds)
+@example(*pinned("motor_hpcu_offset"))
 def test_motor_recovers_willans_lines(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
     _run("motor", vehicle, drawn, seed, **FAMILY_PICKS["motor"])
 
