@@ -246,7 +246,9 @@ def _quantisation_bound(fit: Any, param: str, setup: SetupConfig) -> float:
     ``errors.quantisation_step`` the setup declares for the telemetry); over points at
     different torques the rounding errors behave as independent, uniform in ``+-q/2``
     (sigma ``q / sqrt(12)``). Propagated through the fit's own weighted least squares (eq. 15-17) they
-    give the spread a perfect identification would still show. NaN-safe: 0 when the fit lacks its points.
+    give the spread a perfect identification would still show; without noise the roundings need not be
+    independent, so the worst case (each point off by half a step the way that moves the parameter most) is
+    taken where it is larger. NaN-safe: 0 when the fit lacks its points.
     """
     if fit is None or "c" not in fit.data or "gear_ratio" not in fit.data or "eta_m" not in fit.params:
         return 0.0
@@ -270,12 +272,17 @@ def _quantisation_bound(fit: Any, param: str, setup: SetupConfig) -> float:
     except np.linalg.LinAlgError:
         return 0.0
     cov = inv @ (AtW * sig**2) @ AtW.T @ inv
+    # without noise to dither them the roundings need not be independent (a few steps, each rounded the same
+    # way): the worst case, every point off by half a step in the direction that moves the parameter most,
+    # bounds them; the larger of the two is returned
+    lin = inv @ AtW  # parameters (x0, x1) per unit change of each point's eta
+    half = sig * np.sqrt(12.0) / 2.0
     x0, x1 = eta_m, eta_m * c0
     if param == "eta_m":
-        return float(3.0 * np.sqrt(cov[0, 0]) / eta_m)
+        return float(max(3.0 * np.sqrt(cov[0, 0]), np.sum(np.abs(lin[0]) * half)) / eta_m)
     if param == "C0":
         g = np.array([-x1 / x0**2, 1.0 / x0])
-        return float(3.0 * np.sqrt(g @ cov @ g))
+        return float(max(3.0 * np.sqrt(g @ cov @ g), np.sum(np.abs(g @ lin) * half)))
     return 0.0
 
 
