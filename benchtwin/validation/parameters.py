@@ -93,6 +93,10 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
                                + "; realistic: plus the offsets of the input torques and the shaft torque",
                                lambda b: b["engine_torque_offset"] + b["em_torque_offset"] + b["shaft_offset"]))
     m = vehicle.motor
+    # the HPCU shunt's current offset is a constant power offset (offset x pack voltage, nominal 3.7 V a cell):
+    # it moves the Willans intercepts by that power and the DC/DC term, ~the LV base load, by as much
+    u_pack = 3.7 * vehicle.specs.n_cells_series
+    p_lv = max(vehicle.low_voltage.base_load_w, 1.0)
     exp += [
         _Expect("motor", "motor.motoring.e", m.willans_e, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
                 "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
@@ -100,17 +104,21 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
         _Expect("motor", "motor.motoring.W_loss", m.willans_w_loss_w, "W",
                 {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)},
                 "W_loss is the intercept of the Willans line: 1 % of 650 W is 0.1 % of the ~6.5 kW mean "
-                "electrical power of the points"),
+                "electrical power of the points; realistic: plus the HPCU shunt's current offset as a power",
+                lambda b, w=m.willans_w_loss_w: b["hpcu_current_offset"] * u_pack / w),
         _Expect("motor", "motor.generating.e_gen", m.willans_e_gen, "-",
                 {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
                 "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
                 lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
         _Expect("motor", "motor.generating.W_loss_gen", m.willans_w_loss_gen_w, "W",
-                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss"),
+                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss",
+                lambda b, w=m.willans_w_loss_gen_w: b["hpcu_current_offset"] * u_pack / w),
         _Expect("motor", "motor.motoring.eta_dcdc", vehicle.low_voltage.dcdc_efficiency, "-",
                 {"ideal": ("rel", 1.5e-2), "realistic": ("rel", 3e-2)},
                 "the DC/DC draws 0.3-0.5 kW beside 5-90 kW of motor power through the HPCU shunt: a 0.01 % "
-                "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %"),
+                "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %; realistic: "
+                "plus the HPCU shunt's current offset as a power against the LV base load",
+                lambda b: b["hpcu_current_offset"] * u_pack / p_lv),
     ]
     rl = vehicle.road_load
     for name, val, unit in (("F0", rl.f0_n, "N"), ("F1", rl.f1_n_per_kmh, "N/(km/h)"), ("F2", rl.f2_n_per_kmh2,
@@ -203,8 +211,8 @@ def _budget(setup: SetupConfig | None) -> dict[str, float]:
     """Systematic errors the setup declares, by quantity (gain errors as fractions, offsets in units)."""
     b: dict[str, float] = {k: 0.0 for k in (
         "shaft_gain", "shaft_offset", "engine_torque_gain", "engine_torque_offset", "em_torque_gain",
-        "em_torque_offset", "hpcu_gain", "battery_voltage_gain", "battery_current_gain", "pressure_gain",
-        "fuel_gain")}
+        "em_torque_offset", "hpcu_gain", "hpcu_current_offset", "battery_voltage_gain", "battery_current_gain",
+        "pressure_gain", "fuel_gain")}
     if setup is None:
         return b
     if setup.telemetry is not None:
@@ -222,6 +230,7 @@ def _budget(setup: SetupConfig | None) -> dict[str, float]:
     if "hpcu" in setup.ivt:
         cfg = setup.ivt["hpcu"]
         b["hpcu_gain"] = abs(cfg.current_errors.gain_error_frac) + abs(cfg.voltage_errors.gain_error_frac)
+        b["hpcu_current_offset"] = abs(cfg.current_errors.offset)
     if "battery" in setup.ivt:
         cfg = setup.ivt["battery"]
         b["battery_voltage_gain"] = abs(cfg.voltage_errors.gain_error_frac)
@@ -234,15 +243,19 @@ def _budget(setup: SetupConfig | None) -> dict[str, float]:
 def _quantisation_bound(fit: Any, param: str, setup: SetupConfig) -> float:
     """Three standard deviations of ``eta_m`` (relative) or ``C0`` (Nm) due to the shaft-torque converter step.
 
-    Each steady point's shaft torque is rounded to the 12-bit converter's step ``q``; over points at
+    Each steady point's shaft torque is rounded to the 12-bit converter's step ``q`` (or to the coarser
+    ``errors.quantisation_step`` the setup declares for the telemetry); over points at
     different torques the rounding errors behave as independent, uniform in ``+-q/2``
     (sigma ``q / sqrt(12)``). Propagated through the fit's own weighted least squares (eq. 15-17) they
-    give the spread a perfect identification would still show. NaN-safe: 0 when the fit lacks its points.
+    give the spread a perfect identification would still show; without noise the roundings need not be
+    independent, so the worst case (each point off by half a step the way that moves the parameter most) is
+    taken where it is larger. NaN-safe: 0 when the fit lacks its points.
     """
     if fit is None or "c" not in fit.data or "gear_ratio" not in fit.data or "eta_m" not in fit.params:
         return 0.0
     tel = setup.telemetry
-    step = torque_step_nm(tel.shaft, tel.k_tel)
+    # the AD module's step, or the coarser converter step the setup declares in front of it
+    step = max(torque_step_nm(tel.shaft, tel.k_tel), tel.errors.quantisation_step)
     c = np.asarray(fit.data["c"], dtype=float)
     ratio = float(np.asarray(fit.data["gear_ratio"]).ravel()[0])
     eta_m, c0 = fit.value("eta_m"), fit.value("C0")
@@ -260,12 +273,17 @@ def _quantisation_bound(fit: Any, param: str, setup: SetupConfig) -> float:
     except np.linalg.LinAlgError:
         return 0.0
     cov = inv @ (AtW * sig**2) @ AtW.T @ inv
+    # without noise to dither them the roundings need not be independent (a few steps, each rounded the same
+    # way): the worst case, every point off by half a step in the direction that moves the parameter most,
+    # bounds them; the larger of the two is returned
+    lin = inv @ AtW  # parameters (x0, x1) per unit change of each point's eta
+    half = sig * np.sqrt(12.0) / 2.0
     x0, x1 = eta_m, eta_m * c0
     if param == "eta_m":
-        return float(3.0 * np.sqrt(cov[0, 0]) / eta_m)
+        return float(max(3.0 * np.sqrt(cov[0, 0]), np.sum(np.abs(lin[0]) * half)) / eta_m)
     if param == "C0":
         g = np.array([-x1 / x0**2, 1.0 / x0])
-        return float(3.0 * np.sqrt(g @ cov @ g))
+        return float(max(3.0 * np.sqrt(g @ cov @ g), np.sum(np.abs(g @ lin) * half)))
     return 0.0
 
 

@@ -38,7 +38,8 @@ from benchtwin.validation.run import validate
 
 
 def _says_too_little(note: str) -> bool:
-    return any(w in note for w in ("NoExcitationError", "InsufficientDataError", "CollinearError"))
+    return any(w in note for w in ("NoExcitationError", "InsufficientDataError", "CollinearError",
+                                   "not identifiable"))
 
 
 def _run(family: str, vehicle: VehicleConfig, drawn: DrawnSetup, seed: int, **pick: object) -> None:
@@ -70,6 +71,7 @@ def test_transmission_recovers_eta_m_and_c0(vehicle: VehicleConfig, drawn: Drawn
 
 @profile()
 @given(vehicles(), setups(), seeds)
+@example(*pinned("motor_hpcu_offset"))
 def test_motor_recovers_willans_lines(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
     _run("motor", vehicle, drawn, seed, **FAMILY_PICKS["motor"])
 
@@ -153,6 +155,21 @@ def test_converter_fit_of_the_family_tests_alone_on_the_ideal_chain() -> None:
     assert not bad, bad
 
 
+@pytest.mark.parametrize("name", ["engine_petrol_corner", "motor_hpcu_offset"])
+def test_pinned_findings_hold_at_the_noise_free_bound(name: str) -> None:
+    # the pinned examples have no noise: their fixes must meet the plain bound floor + systematic, without
+    # the property's allowance for noise and for many checks (before the fixes: BSFC map 3.2 % > 1.5 %,
+    # W_loss_gen 7.5 % > 1 %)
+    vehicle, drawn, seed = pinned(name)
+    family = name.split("_", 1)[0]
+    campaign = campaign_for(vehicle, FAMILIES[family].kinds, seed=seed, **FAMILY_PICKS[family])
+    report = validate(vehicle, drawn.setup, campaign, trace=simulate_campaign(vehicle, campaign), families=[family],
+                      profile="realistic")
+    checks = property_checks(report.identification, vehicle, drawn.setup, 0.0, None, {family}, noise_free=True)
+    bad = [(c.name, c.error, c.tolerance) for c in checks if not c.passed]
+    assert checks and not bad, bad
+
+
 def test_tolerance_grows_with_noise_and_declared_errors() -> None:
     # the tolerance function itself: at noise 0 and no declared error it is the ideal floor plus a quarter of
     # the paper's noise tolerance; it grows
@@ -165,6 +182,27 @@ def test_tolerance_grows_with_noise_and_declared_errors() -> None:
     t0 = {c.name: c.tolerance for c in property_checks(empty, PAPER_VEHICLE, IDEAL_SETUP, 0.0, None, {"battery"})}
     t1 = {c.name: c.tolerance for c in property_checks(empty, PAPER_VEHICLE, IDEAL_SETUP, 1.0, None, {"battery"})}
     tp = {c.name: c.tolerance for c in property_checks(empty, PAPER_VEHICLE, PAPER_SETUP, 1.0, None, {"battery"})}
-    assert np.isclose(t0["battery.alpha"], 1e-3 + 0.25 * 2e-3)
-    assert np.isclose(t1["battery.alpha"], 1e-3 + 2e-3)
-    assert np.isclose(tp["battery.alpha"], 1e-3 + 2e-3 + 0.0005)  # + the paper shunt's 0.05 % voltage gain
+    assert np.isclose(t0["battery.alpha"], 1.5 * (1e-3 + 0.25 * 2e-3))
+    assert np.isclose(t1["battery.alpha"], 1.5 * (1e-3 + 2e-3))
+    assert np.isclose(tp["battery.alpha"], 1.5 * (1e-3 + 2e-3) + 0.0005)  # + the paper shunt's 0.05 % voltage gain
+
+
+def test_quantisation_floor_follows_a_coarser_declared_converter() -> None:
+    # found by test_transmission_recovers_eta_m_and_c0 with a 10-bit telemetry converter (declared as a
+    # quantisation step of 4 wire steps) and no noise: gear 1 eta_m 2.75 % off against a floor computed from
+    # the 12-bit step; the floor must scale with the step the setup declares (linear in it)
+    from strategies import PAPER_SETUP
+
+    from benchtwin.identification._fit import FitResult, ParameterEstimate
+    from benchtwin.sensors.telemetry import torque_step_nm
+    from benchtwin.validation.parameters import _quantisation_bound
+
+    c = np.linspace(20.0, 300.0, 12)
+    fit = FitResult({n: ParameterEstimate(n, v, 0.0, (v, v), 1.0, c.size) for n, v in (("eta_m", 0.95), ("C0", 5.0))},
+                    1.0, 1.0, 0.0, c.size, data={"c": c, "gear_ratio": np.array([4.7])})
+    step = torque_step_nm(PAPER_SETUP.telemetry.shaft, PAPER_SETUP.telemetry.k_tel)
+    coarse = PAPER_SETUP.model_copy(update={"telemetry": PAPER_SETUP.telemetry.model_copy(
+        update={"errors": PAPER_SETUP.telemetry.errors.model_copy(update={"quantisation_step": 4 * step})})})
+    for p in ("eta_m", "C0"):
+        q12, q10 = _quantisation_bound(fit, p, PAPER_SETUP), _quantisation_bound(fit, p, coarse)
+        assert q12 > 0 and np.isclose(q10, 4 * q12)
