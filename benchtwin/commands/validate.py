@@ -35,6 +35,9 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
     p.add_argument("--families", type=_families, default=None, metavar="F1,F2",
                    help="validate only these identification families, each on its own tests (comma-separated: "
                         f"{', '.join(_family_names())}); no held-out prediction")
+    p.add_argument("--type-b", action=argparse.BooleanOptionalAction, default=None,
+                   help="propagate the setup's declared systematic uncertainties into the total intervals (GUM type "
+                        "B; default: on for the whole campaign, off with --families)")
     p.set_defaults(func=run)
     return p
 
@@ -146,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         writable_dir(args.out, "--out")
     report = validate(vehicle, setup, campaign, profile=args.profile, out_dir=args.out,
-                      figures=bool(args.figures and args.out), progress=True, families=args.families)
+                      figures=bool(args.figures and args.out), progress=True, families=args.families,
+                      type_b=args.type_b)
     print_report(report, show_all=args.all)
     if args.out is not None:
         print(f"\nwrote {args.out}/report.html (open it in a browser), validation.json, params.json, recording.mf4 "

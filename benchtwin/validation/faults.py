@@ -135,7 +135,7 @@ def fault_campaign(trace: Trace, setup: SetupConfig, *, seed: int = 0, out_dir: 
     if identify:
         from benchtwin.identification.run import identify_all
 
-        res_clean, res = identify_all(rec_clean, specs), identify_all(rec, specs)
+        res_clean, res = identify_all(rec_clean, specs, type_b=False), identify_all(rec, specs, type_b=False)
         result["identification"] = {"fits_clean": len(res_clean.fits), "fits_faults": len(res.fits),
                                     "changed": _fit_changes(res_clean, res)}
     if out_dir is not None:

@@ -45,7 +45,7 @@ __all__ = ["validate"]
 def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *, profile: str | None = None,
              out_dir: str | Path | None = None, figures: bool = False, progress: bool = False,
              trace: Trace | None = None, families: Iterable[str] | None = None,
-             cache: bool | str | Path = False) -> ValidationReport:
+             cache: bool | str | Path = False, type_b: bool | None = None) -> ValidationReport:
     """Simulate the campaign, run the batch chain, identify, and compare with the truth.
 
     Parameters
@@ -71,6 +71,11 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         Take the Trace from the disk cache (:mod:`benchtwin.emulator.cache`), simulating and storing it
         on a miss: True for the default directory, or a directory. ``meta['trace_cached']`` says
         whether it hit.
+    type_b:
+        Propagate the setup's declared systematic uncertainties into every parameter's total interval (GUM
+        type B: each method re-run per component, about 15-20 s on the paper campaign). None: on for a
+        whole-campaign validation, off for a family run (the fast inner loop of sweeps and property tests,
+        whose total intervals then equal the statistical ones, as ``identification.meta['type_b']`` says).
 
     Returns
     -------
@@ -113,7 +118,8 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         rec, checked = merge_recordings(recs), stitch_traces(slices)
     t2 = time.perf_counter()
     methods = None if fams is None else [m for f in fams for m in f.methods]
-    result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)))
+    result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
+                          type_b=fams is None if type_b is None else type_b)
     t3 = time.perf_counter()
     report.timings_s = {"simulate": round(t1 - t0, 3), "chain": round(t2 - t1, 3), "identify": round(t3 - t2, 3)}
     report.identification = result
@@ -178,7 +184,8 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
         return []
     held = cycles[-1]
     try:
-        result = identify_all(without_window(rec, held.start_s, held.end_s), vehicle.specs)
+        # the prediction uses the estimates only: no interval of this identification is reported
+        result = identify_all(without_window(rec, held.start_s, held.end_s), vehicle.specs, type_b=False)
         model = MapVehicle(result, vehicle.specs)
     except BenchtwinError as exc:
         pred["notes"].append(f"no prediction: {exc}")
