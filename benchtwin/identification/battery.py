@@ -171,7 +171,19 @@ def _segment_mask(rec: Recording, t: np.ndarray, kinds: tuple[str, ...] | None) 
 
 def battery_samples(rec: Recording, *, soc: bool, rate_hz: float | None, kinds: tuple[str, ...] | None
                     ) -> tuple[dict[str, np.ndarray], np.ndarray, list[str], int]:
-    """V, I (and displayed SOC) on the fits' common grid, the usable mask, segment names and bad samples."""
+    """V, I (and displayed SOC) on the fits' common grid, the usable mask, segment names and bad samples.
+
+    Parameters
+    ----------
+    rec:
+        The Recording (``battery_voltage_v``, ``battery_current_a``; ``displayed_soc_pct`` with ``soc``).
+    soc:
+        Also gather the displayed SOC.
+    rate_hz:
+        Rate of the common grid; None: the native rate of the pack voltage.
+    kinds:
+        Segment kinds whose samples are usable; None: every sample.
+    """
     names = ["battery_voltage_v", "battery_current_a"] + (["displayed_soc_pct"] if soc else [])
     for n in names:
         if n not in rec:
@@ -190,6 +202,13 @@ def eq30_design(soc_pct: np.ndarray, current_a: np.ndarray, maps: CellMaps) -> d
 
     ``alpha``: ``OCV_lit(s)``; ``beta_discharge``: ``-I R_lit,dch(s)`` where ``I > 0`` (else 0);
     ``beta_charge``: ``-I R_lit,ch(s)`` where ``I < 0``. Shared by :func:`identify_battery` and the planner.
+
+    Parameters
+    ----------
+    soc_pct, current_a:
+        Cell state of charge (%) and pack current (A, positive discharge).
+    maps:
+        The literature cell's OCV and resistance maps.
     """
     s = np.asarray(soc_pct, dtype=float)
     i = np.asarray(current_a, dtype=float)

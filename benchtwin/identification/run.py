@@ -368,7 +368,9 @@ def _reads(name: str) -> list[str]:
     known = {m.name: m for m in METHODS}
     roles: list[str] = []
     for n in (*_DEPENDS.get(name, ()), name):
-        roles += [r for r in (*known[n].roles, *known[n].any_roles) if r not in STATE_ROLES and r not in roles]
+        alternative = [r for alt in known[n].alternatives for r in alt]
+        roles += [r for r in (*known[n].roles, *known[n].any_roles, *alternative)
+                  if r not in STATE_ROLES and r not in roles]
     return roles
 
 

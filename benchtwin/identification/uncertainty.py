@@ -141,14 +141,17 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator) ->
     for role, q in zip(comp.roles, comp.steps, strict=True):
         ch = recording.channels[role]
         v = ch.values
-        fin = np.isfinite(v)
+        # the good samples only: a flagged sample (clipped, lost, out of range) is excluded by every method, so
+        # its value must not move the grid of the others' rounding errors
+        fin = ch.good
         if not fin.any() or not q > 0:
             continue
         lo = float(v[fin].min())
-        idx = np.zeros(v.shape, dtype=np.int64)
-        idx[fin] = np.floor((v[fin] - lo) / (BIN_STEPS * q) + rng.uniform(0.0, 1.0)).astype(np.int64)
+        idx = np.floor((v[fin] - lo) / (BIN_STEPS * q) + rng.uniform(0.0, 1.0)).astype(np.int64)
         errors = rng.uniform(-0.5 * q, 0.5 * q, int(idx.max()) + 1)
-        channels[role] = ch.with_values(v + errors[idx])
+        moved = v.copy()
+        moved[fin] += errors[idx]
+        channels[role] = ch.with_values(moved)
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
                      start_time=recording.start_time)
 

@@ -76,7 +76,8 @@ class Family:
         out: set[str] = set()
         for m in METHODS:
             if m.name in self.methods:
-                out |= set(m.roles) | set(m.any_roles)
+                # a method with alternative inputs (e.g. the motor's HPCU or pack DC side) may read any of them
+                out |= set(m.roles) | set(m.any_roles) | {r for alt in m.alternatives for r in alt}
         return out
 
     def reads(self) -> set[str]:

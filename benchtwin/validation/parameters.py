@@ -20,28 +20,15 @@ from scipy.interpolate import RegularGridInterpolator
 from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.models import torque_converter_curves_nm
-from benchtwin.errors import ConfigError, IdentificationError
+from benchtwin.errors import ConfigError
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey, param_key, split_param
-from benchtwin.identification.transmission import identify_transmission
-from benchtwin.recording import Channel, Recording
 from benchtwin.sensors.telemetry import torque_step_nm
-from benchtwin.trace import Trace
 from benchtwin.validation.hifi import converter_curve_checks, no_truth
+from benchtwin.validation.paper_r2 import PAPER_R2, paper_estimation_fits
 from benchtwin.validation.report import Check
 
 __all__ = ["PAPER_R2", "compare_with_truth", "paper_estimation_fits", "truth_expectations"]
-
-#: the paper's coefficients of determination, which the realistic profile must reach or beat
-PAPER_R2: dict[str, tuple[str, float, str]] = {
-    "transmission.gear5": ("r2", 0.95, "AT efficiency, one 5th-gear Hybrid ramp-up near 2500 rpm (Figure 8)"),
-    "motor.motoring": ("r2", 0.85, "EM Willans line (Figure 10)"),
-    "battery": ("adj_r2", 0.995, "battery voltage model, adjusted (Figure 16)"),
-    "torque_converter.torque_ratio": ("r2", 0.81, "torque ratio vs speed ratio (Figure 18)"),
-    "torque_converter.capacity_factor": ("r2", 0.89, "capacity factor, converter mode (Figure 19)"),
-    "torque_converter.capacity_factor_coupling": ("r2", 0.75, "capacity factor, coupling mode"),
-}
-
 
 @dataclass(frozen=True)
 class _Expect:
@@ -482,45 +469,3 @@ def _bsfc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: 
                             f"true map is bilinear between its nodes, the identified one a smooth interpolation of "
                             f"scattered points"))
     return checks
-
-
-def _slice_recording(rec: Recording, start_s: float, end_s: float) -> Recording:
-    out = Recording(segments=[s for s in rec.segments if s.end_s > start_s and s.start_s < end_s],
-                    meta=dict(rec.meta))
-    for ch in rec.channels.values():
-        m = (ch.timestamps >= start_s) & (ch.timestamps < end_s)
-        out.add(Channel(ch.name, ch.unit, ch.timestamps[m], ch.values[m], ch.flags[m], ch.source))
-    return out
-
-
-def paper_estimation_fits(rec: Recording, vehicle: VehicleConfig, trace: Trace) -> dict[str, Any]:
-    """Fits on the paper's own estimation sets, for comparing R^2 like with like.
-
-    The paper's transmission R^2 of 0.95 is that of one ramp-up: 5th gear, Hybrid mode, about 2500 rpm
-    (Figure 8). Over every ramp-up of a gear the points mix Hybrid and Electric operation, whose input
-    torques carry different ECU errors, so the all-data R^2 is lower and not comparable. This fits the
-    5th-gear Hybrid ramp-up whose motor speed is nearest 2500 rpm.
-
-    Returns
-    -------
-    dict
-        ``{"transmission.gear5": FitResult}`` when such a ramp-up exists and can be fitted.
-    """
-    best = None
-    for seg in trace.segments:
-        if seg.kind != "ramp_up" or seg.settings.get("gear") != 5 or seg.settings.get("mode") != "hybrid":
-            continue
-        sl = trace.segment(seg.name)
-        rpm = float(np.median(sl["em_speed_radps"])) * 30.0 / np.pi
-        if best is None or abs(rpm - 2500.0) < best[0]:
-            best = (abs(rpm - 2500.0), seg)
-    if best is None:
-        return {}
-    seg = best[1]
-    try:
-        res = identify_transmission(_slice_recording(rec, seg.start_s, seg.end_s), vehicle.specs, gears=[5])
-    except IdentificationError:
-        return {}
-    key = str(FitKey.transmission(5))
-    fit = res.fits.get(key)
-    return {key: fit} if fit is not None else {}

@@ -174,9 +174,12 @@ class MessageCodec:
         for name in want:
             sig = self.signals[name]
             words = le if sig.little_endian else be
-            v = ((words >> np.uint64(sig.shift)) & sig.mask).astype(np.int64)
-            if sig.signed:
-                v = np.where(v > sig.raw_max, v - (1 << sig.length), v)
+            u = (words >> np.uint64(sig.shift)) & sig.mask
+            if sig.signed:  # sign-extend: the signal's top bit to bit 63, then an arithmetic shift back
+                k = 64 - sig.length
+                v = np.ascontiguousarray(u << np.uint64(k)).view(np.int64) >> np.int64(k)
+            else:
+                v = u.astype(np.int64)
             out[name] = v
         return out
 

@@ -175,6 +175,21 @@ def test_codec_any_single_signal_layout_matches_cantools(start: int, length: int
     assert msg.decode(packed[0].tobytes(), scaling=False)["S"] == raw
 
 
+@pytest.mark.parametrize(("start", "length", "big"), [(6, 63, True), (0, 63, False), (7, 64, True), (0, 64, False)])
+def test_codec_wide_signed_signals_match_cantools(start: int, length: int, big: bool) -> None:
+    """Found by the property above: a 63-bit signed signal overflowed the sign extension (1 << 63 is no int64)."""
+    from cantools.database.can import Message, Signal
+
+    msg = Message(0x123, "M", 8, [Signal("S", start, length, "big_endian" if big else "little_endian", True)],
+                  strict=True)
+    codec = MessageCodec(msg)
+    lay = codec.signals["S"]
+    for raw in (lay.raw_min, -1, 0, 1, lay.raw_max):
+        packed = codec.pack({"S": np.array([raw])})
+        assert packed[0].tobytes() == msg.encode({"S": raw}, scaling=False)
+        assert int(codec.unpack(packed)["S"][0]) == raw == msg.decode(packed[0].tobytes(), scaling=False)["S"]
+
+
 def test_counter_flags_patterns() -> None:
     from benchtwin.recording import Flag
     from benchtwin.wire.quality import counter_flags as _counter_flags
