@@ -301,7 +301,8 @@ def efficiency_map(e: float, w_loss: float, torque_nm: np.ndarray, speed_rpm: np
 
 
 def fit_dcdc_within(rec: Recording, *, steady: SteadyWindows | None = None, max_torque_nm: float = 1.0,
-                    rate_hz: float = 10.0, min_points: int = 50) -> FitResult:
+                    speed_std_rpm: float = 1.0, speed_std_frac: float = 0.002, rate_hz: float = 10.0,
+                    min_points: int = 50) -> FitResult:
     """DC/DC efficiency from the 12 V load's own variation inside steady zero-torque motor windows.
 
     Inside a window where the motor's torque is zero and its speed steady, the motor's DC power is a constant
@@ -320,6 +321,11 @@ def fit_dcdc_within(rec: Recording, *, steady: SteadyWindows | None = None, max_
         Steady windows over those channels (else found here over the whole Recording).
     max_torque_nm:
         Windows whose mean ``|T|`` exceeds this are left out.
+    speed_std_rpm, speed_std_frac:
+        Windows whose motor speed varies (standard deviation over the window) by more than
+        ``speed_std_rpm + speed_std_frac |n|`` are left out: the steady search's speed tolerance lets a
+        slow drift through (a launch, a creep near standstill), and the spin loss and standby draw change
+        with it (measured on the high-fidelity paper campaign: such windows alone give eta_dcdc 0.5-0.8).
     rate_hz:
         Grid rate of the search.
     min_points:
@@ -351,6 +357,9 @@ def fit_dcdc_within(rec: Recording, *, steady: SteadyWindows | None = None, max_
     segs: list[str] = []
     for w in steady.windows:
         if not abs(w.means.get("em_torque_nm", np.nan)) <= max_torque_nm:
+            continue
+        n_mean, n_std = abs(w.means.get("em_speed_rpm", np.nan)), w.stds.get("em_speed_rpm", np.nan)
+        if not n_std <= speed_std_rpm + speed_std_frac * n_mean:
             continue
         y, x = p_hv[w.i0:w.i1], p_lv[w.i0:w.i1]
         ok = np.isfinite(y) & np.isfinite(x) & ~g.bad[w.i0:w.i1]
