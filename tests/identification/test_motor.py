@@ -148,17 +148,23 @@ def test_power_form_gives_the_same_parameters(ramp_rec, truth) -> None:
                                rtol=1e-3)
 
 
-def _quadratic_loss_rec(truth, k_cu: float, *, zero_torque: bool = True):
+def _quadratic_loss_rec(truth, k_cu: float, *, zero_torque: bool = True, drift_rpm: float = 0.0,
+                        hold_s: float = 6.0):
     """Ramp-ups whose motoring loss has a copper term ``k_cu T^2`` beyond the Willans line and whose 12 V load
-    follows the torque (fan duty) plus a 37 s sine; with ``zero_torque`` each ramp-up also holds T = 0."""
+    follows the torque (fan duty) plus a 37 s sine; with ``zero_torque`` each ramp-up also holds T = 0. With
+    ``drift_rpm`` the motor speed of the zero-torque holds in odd gears swings by that amplitude in phase with the
+    12 V sine, and the spin loss with it (2 W/rpm)."""
     levels = [-90.0, -50.0, -25.0, 25.0, 45.0, 70.0, 100.0, 140.0, 180.0, 230.0, 280.0]
-    t, sig, segs = ramp_up_plant(truth, levels=sorted([*levels, 0.0]) if zero_torque else levels)
+    t, sig, segs = ramp_up_plant(truth, levels=sorted([*levels, 0.0]) if zero_torque else levels, hold_s=hold_s)
     sig = dict(sig)
     torque = sig["em_torque_nm"]
     p_lv_old = sig["dcdc_lv_current_a"] * sig["dcdc_lv_voltage_v"]
     p_lv = 200.0 + 6.0 * np.abs(torque) + 150.0 * np.sin(2 * np.pi * t / 37.0)
     p_hpcu = (sig["hpcu_current_a"] * sig["hpcu_voltage_v"] + (p_lv - p_lv_old) / truth.eta_dcdc
               + np.where(torque > 0, k_cu * torque**2, 0.0))
+    swing = np.where((torque == 0.0) & (sig["gear_actual"] % 2 == 1), drift_rpm * np.sin(2 * np.pi * t / 37.0), 0.0)
+    sig["em_speed_rpm"] = sig["em_speed_rpm"] + swing
+    p_hpcu = p_hpcu + 2.0 * swing
     sig["hpcu_current_a"] = p_hpcu / sig["hpcu_voltage_v"]
     sig["dcdc_lv_current_a"] = p_lv / sig["dcdc_lv_voltage_v"]
     return to_recording(t, sig, segments=segs)
@@ -208,3 +214,17 @@ def test_without_zero_torque_windows_the_rejected_joint_estimate_stays_flagged(t
     mot = identify_motor(rec, SPECS).fits["motor.motoring"]
     assert mot["eta_dcdc"].status == "flagged"
     assert any("no independent estimate" in r for r in mot.reasons)
+
+
+def test_zero_torque_windows_whose_speed_drifts_are_left_out(truth) -> None:
+    """Holds of 20 s; in odd gears a 20 rpm swing (std 14 rpm: inside the steady search's 15 rpm + 0.5 %) in
+    phase with the 12 V sine makes the spin loss follow the load, adding 2 W/rpm x 20 rpm / 150 W = 0.27 to
+    1/eta_dcdc in those windows: with every window kept eta_dcdc falls below 0.85 (measured 0.825); the
+    speed-drift rule (std above 1 rpm + 0.2 %) leaves them out and the steady windows give eta_dcdc within
+    0.1 % as without drift (noise-free)."""
+    rec = _quadratic_loss_rec(truth, 0.0, drift_rpm=20.0, hold_s=20.0)
+    kept_all = fit_dcdc_within(rec, speed_std_rpm=np.inf)
+    assert kept_all.value("eta_dcdc") < 0.85
+    fit = fit_dcdc_within(rec)
+    np.testing.assert_allclose(fit.value("eta_dcdc"), truth.eta_dcdc, rtol=1e-3)
+    assert fit.n_points < kept_all.n_points
