@@ -14,6 +14,11 @@ squares: motoring regresses ``p_me`` on ``[p_ma_hpcu, -p_lv, -1/c_m]`` (``p_lv``
 ``p_ma``) with unknowns ``[C0, C0 / eta_dcdc, C1]``, ``e = 4 pi C0``, ``W_loss = 2 V C1 / r`` (eq. 24);
 generating regresses ``p_ma_hpcu`` on ``[p_me, 1/c_m, p_lv]`` with unknowns
 ``[4 pi e_gen, 2 pi r W_loss_gen / V, 1 / eta_dcdc]``.
+
+On a motor whose loss is not affine in ``T omega`` (a real one: copper loss in ``T^2``), that curvature leaks
+into the nearly collinear 12 V column. A joint estimate outside :data:`ETA_DCDC_PLAUSIBLE` or with a standard
+error above :data:`ETA_DCDC_MAX_SE` is therefore replaced by :func:`fit_dcdc_within`'s, observed independently
+inside steady zero-torque windows, and that side's line is refitted with it fixed.
 """
 
 from __future__ import annotations
@@ -27,19 +32,24 @@ import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError
-from benchtwin.identification._fit import FitResult, IdentificationResult, derived, linear_fit
+from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate, derived, linear_fit
 from benchtwin.identification._signals import check_spread, raise_all_failed
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
-__all__ = ["MotorPoints", "dc_input_roles", "efficiency_map", "fit_willans_generating", "fit_willans_motoring",
-           "identify_motor", "motor_points", "side_points"]
+__all__ = ["ETA_DCDC_MAX_SE", "ETA_DCDC_PLAUSIBLE", "MotorPoints", "dc_input_roles", "efficiency_map",
+           "fit_dcdc_within", "fit_willans_generating", "fit_willans_motoring", "identify_motor", "motor_points",
+           "side_points"]
 
 RPM = 2.0 * math.pi / 60.0
 _LV = ("dcdc_lv_current_a", "dcdc_lv_voltage_v")
 _HPCU = ("hpcu_current_a", "hpcu_voltage_v")
 #: without an inverter-side sensor (a BEV's log often has only the pack's), the pack's power is the DC input
 _PACK = ("battery_current_a", "battery_voltage_v")
+#: range a DC/DC efficiency can take; a joint Willans estimate outside it is a leak of the loss's model-form error
+ETA_DCDC_PLAUSIBLE = (0.7, 1.0)
+#: largest standard error of a joint Willans estimate of eta_dcdc that is used as it is
+ETA_DCDC_MAX_SE = 0.05
 
 
 def dc_input_roles(rec: Recording) -> tuple[str, str]:
@@ -290,6 +300,102 @@ def efficiency_map(e: float, w_loss: float, torque_nm: np.ndarray, speed_rpm: np
             "envelope_torque_nm": np.asarray(env_t)}
 
 
+def fit_dcdc_within(rec: Recording, *, steady: SteadyWindows | None = None, max_torque_nm: float = 1.0,
+                    speed_std_rpm: float = 1.0, speed_std_frac: float = 0.002, rate_hz: float = 10.0,
+                    min_points: int = 50) -> FitResult:
+    """DC/DC efficiency from the 12 V load's own variation inside steady zero-torque motor windows.
+
+    Inside a window where the motor's torque is zero and its speed steady, the motor's DC power is a constant
+    (whatever the form of its loss: standby, friction, iron), so each change of the HV input power is the
+    DC/DC's draw change ``dP_lv / eta_dcdc``. The fit regresses the HV power on the 12 V power, both less
+    their window mean (one intercept per window), over every grid sample of those windows: ``1 / eta_dcdc``
+    is the single unknown, observed independently of the motor's Willans line. The standard error allows
+    for the serial correlation of the grid samples.
+
+    Parameters
+    ----------
+    rec:
+        Recording with ``em_speed_rpm``, ``em_torque_nm``, the DC input (:func:`dc_input_roles`) and
+        ``dcdc_lv_current_a``, ``dcdc_lv_voltage_v``.
+    steady:
+        Steady windows over those channels (else found here over the whole Recording).
+    max_torque_nm:
+        Windows whose mean ``|T|`` exceeds this are left out.
+    speed_std_rpm, speed_std_frac:
+        Windows whose motor speed varies (standard deviation over the window) by more than
+        ``speed_std_rpm + speed_std_frac |n|`` are left out: the steady search's speed tolerance lets a
+        slow drift through (a launch, a creep near standstill), and the spin loss and standby draw change
+        with it (measured on the high-fidelity paper campaign: such windows alone give eta_dcdc 0.5-0.8).
+    rate_hz:
+        Grid rate of the search.
+    min_points:
+        Fewest grid samples.
+
+    Returns
+    -------
+    FitResult
+        ``inv_eta_dcdc`` and derived ``eta_dcdc``; data ``dp_lv_w``, ``dp_hv_w`` (the demeaned samples).
+
+    Raises
+    ------
+    InsufficientDataError
+        Too few zero-torque samples.
+    NoExcitationError
+        The 12 V load did not vary inside them.
+    """
+    what = "motor.dcdc"
+    dc = dc_input_roles(rec)
+    if steady is None:
+        steady = find_steady_windows(rec, ["em_speed_rpm", "em_torque_nm"],
+                                     states=("gear_actual", "k0_closed", "lockup_closed", "hybrid_mode"),
+                                     extra=(*dc, *_LV), kinds=None, rate_hz=rate_hz)
+    g = steady.grid
+    p_hv = g[dc[0]] * g[dc[1]]
+    p_lv = g[_LV[0]] * g[_LV[1]]
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
+    segs: list[str] = []
+    for w in steady.windows:
+        if not abs(w.means.get("em_torque_nm", np.nan)) <= max_torque_nm:
+            continue
+        n_mean, n_std = abs(w.means.get("em_speed_rpm", np.nan)), w.stds.get("em_speed_rpm", np.nan)
+        if not n_std <= speed_std_rpm + speed_std_frac * n_mean:
+            continue
+        y, x = p_hv[w.i0:w.i1], p_lv[w.i0:w.i1]
+        ok = np.isfinite(y) & np.isfinite(x) & ~g.bad[w.i0:w.i1]
+        if ok.sum() < 2:
+            continue
+        xs.append(x[ok] - x[ok].mean())
+        ys.append(y[ok] - y[ok].mean())
+        segs.append(w.segment)
+    if not xs or sum(x.size for x in xs) < min_points:
+        raise InsufficientDataError(f"{what}: {sum(x.size for x in xs)} samples in steady zero-torque windows; "
+                                    f"need at least {min_points}")
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    check_spread(x, 10.0, what, "12 V load (within windows)", "W")
+    fit = linear_fit(x[:, None], y, ["inv_eta_dcdc"], units=["-"], segments=sorted({s for s in segs if s}),
+                     min_points=min_points, n_excluded=steady.n_excluded, what=what, serial=True)
+    derived(fit, "eta_dcdc", lambda v: 1.0 / v[0], unit="-")
+    fit.data.update(dp_lv_w=x, dp_hv_w=y)
+    lo, hi = ETA_DCDC_PLAUSIBLE
+    if not lo <= fit.value("eta_dcdc") <= hi:
+        fit.flag(f"eta_dcdc = {fit.value('eta_dcdc'):.3f} from the zero-torque windows is not physical")
+    return fit
+
+
+def _joint_eta_usable(fit: FitResult) -> tuple[bool, str]:
+    """Whether a Willans fit's joint eta_dcdc is plausible and well determined (and why not)."""
+    if "eta_dcdc" not in fit.params:
+        return True, ""
+    p = fit["eta_dcdc"]
+    lo, hi = ETA_DCDC_PLAUSIBLE
+    if not lo <= p.value <= hi:
+        return False, f"outside {lo}..{hi}"
+    if not p.std_error <= ETA_DCDC_MAX_SE:
+        return False, f"standard error {p.std_error:.3f} > {ETA_DCDC_MAX_SE}"
+    return True, ""
+
+
 def side_points(pts: MotorPoints, min_torque_nm: float = 5.0
                 ) -> list[tuple[str, np.ndarray, Callable[..., FitResult]]]:
     """``(side, mask of the points, Willans fit)`` for motoring and generating, as :func:`identify_motor` uses them.
@@ -357,4 +463,48 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
         out.fits[key] = fit
     if not out.fits:
         raise_all_failed("motor (motoring and generating)", failures)
+    if eta_dcdc is None and pts.p_lv_w is not None:
+        _refit_with_independent_eta(rec, specs, pts, out, segs, min_torque_nm, min_points, form)
     return out
+
+
+def _refit_with_independent_eta(rec: Recording, specs: VehicleSpecs, pts: MotorPoints, out: IdentificationResult,
+                                segs: np.ndarray, min_torque_nm: float, min_points: int, form: str) -> None:
+    """Refit the sides whose joint eta_dcdc is implausible or ill-determined with eta_dcdc fixed to
+    :func:`fit_dcdc_within`'s (added as ``motor.dcdc``).
+
+    The rule: a joint estimate outside :data:`ETA_DCDC_PLAUSIBLE` or with a standard error above
+    :data:`ETA_DCDC_MAX_SE` is replaced when the zero-torque estimate is itself unflagged. The loss's curvature
+    that is not affine in ``T omega`` leaks into the nearly collinear 12 V column of the joint regression
+    (docs/fidelity.md); the zero-torque windows see the DC/DC alone.
+    """
+    unusable = {k: why for k, f in out.fits.items() if (why := _joint_eta_usable(f)[1])}
+    if not unusable:
+        return
+    try:
+        dcdc = fit_dcdc_within(rec)
+        out.fits["motor.dcdc"] = dcdc
+        problem = "; ".join(dcdc.reasons) if dcdc.status != "ok" else ""
+    except IdentificationError as exc:
+        problem = str(exc)
+    if problem:
+        for key, why in unusable.items():
+            reason = f"joint eta_dcdc {why}; no independent estimate: {problem}"
+            out.fits[key].reasons.append(reason)
+            out.fits[key]["eta_dcdc"].status, out.fits[key]["eta_dcdc"].reason = "flagged", reason
+        return
+    eta = dcdc["eta_dcdc"]
+    for side, sel, func in side_points(pts, min_torque_nm):
+        key = f"motor.{side}"
+        if key not in unusable:
+            continue
+        fit = func(specs, pts.torque_nm[sel], pts.speed_rpm[sel], pts.p_hpcu_w[sel], pts.p_lv_w[sel],
+                   eta_dcdc=eta.value, min_points=min_points, segments=list(segs[sel]), n_excluded=pts.n_flagged,
+                   form=form)
+        reason = (f"joint eta_dcdc = {out.fits[key].value('eta_dcdc'):.3f} rejected ({unusable[key]}): refitted with "
+                  f"eta_dcdc = {eta.value:.3f} +/- {eta.std_error:.3f} from the zero-torque windows (motor.dcdc)")
+        fit.reasons.append(reason)
+        fit.add(ParameterEstimate("eta_dcdc", eta.value, eta.std_error, eta.ci95, dcdc.r2, eta.n_points, unit="-",
+                                  segments=list(dcdc.segments), reason=reason))
+        fit.reasons.extend(r for r in out.fits[key].reasons if r.startswith("HPCU current"))
+        out.fits[key] = fit

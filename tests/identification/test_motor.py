@@ -7,7 +7,14 @@ import pytest
 from _synth_a import SPECS, ramp_up_plant, to_recording
 
 from benchtwin.errors import CollinearError, InsufficientDataError, MissingChannelError, NoExcitationError
-from benchtwin.identification.motor import fit_willans_motoring, identify_motor
+from benchtwin.identification.motor import (
+    ETA_DCDC_MAX_SE,
+    ETA_DCDC_PLAUSIBLE,
+    fit_dcdc_within,
+    fit_willans_motoring,
+    identify_motor,
+    motor_points,
+)
 from benchtwin.recording import Flag
 
 
@@ -139,3 +146,85 @@ def test_power_form_gives_the_same_parameters(ramp_rec, truth) -> None:
     np.testing.assert_allclose(power.fits["motor.motoring"].value("e"), truth.e, rtol=1e-4)
     np.testing.assert_allclose(power.fits["motor.motoring"].data["p_me_fit"], norm.fits["motor.motoring"].data["p_me"],
                                rtol=1e-3)
+
+
+def _quadratic_loss_rec(truth, k_cu: float, *, zero_torque: bool = True, drift_rpm: float = 0.0,
+                        hold_s: float = 6.0):
+    """Ramp-ups whose motoring loss has a copper term ``k_cu T^2`` beyond the Willans line and whose 12 V load
+    follows the torque (fan duty) plus a 37 s sine; with ``zero_torque`` each ramp-up also holds T = 0. With
+    ``drift_rpm`` the motor speed of the zero-torque holds in odd gears swings by that amplitude in phase with the
+    12 V sine, and the spin loss with it (2 W/rpm)."""
+    levels = [-90.0, -50.0, -25.0, 25.0, 45.0, 70.0, 100.0, 140.0, 180.0, 230.0, 280.0]
+    t, sig, segs = ramp_up_plant(truth, levels=sorted([*levels, 0.0]) if zero_torque else levels, hold_s=hold_s)
+    sig = dict(sig)
+    torque = sig["em_torque_nm"]
+    p_lv_old = sig["dcdc_lv_current_a"] * sig["dcdc_lv_voltage_v"]
+    p_lv = 200.0 + 6.0 * np.abs(torque) + 150.0 * np.sin(2 * np.pi * t / 37.0)
+    p_hpcu = (sig["hpcu_current_a"] * sig["hpcu_voltage_v"] + (p_lv - p_lv_old) / truth.eta_dcdc
+              + np.where(torque > 0, k_cu * torque**2, 0.0))
+    swing = np.where((torque == 0.0) & (sig["gear_actual"] % 2 == 1), drift_rpm * np.sin(2 * np.pi * t / 37.0), 0.0)
+    sig["em_speed_rpm"] = sig["em_speed_rpm"] + swing
+    p_hpcu = p_hpcu + 2.0 * swing
+    sig["hpcu_current_a"] = p_hpcu / sig["hpcu_voltage_v"]
+    sig["dcdc_lv_current_a"] = p_lv / sig["dcdc_lv_voltage_v"]
+    return to_recording(t, sig, segments=segs)
+
+
+def test_non_willans_loss_leaks_into_eta_dcdc_and_the_zero_torque_windows_give_it_back(truth) -> None:
+    """A copper loss 0.04 T^2 (1.6 kW more at 200 Nm) with a 12 V load that follows the torque: the joint
+    regression [T w, 1, P_lv] puts the curvature into the 12 V column (measured eta_dcdc 0.66, truth 0.93), so
+    the rule (outside 0.7..1.0 or standard error above 0.05) rejects it and the motoring line is refitted with
+    eta_dcdc from the zero-torque windows. Those see the DC/DC alone: noise-free, eta_dcdc within 0.1 % (the
+    sources sample the sine at other instants; measured 0.0001 %), and e, W_loss equal the fit with the true
+    eta_dcdc on the same points."""
+    rec = _quadratic_loss_rec(truth, 0.04)
+    pts = motor_points(rec)
+    sel = pts.torque_nm > 5.0
+    joint = fit_willans_motoring(SPECS, pts.torque_nm[sel], pts.speed_rpm[sel], pts.p_hpcu_w[sel], pts.p_lv_w[sel])
+    p = joint["eta_dcdc"]
+    assert not (ETA_DCDC_PLAUSIBLE[0] <= p.value <= ETA_DCDC_PLAUSIBLE[1] and p.std_error <= ETA_DCDC_MAX_SE)
+    assert abs(p.value - truth.eta_dcdc) > 0.1  # the old behaviour: this value went to the map-based model
+    res = identify_motor(rec, SPECS)
+    mot = res.fits["motor.motoring"]
+    np.testing.assert_allclose(mot.value("eta_dcdc"), truth.eta_dcdc, rtol=1e-3)
+    np.testing.assert_allclose(res.fits["motor.dcdc"].value("eta_dcdc"), truth.eta_dcdc, rtol=1e-3)
+    assert any("rejected" in r and "zero-torque" in r for r in mot.reasons)
+    known = fit_willans_motoring(SPECS, pts.torque_nm[sel], pts.speed_rpm[sel], pts.p_hpcu_w[sel], pts.p_lv_w[sel],
+                                 eta_dcdc=truth.eta_dcdc)
+    np.testing.assert_allclose([mot.value("e"), mot.value("W_loss")], [known.value("e"), known.value("W_loss")],
+                               rtol=1e-3)
+    # the generating side's joint estimate is plausible and well determined: it is kept
+    assert not any("rejected" in r for r in res.fits["motor.generating"].reasons)
+    np.testing.assert_allclose(res.fits["motor.generating"].value("eta_dcdc"), truth.eta_dcdc, rtol=1e-3)
+
+
+def test_a_plausible_joint_eta_dcdc_is_kept_and_no_zero_torque_fit_is_run(ramp_rec, truth) -> None:
+    """The Willans-form plant: the joint estimate is used as before (no motor.dcdc fit)."""
+    res = identify_motor(ramp_rec, SPECS)
+    assert "motor.dcdc" not in res.fits
+    assert not any("rejected" in r for f in res.fits.values() for r in f.reasons)
+
+
+def test_without_zero_torque_windows_the_rejected_joint_estimate_stays_flagged(truth) -> None:
+    """No zero-torque hold: nothing independent to refit with; the implausible joint value stays flagged and
+    says why, and fit_dcdc_within reports too few samples."""
+    rec = _quadratic_loss_rec(truth, 0.04, zero_torque=False)
+    with pytest.raises(InsufficientDataError, match="zero-torque"):
+        fit_dcdc_within(rec)
+    mot = identify_motor(rec, SPECS).fits["motor.motoring"]
+    assert mot["eta_dcdc"].status == "flagged"
+    assert any("no independent estimate" in r for r in mot.reasons)
+
+
+def test_zero_torque_windows_whose_speed_drifts_are_left_out(truth) -> None:
+    """Holds of 20 s; in odd gears a 20 rpm swing (std 14 rpm: inside the steady search's 15 rpm + 0.5 %) in
+    phase with the 12 V sine makes the spin loss follow the load, adding 2 W/rpm x 20 rpm / 150 W = 0.27 to
+    1/eta_dcdc in those windows: with every window kept eta_dcdc falls below 0.85 (measured 0.825); the
+    speed-drift rule (std above 1 rpm + 0.2 %) leaves them out and the steady windows give eta_dcdc within
+    0.1 % as without drift (noise-free)."""
+    rec = _quadratic_loss_rec(truth, 0.0, drift_rpm=20.0, hold_s=20.0)
+    kept_all = fit_dcdc_within(rec, speed_std_rpm=np.inf)
+    assert kept_all.value("eta_dcdc") < 0.85
+    fit = fit_dcdc_within(rec)
+    np.testing.assert_allclose(fit.value("eta_dcdc"), truth.eta_dcdc, rtol=1e-3)
+    assert fit.n_points < kept_all.n_points
