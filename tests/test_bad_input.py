@@ -332,7 +332,8 @@ def test_cli_bad_vehicle_and_setup_values_are_one_line(tmp_path: Path, capsys: p
     _fails_with(capsys, "key 'thermo.cold_junction_degc' = nan", "serve", "--setup", setup, "--synthetic", "1")
     _fails_with(capsys, "--synthetic inf: give a duration in seconds",
                 "serve", "--setup", "ideal", "--synthetic", "inf")
-    _fails_with(capsys, "no such file, and no shipped campaign of that name (shipped: paper, paper_motor_map, quick, wltc)",
+    _fails_with(capsys,
+                "no such file, and no shipped campaign of that name (shipped: paper, paper_motor_map, quick, wltc)",
                 "simulate", "--campaign", "quik", "--out", tmp_path / "o")
     assert not (tmp_path / "o").exists()
 
