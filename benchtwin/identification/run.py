@@ -44,8 +44,8 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError, DataError, IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification._signals import STATE_ROLES
-from benchtwin.identification.battery import (
-    identify_battery,
+from benchtwin.identification.battery import identify_battery
+from benchtwin.identification.battery_map_free import (
     identify_battery_map_free,
     identify_battery_ocv_rest,
     identify_battery_r0_steps,

@@ -9,13 +9,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from benchtwin.errors import InsufficientDataError, MissingChannelError, NoExcitationError
-from benchtwin.identification.battery import (
-    coulomb_soc,
-    identify_battery,
+from benchtwin.identification.battery import coulomb_soc, identify_battery, load_literature_maps
+from benchtwin.identification.battery_map_free import (
     identify_battery_map_free,
     identify_battery_ocv_rest,
     identify_battery_r0_steps,
-    load_literature_maps,
 )
 from benchtwin.recording import Channel, Flag, Recording
 

@@ -7,7 +7,8 @@ import pytest
 from _synth_b import SPECS, TRANSMISSION_TRUTH, battery_recording, shift_recording, tc_recording
 
 from benchtwin.identification._fit import FitResult, IdentificationResult, linear_fit
-from benchtwin.identification.battery import identify_battery, identify_battery_map_free
+from benchtwin.identification.battery import identify_battery
+from benchtwin.identification.battery_map_free import identify_battery_map_free
 from benchtwin.identification.figures import FIGURES, render_figures
 from benchtwin.identification.run import identify_all
 

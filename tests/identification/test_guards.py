@@ -11,7 +11,7 @@ import pytest
 from benchtwin.config._base import scenario_path
 from benchtwin.errors import DataError
 from benchtwin.identification._fit import linear_fit, serial_inflation
-from benchtwin.identification.battery import identify_battery_map_free
+from benchtwin.identification.battery_map_free import identify_battery_map_free
 from benchtwin.identification.importers import import_log
 from benchtwin.recording import Flag
 

@@ -197,8 +197,8 @@ def test_cli_on_the_leaf_hppc(tmp_path):
     assert any("non-positive resistance" in r for r in fits["battery_map_free"]["reasons"])
 
 
-@pytest.mark.parametrize("module", ["battery", "torque_converter", "shifts", "importers", "signal_map", "run",
-                                    "figures", "soc_reference"])
+@pytest.mark.parametrize("module", ["battery", "battery_map_free", "torque_converter", "shifts", "importers",
+                                    "signal_map", "run", "figures", "soc_reference"])
 def test_public_functions_document_every_argument(module):
     """Keep the docs honest (as python-control's docstrings test does): every argument is named in the docstring."""
     import importlib

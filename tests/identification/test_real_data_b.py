@@ -35,7 +35,7 @@ import numpy as np
 import pytest
 
 from benchtwin.config._base import scenario_path
-from benchtwin.identification.battery import (
+from benchtwin.identification.battery_map_free import (
     identify_battery_map_free,
     identify_battery_ocv_rest,
     identify_battery_r0_steps,

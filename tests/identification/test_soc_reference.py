@@ -12,7 +12,7 @@ import pytest
 
 from benchtwin.cli import main
 from benchtwin.errors import DataError
-from benchtwin.identification.battery import identify_battery_ocv_rest
+from benchtwin.identification.battery_map_free import identify_battery_ocv_rest
 from benchtwin.identification.soc_reference import reference_soc
 from benchtwin.recording import Channel, Recording
 
