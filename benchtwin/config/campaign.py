@@ -7,11 +7,12 @@ starts from the state the previous one left (speed, SOC, gear, temperatures).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
-from benchtwin.config._base import StrictModel, load_model, scenario_path
+from benchtwin.config._base import StrictModel, read_toml, scenario_path, validate_data
+from benchtwin.errors import ConfigError
 
 __all__ = [
     "AccelerationTest",
@@ -187,6 +188,26 @@ class CampaignConfig(StrictModel):
     dyno: DynoConfig = Field(default_factory=DynoConfig)
     driver: DriverConfig = Field(default_factory=DriverConfig)
     tests: list[TestConfig] = Field(min_length=1)
+    #: run the test list this many times back to back (an endurance campaign); expanded on load: ``tests`` then
+    #: holds every run, the first pass with the names as written, pass ``r`` (2, 3, ...) with ``_r<r>`` appended
+    repeat: int = Field(default=1, ge=1, le=1000)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _repeat(cls, data: Any) -> Any:
+        if not isinstance(data, dict) or not isinstance(data.get("repeat", 1), int) or data.get("repeat", 1) <= 1:
+            return data
+        tests = data.get("tests")
+        if not isinstance(tests, list) or not all(isinstance(t, dict) for t in tests):
+            return data  # the field validators say what is wrong
+        if data["repeat"] > 1000:
+            return data
+        out = [dict(t) for t in tests]
+        for r in range(2, data["repeat"] + 1):
+            for k, t in enumerate(tests):
+                name = t.get("name") or f"{t.get('kind')}_{k:02d}"
+                out.append({**t, "name": f"{name}_r{r}"})
+        return {**data, "tests": out, "repeat": 1}
 
     @model_validator(mode="after")
     def _rates(self) -> CampaignConfig:
@@ -200,6 +221,9 @@ class CampaignConfig(StrictModel):
 def load_campaign(path: str | Path) -> CampaignConfig:
     """Load a campaign file; a bare name like ``quick.toml`` is looked up in the shipped campaigns.
 
+    A file may take its tests from another campaign file with ``tests_from = "paper.toml"`` (a path relative
+    to the file, or a shipped campaign's name) instead of listing them, e.g. to repeat them (``repeat``).
+
     Raises
     ------
     ConfigError
@@ -208,4 +232,19 @@ def load_campaign(path: str | Path) -> CampaignConfig:
     p = Path(path)
     if not p.exists() and p.parent == Path("."):
         p = scenario_path("campaigns", p.name)
-    return load_model(CampaignConfig, p)
+    data = read_toml(p)
+    source = data.pop("tests_from", None)
+    if source is not None:
+        if "tests" in data:
+            raise ConfigError(f"{p}: give either 'tests' or 'tests_from', not both")
+        if not isinstance(source, str):
+            raise ConfigError(f"{p}: key 'tests_from' must be a campaign file name, got {source!r}")
+        src = p.parent / source
+        if not src.exists() and Path(source).parent == Path("."):
+            src = scenario_path("campaigns", source)
+        if src.resolve() == p.resolve():
+            raise ConfigError(f"{p}: key 'tests_from' names the file itself")
+        if not src.exists():
+            raise ConfigError(f"{p}: key 'tests_from': no campaign file {source!r} (next to it or shipped)")
+        data["tests"] = load_campaign(src).model_dump(exclude_none=True)["tests"]
+    return validate_data(CampaignConfig, data, str(p))

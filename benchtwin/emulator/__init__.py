@@ -40,7 +40,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -106,7 +105,7 @@ from benchtwin.emulator.params import (
     build_tables,
 )
 from benchtwin.emulator.plant import N_STATE, S_STEP, S_TIME_S, kinetic_energy, run_plant
-from benchtwin.emulator.protocols import build_protocol
+from benchtwin.emulator.protocols import Protocol, build_protocol, lazy_protocol
 from benchtwin.emulator.thermal import simulate_thermal, thermal_state
 from benchtwin.errors import ConfigError, SimulationError
 from benchtwin.segments import Segment
@@ -158,17 +157,31 @@ def lv_load_profile(cfg: LowVoltageConfig, n_steps: int, dt: float, rng: np.rand
     numpy.ndarray
         Load power, W.
     """
-    duration = n_steps * dt
-    load = np.full(n_steps, cfg.base_load_w)
-    for power, duty in ((cfg.fan_load_w, True), (cfg.pump_load_w, False)):
-        n_sw = int(duration / cfg.mean_switch_interval_s * 2) + 4
-        times = np.cumsum(rng.exponential(cfg.mean_switch_interval_s, size=n_sw))
-        levels = rng.uniform(0.3, 1.0, size=n_sw) if duty else np.ones(n_sw)
-        on = (np.arange(n_sw) % 2 == 1).astype(float) * levels
-        idx = np.searchsorted(times, np.arange(n_steps) * dt, side="right")
-        idx = np.minimum(idx, n_sw - 1)
-        load += power * on[idx]
-    return load
+    return _LvLoad(cfg, n_steps, dt, rng).steps(0, n_steps)
+
+
+class _LvLoad:
+    """The 12 V load's switching times (drawn once for the whole campaign), evaluated over any range of steps."""
+
+    def __init__(self, cfg: LowVoltageConfig, n_steps: int, dt: float, rng: np.random.Generator) -> None:
+        duration = n_steps * dt
+        self.base, self.dt = cfg.base_load_w, dt
+        self.loads = []
+        for power, duty in ((cfg.fan_load_w, True), (cfg.pump_load_w, False)):
+            n_sw = int(duration / cfg.mean_switch_interval_s * 2) + 4
+            times = np.cumsum(rng.exponential(cfg.mean_switch_interval_s, size=n_sw))
+            levels = rng.uniform(0.3, 1.0, size=n_sw) if duty else np.ones(n_sw)
+            on = (np.arange(n_sw) % 2 == 1).astype(float) * levels
+            self.loads.append((power, times, on))
+
+    def steps(self, k0: int, k1: int) -> np.ndarray:
+        """Load power of plant steps ``k0 .. k1 - 1``, W."""
+        load = np.full(k1 - k0, self.base)
+        t = np.arange(k0, k1) * self.dt
+        for power, times, on in self.loads:
+            idx = np.minimum(np.searchsorted(times, t, side="right"), on.size - 1)
+            load += power * on[idx]
+        return load
 
 
 def _initial_state(tables: PlantTables, vehicle: VehicleConfig, campaign: CampaignConfig) -> np.ndarray:
@@ -230,22 +243,25 @@ class _Run:
     tables: PlantTables
     dt: float
     decim: int
-    blocks: list[np.ndarray]
-    segments: list[Any]
-    lv_load: np.ndarray
+    proto: Protocol
+    lv_load: _LvLoad
     st: np.ndarray
     led: np.ndarray
     thermal: np.ndarray
 
     @property
     def n_steps(self) -> int:
-        return sum(b.shape[1] for b in self.blocks)
+        return self.proto.n_steps
+
+    @property
+    def n_tests(self) -> int:
+        return len(self.proto.segments)
 
     def run_block(self, k: int, out: np.ndarray, row0: int) -> tuple[int, Segment]:
         """Run test ``k`` writing its output rows from ``row0``; return the rows written and its segment."""
-        block, seg = self.blocks[k], self.segments[k]
+        block, seg = self.proto.block(k), self.proto.segments[k]
         k0 = int(self.st[S_STEP])
-        block[C_LVLOAD] = self.lv_load[k0:k0 + block.shape[1]]
+        block[C_LVLOAD] = self.lv_load.steps(k0, k0 + block.shape[1])
         t_start = self.st[S_TIME_S]
         written, steps = run_plant(self.tables, block, self.decim, self.st, out, row0, self.led)
         settings = {key: (float(v + t_start) if key.endswith("_s") and key not in _DURATION_KEYS else v)
@@ -253,19 +269,19 @@ class _Run:
         return written, Segment(float(t_start), float(t_start + steps * self.dt), seg.kind, seg.name, settings)
 
 
-def _start(vehicle: VehicleConfig, campaign: CampaignConfig) -> _Run:
+def _start(vehicle: VehicleConfig, campaign: CampaignConfig, *, lazy: bool = False) -> _Run:
     check_campaign(vehicle, campaign)
     tables = build_tables(vehicle, campaign)
     dt = 1.0 / campaign.plant_rate_hz
-    proto = build_protocol(campaign)
+    proto = lazy_protocol(campaign) if lazy else build_protocol(campaign)
     children = np.random.SeedSequence(campaign.seed).spawn(len(RANDOM_SUBSYSTEMS))
     rngs = {name: np.random.default_rng(child) for name, child in zip(RANDOM_SUBSYSTEMS, children, strict=True)}
-    lv_load = lv_load_profile(vehicle.low_voltage, proto.n_steps, dt, rngs["lv_loads"])
+    lv_load = _LvLoad(vehicle.low_voltage, proto.n_steps, dt, rngs["lv_loads"])
     decim = 1 if campaign.output_rate_hz is None else round(campaign.plant_rate_hz / campaign.output_rate_hz)
     st = _initial_state(tables, vehicle, campaign)
     led = np.zeros(NL)
     led[L_KE0] = kinetic_energy(tables.p, st)
-    return _Run(tables, dt, decim, list(proto.blocks), list(proto.segments), lv_load, st, led,
+    return _Run(tables, dt, decim, proto, lv_load, st, led,
                 thermal_state(vehicle.thermal, campaign.ambient_degc))
 
 
@@ -344,11 +360,11 @@ def simulate_campaign(vehicle: VehicleConfig, campaign: CampaignConfig, *, progr
     rows = 0
     segments: list[Segment] = []
     try:
-        for k in range(len(run.blocks)):
+        for k in range(run.n_tests):
             written, seg = run.run_block(k, out, rows)
             rows += written
             segments.append(seg)
-            done += run.blocks[k].shape[1]
+            done += run.proto.steps[k]
             if bar is not None:
                 bar.update(round(done * run.dt) - bar.n)
     finally:
@@ -364,17 +380,20 @@ def iter_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> Iterator[
     The plant's state (and the thermal lumps', and the 12 V load profile's draws) runs on from one test to the
     next, so the chunks put end to end are :func:`simulate_campaign`'s Trace bit for bit; only one test's
     output rows are held at a time. Each chunk's ``meta["energy_ledger_j"]`` is the ledger from the campaign
-    start to the chunk's end.
+    start to the chunk's end. Each test's commands are built when it starts, so a campaign may be longer than one
+    Trace may hold (:data:`~benchtwin.emulator.protocols.MAX_PLANT_SAMPLES` bounds each test, not their sum).
 
     Raises
     ------
+    ConfigError
+        A test needs more plant steps than :data:`~benchtwin.emulator.protocols.MAX_PLANT_SAMPLES`.
     SimulationError
         If the plant leaves its physical domain (non-finite states).
     """
-    run = _start(vehicle, campaign)
+    run = _start(vehicle, campaign, lazy=True)
     rows = 0
-    for k, block in enumerate(run.blocks):
-        out = np.empty((NO, (block.shape[1] + run.decim - 1) // run.decim + 1))
+    for k in range(run.n_tests):
+        out = np.empty((NO, (run.proto.steps[k] + run.decim - 1) // run.decim + 1))
         written, seg = run.run_block(k, out, 0)
         yield _trace_of(run, vehicle, campaign, out[:, :written], rows, [seg])
         rows += written

@@ -51,7 +51,8 @@ from benchtwin.emulator.params import (
 from benchtwin.errors import ConfigError
 from benchtwin.segments import Segment
 
-__all__ = ["MAX_PLANT_SAMPLES", "Protocol", "build_protocol", "check_size", "load_cycle", "protocol_steps"]
+__all__ = ["MAX_PLANT_SAMPLES", "Protocol", "build_protocol", "check_size", "lazy_protocol", "load_cycle",
+           "protocol_steps"]
 
 #: the most plant steps a campaign may need (5e6: 13.9 h of plant time at 100 Hz, a few GiB of
 #: command and output rows); the paper campaign needs about 1.4e6
@@ -77,6 +78,18 @@ class Protocol:
     blocks: list[np.ndarray] = field(default_factory=list)
     segments: list[Segment] = field(default_factory=list)
     steps: list[int] = field(default_factory=list)
+    #: the campaign the blocks are built from (:meth:`block` builds one on demand)
+    campaign: CampaignConfig | None = None
+
+    def block(self, k: int) -> np.ndarray:
+        """Test ``k``'s command block: the one built already, or built now from the campaign (not kept)."""
+        if k < len(self.blocks):
+            return self.blocks[k]
+        if self.campaign is None:
+            raise IndexError(f"protocol has no block {k}")
+        block = _build_test(self.campaign, k, dry=False)[2]
+        assert block is not None
+        return block
 
     @property
     def n_steps(self) -> int:
@@ -219,117 +232,149 @@ def build_protocol(campaign: CampaignConfig) -> Protocol:
     return _build(campaign, dry=False)
 
 
+def lazy_protocol(campaign: CampaignConfig) -> Protocol:
+    """The campaign's segments and steps, with each test's command block built when :meth:`Protocol.block` asks.
+
+    Only one test's commands are held at a time, so the campaign's length is bounded per test (by
+    :data:`MAX_PLANT_SAMPLES`), not in total: this is what :func:`benchtwin.emulator.iter_campaign` runs.
+
+    Raises
+    ------
+    ConfigError
+        A test needs more than :data:`MAX_PLANT_SAMPLES` plant steps.
+    """
+    proto = _build(campaign, dry=True)
+    k = int(np.argmax(proto.steps))
+    if proto.steps[k] > MAX_PLANT_SAMPLES:
+        dt, test = 1.0 / campaign.plant_rate_hz, campaign.tests[k]
+        raise ConfigError(
+            f"campaign {campaign.name!r}: tests[{k}] ({test.name or test.kind}) needs {proto.steps[k] * dt:.4g} s "
+            f"of plant time, {proto.steps[k]:.3g} plant samples at {campaign.plant_rate_hz:g} Hz; the limit for one "
+            f"test is {MAX_PLANT_SAMPLES:.3g} samples ({MAX_PLANT_SAMPLES * dt / 3600:.1f} h at this rate): shorten "
+            "its durations or split it into several tests")
+    return proto
+
+
 def _build(campaign: CampaignConfig, *, dry: bool) -> Protocol:
-    dt = 1.0 / campaign.plant_rate_hz
     segments: list[Segment] = []
-    blocks: list[np.ndarray] = []
     test_steps: list[int] = []
     names: set[str] = set()
+    for k in range(len(campaign.tests)):
+        seg, n, _ = _build_test(campaign, k, dry=True)
+        if seg.name in names:
+            raise ConfigError(f"campaign {campaign.name!r}: test name {seg.name!r} is used twice")
+        names.add(seg.name)
+        segments.append(seg)
+        test_steps.append(n)
+    proto = Protocol(segments=segments, steps=test_steps, campaign=campaign)
+    if not dry:
+        proto.blocks = [proto.block(k) for k in range(len(segments))]
+    return proto
+
+
+def _build_test(campaign: CampaignConfig, k: int, *, dry: bool) -> tuple[Segment, int, np.ndarray | None]:
+    """Test ``k``'s segment (times from its start), its plant steps and (unless ``dry``) its command block."""
+    dt = 1.0 / campaign.plant_rate_hz
     stop = campaign.driver.stop_decel_mps2
-    for k, test in enumerate(campaign.tests):
-        b = _Builder(dt, dry)
-        t0 = 0.0
-        hm = HYBRID_MODES[test.mode]
-        settings: dict[str, Any] = test.model_dump(exclude_none=True)
-        if isinstance(test, RampUpTest):
-            v = test.speed_kmh * KMH
-            lead = test.lead_in_s
-            b.phase(lead, seg=k, hmode=hm, dyno_mode=1, dyno_set=_ramp(0.0, v, max(v / (0.6 * lead), 0.3)))
-            steps = list(test.pedal_steps_pct)
-            hold = test.step_hold_s
-            common = {"seg": k, "hmode": hm, "dyno_mode": 1, "dyno_set": v, "gear": test.gear,
-                      "k0": _FORCE[test.k0], "lu": _FORCE[test.lockup], "eng": _FORCE[test.engine]}
-            b.phase(6.0, **common)  # gear engages, lock-up closes, engine starts
-            settings["steps_start_s"] = b.t
-            b.phase(hold * len(steps), pedal=_steps(steps, hold), **common)
-            if test.brake_steps_pct:
-                b.phase(hold * len(test.brake_steps_pct), brake=_steps(list(test.brake_steps_pct), hold), **common)
-            settings["steps_end_s"] = b.t
-            _dyno_stop(b, v, k, hm)
-        elif isinstance(test, ConstantDriveTest):
-            v = test.speed_kmh * KMH
-            gear = test.gear if test.gear > 0 else -1
-            b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.7 * test.approach_s),
-                                                                                     0.3)))
-            kind, val = (0, 0.0)
-            if test.end_displayed_soc_pct is not None:
-                kind = 2 if test.mode != "charge" else 3
-                val = test.end_displayed_soc_pct
-            settings["hold_start_s"] = b.t
-            b.phase(test.max_duration_s, seg=k, hmode=hm, drv_mode=1, vtgt=v, gear=gear, end_kind=kind, end_val=val)
-            b.phase(v / stop + 5.0, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(v, 0.0, stop), end_kind=4)
-        elif isinstance(test, AccelerationTest):
-            b.phase(3.0, seg=k, hmode=hm, brake=30.0)
-            settings["pedal_start_s"] = b.t
-            b.phase(test.max_duration_s, seg=k, hmode=hm, pedal=test.pedal_pct, end_kind=1,
-                    end_val=test.end_speed_kmh * KMH)
-            b.phase(test.end_speed_kmh * KMH / stop + 5.0, seg=k, hmode=hm, drv_mode=1, end_kind=4)
-        elif isinstance(test, DecelerationTest):
-            v = test.start_speed_kmh * KMH
-            b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.7 * test.approach_s),
-                                                                                     0.3)))
-            settings["decel_start_s"] = b.t
-            _driver_stop(b, k, hm, v, test.decel_mps2)
-        elif isinstance(test, RampDownTest):
-            v0, v1 = test.start_speed_kmh * KMH, test.end_speed_kmh * KMH
-            b.phase(test.lead_in_s, seg=k, hmode=hm, dyno_mode=1,
-                    dyno_set=_ramp(0.0, v0, max(v0 / (0.7 * test.lead_in_s), 0.3)))
-            b.phase(4.0, seg=k, hmode=hm, dyno_mode=1, dyno_set=v0, pedal=test.pedal_pct)
-            settings["ramp_start_s"] = b.t
-            rate = test.rate_kmh_per_s * KMH
-            b.phase((v0 - v1) / rate, seg=k, hmode=hm, dyno_mode=1, dyno_set=_ramp(v0, v1, rate), pedal=test.pedal_pct)
-            if v1 > 0:
-                _dyno_stop(b, v1, k, hm)
-            else:
-                b.phase(2.0, seg=k, hmode=hm, brake=25.0)
-        elif isinstance(test, NeutralBrakingTest):
-            v = test.speed_kmh * KMH
-            b.phase(test.lead_in_s, seg=k, hmode=hm, dyno_mode=1,
-                    dyno_set=_ramp(0.0, v, max(v / (0.6 * test.lead_in_s), 0.3)))
-            b.phase(2.0, seg=k, hmode=hm, dyno_mode=1, dyno_set=v, gear=0)
-            settings["steps_start_s"] = b.t
-            hold = test.step_hold_s
-            steps = [*test.brake_steps_pct, 0.0]
-            b.phase(hold * len(steps), seg=k, hmode=hm, dyno_mode=1, dyno_set=v, gear=0, brake=_steps(steps, hold))
-            settings["steps_end_s"] = b.t
-            _dyno_stop(b, v, k, hm)
-        elif isinstance(test, CycleTest):
-            tc, vc = load_cycle(test.cycle)
-            t_end = float(tc[-1]) if test.to_s is None else min(test.to_s, float(tc[-1]))
-            if test.from_s >= t_end:
-                raise ConfigError(f"campaign {campaign.name!r}: test {k}: from_s {test.from_s} is past the end "
-                                  f"of {test.cycle} ({t_end:.0f} s)")
-            grid = np.arange(test.from_s, t_end + 1e-9, 0.1)
-            vg = np.interp(grid, tc, vc)
-            settings["cycle_distance_m"] = float(np.sum(0.5 * (vg[1:] + vg[:-1]) * np.diff(grid)))
-            dur = t_end - test.from_s + dt
-            b.phase(dur, seg=k, hmode=hm, drv_mode=1,
-                    vtgt=lambda t, tc=tc, vc=vc, t0=test.from_s: np.interp(t + t0, tc, vc))
-            if vg[-1] > 0.1:
-                _driver_stop(b, k, hm, float(vg[-1]), stop)
-        elif isinstance(test, CoastdownTest):
-            v = (test.start_speed_kmh + 5.0) * KMH
-            b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.75 * test.approach_s),
-                                                                                     0.3)))
-            settings["coast_start_s"] = b.t
-            b.phase(test.max_duration_s, seg=k, hmode=hm, gear=0, eng=0, k0=0)
+    test = campaign.tests[k]
+    b = _Builder(dt, dry)
+    t0 = 0.0
+    hm = HYBRID_MODES[test.mode]
+    settings: dict[str, Any] = test.model_dump(exclude_none=True)
+    if isinstance(test, RampUpTest):
+        v = test.speed_kmh * KMH
+        lead = test.lead_in_s
+        b.phase(lead, seg=k, hmode=hm, dyno_mode=1, dyno_set=_ramp(0.0, v, max(v / (0.6 * lead), 0.3)))
+        steps = list(test.pedal_steps_pct)
+        hold = test.step_hold_s
+        common = {"seg": k, "hmode": hm, "dyno_mode": 1, "dyno_set": v, "gear": test.gear,
+                  "k0": _FORCE[test.k0], "lu": _FORCE[test.lockup], "eng": _FORCE[test.engine]}
+        b.phase(6.0, **common)  # gear engages, lock-up closes, engine starts
+        settings["steps_start_s"] = b.t
+        b.phase(hold * len(steps), pedal=_steps(steps, hold), **common)
+        if test.brake_steps_pct:
+            b.phase(hold * len(test.brake_steps_pct), brake=_steps(list(test.brake_steps_pct), hold), **common)
+        settings["steps_end_s"] = b.t
+        _dyno_stop(b, v, k, hm)
+    elif isinstance(test, ConstantDriveTest):
+        v = test.speed_kmh * KMH
+        gear = test.gear if test.gear > 0 else -1
+        b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.7 * test.approach_s),
+                                                                                 0.3)))
+        kind, val = (0, 0.0)
+        if test.end_displayed_soc_pct is not None:
+            kind = 2 if test.mode != "charge" else 3
+            val = test.end_displayed_soc_pct
+        settings["hold_start_s"] = b.t
+        b.phase(test.max_duration_s, seg=k, hmode=hm, drv_mode=1, vtgt=v, gear=gear, end_kind=kind, end_val=val)
+        b.phase(v / stop + 5.0, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(v, 0.0, stop), end_kind=4)
+    elif isinstance(test, AccelerationTest):
+        b.phase(3.0, seg=k, hmode=hm, brake=30.0)
+        settings["pedal_start_s"] = b.t
+        b.phase(test.max_duration_s, seg=k, hmode=hm, pedal=test.pedal_pct, end_kind=1,
+                end_val=test.end_speed_kmh * KMH)
+        b.phase(test.end_speed_kmh * KMH / stop + 5.0, seg=k, hmode=hm, drv_mode=1, end_kind=4)
+    elif isinstance(test, DecelerationTest):
+        v = test.start_speed_kmh * KMH
+        b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.7 * test.approach_s),
+                                                                                 0.3)))
+        settings["decel_start_s"] = b.t
+        _driver_stop(b, k, hm, v, test.decel_mps2)
+    elif isinstance(test, RampDownTest):
+        v0, v1 = test.start_speed_kmh * KMH, test.end_speed_kmh * KMH
+        b.phase(test.lead_in_s, seg=k, hmode=hm, dyno_mode=1,
+                dyno_set=_ramp(0.0, v0, max(v0 / (0.7 * test.lead_in_s), 0.3)))
+        b.phase(4.0, seg=k, hmode=hm, dyno_mode=1, dyno_set=v0, pedal=test.pedal_pct)
+        settings["ramp_start_s"] = b.t
+        rate = test.rate_kmh_per_s * KMH
+        b.phase((v0 - v1) / rate, seg=k, hmode=hm, dyno_mode=1, dyno_set=_ramp(v0, v1, rate), pedal=test.pedal_pct)
+        if v1 > 0:
+            _dyno_stop(b, v1, k, hm)
+        else:
             b.phase(2.0, seg=k, hmode=hm, brake=25.0)
-        else:  # pragma: no cover - the union is closed
-            raise ConfigError(f"unknown test kind {test!r}")
-        name = test.name or f"{test.kind}_{k:02d}"
-        if name in names:
-            raise ConfigError(f"campaign {campaign.name!r}: test name {name!r} is used twice")
-        names.add(name)
-        settings["mode"] = test.mode
-        settings["protocol"] = test.kind
-        segments.append(Segment(start_s=t0, end_s=b.t, kind=SEGMENT_KIND[test.kind], name=name, settings=settings))
-        test_steps.append(b.n)
-        if dry:
-            continue
-        block = np.ascontiguousarray(np.concatenate(b.blocks, axis=1))
-        _driver_preview(block, dt, campaign.driver.preview_s)
-        blocks.append(block)
-    return Protocol(blocks=blocks, segments=segments, steps=test_steps)
+    elif isinstance(test, NeutralBrakingTest):
+        v = test.speed_kmh * KMH
+        b.phase(test.lead_in_s, seg=k, hmode=hm, dyno_mode=1,
+                dyno_set=_ramp(0.0, v, max(v / (0.6 * test.lead_in_s), 0.3)))
+        b.phase(2.0, seg=k, hmode=hm, dyno_mode=1, dyno_set=v, gear=0)
+        settings["steps_start_s"] = b.t
+        hold = test.step_hold_s
+        steps = [*test.brake_steps_pct, 0.0]
+        b.phase(hold * len(steps), seg=k, hmode=hm, dyno_mode=1, dyno_set=v, gear=0, brake=_steps(steps, hold))
+        settings["steps_end_s"] = b.t
+        _dyno_stop(b, v, k, hm)
+    elif isinstance(test, CycleTest):
+        tc, vc = load_cycle(test.cycle)
+        t_end = float(tc[-1]) if test.to_s is None else min(test.to_s, float(tc[-1]))
+        if test.from_s >= t_end:
+            raise ConfigError(f"campaign {campaign.name!r}: test {k}: from_s {test.from_s} is past the end "
+                              f"of {test.cycle} ({t_end:.0f} s)")
+        grid = np.arange(test.from_s, t_end + 1e-9, 0.1)
+        vg = np.interp(grid, tc, vc)
+        settings["cycle_distance_m"] = float(np.sum(0.5 * (vg[1:] + vg[:-1]) * np.diff(grid)))
+        dur = t_end - test.from_s + dt
+        b.phase(dur, seg=k, hmode=hm, drv_mode=1,
+                vtgt=lambda t, tc=tc, vc=vc, t0=test.from_s: np.interp(t + t0, tc, vc))
+        if vg[-1] > 0.1:
+            _driver_stop(b, k, hm, float(vg[-1]), stop)
+    elif isinstance(test, CoastdownTest):
+        v = (test.start_speed_kmh + 5.0) * KMH
+        b.phase(test.approach_s, seg=k, hmode=hm, drv_mode=1, vtgt=_ramp(0.0, v, max(v / (0.75 * test.approach_s),
+                                                                                 0.3)))
+        settings["coast_start_s"] = b.t
+        b.phase(test.max_duration_s, seg=k, hmode=hm, gear=0, eng=0, k0=0)
+        b.phase(2.0, seg=k, hmode=hm, brake=25.0)
+    else:  # pragma: no cover - the union is closed
+        raise ConfigError(f"unknown test kind {test!r}")
+    name = test.name or f"{test.kind}_{k:02d}"
+    settings["mode"] = test.mode
+    settings["protocol"] = test.kind
+    seg = Segment(start_s=t0, end_s=b.t, kind=SEGMENT_KIND[test.kind], name=name, settings=settings)
+    if dry:
+        return seg, b.n, None
+    block = np.ascontiguousarray(np.concatenate(b.blocks, axis=1))
+    _driver_preview(block, dt, campaign.driver.preview_s)
+    return seg, b.n, block
 
 
 def _driver_preview(block: np.ndarray, dt: float, preview_s: float, half_window_s: float = 0.5) -> None:
