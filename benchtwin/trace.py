@@ -19,7 +19,7 @@ import numpy as np
 from benchtwin.errors import DataError, MissingChannelError
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
-__all__ = ["TRACE_CHANNELS", "Trace"]
+__all__ = ["TRACE_CHANNELS", "Trace", "TraceWriter"]
 
 #: The channels every Trace from the emulator carries, with their meaning. Sign conventions:
 #: torques positive when driving the wheels; battery and HV currents positive when discharging;
@@ -167,27 +167,9 @@ class Trace:
         Path
             The MF4 file written.
         """
-        from asammdf import MDF, Signal
-
-        from benchtwin.mdf import DEFAULT_COMPRESSION, check_compression
-
-        compression = check_compression(DEFAULT_COMPRESSION if compression is None else compression)
-        directory = Path(directory)
-        directory.mkdir(parents=True, exist_ok=True)
-        mdf = MDF(version="4.10")
-        sigs = [
-            Signal(samples=np.asarray(v, dtype=np.float64), timestamps=self.time_s, name=k,
-                   unit=_unit_of(k), comment=TRACE_CHANNELS.get(k, ""))
-            for k, v in self.channels.items()
-        ]
-        if sigs:
-            mdf.append(sigs, comment="benchtwin trace (truth)")
-        out = directory / "trace.mf4"
-        mdf.save(out, overwrite=True, compression=compression)
-        mdf.close()
-        (directory / "segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
-        (directory / "meta.json").write_text(json.dumps(self.meta, indent=1, default=str), encoding="utf-8")
-        return out
+        with TraceWriter(directory, compression=compression) as writer:
+            writer.append(self)
+        return writer.path
 
     @classmethod
     def load(cls, directory: str | Path) -> Trace:
@@ -227,3 +209,93 @@ def _unit_of(name: str) -> str:
         if name.endswith(suffix):
             return unit
     return ""
+
+
+class TraceWriter:
+    """Writes a Trace piece by piece (e.g. :func:`benchtwin.emulator.iter_campaign`'s tests) as :meth:`Trace.save`
+    writes it whole: the same ``trace.mf4``, ``segments.json`` and ``meta.json``.
+
+    asammdf keeps what is appended in its temporary file until the compressed file is saved on :meth:`close`, so
+    only one piece is in memory at a time. The pieces must follow one another in time, with the same channels;
+    the meta data written is the last piece's (the ledger to the campaign's end).
+
+    Parameters
+    ----------
+    directory:
+        Output folder (created).
+    compression:
+        As :meth:`Trace.save`.
+    """
+
+    def __init__(self, directory: str | Path, *, compression: int | None = None) -> None:
+        from asammdf import MDF
+
+        from benchtwin.mdf import DEFAULT_COMPRESSION, check_compression
+
+        self.compression = check_compression(DEFAULT_COMPRESSION if compression is None else compression)
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.path = self.directory / "trace.mf4"
+        self._mdf: Any = MDF(version="4.10")
+        self._names: list[str] | None = None
+        self._end = -np.inf
+        self._start = np.nan
+        self.segments: list[Segment] = []
+        self.meta: dict[str, Any] = {}
+        self.samples = 0
+
+    def append(self, piece: Trace) -> None:
+        """Append the next piece of the Trace.
+
+        Raises
+        ------
+        DataError
+            The piece's channels differ from the first piece's, or it does not start after the last one ended.
+        """
+        from asammdf import Signal
+
+        names = list(piece.channels)
+        if self._names is not None and names != self._names:
+            raise DataError(f"trace piece has channels {sorted(set(names) ^ set(self._names))} unlike the first piece")
+        if len(piece) and not piece.time_s[0] > self._end:
+            raise DataError(f"trace piece starts at {piece.time_s[0]:.6g} s, not after the last one "
+                            f"({self._end:.6g} s)")
+        if len(piece):
+            if self._names is None:
+                self._mdf.append([Signal(samples=np.asarray(v, dtype=np.float64), timestamps=piece.time_s, name=k,
+                                         unit=_unit_of(k), comment=TRACE_CHANNELS.get(k, ""))
+                                  for k, v in piece.channels.items()], comment="benchtwin trace (truth)")
+            else:
+                self._mdf.extend(0, [(piece.time_s, None)]
+                                 + [(np.asarray(piece.channels[k], dtype=np.float64), None) for k in names])
+            if self._names is None:
+                self._start = float(piece.time_s[0])
+            self._names = names
+            self._end = float(piece.time_s[-1])
+            self.samples += len(piece)
+        self.segments.extend(piece.segments)
+        self.meta = dict(piece.meta)
+
+    @property
+    def span_s(self) -> tuple[float, float]:
+        """First and last sample time written so far (0, 0 before any sample)."""
+        return (self._start, self._end) if self.samples else (0.0, 0.0)
+
+    def close(self) -> Path:
+        """Save the compressed ``trace.mf4`` with ``segments.json`` and ``meta.json``; return the MF4 path."""
+        if self._mdf is None:
+            return self.path
+        try:
+            self._mdf.save(self.path, overwrite=True, compression=self.compression)
+        finally:
+            self._mdf.close()
+            self._mdf = None
+        (self.directory / "segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
+        (self.directory / "meta.json").write_text(json.dumps(self.meta, indent=1, default=str), encoding="utf-8")
+        return self.path
+
+    def __enter__(self) -> TraceWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -31,22 +31,41 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentPa
 
 
 def run(args: argparse.Namespace) -> int:
-    """Simulate the campaign and write the Trace; return the exit status."""
-    from benchtwin.emulator import energy_balance, simulate_campaign
+    """Simulate the campaign test by test, writing the Trace as it goes; return the exit status."""
+    from benchtwin.emulator import energy_balance, iter_campaign
+    from benchtwin.emulator.protocols import lazy_protocol
+    from benchtwin.trace import TraceWriter
 
     vehicle = load_vehicle_arg(args.vehicle)
     campaign = load_campaign_arg(args.campaign, args.seed)
     writable_dir(args.out, "--out")
+    bar = None
+    steps = lazy_protocol(campaign).steps
+    dt = 1.0 / campaign.plant_rate_hz
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(sum(steps) * dt), unit="s sim", desc=campaign.name, leave=False)
     t0 = time.perf_counter()
-    trace = simulate_campaign(vehicle, campaign, progress=not args.no_progress)
-    wall = time.perf_counter() - t0
     try:
-        path = trace.save(args.out)
+        # one test in memory at a time: the Trace goes to the file's temporary blocks as each test ends
+        with TraceWriter(args.out) as writer:
+            done = 0
+            for k, piece in enumerate(iter_campaign(vehicle, campaign)):
+                writer.append(piece)
+                done += steps[k]
+                if bar is not None:  # a test's full block, even if it ended early: the total never moves
+                    bar.update(round(done * dt) - bar.n)
     except OSError as exc:
         raise DataError(f"{args.out}: cannot write the trace ({exc.strerror or exc})") from None
-    bal = energy_balance(trace.meta["energy_ledger_j"])
-    print(f"{campaign.name}: {len(trace.segments)} tests, {trace.duration_s:.0f} s simulated in {wall:.1f} s "
-          f"({trace.duration_s / max(wall, 1e-9):.0f}x real time), energy balance residual "
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - t0
+    duration = writer.span_s[1] - writer.span_s[0]
+    bal = energy_balance(writer.meta["energy_ledger_j"])
+    print(f"{campaign.name}: {len(writer.segments)} tests, {duration:.0f} s simulated in {wall:.1f} s "
+          f"({duration / max(wall, 1e-9):.0f}x real time, Trace written), energy balance residual "
           f"{100 * bal['residual_frac']:.4f} %")
-    print(f"wrote {path} and {args.out / 'segments.json'} (seed {campaign.seed})")
+    print(f"wrote {writer.path} and {args.out / 'segments.json'} (seed {campaign.seed})")
     return 0
