@@ -1,9 +1,14 @@
-"""Peak resident memory and wall time of ``benchtwin validate --out DIR`` on the paper campaign, 1x, 3x and 10x.
+"""Peak resident memory and wall time of ``benchtwin validate --out DIR`` (or ``simulate --out``) on the paper
+campaign, 1x, 3x and 10x.
 
 Usage::
 
     python benchmarks/bench_stream.py [--sizes 1,3,10] [--repeat 3] [--setup paper] [--rss-limit-gb 12]
-                                      [--keep DIR] [--python PYTHON]
+                                      [--keep DIR] [--python PYTHON] [--command validate|simulate]
+
+With ``--command simulate`` each run is ``benchtwin simulate --campaign FILE --out DIR --no-progress`` (the
+plant test by test, the Trace streamed to ``trace.mf4``); the table then gives the wall time, the peak RSS and
+the Trace's size.
 
 The long campaigns are the paper campaign's tests repeated (``paper.toml`` with its ``[[tests]]`` written
 ``N`` times, the copies' names suffixed ``_r1``, ``_r2``, ...), written to a temporary folder. Each run is a
@@ -53,12 +58,13 @@ def repeated_campaign(n: int, directory: Path, base: Path = PAPER) -> Path:
     return path
 
 
-def run_once(python: str, campaign: Path, setup: str, out: Path, limit_gb: float) -> dict:
-    """One ``benchtwin validate --out`` in a fresh process: wall, peak RSS, the run's own timings."""
+def run_once(python: str, campaign: Path, setup: str, out: Path, limit_gb: float, command: str = "validate") -> dict:
+    """One ``benchtwin validate --out`` (or ``simulate``) in a fresh process: wall, peak RSS, the run's timings."""
     if out.exists():
         shutil.rmtree(out)
-    cmd = [python, "-c", "import sys; from benchtwin.cli import main; sys.exit(main(sys.argv[1:]))", "validate",
-           "--campaign", str(campaign), "--setup", setup, "--out", str(out)]
+    cmd = [python, "-c", "import sys; from benchtwin.cli import main; sys.exit(main(sys.argv[1:]))", command,
+           "--campaign", str(campaign), "--out", str(out)]
+    cmd += ["--setup", setup] if command == "validate" else ["--no-progress"]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     peak_kb, stopped = 0, False
@@ -85,6 +91,9 @@ def run_once(python: str, campaign: Path, setup: str, out: Path, limit_gb: float
         res["timings_s"] = rep.get("timings_s", {})
         res["plant_s"] = rep.get("chain", {}).get("plant_seconds")
         res["checks_failed"] = [c["name"] for c in rep.get("checks", []) if not c.get("passed", True)]
+    elif (out / "meta.json").exists() and command == "simulate" and proc.returncode == 0:
+        segs = json.loads((out / "segments.json").read_text(encoding="utf-8"))
+        res["plant_s"] = float(segs[-1]["end_s"] - segs[0]["start_s"]) if segs else 0.0
     elif not stopped:
         res["error"] = err.strip().splitlines()[-1] if err.strip() else "no validation.json"
     res["outputs_mb"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 2**20 if out.exists() else 0
@@ -101,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", type=Path, default=None, help="keep the campaigns and outputs here")
     ap.add_argument("--python", default=sys.executable, help="interpreter with benchtwin installed")
     ap.add_argument("--json", type=Path, default=None, help="also write the results as JSON")
+    ap.add_argument("--command", choices=("validate", "simulate"), default="validate",
+                    help="the command measured (default validate)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     reps = [int(r) for r in args.repeat.split(",")]
@@ -111,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for n, rep in zip(sizes, reps, strict=True):
             camp = repeated_campaign(n, work, args.campaign)
-            runs = [run_once(args.python, camp, args.setup, work / f"out_x{n}", args.rss_limit_gb) for _ in range(rep)]
+            runs = [run_once(args.python, camp, args.setup, work / f"out_x{n}", args.rss_limit_gb, args.command)
+                    for _ in range(rep)]
             rows.append({"size": n, "runs": runs})
             print(f"x{n}: " + "; ".join(f"{r['wall_s']:.1f} s, {r['peak_rss_mb']:.0f} MB"
                                         + (" (stopped at the RSS limit)" if r["stopped_at_limit"] else "")
@@ -121,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
             shutil.rmtree(work, ignore_errors=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
     print(f"\n{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {platform.machine()}, {os.cpu_count()} cores, "
-          f"Python {platform.python_version()}, commit {commit.strip()}, setup {args.setup}, "
+          f"Python {platform.python_version()}, commit {commit.strip()}, command {args.command}, setup {args.setup}, "
           f"load average {os.getloadavg()[0]:.1f}\n")
     print("| campaign | plant s | runs | wall median (s) | min..max (s) | x real time | peak RSS median (MB) "
           "| simulate / chain / identify / predict (s) | outputs (MB) | failed checks |")

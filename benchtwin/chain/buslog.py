@@ -120,32 +120,81 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
     block_frames:
         Frames converted and appended at a time (memory beyond the table: one block of records).
     """
-    from asammdf import MDF, Signal
-    from asammdf.blocks.source_utils import Source
+    with BusLogWriter(path, table.bus, table.bitrate, channel=channel, start_time=start_time,
+                      compression=compression, block_frames=block_frames) as writer:
+        writer.append(table.frames)
+    return writer.path
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    f = table.frames
-    mdf = MDF(version="4.10")
-    mdf.header.start_time = start_time
-    mdf.header.comment = f"benchtwin bus log: bus {table.bus}, {table.bitrate} bit/s"
-    src = Source(name=table.bus, path=table.bus, comment=f"CAN bus {table.bus}", source_type=Source.SOURCE_BUS,
-                 bus_type=Source.BUS_TYPE_CAN)
-    # in blocks: asammdf keeps what is appended in its temporary file, so only one block of records is in memory
-    compression = check_compression(compression)
-    step = max(1, int(block_frames))
-    for k in range(0, max(len(f), 1), step):
-        part = f[k:k + step]
-        rec = _mf4_records(part, channel)
-        ts = np.ascontiguousarray(part["timestamp"])
-        if k == 0:
-            mdf.append(Signal(name="CAN_DataFrame", samples=rec, timestamps=ts, source=src), acq_name=table.bus,
-                       comment=f"CAN bus {table.bus}")
-        else:
-            mdf.extend(0, [(ts, None), (rec, None)])
-    mdf.save(path, overwrite=True, compression=compression)
-    mdf.close()
-    return path
+
+class BusLogWriter:
+    """An MF4 bus log written as its frames arrive (e.g. chunk by chunk of a campaign): :func:`write_mf4` in parts.
+
+    asammdf keeps what is appended in its temporary file until :meth:`close` saves the compressed log, so only
+    one block of records is in memory at a time. The frames appended must follow one another in time. The file
+    equals what :func:`write_mf4` writes of all the frames at once.
+
+    Parameters
+    ----------
+    path, bus, bitrate:
+        Output file, bus name and bit rate (header comment).
+    channel, start_time, compression, block_frames:
+        As :func:`write_mf4`.
+    """
+
+    def __init__(self, path: str | Path, bus: str, bitrate: int, *, channel: int = 1,
+                 start_time: datetime = DEFAULT_START, compression: int = DEFAULT_COMPRESSION,
+                 block_frames: int = MF4_BLOCK_FRAMES) -> None:
+        from asammdf import MDF
+        from asammdf.blocks.source_utils import Source
+
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.bus, self.channel = bus, channel
+        self.compression = check_compression(compression)
+        self.block_frames = max(1, int(block_frames))
+        self.frames = 0
+        self._mdf: Any = MDF(version="4.10")
+        self._mdf.header.start_time = start_time
+        self._mdf.header.comment = f"benchtwin bus log: bus {bus}, {bitrate} bit/s"
+        self._src = Source(name=bus, path=bus, comment=f"CAN bus {bus}", source_type=Source.SOURCE_BUS,
+                           bus_type=Source.BUS_TYPE_CAN)
+        self._started = False
+
+    def append(self, frames: np.ndarray) -> None:
+        """Append frames (FRAME_DTYPE, in time order, after those appended before)."""
+        from asammdf import Signal
+
+        if self._started and not len(frames):
+            return
+        for k in range(0, max(len(frames), 1), self.block_frames):
+            part = frames[k:k + self.block_frames]
+            rec = _mf4_records(part, self.channel)
+            ts = np.ascontiguousarray(part["timestamp"])
+            if not self._started:
+                self._mdf.append(Signal(name="CAN_DataFrame", samples=rec, timestamps=ts, source=self._src),
+                                 acq_name=self.bus, comment=f"CAN bus {self.bus}")
+                self._started = True
+            else:
+                self._mdf.extend(0, [(ts, None), (rec, None)])
+            self.frames += len(part)
+
+    def close(self) -> Path:
+        """Save the compressed log; return its path."""
+        if self._mdf is not None:
+            if not self._started:
+                self.append(np.zeros(0, FRAME_DTYPE))
+            try:
+                self._mdf.save(self.path, overwrite=True, compression=self.compression)
+            finally:
+                self._mdf.close()
+                self._mdf = None
+        return self.path
+
+    def __enter__(self) -> BusLogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def read_mf4(path: str | Path, bus: str | None = None, bitrate: int = 500_000, *,

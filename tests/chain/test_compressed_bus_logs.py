@@ -3,6 +3,8 @@ the BLF of the same frames by BLFReader), and a cut compressed log keeps exactly
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import can  # before asammdf (facts: can.MF4Reader may not find asammdf otherwise)
 import numpy as np
 import pytest
@@ -69,3 +71,21 @@ def test_a_cut_compressed_bus_log_keeps_its_first_frames(table: FrameTable, comp
     assert got.frames.tobytes() == table.frames[:len(got)].tobytes()
     if compression == 1:  # a deflated block is read up to the cut: most frames before it are kept
         assert len(got) > 0.8 * keep * N
+
+
+def test_a_bus_log_written_chunk_by_chunk_is_the_log_written_at_once(table: FrameTable, tmp_path) -> None:
+    from benchtwin.chain.buslog import BusLogWriter
+
+    whole = write_mf4(table, tmp_path / "whole.mf4", block_frames=50_000)
+    cuts = [0, 1, 7, 49_999, 50_000, 123_457, N]  # chunk edges inside and on the writer's block edges
+    with BusLogWriter(tmp_path / "chunks.mf4", table.bus, table.bitrate, block_frames=50_000) as w:
+        for a, b in pairwise(cuts):
+            w.append(table.frames[a:b])
+        w.append(table.frames[:0])  # an empty chunk changes nothing
+    assert w.frames == N
+    assert read_mf4(w.path).frames.tobytes() == read_mf4(whole).frames.tobytes() == table.frames.tobytes()
+    with can.MF4Reader(str(w.path)) as reader:
+        assert sum(1 for _ in reader) == N
+    with BusLogWriter(tmp_path / "empty.mf4", table.bus, table.bitrate) as w:
+        pass
+    assert len(read_mf4(w.path).frames) == 0  # a bus that sent nothing still gets a readable log
