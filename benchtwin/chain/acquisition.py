@@ -200,6 +200,7 @@ class Acquisition:
         self._meta: dict[str, Any] = {}
         self._start_time: datetime | None = None
         self._last_s: dict[str, float] = {}
+        self._bus_decoders: dict[str, tuple[dict[int, FrameDecoder], dict[int, str]]] = {}
         self._chunks = 0
         self._finished = False
 
@@ -247,8 +248,7 @@ class Acquisition:
 
     def _decode_bus(self, table: FrameTable, last: bool) -> None:
         frames = table.frames
-        decoders = decoders_of(self._devs, table.bus)
-        owner = {cid: d.name for d in self._devs if d.bus == table.bus for cid in d.frame_decoders()}
+        decoders, owner = self._decoders(table.bus)
         groups, unknown = group_ids(frames, list(decoders))
         got = self._unknown.setdefault(table.bus, {})
         for k, v in unknown.items():
@@ -260,6 +260,14 @@ class Acquisition:
         for cid, idx in groups.items():
             self._decode_stream(table.bus, cid, decoders[cid], owner[cid], ts[idx], dlc[idx], words[idx], drops,
                                 last)
+
+    def _decoders(self, bus: str) -> tuple[dict[int, FrameDecoder], dict[int, str]]:
+        """The decoders of ``bus`` and the device of each identifier (built once per bus)."""
+        got = self._bus_decoders.get(bus)
+        if got is None:
+            owner = {cid: d.name for d in self._devs if d.bus == bus for cid in d.frame_decoders()}
+            got = self._bus_decoders[bus] = (decoders_of(self._devs, bus), owner)
+        return got
 
     def _decode_stream(self, bus: str, cid: int, dec: FrameDecoder, owner: str, t: np.ndarray, dlc: np.ndarray,
                        words: np.ndarray, drops: np.ndarray, last: bool) -> None:
@@ -283,7 +291,8 @@ class Acquisition:
         _decode_frames(dec, owner, bus, cid, t, dlc, words, drops, sink)
         counts = {k: dict(v) for k, v in sink.counts.items() if isinstance(v, dict)}
         cut = not (lo == -math.inf and hi == math.inf)
-        if cut:  # per-frame counts of the frames decoded again (before) or held back (after) are not this chunk's
+        counted = any(v for k, v in counts.items() if k not in ("frames", "unknown_ids"))
+        if cut and counted:  # per-frame counts of the frames decoded again (before) or held back (after) are not this chunk's
             i_lo, i_hi = np.searchsorted(t, [lo, hi], side="left")
             for part in (slice(0, i_lo), slice(i_hi, n)):
                 if part.stop > part.start:
@@ -324,8 +333,7 @@ class Acquisition:
         self._finished = True
         for (bus, cid), st in sorted(self._streams.items(), key=lambda kv: kv[1].order):
             if st.t.size and st.t[-1] >= st.emitted_s:  # the held-back frames: nothing follows them
-                decoders = decoders_of(self._devs, bus)
-                owner = {c: d.name for d in self._devs if d.bus == bus for c in d.frame_decoders()}
+                decoders, owner = self._decoders(bus)
                 self._decode_stream(bus, cid, decoders[cid], owner[cid], st.t[:0], st.dlc[:0], st.words[:0],
                                     events_for(self._events, {bus}), True)
         devs = self._devs
