@@ -292,7 +292,7 @@ class Acquisition:
         counts = {k: dict(v) for k, v in sink.counts.items() if isinstance(v, dict)}
         cut = not (lo == -math.inf and hi == math.inf)
         counted = any(v for k, v in counts.items() if k not in ("frames", "unknown_ids"))
-        if cut and counted:  # per-frame counts of the frames decoded again (before) or held back (after) are not this chunk's
+        if cut and counted:  # per-frame counts of the frames decoded again (before) or held back (after): not now
             i_lo, i_hi = np.searchsorted(t, [lo, hi], side="left")
             for part in (slice(0, i_lo), slice(i_hi, n)):
                 if part.stop > part.start:
