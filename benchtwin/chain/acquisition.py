@@ -349,7 +349,9 @@ class Acquisition:
         sink = DecodeSink(rec=rec, counts=counts)
         sink.evidence = [ev for _, st in sorted(self._streams.items(), key=lambda kv: kv[1].order)
                          for ev in st.evidence]
-        flag_truncations(rec, self._events, self._of_bus)
+        # on disk, each pass maps one channel at a time (flags written in place, then unmapped)
+        release = (lambda name: rec.drop([name])) if self.path is not None else None
+        flag_truncations(rec, self._events, self._of_bus, release)
         for device, parts in self._polls.items():
             plog = parts[0] if len(parts) == 1 else PollLog(
                 device, parts[0].unit_id, parts[0].function_code, parts[0].first_register,
@@ -366,8 +368,8 @@ class Acquisition:
             except Exception as exc:
                 log.error("poll log %s could not be decoded: %s", device, exc)
                 sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
-        flag_saturation(rec, devs)
-        faults_found = detect_faults(rec, devs, sink.evidence, self._events)
+        flag_saturation(rec, devs, release)
+        faults_found = detect_faults(rec, devs, sink.evidence, self._events, release)
         rec.segments = list(segments if segments is not None else self._segments)
         m = dict(self._meta)
         m.update(meta or {})
@@ -378,6 +380,8 @@ class Acquisition:
         if self.align:
             found, drifts = clock_offsets(rec)
             offsets.update(found)
+            if release is not None:
+                rec.drop()
         m["clock_offsets_s"] = offsets
         m["clock_drift_ppm"] = drifts
         flagged = {}
@@ -389,6 +393,8 @@ class Acquisition:
             bad = int(np.count_nonzero(ch.flags & int(Flag.bad())))
             if bad:
                 flagged.setdefault(name, {})["bad"] = bad
+            if release is not None:
+                release(name)
         sink.counts["flagged_samples"] = flagged
         m.update(sink.counts)
         m["faults_detected"] = faults_found
@@ -400,8 +406,7 @@ class Acquisition:
         rec.start_time = self._start_time
         if self.path is None:
             return rec
-        saved = rec.save(self.path)
-        del rec
+        saved = rec.save(self.path)  # drops every channel it reads: nothing of the chunks' files stays mapped
         self._store.cleanup()
         return Recording.open(saved)
 

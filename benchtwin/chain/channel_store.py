@@ -2,8 +2,8 @@
 
 :class:`ChannelStore` takes each chunk's samples of each channel (timestamps, values, flags) and gives the
 whole channels back at the end: concatenated in memory, or, with a directory, as memory maps of files the
-chunks were appended to (the flags mapped read-write, so the whole-recording passes flag them in place
-without the channels being read into memory).
+chunks were appended to, mapped when used and unmapped when dropped (the flags mapped read-write, so the
+whole-recording passes flag them in place and drop them again: one channel mapped at a time).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from benchtwin.recording import Channel
+from benchtwin.recording import Channel, LazyChannel
 
 __all__ = ["ChannelStore"]
 
@@ -76,7 +76,8 @@ class ChannelStore:
         return sorted(self._entries, key=lambda n: (self._entries[n].order, self._index[n]))
 
     def channel(self, name: str) -> Channel:
-        """The whole channel: concatenated (in memory) or mapped from its files (flags writable)."""
+        """The whole channel: concatenated (in memory) or a :class:`~benchtwin.recording.LazyChannel` mapped from its
+        files when used (flags writable: what is flagged in place is in the file, so the channel can be dropped)."""
         e = self._entries[name]
         if self._dir is None:
             if len(e.parts) == 1:
@@ -88,8 +89,14 @@ class ChannelStore:
         elif e.n == 0:
             t, v, f = (np.zeros(0, d) for d in _DTYPES)
         else:
-            t, v, f = (np.memmap(self._file(name, k), dtype=_DTYPES[k], mode="r+" if k == 2 else "r", shape=(e.n,))
-                       for k in range(3))
+            files = [self._file(name, k) for k in range(3)]
+
+            def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                t, v, f = (np.memmap(files[k], dtype=_DTYPES[k], mode="r+" if k == 2 else "r", shape=(e.n,))
+                           for k in range(3))
+                return np.asarray(t), np.asarray(v), np.asarray(f)
+
+            return LazyChannel(name, e.unit, e.source, e.n, load, e.texts)
         return Channel(name, e.unit, t, v, f, e.source, e.texts)
 
     def cleanup(self) -> None:

@@ -6,6 +6,7 @@ Shared by the one-shot :func:`~benchtwin.chain.acquisition.acquire` and the chun
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -67,8 +68,10 @@ def decoders_of(devs: list[Device], bus: str) -> dict[int, FrameDecoder]:
     return out
 
 
-def flag_saturation(rec: Any, devs: list[Device]) -> None:
-    """SATURATED where a channel sits at the output saturation its device's errors configure."""
+def flag_saturation(rec: Any, devs: list[Device], release: Callable[[str], None] | None = None) -> None:
+    """SATURATED where a channel sits at the output saturation its device's errors configure.
+
+    ``release(name)`` is called after each channel is flagged (a chunked acquisition unmaps it)."""
     for d in devs:
         for role, err in d.saturation().items():
             lo, hi = err.saturation_min, err.saturation_max
@@ -83,9 +86,12 @@ def flag_saturation(rec: Any, devs: list[Device]) -> None:
             if lo is not None:
                 at |= ch.values <= lo + tol
             ch.flags[at] |= FLAG["SATURATED"]
+            if release is not None:
+                release(role)
 
 
-def flag_truncations(rec: Any, events: list[TransportEvent], of_bus: dict[str, set[str]]) -> None:
+def flag_truncations(rec: Any, events: list[TransportEvent], of_bus: dict[str, set[str]],
+                     release: Callable[[str], None] | None = None) -> None:
     """A bus log cut short (a ``truncated`` event): its channels' last sample before the cut and any sample in
     the missing span are flagged TRANSPORT_DROP | LOST_FRAME (nothing after the cut is complete)."""
     bit = FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"]
@@ -102,6 +108,8 @@ def flag_truncations(rec: Any, events: list[TransportEvent], of_bus: dict[str, s
             if 0 <= k < len(t):
                 at[k] = True
             ch.flags[at] |= bit
+            if release is not None:
+                release(name)
 
 
 class BusLoad:
