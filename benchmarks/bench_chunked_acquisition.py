@@ -15,7 +15,8 @@ Each measurement is a fresh process that loads that input and then acquires it o
 
 The input is in memory in both cases, so the table gives the acquisition's own increment: the process's peak
 resident set (``VmHWM``, reset through ``/proc/self/clear_refs`` once the input is loaded) minus its resident
-set at that moment, and the wall time of the acquisition (decode + save). Medians over ``--repeat`` runs,
+set at that moment, and the wall time of the acquisition (decode + save); for the chunks also the part of both
+spent feeding them (before ``finish()``). Medians over ``--repeat`` runs,
 interleaved. The whole and chunked Recordings are compared (every channel and the meta data) once. Run it under
 the shared lock: ``flock /tmp/benchtwin-heavy.lock nice -n 5 python benchmarks/bench_chunked_acquisition.py``.
 """
@@ -89,10 +90,12 @@ def measure(input_path: Path, setup_name: str, chunk_s: float, out: Path) -> dic
         acq = Acquisition(setup, out)
         for chunk in data.split_by_time(list(np.arange(chunk_s, end, chunk_s))):
             acq.feed(chunk)
+        feed = {"feed_s": time.perf_counter() - t0, "feed_increment_mb": (_status_kb("VmHWM") - base_kb) / 1024}
         rec = acq.finish()
         rec.close()
     wall = time.perf_counter() - t0
-    return {"wall_s": wall, "base_mb": base_kb / 1024, "increment_mb": (_status_kb("VmHWM") - base_kb) / 1024}
+    return {"wall_s": wall, "base_mb": base_kb / 1024, "increment_mb": (_status_kb("VmHWM") - base_kb) / 1024,
+            **(feed if chunk_s > 0 else {})}
 
 
 def same_content(a: Path, b: Path) -> list[str]:
@@ -153,14 +156,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nmachine: {platform.node()} {platform.processor() or platform.machine()}, "
           f"{len(__import__('os').sched_getaffinity(0))} cores; date {time.strftime('%Y-%m-%d')}; commit {commit}; "
           f"campaign {args.campaign}, setup {args.setup}, {args.repeat} runs each (medians)\n")
-    print("| acquisition | wall (s) | peak RSS increment (MB) | RSS with the input loaded (MB) | same Recording |")
-    print("|---|---|---|---|---|")
+    print("| acquisition | wall (s) | peak RSS increment (MB) | of which feeding the chunks: wall (s), peak (MB) "
+          "| RSS with the input loaded (MB) | same Recording |")
+    print("|---|---|---|---|---|---|")
     for v in variants:
         rs = results[v]
         name = "whole: acquire + save" if v <= 0 else f"chunks of {v:g} s: Acquisition(setup, path)"
+        feed = "-" if v <= 0 else (f"{statistics.median(x['feed_s'] for x in rs):.1f}, "
+                                   f"{statistics.median(x['feed_increment_mb'] for x in rs):.0f}")
         same = "-" if v <= 0 else ("yes" if not diffs[v] else f"NO: {', '.join(diffs[v][:4])}")
         print(f"| {name} | {statistics.median(x['wall_s'] for x in rs):.1f} | "
-              f"{statistics.median(x['increment_mb'] for x in rs):.0f} | "
+              f"{statistics.median(x['increment_mb'] for x in rs):.0f} | {feed} | "
               f"{statistics.median(x['base_mb'] for x in rs):.0f} | {same} |")
     return 0
 
