@@ -318,6 +318,18 @@ class Acquisition:
         c0 = max(0, min(n - CONTEXT_FRAMES, j - (CONTEXT_FRAMES - HOLD_FRAMES)))
         st.t, st.dlc, st.words, st.emitted_s = t[c0:].copy(), dlc[c0:].copy(), words[c0:].copy(), hi
 
+    def close(self) -> None:
+        """Remove the files of the chunks decoded so far (an acquisition given up before :meth:`finish`)."""
+        self._finished = True
+        self._store.cleanup()
+
+    def __enter__(self) -> Acquisition:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if not self._finished:
+            self.close()
+
     def finish(self, *, segments: list[Segment] | None = None, meta: dict[str, Any] | None = None) -> Recording:
         """Decode what was held back and the poll logs, run the whole-recording passes, return the Recording.
 

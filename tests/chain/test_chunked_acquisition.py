@@ -143,3 +143,12 @@ def test_bad_chunks_give_one_line_errors(quick_inputs) -> None:
         data.split_by_time([5.0, 1.0])
     with pytest.raises(DataError, match="takes an AcquisitionInput"):
         Acquisition(load_setup("paper")).feed({"can": {}})  # type: ignore[arg-type]
+
+
+def test_an_acquisition_given_up_leaves_no_file(quick_inputs, tmp_path: Path) -> None:
+    first, second = quick_inputs["paper"].split_by_time([300.0])
+    with pytest.raises(DataError, match="time order"), Acquisition(load_setup("paper"), tmp_path / "r.mf4") as acq:
+        acq.feed(second)
+        assert list(tmp_path.iterdir())  # the chunk's samples are on disk
+        acq.feed(first)
+    assert list(tmp_path.iterdir()) == []
