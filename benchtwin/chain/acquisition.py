@@ -6,7 +6,8 @@ it with what it received from the transports. It never raises on bad traffic: ma
 (wrong DLC, bad IVT-S mux byte), unknown identifiers, Modbus exception answers and timeouts,
 counter gaps, duplicates, reordering, PDO gaps and transport drops are counted in
 ``Recording.meta`` and flagged on the samples they affect (:class:`~benchtwin.recording.Flag`),
-and every good sample is kept.
+and every good sample is kept. :class:`Acquisition` is the same decoder fed chunk by chunk (what spans chunks
+carried explicitly, the result bit for bit :func:`acquire`'s); :func:`acquire` is its one-chunk case.
 
 Decoding is vectorised: frames are grouped per identifier with one stable sort, and each group is
 unpacked column-wise from the DBC/EDS layouts (:mod:`benchtwin.wire.codec` compiled from the
