@@ -350,19 +350,19 @@ class Recording:
         ``compression`` is asammdf's: 0 none, 1 deflate, 2 transposed deflate (default
         :data:`DEFAULT_COMPRESSION`; every MDF 4.10 reader, CANape and asammdf among them, reads all three).
 
-        The header start time is :attr:`start_time` (the raw logs' start: acquisition time 0), so the
-        Recording and the bus logs of a run line up in any MDF tool. Each ``<name>.flags`` channel
-        carries a bit-field text table (``SATURATED|LOST_FRAME``) and each state channel with
-        :attr:`Channel.value_texts` a value-to-text table, so the asammdf viewer shows words.
+        The header start time is :attr:`start_time` (the raw logs' start: acquisition time 0), so the Recording and
+        the bus logs of a run line up in any MDF tool. Each ``<name>.flags`` channel carries a bit-field text table
+        (``SATURATED|LOST_FRAME``) and each state channel with :attr:`Channel.value_texts` a value-to-text table.
 
-        The segment table and the metadata travel in the file comment (JSON) and in a sidecar
-        ``<stem>.segments.json`` next to the file.
+        The segment table and the metadata travel in the file comment (JSON), the segments also in a sidecar
+        ``<stem>.segments.json``. Lazy channels read only to be written are dropped again (one group at a time).
         """
         from asammdf import MDF, Signal
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         mdf = MDF(version="4.10")
+        kept = self.loaded()
         by_source: dict[str, list[Channel]] = {}
         for ch in self.channels.values():
             by_source.setdefault(ch.source or "default", []).append(ch)
@@ -370,7 +370,7 @@ class Recording:
             # channels of one source may still have different time bases: one group per time base
             groups: dict[bytes, list[Channel]] = {}
             for ch in chans:
-                groups.setdefault(ch.timestamps.tobytes()[:64] + bytes(str(len(ch)), "ascii"), []).append(ch)
+                groups.setdefault(ch.timestamps[:8].tobytes() + bytes(str(len(ch)), "ascii"), []).append(ch)
             for group in groups.values():
                 sigs = []
                 for ch in group:
@@ -380,6 +380,7 @@ class Recording:
                                        comment="benchtwin quality flags (see benchtwin.recording.Flag)",
                                        conversion=FLAG_CONVERSION))
                 mdf.append(sigs, comment=source, acq_name=source)
+                self.drop([ch.name for ch in group if ch.name not in kept])
         if self.start_time is not None:
             mdf.header.start_time = self.start_time
         mdf.header.comment = json.dumps({"benchtwin": {"meta": self.meta, "segments": json.loads(

@@ -6,7 +6,8 @@ it with what it received from the transports. It never raises on bad traffic: ma
 (wrong DLC, bad IVT-S mux byte), unknown identifiers, Modbus exception answers and timeouts,
 counter gaps, duplicates, reordering, PDO gaps and transport drops are counted in
 ``Recording.meta`` and flagged on the samples they affect (:class:`~benchtwin.recording.Flag`),
-and every good sample is kept.
+and every good sample is kept. :class:`Acquisition` is the same decoder fed chunk by chunk (what spans chunks
+carried explicitly, the result bit for bit :func:`acquire`'s); :func:`acquire` is its one-chunk case.
 
 Decoding is vectorised: frames are grouped per identifier with one stable sort, and each group is
 unpacked column-wise from the DBC/EDS layouts (:mod:`benchtwin.wire.codec` compiled from the
@@ -25,24 +26,39 @@ drift of the same pairs (:mod:`benchtwin.chain.alignment`).
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from benchtwin.chain.alignment import clock_offsets, detect_lag
+from benchtwin.chain.channel_store import ChannelStore
+from benchtwin.chain.decoding import (
+    BusLoad,
+    data_words,
+    declared_uncertainty,
+    decoders_of,
+    events_for,
+    flag_saturation,
+    flag_truncations,
+    group_ids,
+)
+from benchtwin.chain.decoding import bus_load as _bus_load  # noqa: F401  (the name earlier code imports)
 from benchtwin.chain.faults import detect_faults
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Flag, Recording
 from benchtwin.segments import Segment
 from benchtwin.sensors import devices
-from benchtwin.sensors.base import Device, FrameDecoder
+from benchtwin.sensors.base import FrameDecoder
 from benchtwin.wire.frames import FrameTable, PollLog, TransportEvent
-from benchtwin.wire.quality import FLAG, DecodeSink, FrameStream
+from benchtwin.wire.quality import DecodeSink, FrameStream
 
-__all__ = ["AcquisitionInput", "acquire", "declared_uncertainty", "detect_lag"]
+__all__ = ["CONTEXT_FRAMES", "HOLD_FRAMES", "Acquisition", "AcquisitionInput", "acquire", "declared_uncertainty",
+           "detect_lag"]
 
 log = logging.getLogger(__name__)
 
@@ -75,173 +91,352 @@ class AcquisitionInput:
     meta: dict[str, Any] = field(default_factory=dict)
     start_time: datetime | None = None
 
+    def split_by_time(self, edges_s: list[float] | np.ndarray) -> list[AcquisitionInput]:
+        """The input cut at ``edges_s`` (s, increasing) into ``len(edges_s) + 1`` chunks, for :class:`Acquisition`.
 
-def _events_for(events: list[TransportEvent], names: set[str]) -> np.ndarray:
-    ends = []
-    for e in events:
-        if (e.source in names or e.source == "*") and e.kind in ("drop", "overrun", "truncated"):
-            ends.append(e.end_s if np.isfinite(e.end_s) else e.time_s)
-    return np.asarray(ends, dtype=np.float64)
-
-
-def _group(frames: np.ndarray, ids_known: list[int]) -> tuple[dict[int, np.ndarray], dict[int, int]]:
-    """Indices of the frames of each known id (time order) and counts of unknown ids."""
-    ids = np.ascontiguousarray(frames["arbitration_id"])
-    keys = sorted(ids_known)
-    lut = np.zeros(0x801, dtype=np.uint8 if len(keys) < 255 else np.uint16)  # 0: unknown
-    for k, cid in enumerate(keys):
-        lut[cid] = k + 1
-    code = lut[np.minimum(ids, 0x800)]
-    ext = frames["is_extended"]
-    if ext.any():
-        code[ext] = 0
-    order = np.argsort(code, kind="stable")  # radix sort on a small integer key
-    counts = np.bincount(code, minlength=len(keys) + 1)
-    bounds = np.concatenate([[0], np.cumsum(counts)])
-    groups = {cid: order[bounds[k + 1]:bounds[k + 2]] for k, cid in enumerate(keys) if counts[k + 1]}
-    unknown = order[:bounds[1]]
-    u_ids, u_counts = np.unique(ids[unknown], return_counts=True)
-    return groups, {int(i): int(c) for i, c in zip(u_ids, u_counts)}
+        Each chunk holds every bus's frames and every poll log's polls with ``edge[k-1] <= t < edge[k]``, and the
+        transport events that start in it; the first carries the segments, meta data and start time. The frame
+        tables are views on this input's (no copy).
+        """
+        edges = np.asarray(edges_s, dtype=np.float64)
+        if edges.ndim != 1 or np.any(np.diff(edges) <= 0) or not np.all(np.isfinite(edges)):
+            raise DataError(f"split_by_time: the edges must be finite and increasing, got {edges_s!r}")
+        out = [AcquisitionInput() for _ in range(edges.size + 1)]
+        out[0].segments, out[0].meta, out[0].start_time = list(self.segments), dict(self.meta), self.start_time
+        for bus, table in self.can.items():
+            cut = np.searchsorted(table.frames["timestamp"], edges, side="left")
+            for k, (a, b) in enumerate(zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(table)]]))):
+                out[k].can[bus] = FrameTable(bus, table.frames[a:b], table.bitrate)
+        for device, p in self.polls.items():
+            cut = np.searchsorted(p.times, edges, side="left")
+            for k, (a, b) in enumerate(zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(p)]]))):
+                out[k].polls[device] = PollLog(p.device, p.unit_id, p.function_code, p.first_register,
+                                               p.times[a:b], p.values[a:b], p.status[a:b])
+        for e in self.events:
+            out[int(np.searchsorted(edges, e.time_s, side="right"))].events.append(e)
+        return out
 
 
-def _data_words(frames: np.ndarray) -> np.ndarray:
-    """The 8 data bytes of every frame as one little-endian 8-byte word: a read-only view on the records."""
-    if frames.flags["C_CONTIGUOUS"] and len(frames):
-        offset = frames.dtype.fields["data"][1]
-        words = np.ndarray((len(frames),), dtype="<u8", buffer=frames.data, offset=offset,
-                           strides=(frames.dtype.itemsize,))
-        words.flags.writeable = False
-        return words
-    return np.ascontiguousarray(frames["data"]).view("<u8")[:, 0]
+#: frames of each stream carried from one chunk to the next: a frame is judged from the frames before it (counter
+#: continuity over duplicates, the spacing of a stream without a counter, the good frame after a bad one)
+CONTEXT_FRAMES = 32
+#: frames at the end of a chunk whose samples wait for the next chunk: a counter jump is told from a reorder by
+#: the frame after it
+HOLD_FRAMES = 8
 
 
-def _decoders(devs: list[Device], bus: str) -> dict[int, FrameDecoder]:
-    out: dict[int, FrameDecoder] = {}
-    for d in devs:
-        if d.bus == bus:
-            out.update(d.frame_decoders())
-    return out
+@dataclass
+class _Stream:
+    """What one stream (bus, identifier) carries from one chunk to the next."""
+
+    order: tuple[int, int]
+    emitted_s: float = -math.inf  #: samples before this time are in the store
+    t: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float64))  #: the context frames
+    dlc: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
+    words: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
+    evidence: list[tuple[str, str, str, np.ndarray, np.ndarray]] = field(default_factory=list)
 
 
-def _decode_bus(table: FrameTable, devs: list[Device], sink: DecodeSink, drops: np.ndarray) -> None:
-    frames = table.frames
-    decoders = _decoders(devs, table.bus)
-    owner = {cid: d.name for d in devs if d.bus == table.bus for cid in d.frame_decoders()}
-    groups, unknown = _group(frames, list(decoders))
-    sink.counts["frames"][table.bus] = len(table)
-    if unknown:
-        sink.counts["unknown_ids"][table.bus] = {f"0x{k:X}": v for k, v in unknown.items()}
-    # every stream gathers from views on the records' columns (the data bytes as one 8-byte word): no copy of
-    # the bus's columns beside its frame table
-    ts = frames["timestamp"]
-    dlc = frames["dlc"]
-    words = _data_words(frames)
-    for cid, idx in groups.items():
-        length = decoders[cid].length
-        if length:
-            wrong = dlc[idx] != length
-            if wrong.any():  # judged from the wire: the identifier's layout has another length
-                sink.fault("wrong_dlc", owner[cid], ts[idx][wrong])
-        decoders[cid].decode(FrameStream(table.bus, cid, ts[idx], dlc[idx], words[idx], drops), sink)
-
-
-def _flag_saturation(rec: Any, devs: list[Device]) -> None:
-    """SATURATED where a channel sits at the output saturation its device's errors configure."""
-    for d in devs:
-        for role, err in d.saturation().items():
-            lo, hi = err.saturation_min, err.saturation_max
-            if (lo is None and hi is None) or role not in rec:
-                continue
-            ch = rec[role]
-            span = (hi - lo) if lo is not None and hi is not None else max(abs(lo or 0.0), abs(hi or 0.0), 1.0)
-            tol = 1e-3 * span
-            at = np.zeros(len(ch), dtype=bool)
-            if hi is not None:
-                at |= ch.values >= hi - tol
-            if lo is not None:
-                at |= ch.values <= lo + tol
-            ch.flags[at] |= FLAG["SATURATED"]
-
-
-def _flag_truncations(rec: Any, events: list[TransportEvent], of_bus: dict[str, set[str]]) -> None:
-    """A bus log cut short (a ``truncated`` event): its channels' last sample before the cut and any sample in
-    the missing span are flagged TRANSPORT_DROP | LOST_FRAME (nothing after the cut is complete)."""
-    bit = FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"]
-    for e in events:
-        if e.kind != "truncated":
+def _add_counts(into: dict[str, Any], counts: dict[str, Any], sign: int = 1) -> None:
+    """``into[key][name] += sign * counts[key][name]`` for the per-frame counts of a decode."""
+    for key, sub in counts.items():
+        if key in ("frames", "unknown_ids") or not isinstance(sub, dict):
             continue
-        for name in of_bus.get(e.source, ()):
-            ch = rec[name]
-            if not len(ch):
-                continue
-            t = ch.timestamps
-            at = (t >= e.time_s) & (t <= e.end_s)
-            k = int(np.searchsorted(t, e.time_s, side="right")) - 1
-            if 0 <= k < len(t):
-                at[k] = True
-            ch.flags[at] |= bit
+        d = into.setdefault(key, {})
+        for name, n in sub.items():
+            d[name] = d.get(name, 0) + sign * int(n)
 
 
-def _bus_load(table: FrameTable) -> float:
-    """FrameTable.bus_load (same bit counts: worst-case stuffing) from a histogram of (DLC, IDE)."""
-    f = table.frames
-    if len(f) < 2:
-        return 0.0
-    span = float(f["timestamp"][-1] - f["timestamp"][0])
-    if span <= 0:
-        return float("nan")
-    key = (np.minimum(f["dlc"], 15).astype(np.uint8) << 1) | f["is_extended"].view(np.uint8)
-    hist = np.bincount(key, minlength=32)
-    dlc = np.arange(32) // 2
-    ext = np.arange(32) % 2 == 1
-    base = np.where(ext, 67.0, 47.0) + 8.0 * dlc
-    stuffed = np.where(ext, 54.0, 34.0) + 8.0 * dlc
-    bits = float(np.sum(hist * (base + np.floor((stuffed - 1.0) / 4.0))))
-    return bits / (table.bitrate * span)
+class Acquisition:
+    """A streaming acquisition: decode successive chunks of what the bench received, the Recording at the end.
 
+    ``Acquisition(setup, path).feed(chunk)...feed(chunk).finish()`` gives the Recording :func:`acquire` gives
+    of the chunks joined, bit for bit (every channel's timestamps, values and flags, and ``meta``), with the
+    decoded samples appended to files beside ``path`` as they come, so what is held in memory is one chunk.
+    Chunks are :class:`AcquisitionInput` pieces cut by time: on every bus (and poll log) a chunk's frames come
+    after the previous chunk's.
 
-def declared_uncertainty(devs: list[Device], roles: set[str]) -> dict[str, dict[str, float]]:
-    """The systematic errors the setup declares for each decoded role, for the identification's type B budget.
+    What spans chunks is carried explicitly. Per stream (bus, identifier): the last :data:`CONTEXT_FRAMES`
+    frames, decoded again in front of the next chunk's so counter continuity, duplicates, reorders, cycle and
+    PDO gaps and the good frame after a bad one are judged as in one piece, and the samples of the last
+    :data:`HOLD_FRAMES` frames held back until the frame after them has come (a reorder is told from a loss by
+    it); per-frame counts (protocol errors, IVT-S commands, answers and over-current frames, NMT messages) and
+    fault evidence are kept for the new frames only. Per bus: frame counts, unknown identifiers, the bus-load
+    histogram (:class:`~benchtwin.chain.decoding.BusLoad`). Transport events accumulate (a drop that spans a
+    chunk edge flags the first sample after it, whichever chunk it is in). Poll logs are gathered and decoded
+    in :meth:`finish` (the Modbus decoder judges the module's clock over the whole log; a poll log is a
+    hundredth of the frames). :meth:`finish` runs what needs the whole recording on the stored channels:
+    truncation and saturation flags, fault detection (gaps against the channel's median period, frozen
+    outputs), clock offsets and drifts by cross-correlation (the few channels they use), the flag counts.
 
-    Each declared error is read as the half-width of a rectangular distribution (a data sheet's
-    "+-0.25 % FS"): the value the setup injects is the size of the error the bench may have, not its sign.
-
-    Returns
-    -------
-    dict
-        Role -> ``{"gain_frac": a_g, "offset": a_o, "resolution": q[, "group": device]}``: half-widths of
-        the relative gain error and of the offset (role's unit), and the step of the role's representation
-        (the wire's scaling or the converter step, e.g. the 12-bit AD module at the telemetry's K_TEL, or a
-        declared extra quantisation, whichever is coarser). ``group`` names the device when one declared
-        error table applies to several of its roles (the five pressure transducers): the emulator gives
-        them the same gain and offset, so they are fully correlated. Roles with nothing declared are left
-        out. The noise is not listed: it is random and the fits' scatter carries it.
+    Parameters
+    ----------
+    setup:
+        The bench.
+    path:
+        Save the Recording here (MF4, :meth:`Recording.save <benchtwin.recording.Recording.save>`) and return it
+        opened lazily; the chunks' samples are appended to files in a folder beside it until then. None: keep
+        them in memory and return an in-memory Recording.
+    align:
+        Detect clock offsets between sources.
     """
-    out: dict[str, dict[str, Any]] = {}
-    for d in devs:
-        steps = {role: tc.resolution for role, tc in d.truth_channels().items()}
-        budget = d.error_budget()
-        shared: dict[int, list[str]] = {}
-        for role, (err, _link, _extra) in budget.items():
-            if err is not None and role in roles:
-                shared.setdefault(id(err), []).append(role)
-        for role in sorted(set(steps) | set(budget)):
-            if role not in roles:
+
+    def __init__(self, setup: SetupConfig, path: str | Path | None = None, *, align: bool = True) -> None:
+        self.setup = setup
+        self.path = Path(path) if path is not None else None
+        self.align = align
+        self._devs = devices(setup)
+        self._polled = {d.poll_device: d for d in self._devs if d.poll_device is not None}
+        self._store = ChannelStore(self.path.parent if self.path is not None else None)
+        self._streams: dict[tuple[str, int], _Stream] = {}
+        self._buses: dict[str, int] = {}  # bus -> position (first seen)
+        self._of_bus: dict[str, set[str]] = {}
+        self._loads: dict[str, BusLoad] = {}
+        self._frames: dict[str, int] = {}
+        self._unknown: dict[str, dict[int, int]] = {}
+        self._counts: dict[str, Any] = {"protocol_errors": {}}
+        self._polls: dict[str, list[PollLog]] = {}
+        self._events: list[TransportEvent] = []
+        self._segments: list[Segment] = []
+        self._meta: dict[str, Any] = {}
+        self._start_time: datetime | None = None
+        self._last_s: dict[str, float] = {}
+        self._bus_decoders: dict[str, tuple[dict[int, FrameDecoder], dict[int, str]]] = {}
+        self._chunks = 0
+        self._finished = False
+
+    def feed(self, chunk: AcquisitionInput, *, last: bool = False) -> Acquisition:
+        """Decode one chunk (``last``: nothing follows, hold nothing back).
+
+        Raises
+        ------
+        DataError
+            If ``chunk`` is not an :class:`AcquisitionInput`, comes after :meth:`finish`, or goes back in time.
+        """
+        if not isinstance(chunk, AcquisitionInput):
+            raise DataError(f"acquire() takes an AcquisitionInput, not {type(chunk).__name__} (read logs with "
+                            "benchtwin.chain.batch.read_logs, deliver device outputs with "
+                            "benchtwin.chain.batch.deliver)")
+        if self._finished:
+            raise DataError("Acquisition.feed() after finish(): start a new Acquisition")
+        self._chunks += 1
+        self._events += chunk.events
+        self._segments += chunk.segments
+        self._meta.update(chunk.meta)
+        if self._start_time is None:
+            self._start_time = chunk.start_time
+        for bus, table in chunk.can.items():
+            self._buses.setdefault(bus, len(self._buses))
+            self._of_bus.setdefault(bus, set())
+            self._loads.setdefault(bus, BusLoad(table.bitrate)).add(table.frames)
+            self._frames[bus] = self._frames.get(bus, 0) + len(table)
+            if len(table):
+                first = float(table.frames["timestamp"][0])
+                if first < self._last_s.get(bus, -math.inf):
+                    raise DataError(f"bus {bus}: a chunk starting at {first:.6f} s comes after frames up to "
+                                    f"{self._last_s[bus]:.6f} s: feed the chunks in time order")
+                self._last_s[bus] = float(table.frames["timestamp"][-1])
+            try:
+                self._decode_bus(table, last)
+            except DataError:
+                raise
+            except Exception as exc:  # never lose the other buses because one is broken
+                log.error("bus %s could not be decoded: %s", bus, exc)
+                _add_counts(self._counts, {"protocol_errors": {f"{bus}: decoding failed ({exc})": max(1, len(table))}})
+        for device, plog in chunk.polls.items():
+            self._polls.setdefault(device, []).append(plog)
+        return self
+
+    def _decode_bus(self, table: FrameTable, last: bool) -> None:
+        frames = table.frames
+        decoders, owner = self._decoders(table.bus)
+        groups, unknown = group_ids(frames, list(decoders))
+        got = self._unknown.setdefault(table.bus, {})
+        for k, v in unknown.items():
+            got[k] = got.get(k, 0) + v
+        drops = events_for(self._events, {table.bus})
+        # every stream gathers from views on the records' columns (the data bytes as one 8-byte word): no copy of
+        # the bus's columns beside its frame table
+        ts, dlc, words = frames["timestamp"], frames["dlc"], data_words(frames)
+        for cid, idx in groups.items():
+            self._decode_stream(table.bus, cid, decoders[cid], owner[cid], ts[idx], dlc[idx], words[idx], drops,
+                                last)
+
+    def _decoders(self, bus: str) -> tuple[dict[int, FrameDecoder], dict[int, str]]:
+        """The decoders of ``bus`` and the device of each identifier (built once per bus)."""
+        got = self._bus_decoders.get(bus)
+        if got is None:
+            owner = {cid: d.name for d in self._devs if d.bus == bus for cid in d.frame_decoders()}
+            got = self._bus_decoders[bus] = (decoders_of(self._devs, bus), owner)
+        return got
+
+    def _decode_stream(self, bus: str, cid: int, dec: FrameDecoder, owner: str, t: np.ndarray, dlc: np.ndarray,
+                       words: np.ndarray, drops: np.ndarray, last: bool) -> None:
+        st = self._streams.get((bus, cid))
+        if st is None:
+            st = self._streams[(bus, cid)] = _Stream((self._buses[bus], cid))
+        if st.t.size:
+            t, dlc, words = (np.concatenate([st.t, t]), np.concatenate([st.dlc, dlc]),
+                             np.concatenate([st.words, words]))
+        n = t.shape[0]
+        lo, hi = st.emitted_s, math.inf
+        if not last:
+            if n > 1 and bool(np.any(t[1:] < t[:-1])):
+                raise DataError(f"{bus}:0x{cid:X}: frame times go back within the stream; a chunked acquisition "
+                                "needs each stream in time order (decode it in one piece with acquire())")
+            j = n - HOLD_FRAMES
+            while j > 0 and t[j] == t[j - 1]:  # cut between two frame times
+                j -= 1
+            hi = max(lo, float(t[j])) if j > 0 else lo
+        sink = DecodeSink()
+        _decode_frames(dec, owner, bus, cid, t, dlc, words, drops, sink)
+        counts = {k: dict(v) for k, v in sink.counts.items() if isinstance(v, dict)}
+        cut = not (lo == -math.inf and hi == math.inf)
+        counted = any(v for k, v in counts.items() if k not in ("frames", "unknown_ids"))
+        if cut and counted:  # per-frame counts of the frames decoded again (before) or held back (after): not now
+            i_lo, i_hi = np.searchsorted(t, [lo, hi], side="left")
+            for part in (slice(0, i_lo), slice(i_hi, n)):
+                if part.stop > part.start:
+                    other = DecodeSink()
+                    _decode_frames(dec, owner, bus, cid, t[part], dlc[part], words[part], drops, other)
+                    _add_counts(counts, other.counts, -1)
+        _add_counts(self._counts, counts)
+        for k, ch in enumerate(sink.rec.channels.values()):
+            a, b = (np.searchsorted(ch.timestamps, [lo, hi], side="left") if cut else (0, len(ch)))
+            self._store.append(ch.name, ch.unit, ch.source, ch.value_texts, (*st.order, k), ch.timestamps[a:b],
+                               ch.values[a:b], ch.flags[a:b])
+            self._of_bus[bus].add(ch.name)
+        for kind, source, channel, ta, tb in sink.evidence:
+            if cut:
+                m = (ta >= lo) & (ta < hi)
+                ta, tb = ta[m], tb[m]
+            if ta.size:
+                st.evidence.append((kind, source, channel, ta, tb))
+        if last:
+            st.t, st.dlc, st.words, st.emitted_s = t[:0].copy(), dlc[:0].copy(), words[:0].copy(), math.inf
+            return
+        j = int(np.searchsorted(t, hi, side="left"))
+        c0 = max(0, min(n - CONTEXT_FRAMES, j - (CONTEXT_FRAMES - HOLD_FRAMES)))
+        st.t, st.dlc, st.words, st.emitted_s = t[c0:].copy(), dlc[c0:].copy(), words[c0:].copy(), hi
+
+    def close(self) -> None:
+        """Remove the files of the chunks decoded so far (an acquisition given up before :meth:`finish`)."""
+        self._finished = True
+        self._store.cleanup()
+
+    def __enter__(self) -> Acquisition:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if not self._finished:
+            self.close()
+
+    def finish(self, *, segments: list[Segment] | None = None, meta: dict[str, Any] | None = None) -> Recording:
+        """Decode what was held back and the poll logs, run the whole-recording passes, return the Recording.
+
+        Parameters
+        ----------
+        segments:
+            Segment table (overrides the chunks' segments).
+        meta:
+            Extra metadata for the Recording.
+        """
+        if self._finished:
+            raise DataError("Acquisition.finish() called twice")
+        self._finished = True
+        for (bus, cid), st in sorted(self._streams.items(), key=lambda kv: kv[1].order):
+            if st.t.size and st.t[-1] >= st.emitted_s:  # the held-back frames: nothing follows them
+                decoders, owner = self._decoders(bus)
+                self._decode_stream(bus, cid, decoders[cid], owner[cid], st.t[:0], st.dlc[:0], st.words[:0],
+                                    events_for(self._events, {bus}), True)
+        devs = self._devs
+        rec = Recording()
+        for name in self._store.names():
+            rec.add(self._store.channel(name))
+        counts: dict[str, Any] = {"protocol_errors": self._counts["protocol_errors"], "unknown_ids": {},
+                                  "frames": dict(self._frames)}
+        for bus in self._buses:
+            if self._unknown.get(bus):
+                counts["unknown_ids"][bus] = {f"0x{k:X}": v for k, v in sorted(self._unknown[bus].items())}
+        counts.update({k: v for k, v in self._counts.items() if k != "protocol_errors"})
+        sink = DecodeSink(rec=rec, counts=counts)
+        sink.evidence = [ev for _, st in sorted(self._streams.items(), key=lambda kv: kv[1].order)
+                         for ev in st.evidence]
+        # on disk, each pass maps one channel at a time (flags written in place, then unmapped)
+        release = (lambda name: rec.drop([name])) if self.path is not None else None
+        flag_truncations(rec, self._events, self._of_bus, release)
+        for device, parts in self._polls.items():
+            plog = parts[0] if len(parts) == 1 else PollLog(
+                device, parts[0].unit_id, parts[0].function_code, parts[0].first_register,
+                np.concatenate([p.times for p in parts]), np.concatenate([p.values for p in parts]),
+                np.concatenate([p.status for p in parts]))
+            drops = events_for(self._events, {device})
+            dev = self._polled.get(device)
+            if dev is None:
+                log.warning("poll log %s belongs to no device of setup %s: not decoded", device, self.setup.name)
+                sink.count("unknown_poll_devices", device, len(plog))
                 continue
-            err = budget.get(role, (None, None, 0.0))[0]
-            gain = abs(err.gain_error_frac) if err is not None else 0.0
-            offset = abs(err.offset) if err is not None else 0.0
-            step = max(float(steps.get(role, 0.0)), err.quantisation_step if err is not None else 0.0)
-            if gain > 0 or offset > 0 or step > 0:
-                out[role] = {"gain_frac": float(gain), "offset": float(offset), "resolution": float(step)}
-                if err is not None and len(shared[id(err)]) > 1:
-                    out[role]["group"] = d.name
-    return out
+            try:
+                dev.decode_polls(plog, sink, drops)
+            except Exception as exc:
+                log.error("poll log %s could not be decoded: %s", device, exc)
+                sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
+        flag_saturation(rec, devs, release)
+        faults_found = detect_faults(rec, devs, sink.evidence, self._events, release)
+        rec.segments = list(segments if segments is not None else self._segments)
+        m = dict(self._meta)
+        m.update(meta or {})
+        m["setup"] = self.setup.name
+        m["sources"] = rec.sources()
+        offsets = dict(sink.counts.pop("clock_offsets_s", {}))
+        drifts: dict[str, float] = {}
+        if self.align:
+            found, drifts = clock_offsets(rec)
+            offsets.update(found)
+            if release is not None:
+                rec.drop()
+        m["clock_offsets_s"] = offsets
+        m["clock_drift_ppm"] = drifts
+        flagged = {}
+        for name, ch in rec.channels.items():
+            for fl in (Flag.LOST_FRAME, Flag.DUPLICATE, Flag.OUT_OF_ORDER):
+                k = int(np.count_nonzero(ch.flags & int(fl)))
+                if k:
+                    flagged.setdefault(name, {})[fl.name.lower()] = k
+            bad = int(np.count_nonzero(ch.flags & int(Flag.bad())))
+            if bad:
+                flagged.setdefault(name, {})["bad"] = bad
+            if release is not None:
+                release(name)
+        sink.counts["flagged_samples"] = flagged
+        m.update(sink.counts)
+        m["faults_detected"] = faults_found
+        m["transport_events"] = [{"time_s": e.time_s, "source": e.source, "kind": e.kind, "end_s": e.end_s,
+                                  "detail": e.detail} for e in self._events]
+        m["bus_load"] = {bus: load.value() for bus, load in self._loads.items()}
+        m["declared_uncertainty"] = declared_uncertainty(devs, set(rec.channels))
+        rec.meta = m
+        rec.start_time = self._start_time
+        if self.path is None:
+            return rec
+        saved = rec.save(self.path)  # drops every channel it reads: nothing of the chunks' files stays mapped
+        self._store.cleanup()
+        return Recording.open(saved)
+
+
+def _decode_frames(dec: FrameDecoder, owner: str, bus: str, cid: int, t: np.ndarray, dlc: np.ndarray,
+                   words: np.ndarray, drops: np.ndarray, sink: DecodeSink) -> None:
+    """Decode the frames of one stream into ``sink`` (a wrong data length is evidence, judged from the wire)."""
+    if dec.length:
+        wrong = dlc != dec.length
+        if wrong.any():  # judged from the wire: the identifier's layout has another length
+            sink.fault("wrong_dlc", owner, t[wrong])
+    dec.decode(FrameStream(bus, cid, t, dlc, words, drops), sink)
 
 
 def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segment] | None = None,
             meta: dict[str, Any] | None = None, align: bool = True) -> Recording:
-    """Decode everything received into a :class:`~benchtwin.recording.Recording`.
+    """Decode everything received into a :class:`~benchtwin.recording.Recording` (an :class:`Acquisition` of one chunk).
 
     Parameters
     ----------
@@ -264,66 +459,4 @@ def acquire(data: AcquisitionInput, setup: SetupConfig, *, segments: list[Segmen
     DataError
         If ``data`` is not an :class:`AcquisitionInput`.
     """
-    if not isinstance(data, AcquisitionInput):
-        raise DataError(f"acquire() takes an AcquisitionInput, not {type(data).__name__} (read logs with "
-                        "benchtwin.chain.batch.read_logs, deliver device outputs with benchtwin.chain.batch.deliver)")
-    devs = devices(setup)
-    polled = {d.poll_device: d for d in devs if d.poll_device is not None}
-    sink = DecodeSink()
-    of_bus: dict[str, set[str]] = {}
-    for bus, table in data.can.items():
-        drops = _events_for(data.events, {bus})
-        before = set(sink.rec.channels)
-        try:
-            _decode_bus(table, devs, sink, drops)
-        except Exception as exc:  # never lose the other buses because one is broken
-            log.error("bus %s could not be decoded: %s", bus, exc)
-            sink.protocol_error(f"{bus}: decoding failed ({exc})", max(1, len(table)))
-        of_bus[bus] = set(sink.rec.channels) - before
-    _flag_truncations(sink.rec, data.events, of_bus)
-    for device, plog in data.polls.items():
-        drops = _events_for(data.events, {device})
-        dev = polled.get(device)
-        if dev is None:
-            log.warning("poll log %s belongs to no device of setup %s: not decoded", device, setup.name)
-            sink.count("unknown_poll_devices", device, len(plog))
-            continue
-        try:
-            dev.decode_polls(plog, sink, drops)
-        except Exception as exc:
-            log.error("poll log %s could not be decoded: %s", device, exc)
-            sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
-    rec = sink.rec
-    _flag_saturation(rec, devs)
-    faults_found = detect_faults(rec, devs, sink.evidence, data.events)
-    rec.segments = list(segments if segments is not None else data.segments)
-    m = dict(data.meta)
-    m.update(meta or {})
-    m["setup"] = setup.name
-    m["sources"] = rec.sources()
-    offsets = dict(sink.counts.pop("clock_offsets_s", {}))
-    drifts: dict[str, float] = {}
-    if align:
-        found, drifts = clock_offsets(rec)
-        offsets.update(found)
-    m["clock_offsets_s"] = offsets
-    m["clock_drift_ppm"] = drifts
-    flagged = {}
-    for name, ch in rec.channels.items():
-        for fl in (Flag.LOST_FRAME, Flag.DUPLICATE, Flag.OUT_OF_ORDER):
-            k = int(np.count_nonzero(ch.flags & int(fl)))
-            if k:
-                flagged.setdefault(name, {})[fl.name.lower()] = k
-        bad = int(np.count_nonzero(ch.flags & int(Flag.bad())))
-        if bad:
-            flagged.setdefault(name, {})["bad"] = bad
-    sink.counts["flagged_samples"] = flagged
-    m.update(sink.counts)
-    m["faults_detected"] = faults_found
-    m["transport_events"] = [{"time_s": e.time_s, "source": e.source, "kind": e.kind, "end_s": e.end_s,
-                              "detail": e.detail} for e in data.events]
-    m["bus_load"] = {bus: _bus_load(t) for bus, t in data.can.items()}
-    m["declared_uncertainty"] = declared_uncertainty(devs, set(rec.channels))
-    rec.meta = m
-    rec.start_time = data.start_time
-    return rec
+    return Acquisition(setup, align=align).feed(data, last=True).finish(segments=segments, meta=meta)

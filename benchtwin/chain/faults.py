@@ -27,11 +27,12 @@ probability gives with a chance below 1e-3 over the recording (Poisson). The res
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 
-from benchtwin.recording import Flag, Recording
+from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.sensors.base import Device
 from benchtwin.wire.frames import TransportEvent
 from benchtwin.wire.quality import stale_runs
@@ -49,13 +50,22 @@ WINDOW_S = 2.0
 _DECLARED = {"frame_loss": "drop_prob", "duplicate": "duplicate_prob", "reorder": "reorder_prob"}
 
 
-def _channel_evidence(rec: Recording, devs: dict[str, Device]) -> list[tuple[str, str, str, np.ndarray, np.ndarray]]:
+def _each(rec: Recording, release: Callable[[str], None] | None) -> Iterator[tuple[str, Channel]]:
+    """The channels of ``rec``, each released (``release(name)``) once the loop's body is done with it."""
+    for name, ch in rec.channels.items():
+        yield name, ch
+        if release is not None:
+            release(name)
+
+
+def _channel_evidence(rec: Recording, devs: dict[str, Device], release: Callable[[str], None] | None = None
+                      ) -> list[tuple[str, str, str, np.ndarray, np.ndarray]]:
     """Evidence judged from each decoded channel's flags, timing and values (see the module docstring).
 
     Works on the few flagged samples and long gaps only (a clean channel costs one ``diff``)."""
     out = []
     lost_bits = int(Flag.LOST_FRAME | Flag.OUT_OF_ORDER)
-    for name, ch in rec.channels.items():
+    for name, ch in _each(rec, release):
         dev = devs.get(ch.source)
         if dev is None or len(ch) < 10:
             continue
@@ -100,7 +110,8 @@ def _channel_evidence(rec: Recording, devs: dict[str, Device]) -> list[tuple[str
     return out
 
 
-def _stuck_evidence(rec: Recording, devs: list[Device]) -> list[tuple[str, str, str, np.ndarray, np.ndarray]]:
+def _stuck_evidence(rec: Recording, devs: list[Device], release: Callable[[str], None] | None = None
+                    ) -> list[tuple[str, str, str, np.ndarray, np.ndarray]]:
     """Frozen outputs where the setup declares noise; the runs are flagged STALE."""
     out = []
     held = int(Flag.SATURATED | Flag.OUT_OF_RANGE | Flag.TIMEOUT | Flag.STATUS_ERROR | Flag.PROTOCOL_ERROR)
@@ -117,6 +128,8 @@ def _stuck_evidence(rec: Recording, devs: list[Device]) -> list[tuple[str, str, 
                 for i, j in zip(a, b):
                     ch.flags[i:j] |= int(Flag.STALE)
                 out.append(("stuck", ch.source, role, ch.timestamps[a], ch.timestamps[b - 1]))
+            if release is not None:
+                release(role)
     return out
 
 
@@ -158,21 +171,26 @@ def _spans(t0: np.ndarray, t1: np.ndarray, k: int) -> list[tuple[float, float, i
 
 
 def detect_faults(rec: Recording, devs: list[Device], evidence: list[tuple[str, str, str, np.ndarray, np.ndarray]],
-                  events: list[TransportEvent]) -> list[dict[str, Any]]:
-    """Every fault the acquisition can tell, as spans (see the module docstring); flags STALE and LOST_FRAME."""
+                  events: list[TransportEvent], release: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """Every fault the acquisition can tell, as spans (see the module docstring); flags STALE and LOST_FRAME.
+
+    ``release(name)`` is called when a channel has been judged (a chunked acquisition unmaps it: one channel is
+    mapped at a time)."""
     by_name: dict[str, Device] = {}
     for d in devs:
         by_name[d.name] = d
         if d.poll_device is not None:
             by_name[d.poll_device] = d
-    ev = list(evidence) + _channel_evidence(rec, by_name) + _stuck_evidence(rec, devs)
-    spans_all = [ch.timestamps for ch in rec.channels.values() if len(ch)]
-    duration = (max(float(s[-1]) for s in spans_all) - min(float(s[0]) for s in spans_all)) if spans_all else 0.0
+    ev = list(evidence) + _channel_evidence(rec, by_name, release) + _stuck_evidence(rec, devs, release)
+    spans_all = []
     rate: dict[str, float] = {}
-    for ch in rec.channels.values():
+    for _name, ch in _each(rec, release):
+        if len(ch):
+            spans_all.append((float(ch.timestamps[0]), float(ch.timestamps[-1])))
         if len(ch) > 1:
             rate[ch.source] = rate.get(ch.source, 0.0) + len(ch) / max(float(ch.timestamps[-1] - ch.timestamps[0]),
                                                                          1e-9)
+    duration = (max(s[1] for s in spans_all) - min(s[0] for s in spans_all)) if spans_all else 0.0
     grouped: dict[tuple[str, str, str], list[tuple[np.ndarray, np.ndarray]]] = {}
     for kind, source, channel, a, b in ev:
         grouped.setdefault((kind, source, channel), []).append((a, b))

@@ -1,0 +1,105 @@
+"""Where a chunked acquisition puts the samples it has decoded: in memory, or appended to files on disk.
+
+:class:`ChannelStore` takes each chunk's samples of each channel (timestamps, values, flags) and gives the
+whole channels back at the end: concatenated in memory, or, with a directory, as memory maps of files the
+chunks were appended to, mapped when used and unmapped when dropped (the flags mapped read-write, so the
+whole-recording passes flag them in place and drop them again: one channel mapped at a time).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchtwin.recording import Channel, LazyChannel
+
+__all__ = ["ChannelStore"]
+
+_DTYPES = (np.dtype(np.float64), np.dtype(np.float64), np.dtype(np.uint16))  # timestamps, values, flags
+
+
+@dataclass
+class _Entry:
+    unit: str
+    source: str
+    texts: dict[int, str] | None
+    order: tuple[Any, ...]
+    n: int = 0
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+
+
+class ChannelStore:
+    """The decoded samples of every channel, chunk after chunk.
+
+    Parameters
+    ----------
+    directory:
+        Append the samples to files in a new folder inside this one (removed by :meth:`cleanup`);
+        None keeps them in memory.
+    """
+
+    def __init__(self, directory: str | Path | None = None) -> None:
+        self._entries: dict[str, _Entry] = {}
+        self._dir: Path | None = None
+        if directory is not None:
+            Path(directory).mkdir(parents=True, exist_ok=True)
+            self._dir = Path(tempfile.mkdtemp(prefix=".acquisition-", suffix=".chunks", dir=directory))
+        self._index: dict[str, int] = {}
+
+    def append(self, name: str, unit: str, source: str, texts: dict[int, str] | None, order: tuple[Any, ...],
+               t: np.ndarray, v: np.ndarray, f: np.ndarray) -> None:
+        """Append one chunk's samples of channel ``name`` (``order``: where it goes among the channels)."""
+        e = self._entries.get(name)
+        if e is None:
+            e = self._entries[name] = _Entry(unit, source, texts, order)
+            self._index[name] = len(self._index)
+        e.n += int(t.shape[0])
+        arrays = (np.asarray(t, _DTYPES[0]), np.asarray(v, _DTYPES[1]), np.asarray(f, _DTYPES[2]))
+        if self._dir is None:
+            e.parts.append(arrays)
+            return
+        for k, a in enumerate(arrays):
+            with self._file(name, k).open("ab") as fh:
+                np.ascontiguousarray(a).tofile(fh)
+
+    def _file(self, name: str, k: int) -> Path:
+        assert self._dir is not None
+        return self._dir / f"{self._index[name]}.{'tvf'[k]}"
+
+    def names(self) -> list[str]:
+        """Channel names in their order (by the ``order`` keys, then first appearance)."""
+        return sorted(self._entries, key=lambda n: (self._entries[n].order, self._index[n]))
+
+    def channel(self, name: str) -> Channel:
+        """The whole channel: concatenated (in memory) or a :class:`~benchtwin.recording.LazyChannel` mapped from its
+        files when used (flags writable: what is flagged in place is in the file, so the channel can be dropped)."""
+        e = self._entries[name]
+        if self._dir is None:
+            if len(e.parts) == 1:
+                t, v, f = e.parts[0]
+            else:
+                t, v, f = (np.concatenate([p[k] for p in e.parts]) if e.parts else np.zeros(0, _DTYPES[k])
+                           for k in range(3))
+            e.parts = []
+        elif e.n == 0:
+            t, v, f = (np.zeros(0, d) for d in _DTYPES)
+        else:
+            files = [self._file(name, k) for k in range(3)]
+
+            def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                t, v, f = (np.memmap(files[k], dtype=_DTYPES[k], mode="r+" if k == 2 else "r", shape=(e.n,))
+                           for k in range(3))
+                return np.asarray(t), np.asarray(v), np.asarray(f)
+
+            return LazyChannel(name, e.unit, e.source, e.n, load, e.texts)
+        return Channel(name, e.unit, t, v, f, e.source, e.texts)
+
+    def cleanup(self) -> None:
+        """Remove the files (channels mapped from them must no longer be used)."""
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
