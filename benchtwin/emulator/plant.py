@@ -13,9 +13,9 @@ of :mod:`benchtwin.emulator.steps_control`, :mod:`~benchtwin.emulator.steps_powe
    advance the states.
 
 A vehicle file with ``fidelity = "high"`` sets ``P_HIFI`` and the high-fidelity tables: the same sub-steps
-then take the motor loss model, the RC/hysteresis pack with R0(T), the spin-loss gear drag, the tabulated
-converter and the cold-start fuel factor, and the battery, coolant and oil temperatures are states of the
-loop (docs/fidelity.md). For the paper form every such branch is skipped, so it computes the same floats.
+take the motor loss model, the RC/hysteresis pack with R0(T), the spin-loss gear drag, the tabulated converter,
+the cold-start fuel factor and the tyre slip (wheel speed = roller speed x (1 + s), s from the last step's axle
+force); battery, coolant and oil temperatures are states (docs/fidelity.md). The paper form skips them all.
 
 Parameters travel as one record, :class:`~benchtwin.emulator.params.PlantTables` (scalars ``p`` with
 named ``P_*`` indices, lookup tables); the state between steps and calls is ``st`` (``S_*`` below).
