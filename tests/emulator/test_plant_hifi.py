@@ -249,3 +249,11 @@ def test_tyre_slip_in_the_plant(hifi: VehicleConfig, short_trace) -> None:
     # the slip loss is booked: F_x v s summed over the test, within the ledger's own closure
     led = short_trace.meta["energy_ledger_j"]
     assert led["tyre_slip"] > 0.0
+
+
+@pytest.mark.parametrize(("key", "value"), [("slip_stiffness_per_load", 0.0), ("driven_axle_load_share", 1.5)])
+def test_bad_tyre_table_is_a_clear_error(hifi: VehicleConfig, key: str, value: float) -> None:
+    data = hifi.model_dump()
+    data["high_fidelity"]["tyre"][key] = value
+    with pytest.raises(Exception, match=rf"high_fidelity\.tyre\.{key}"):
+        validate_data(VehicleConfig, data)
