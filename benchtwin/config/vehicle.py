@@ -339,6 +339,14 @@ class EngineWarmupConfig(StrictModel):
     initial_coolant_degc: float = Field(ge=-40, le=130)
 
 
+class TyreSlipConfig(StrictModel):
+    """High-fidelity tyres on the rollers: longitudinal slip of the driven axle, s = F_x / (C_k m g share)."""
+
+    slip_stiffness_per_load: float = Field(gt=0, description="C_k / F_z, longitudinal slip stiffness per unit "
+                                                             "normal load (per unit slip)")
+    driven_axle_load_share: float = Field(gt=0, le=1, description="share of the test mass on the driven axle")
+
+
 class HighFidelityConfig(StrictModel):
     """Physics of the high-fidelity truth that the paper's model forms do not have (issue 9)."""
 
@@ -347,6 +355,7 @@ class HighFidelityConfig(StrictModel):
     transmission: TransmissionSpinConfig
     torque_converter: ConverterTableConfig
     engine: EngineWarmupConfig
+    tyre: TyreSlipConfig | None = None
 
 
 class VehicleConfig(StrictModel):

@@ -29,6 +29,7 @@ __all__ = [
     "torque_converter_curves_nm",
     "torque_converter_torques_nm",
     "transmission_output_torque_nm",
+    "tyre_slip",
 ]
 
 
@@ -446,3 +447,28 @@ def cold_start_factor(penalty_frac: float, warm_degc: float, coolant_degc: float
     if coolant_degc >= warm_degc:
         return 1.0
     return 1.0 + penalty_frac * (warm_degc - coolant_degc) / (warm_degc - 20.0)
+
+
+@njit(cache=True)
+def tyre_slip(force_n: float, slip_stiffness_n: float) -> float:
+    """Longitudinal slip of the driven tyres on the rollers, s = (v_wheel - v_roller) / v_roller.
+
+    Linear (brush-model) range of the slip curve: ``s = F_x / C_k``, with ``C_k`` the axle's slip stiffness
+    (N per unit slip), positive under traction, negative under braking, limited to +/-0.1 (beyond, a tyre
+    spins or locks; the plant's wheel-force limit keeps it below about 5 %). No slip when ``C_k <= 0``.
+
+    Parameters
+    ----------
+    force_n:
+        Longitudinal force of the driven axle on the rollers, N.
+    slip_stiffness_n:
+        Slip stiffness of the driven axle, N per unit slip.
+
+    Returns
+    -------
+    float
+        Slip, dimensionless.
+    """
+    if slip_stiffness_n <= 0.0:
+        return 0.0
+    return min(max(force_n / slip_stiffness_n, -0.1), 0.1)

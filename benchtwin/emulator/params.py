@@ -124,7 +124,8 @@ P_HF_ENGINE_HEAT_J_PER_K = 98
 P_HF_ENGINE_HEAT_FRAC = 99
 P_HF_RADIATOR_UA_W_PER_K = 100
 P_HF_THERMOSTAT_DEGC = 101
-NP = 102
+P_HF_SLIP_STIFFNESS_N = 102  # driven axle's longitudinal slip stiffness, N per unit slip (0: no slip)
+NP = 103
 
 # ---- command rows (one value per plant step) ----
 C_DYNO_MODE = 0  # 0 road-load, 1 speed-controlled
@@ -217,13 +218,14 @@ L_DYNO = 15
 L_KE0 = 16  # stored kinetic energy at start
 L_KE1 = 17  # at end
 L_SHIFT = 18  # gearshift clutches synchronising the pump side
-NL = 19
+L_TYRE = 19  # driven tyres slipping on the rollers (high-fidelity plant)
+NL = 20
 
 LEDGER_NAMES: tuple[str, ...] = (
     "fuel_chemical", "hv_battery_chemical", "lv_battery_chemical", "engine_loss", "motor_loss",
     "hv_battery_resistive", "lv_battery_resistive", "torque_converter_slip", "lockup_slip", "k0_slip",
     "transmission_loss", "brakes", "dcdc_loss", "lv_loads", "road_load_work", "dyno_absorbed",
-    "kinetic_start", "kinetic_end", "shift_clutch_slip",
+    "kinetic_start", "kinetic_end", "shift_clutch_slip", "tyre_slip",
 )
 #: ledger entries that feed energy in; the stored kinetic energy is ``kinetic_end - kinetic_start``
 LEDGER_INPUTS: tuple[str, ...] = ("fuel_chemical", "hv_battery_chemical", "lv_battery_chemical")
@@ -400,6 +402,9 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
         p[P_HF_ENGINE_HEAT_FRAC] = th.engine_heat_to_coolant_frac
         p[P_HF_RADIATOR_UA_W_PER_K] = th.engine_radiator_ua_w_per_k
         p[P_HF_THERMOSTAT_DEGC] = th.engine_thermostat_degc
+        if hf.tyre is not None:
+            p[P_HF_SLIP_STIFFNESS_N] = (hf.tyre.slip_stiffness_per_load * s.test_mass_kg * 9.81
+                                        * hf.tyre.driven_axle_load_share)
         k = np.asarray(hf.torque_converter.k_factor_rpm_per_sqrt_nm, float)
         tc_sr = np.asarray(hf.torque_converter.speed_ratio, float)
         tc_cap = np.sign(k) * (30.0 / np.pi) ** 2 / (k * k)

@@ -13,9 +13,9 @@ of :mod:`benchtwin.emulator.steps_control`, :mod:`~benchtwin.emulator.steps_powe
    advance the states.
 
 A vehicle file with ``fidelity = "high"`` sets ``P_HIFI`` and the high-fidelity tables: the same sub-steps
-then take the motor loss model, the RC/hysteresis pack with R0(T), the spin-loss gear drag, the tabulated
-converter and the cold-start fuel factor, and the battery, coolant and oil temperatures are states of the
-loop (docs/fidelity.md). For the paper form every such branch is skipped, so it computes the same floats.
+take the motor loss model, the RC/hysteresis pack with R0(T), the spin-loss gear drag, the tabulated converter,
+the cold-start fuel factor and the tyre slip (wheel speed = roller speed x (1 + s), s from the last step's axle
+force); battery, coolant and oil temperatures are states (docs/fidelity.md). The paper form skips them all.
 
 Parameters travel as one record, :class:`~benchtwin.emulator.params.PlantTables` (scalars ``p`` with
 named ``P_*`` indices, lookup tables); the state between steps and calls is ``st`` (``S_*`` below).
@@ -31,7 +31,13 @@ import numpy as np
 from numba import njit
 
 from benchtwin.emulator import params as out_rows
-from benchtwin.emulator.models import motor_elec_power_w, motor_loss_hifi_w, road_load_force_n, spin_loss_torque_nm
+from benchtwin.emulator.models import (
+    motor_elec_power_w,
+    motor_loss_hifi_w,
+    road_load_force_n,
+    spin_loss_torque_nm,
+    tyre_slip,
+)
 from benchtwin.emulator.params import (
     C_AREF,
     C_BRAKE,
@@ -50,6 +56,7 @@ from benchtwin.emulator.params import (
     C_SEG,
     C_VPRE,
     C_VTGT,
+    L_TYRE,
     P_BATT_CAPACITY_AS,
     P_BRAKE_GAIN_FRONT_NM_PER_BAR,
     P_BRAKE_GAIN_REAR_NM_PER_BAR,
@@ -63,6 +70,7 @@ from benchtwin.emulator.params import (
     P_FUEL_LHV_J_PER_KG,
     P_HF_OIL_REF_DEGC,
     P_HF_OIL_VISC_PER_K,
+    P_HF_SLIP_STIFFNESS_N,
     P_HF_SPIN_PER_RADPS,
     P_HIFI,
     P_LV_CAPACITY_AS,
@@ -146,7 +154,8 @@ S_HYSTERESIS = 30  # OCV hysteresis state, -1 (after discharge) .. +1 (after cha
 S_BATTERY_DEGC = 31
 S_COOLANT_DEGC = 32
 S_OIL_DEGC = 33
-N_STATE = 34
+S_TYRE_SLIP = 34  # driven tyres' slip on the rollers, from the previous step's force
+N_STATE = 35
 
 
 @njit(cache=True)
@@ -265,16 +274,12 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     esave_soc_pct = st[S_ESAVE_SOC_PCT]
     eff_mass_kg = st[S_EFF_MASS_KG]
     kstep = int(st[S_STEP])
-    lockup_engage_time_s = st[S_LOCKUP_ENGAGE_S]
-    inertia_phase_left_s = st[S_INERTIA_PHASE_S]
+    lockup_engage_time_s, inertia_phase_left_s = st[S_LOCKUP_ENGAGE_S], st[S_INERTIA_PHASE_S]
     old_gain_rad_per_m = st[S_OLD_GAIN_RAD_PER_M]
     hifi = p[P_HIFI] > 0.5
-    rc1_v = st[S_RC1_V]
-    rc2_v = st[S_RC2_V]
-    hysteresis = st[S_HYSTERESIS]
-    battery_degc = st[S_BATTERY_DEGC]
-    coolant_degc = st[S_COOLANT_DEGC]
-    oil_degc = st[S_OIL_DEGC]
+    rc1_v, rc2_v, hysteresis = st[S_RC1_V], st[S_RC2_V], st[S_HYSTERESIS]
+    battery_degc, coolant_degc, oil_degc = st[S_BATTERY_DEGC], st[S_COOLANT_DEGC], st[S_OIL_DEGC]
+    kin = 1.0 + st[S_TYRE_SLIP]  # wheel speed / roller speed (exactly 1 for the paper form)
 
     time_s = kstep * dt
     dyno_mode = int(cmd[C_DYNO_MODE, i])
@@ -298,10 +303,10 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     # ---- shift logic: target gear, then actual gear after the actuation delay ----
     (gear_target, gear, shift_timer_s, lockup_closed, lockup_engage_time_s, inertia_phase_left_s,
      old_gain_rad_per_m) = shift_step(
-        tab, speed_mps, pedal_pct, int(cmd[C_GEAR, i]), gear_target, gear, shift_timer_s, lockup_closed,
+        tab, speed_mps * kin, pedal_pct, int(cmd[C_GEAR, i]), gear_target, gear, shift_timer_s, lockup_closed,
         lockup_engage_time_s, inertia_phase_left_s, old_gain_rad_per_m)
     inertia_phase_left_s, gain_rad_per_m, eff_gain_rad_per_m, eff_ratio, turbine_speed_radps = gear_gains(
-        tab, gear, inertia_phase_left_s, old_gain_rad_per_m, speed_mps, pump_speed_radps)
+        tab, gear, inertia_phase_left_s, old_gain_rad_per_m, speed_mps * kin, pump_speed_radps)
 
     # ---- machine limits and torque demand ----
     motor_max_nm, motor_gen_max_nm, engine_max_nm, torque_demand_nm, power_demand_w, limit_speed_radps = \
@@ -316,7 +321,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     # ---- K0 clutch ----
     k0_closed, engine_speed_radps, pump_speed_radps, speed_mps, turbine_speed_radps, engine_self_energy_j = k0_step(
         p, led, int(cmd[C_K0, i]), engine_on, k0_closed, engine_speed_radps, pump_speed_radps, speed_mps,
-        turbine_speed_radps, lockup_closed, gear, gain_rad_per_m, eff_mass_kg)
+        turbine_speed_radps, lockup_closed, gear, gain_rad_per_m * kin, eff_mass_kg)
     pump_inertia_kgm2 = p[P_MOTOR_INERTIA_KGM2] + (p[P_ENGINE_INERTIA_KGM2] if k0_closed else 0.0)
 
     # ---- lock-up command, torque split, brakes and blending, pump-side torque control ----
@@ -330,7 +335,8 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
         motor_gen_max_nm)
     engine_torque_nm, motor_torque_nm, idle_gain_nm_per_radps = pump_torque_control(
         p, gear, lockup_closed, k0_closed, engine_on, speed_mps, pump_speed_radps, pedal_pct, pump_inertia_kgm2,
-        gain_rad_per_m, old_gain_rad_per_m, inertia_phase_left_s, engine_torque_nm, motor_torque_nm, engine_max_nm,
+        gain_rad_per_m * kin, old_gain_rad_per_m * kin, inertia_phase_left_s, engine_torque_nm, motor_torque_nm,
+        engine_max_nm,
         motor_max_nm, motor_gen_max_nm)
     front_brake_nm, rear_brake_nm, brake_force_n = brake_split(p, brake_demand_nm, hydraulic_brake_nm)
 
@@ -347,7 +353,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     (lockup_closed, lockup_engage_time_s, lockup_capacity_nm, speed_mps, pump_speed_radps, turbine_speed_radps,
      engine_speed_radps) = lockup_engagement(
         tab, led, lockup_request, lockup_closed, gear, inertia_phase_left_s, lockup_engage_time_s, k0_closed,
-        source_torque_nm, pump_inertia_kgm2, gain_rad_per_m, eff_mass_kg, speed_mps, pump_speed_radps,
+        source_torque_nm, pump_inertia_kgm2, gain_rad_per_m * kin, eff_mass_kg, speed_mps, pump_speed_radps,
         turbine_speed_radps, engine_speed_radps)
 
     # ---- driveline and vehicle (gear drag: eq. 14's C0, or the high-fidelity spin loss) ----
@@ -359,12 +365,13 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
      pump_torque_eff_nm, lockup_torque_eff_nm, slip_gain_rad_per_m, pump_speed_step_radps) = driveline_step(
         tab, gear, lockup_closed, speed_mps, pump_speed_radps, turbine_speed_radps, source_torque_nm,
         pump_inertia_kgm2, gain_rad_per_m, eff_ratio, old_gain_rad_per_m, inertia_phase_left_s, lockup_capacity_nm,
-        idle_gain_nm_per_radps, eff_mass_kg, external_force_n, brake_force_n, drag_torque_nm)
+        idle_gain_nm_per_radps, eff_mass_kg, external_force_n, brake_force_n, drag_torque_nm, kin)
     wheel_force_n = final_drive_ratio * output_torque_nm / wheel_radius_m
     (accel_mps2, new_speed_mps, stop_force_n, mid_speed_mps, new_pump_speed_radps, mid_pump_speed_radps,
      mid_turbine_speed_radps, mid_shaft_speed_radps) = vehicle_step(
-        p, gear, lockup_closed, speed_mps, accel_mps2, pump_speed_radps, pump_speed_step_radps, gain_rad_per_m,
-        eff_gain_rad_per_m, eff_mass_kg)
+        p, gear, lockup_closed, speed_mps, accel_mps2, pump_speed_radps, pump_speed_step_radps, gain_rad_per_m * kin,
+        eff_gain_rad_per_m * kin, eff_mass_kg)
+    mid_shaft_speed_radps *= kin  # the shaft turns with the slipping wheels
 
     # ---- motor electrical power (Willans, or the high-fidelity loss model), 12 V system, HV battery ----
     if hifi:
@@ -395,16 +402,18 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
                      lockup_torque_eff_nm, lockup_torque_nm, input_torque_nm, output_torque_nm, slip_gain_rad_per_m,
                      mid_pump_speed_radps, mid_turbine_speed_radps, mid_speed_mps, mid_shaft_speed_radps,
                      brake_force_n, stop_force_n, road_load_n, parasitic_n, dyno_applied_n)
+    if hifi:  # shaft power at the wheel speed less the force at the roller speed: the tyres' slip loss
+        led[L_TYRE] += (output_torque_nm * mid_shaft_speed_radps - wheel_force_n * mid_speed_mps) * dt
 
     # ---- outputs (state at the start of the step, actions over the step) ----
     wrote = False
+    moving = 1.0 if mid_speed_mps > 0.0 else 0.0
     if kstep % decim == 0:
         o = out[:, iout]
-        o[out_rows.O_V] = speed_mps
+        o[out_rows.O_V] = speed_mps * kin  # the car's speed from its driven wheels; the dyno's is O_VDYN
         o[out_rows.O_A] = accel_mps2
         o[out_rows.O_X] = distance_m
         o[out_rows.O_DSET] = dyno_set_mps
-        moving = 1.0 if mid_speed_mps > 0.0 else 0.0
         o[out_rows.O_FFRONT] = -moving * front_brake_nm / wheel_radius_m - 0.5 * parasitic_n
         o[out_rows.O_FREAR] = wheel_force_n - moving * rear_brake_nm / wheel_radius_m - 0.5 * parasitic_n
         o[out_rows.O_FRL] = road_load_force_n(p[P_F0_N], p[P_F1_N_PER_MPS], p[P_F2_N_PER_MPS2], speed_mps)
@@ -427,8 +436,8 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
         o[out_rows.O_GA] = gear
         o[out_rows.O_TIN] = input_torque_nm
         o[out_rows.O_TOUT] = output_torque_nm
-        o[out_rows.O_WS] = final_drive_ratio * speed_mps / wheel_radius_m
-        o[out_rows.O_WW] = speed_mps / wheel_radius_m
+        o[out_rows.O_WS] = final_drive_ratio * speed_mps / wheel_radius_m * kin
+        o[out_rows.O_WW] = speed_mps / wheel_radius_m * kin
         o[out_rows.O_PF] = front_brake_nm / p[P_BRAKE_GAIN_FRONT_NM_PER_BAR] * 1e5
         o[out_rows.O_PR] = rear_brake_nm / p[P_BRAKE_GAIN_REAR_NM_PER_BAR] * 1e5
         o[out_rows.O_PMC] = max(o[out_rows.O_PF], o[out_rows.O_PR])
@@ -475,6 +484,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
         battery_degc, coolant_degc, oil_degc = hifi_thermal_step(
             p, engine_heat_w, hv_resistance_ohm * hv_current_a * hv_current_a, trans_loss_w, battery_degc,
             coolant_degc, oil_degc)
+    slip = tyre_slip(wheel_force_n - moving * rear_brake_nm / wheel_radius_m, p[P_HF_SLIP_STIFFNESS_N])
     stop = (end_latched and speed_mps <= 0.0
             and time_s - latch_time_s > latch_speed_mps / p[P_DRIVER_STOP_DECEL_MPS2] + 3.0)
 
@@ -503,13 +513,8 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     st[S_EFF_MASS_KG] = eff_mass_kg
     st[S_TIME_S] = time_s
     st[S_STEP] = kstep
-    st[S_LOCKUP_ENGAGE_S] = lockup_engage_time_s
-    st[S_INERTIA_PHASE_S] = inertia_phase_left_s
+    st[S_LOCKUP_ENGAGE_S], st[S_INERTIA_PHASE_S] = lockup_engage_time_s, inertia_phase_left_s
     st[S_OLD_GAIN_RAD_PER_M] = old_gain_rad_per_m
-    st[S_RC1_V] = rc1_v
-    st[S_RC2_V] = rc2_v
-    st[S_HYSTERESIS] = hysteresis
-    st[S_BATTERY_DEGC] = battery_degc
-    st[S_COOLANT_DEGC] = coolant_degc
-    st[S_OIL_DEGC] = oil_degc
+    st[S_RC1_V], st[S_RC2_V], st[S_HYSTERESIS] = rc1_v, rc2_v, hysteresis
+    st[S_BATTERY_DEGC], st[S_COOLANT_DEGC], st[S_OIL_DEGC], st[S_TYRE_SLIP] = battery_degc, coolant_degc, oil_degc, slip
     return wrote, stop

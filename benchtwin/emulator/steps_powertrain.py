@@ -329,7 +329,8 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
                    turbine_speed_radps: float, source_torque_nm: float, pump_inertia_kgm2: float,
                    gain_rad_per_m: float, eff_ratio: float, old_gain_rad_per_m: float, inertia_phase_left_s: float,
                    lockup_capacity_nm: float, idle_gain_nm_per_radps: float, eff_mass_kg: float,
-                   external_force_n: float, brake_force_n: float, drag_torque_nm: float) -> tuple:
+                   external_force_n: float, brake_force_n: float, drag_torque_nm: float,
+                   wheel_slip_gain: float = 1.0) -> tuple:
     """Driveline and vehicle acceleration over the step.
 
     - Lock-up closed (rigid): pump side and vehicle accelerate together; the gearbox is in drive
@@ -342,6 +343,9 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
 
     ``drag_torque_nm`` is the gear's C0 (eq. 14): the vehicle file's constant for the paper form, the spin
     loss at the present input speed and oil temperature for the high-fidelity plant.
+    ``wheel_slip_gain`` is 1 + s, the driven wheels' speed over the roller speed (tyre slip, high-fidelity
+    plant): the pump side turns with the wheels (``k (1 + s) v``) while the force reaches the rollers through
+    ``k``, so only the inertia terms take it; exactly 1 for the paper form.
 
     Returns
     -------
@@ -361,6 +365,7 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
     tsrc = source_torque_nm
     jp = pump_inertia_kgm2
     kg = gain_rad_per_m
+    kgk = kg * wheel_slip_gain  # kinematic gain: pump speed per roller speed
     meff = eff_mass_kg
     f_ext = external_force_n
     fb = brake_force_n
@@ -380,20 +385,20 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
         cc = drag_torque_nm
         ig = tab.ratios[gear]
         fbd = fb if v > 0.0 else 0.0
-        den = meff + eta * jp * kg * kg
+        den = meff + eta * jp * kg * kgk
         a = (kg * eta * (tsrc - cc) + f_ext - fbd) / den
-        tin = tsrc - jp * kg * a
+        tin = tsrc - jp * kgk * a
         if tin >= cc:
             tout = ig * eta * (tin - cc)
         else:
-            den = meff + jp * kg * kg / eta
+            den = meff + jp * kg * kgk / eta
             a = (kg * (tsrc / eta - cc) + f_ext - fbd) / den
-            tin = tsrc - jp * kg * a
+            tin = tsrc - jp * kgk * a
             if tin <= eta * cc:
                 tout = ig * (tin / eta - cc)
             else:
                 a = (f_ext - fbd) / (meff + 0.0)
-                tin = tsrc - jp * kg * a
+                tin = tsrc - jp * kgk * a
                 tout = 0.0
         if v <= 0.0 and a < 0.0:
             a = 0.0
@@ -415,7 +420,7 @@ def driveline_step(tab: PlantTables, gear: int, lockup_closed: bool, speed_mps: 
                 rold = old_gain_rad_per_m * rw / ifd
                 reff = min(rnew, rold) if tin >= 0.0 else max(rnew, rold)
             tout = transmission_output_torque_nm(reff, tab.eta_m[gear], drag_torque_nm, tin)
-            slip_w = (eff_ratio - reff) * ifd / rw  # turbine speed above the clutch's output side, per m/s
+            slip_w = (eff_ratio - reff) * ifd / rw * wheel_slip_gain  # turbine above the clutch's output, per m/s
             num = tsrc - tp - tlu
             dw = dt * num / (jp + dt * (dtp + dlu + d_idle))
             tp_eff = tp + dtp * dw

@@ -175,6 +175,8 @@ _TX = ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual")
 #: the gearbox input: motor and engine (P2 hybrid), or the engine alone (conventional)
 _TX_INPUT = (("em_speed_rpm", "em_torque_nm", "engine_torque_nm"), ("engine_speed_rpm", "engine_torque_nm"))
 _RATIOS = ("gear_ratios", "final_drive_ratio", "wheel_radius_m")
+#: the converter's pump: the motor (P2 hybrid, K0 open), or the engine alone (conventional)
+_TC_PUMP = (("em_speed_rpm", "em_torque_nm"), ("engine_speed_rpm", "engine_torque_nm"))
 
 #: every method in run order (transmission before the torque converter, which uses it)
 METHODS: tuple[Method, ...] = (
@@ -191,8 +193,8 @@ METHODS: tuple[Method, ...] = (
     Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _direct(identify_battery),
            spec_keys=("n_cells_series",)),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
-    Method("torque_converter", ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm",
-                                "gear_actual"), _torque_converter, spec_keys=_RATIOS),
+    Method("torque_converter", ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual"), _torque_converter,
+           spec_keys=_RATIOS, alternatives=_TC_PUMP),
     Method("shifts", ("gear_target", "vehicle_speed_kmh", "pedal_pct"), _shifts, needs_specs=False),
 )
 

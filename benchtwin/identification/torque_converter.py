@@ -15,7 +15,8 @@ From a Recording (:func:`identify_torque_converter`): the turbine speed comes fr
 (eq. 31: ``w_t = v / R_w * i_g * i_fd``), the turbine torque from the propeller-shaft torque through
 the transmission model of the engaged gear (eq. 32 in the form of docs/models.md:
 ``T_t = T_out / (i_g eta_m) + C0``), the pump speed and torque are the motor's (K0 open: the engine is
-decoupled). Only samples with the lock-up open, no shift in progress (target = actual gear, held for
+decoupled); on a conventional car's log (no motor channels) they are the engine's, which drives the pump
+alone. Only samples with the lock-up open, no shift in progress (target = actual gear, held for
 a while), positive torques and a quasi-steady pump speed are used.
 
 The curves: torque ratio ``TR = T_t / T_p`` against SR (Figure 18) and capacity factor
@@ -354,9 +355,10 @@ def identify_torque_converter(
     Parameters
     ----------
     rec:
-        Needs ``vehicle_speed_kmh``, ``em_speed_rpm``, ``em_torque_nm``, ``shaft_torque_nm`` and
-        ``gear_actual``; uses ``lockup_closed``, ``gear_target``, ``k0_closed`` (else ``engine_on``)
-        when present.
+        Needs ``vehicle_speed_kmh``, ``shaft_torque_nm``, ``gear_actual`` and the pump's speed and torque:
+        ``em_speed_rpm`` and ``em_torque_nm`` (P2 hybrid, K0 open), or, without motor channels,
+        ``engine_speed_rpm`` and ``engine_torque_nm`` (conventional car: the engine drives the pump alone);
+        uses ``lockup_closed``, ``gear_target``, ``k0_closed`` (else ``engine_on``) when present.
     specs:
         Gear ratios, final drive, wheel radius.
     rate_hz:
@@ -405,7 +407,9 @@ def identify_torque_converter(
     ------
     MissingChannelError, InsufficientDataError
     """
-    need = ["vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "shaft_torque_nm", "gear_actual"]
+    engine_only = "em_speed_rpm" not in rec and "em_torque_nm" not in rec
+    n_role, t_role = ("engine_speed_rpm", "engine_torque_nm") if engine_only else ("em_speed_rpm", "em_torque_nm")
+    need = ["vehicle_speed_kmh", n_role, t_role, "shaft_torque_nm", "gear_actual"]
     missing = [n for n in need if n not in rec]
     if missing:
         raise MissingChannelError(f"torque converter identification needs channel(s) {', '.join(missing)}")
@@ -418,7 +422,10 @@ def identify_torque_converter(
         tgt = np.rint(np.nan_to_num(d["gear_target"])).astype(int)
         change |= np.r_[False, np.diff(tgt) != 0] | (tgt != gear)
     reasons = []
-    n_p = d["em_speed_rpm"]
+    if engine_only:
+        reasons.append("no motor channels: the engine drives the pump alone (conventional layout), pump speed and "
+                       "torque are the engine's")
+    n_p, t_p = d[n_role], d[t_role]
     g = np.clip(gear, 1, len(specs.gear_ratios))
     ig = np.asarray(specs.gear_ratios)[g - 1]
     w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
@@ -433,7 +440,10 @@ def identify_torque_converter(
     use = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz))
     use &= (gear >= 1) & (gear <= len(specs.gear_ratios))
     use &= np.nan_to_num(d["lockup_closed"]) < 0.5
-    if "k0_closed" in d:
+    if engine_only:
+        if "engine_on" in d:
+            use &= np.nan_to_num(d["engine_on"], nan=0.0) >= 0.5
+    elif "k0_closed" in d:
         use &= np.nan_to_num(d["k0_closed"], nan=1.0) < 0.5
     elif "engine_on" in d:
         use &= np.nan_to_num(d["engine_on"], nan=1.0) < 0.5
@@ -441,7 +451,7 @@ def identify_torque_converter(
         reasons.append("no K0 or engine state in the recording: pump torque taken as motor torque everywhere")
     dn = _central_derivative(n_p, t, derivative_window_s)
     use &= np.abs(dn) <= max_pump_accel_rpm_s
-    use &= (n_p >= min_pump_speed_rpm) & (d["em_torque_nm"] >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
+    use &= (n_p >= min_pump_speed_rpm) & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
     segs = sorted({s.name for s in rec.segments if np.any(s.contains(t[use]))}) if rec.segments else []
     scale, scale_se, n_cal = 1.0, float("nan"), 0
     if calibrate_turbine_speed:
@@ -474,7 +484,7 @@ def identify_torque_converter(
     t_t = d["shaft_torque_nm"] / (ig * eta) + c0
     use &= np.isfinite(t_t)
     n_total = int(t.size)
-    res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], d["em_torque_nm"][use], t_t[use], gamma=gamma,
+    res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], t_p[use], t_t[use], gamma=gamma,
                                min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()),
                                dw_p=dn[use] / RPM_PER_RADS if pump_inertia else None, outlier_sigma=outlier_sigma)
     res["converter"].add(ParameterEstimate(

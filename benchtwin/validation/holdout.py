@@ -137,7 +137,8 @@ def measured(trace: Trace, start_s: float, end_s: float) -> dict[str, float]:
     return {"fuel_g": fuel_g, "co2_g": fuel_g * CO2_G_PER_G_DIESEL,
             "electric_wh": float(np.sum(tr["battery_voltage_v"] * tr["battery_current_a"] * dt) / 3600.0),
             "final_soc_pct": float(tr["displayed_soc_pct"][-1]), "initial_soc_pct": float(tr["displayed_soc_pct"][0]),
-            "distance_km": float(np.sum(tr["vehicle_speed_mps"] * dt) / 1000.0)}
+            # the roller's distance (the driven wheels slip on the rollers: their speed reads a little high)
+            "distance_km": float(np.sum(tr["dyno_speed_mps"] * dt) / 1000.0)}
 
 
 def predict_drive(model: MapVehicle, rec: Recording, trace: Trace, start_s: float, end_s: float, name: str, *,

@@ -290,6 +290,27 @@ def test_detect_lag_recovers_a_known_shift() -> None:
     assert detect_lag(t, x, t, np.random.default_rng(0).normal(size=t.size)) is None
 
 
+def test_slip_aware_lag_removes_the_tyre_slip_from_the_clock_offset() -> None:
+    """A wheel speed that slips in proportion to the force (s = F / C_k) against the roller speed 0.237 s later
+    on the dyno's clock: the plain cross-correlation reads the slip as a time shift; with the slip in the model
+    the shift comes back within the 2 ms the plain one gives without slip (test above)."""
+    from benchtwin.chain.alignment import slip_aware_lag
+
+    t = np.arange(0, 600, 0.01)
+    v = 15.0 + 8.0 * np.sin(0.05 * t) + 4.0 * np.sin(0.21 * t + 1.0) + 1.5 * np.sin(0.8 * t)  # m/s
+    a = 8.0 * 0.05 * np.cos(0.05 * t) + 4.0 * 0.21 * np.cos(0.21 * t + 1.0) + 1.5 * 0.8 * np.cos(0.8 * t)
+    force = 2162.0 * a + 170.0 + 0.5 * v**2  # rear axle force, N
+    wheel = v * (1.0 + force / (18.0 * 2162.0 * 9.81 * 0.5))
+    tb = t + 0.237
+    plain = detect_lag(t, wheel, tb, v)
+    assert abs(plain - 0.237) > 0.03  # ~ m v / C_k: the slip reads as tens of ms
+    lag = slip_aware_lag(t, wheel, tb, v, [(tb, np.zeros_like(v)), (tb, force)], plain)
+    assert lag == pytest.approx(0.237, abs=0.002)
+    # no slip: the same lag as the plain cross-correlation
+    lag0 = detect_lag(t, v, tb, v)
+    assert slip_aware_lag(t, v, tb, v, [(tb, force)], lag0) == pytest.approx(0.237, abs=0.002)
+
+
 def test_write_and_read_single_logs(tmp_path: Path) -> None:
     f = np.zeros(3, dtype=FRAME_DTYPE)
     f["timestamp"] = [0.0, 0.001, 0.002]

@@ -10,12 +10,13 @@ from benchtwin.config import scenario_path, validate_data
 from benchtwin.config.campaign import CampaignConfig, load_campaign
 from benchtwin.config.vehicle import VehicleConfig, load_vehicle
 from benchtwin.emulator import energy_balance, simulate_campaign
-from benchtwin.emulator.models import cold_start_factor, motor_loss_hifi_w, tabulated_converter_torques_nm
+from benchtwin.emulator.models import cold_start_factor, motor_loss_hifi_w, tabulated_converter_torques_nm, tyre_slip
 from benchtwin.emulator.params import (
     P_AMBIENT_DEGC,
     P_DT_S,
     P_HF_OIL_REF_DEGC,
     P_HF_OIL_VISC_PER_K,
+    P_HF_SLIP_STIFFNESS_N,
     P_HF_SPIN_PER_RADPS,
     P_HIFI,
     build_tables,
@@ -177,7 +178,8 @@ def test_cold_start_fuel_and_thermal_states(hifi: VehicleConfig, tab) -> None:
                                / tr.oil_heat_capacity_j_per_k, rel=1e-12)
 
 
-def test_hifi_plant_ledger_closes_and_states_feed_back(hifi: VehicleConfig) -> None:
+@pytest.fixture(scope="module")
+def short_trace(hifi: VehicleConfig):
     camp = validate_data(CampaignConfig, {
         "name": "hifi_short", "seed": 3, "initial_displayed_soc_pct": 60.0, "tests": [
             {"kind": "ramp_up", "name": "g4_hybrid", "mode": "hybrid", "gear": 4, "speed_kmh": 60.0,
@@ -185,7 +187,11 @@ def test_hifi_plant_ledger_closes_and_states_feed_back(hifi: VehicleConfig) -> N
              "lockup": "closed"},
             {"kind": "acceleration", "name": "acc", "mode": "electric", "pedal_pct": 40.0,
              "end_speed_kmh": 80.0, "max_duration_s": 40.0}]})
-    tr = simulate_campaign(hifi, camp)
+    return simulate_campaign(hifi, camp)
+
+
+def test_hifi_plant_ledger_closes_and_states_feed_back(hifi: VehicleConfig, short_trace) -> None:
+    tr = short_trace
     bal = energy_balance(tr.meta["energy_ledger_j"])
     assert abs(bal["residual_frac"]) < 0.005, bal
     c = tr.channels
@@ -204,3 +210,50 @@ def test_hifi_plant_ledger_closes_and_states_feed_back(hifi: VehicleConfig) -> N
     np.testing.assert_allclose(c["em_elec_power_w"][k], tk * wk + loss, rtol=1e-9)
     # the cell temperature is a state of the loop that rises with the pack's losses
     assert c["battery_temp_degc"][-1] > c["battery_temp_degc"][0] + 0.05
+
+
+def test_tyre_slip_by_hand(hifi: VehicleConfig, tab) -> None:
+    ty = hifi.high_fidelity.tyre
+    # C_k = (C_k / F_z) x m g x axle share: 18 x 2162 kg x 9.81 m/s^2 x 0.5 = 190,883 N per unit slip
+    c_k = 18.0 * 2162.0 * 9.81 * 0.5
+    assert (ty.slip_stiffness_per_load, ty.driven_axle_load_share) == (18.0, 0.5)
+    assert tab.p[P_HF_SLIP_STIFFNESS_N] == pytest.approx(c_k, rel=1e-12)
+    assert tyre_slip(1000.0, c_k) == pytest.approx(1000.0 / 190882.98, rel=1e-6)  # 0.524 %
+    assert tyre_slip(-3000.0, c_k) == pytest.approx(-0.015716, rel=1e-4)  # braking: the wheel turns slower
+    assert tyre_slip(30000.0, c_k) == 0.1  # beyond the linear range the model stops at 10 %
+    assert tyre_slip(1000.0, 0.0) == 0.0  # paper form: no slip
+    paper = build_tables(load_vehicle(), load_campaign("quick.toml"))
+    assert paper.p[P_HF_SLIP_STIFFNESS_N] == 0.0
+
+
+def test_tyre_slip_in_the_plant(hifi: VehicleConfig, short_trace) -> None:
+    """Wheel speed over roller speed on the steady holds is 1 + F_x / C_k, F_x the driven axle's force."""
+    c, sp = short_trace.channels, hifi.specs
+    rl = hifi.road_load
+    v, vd = c["vehicle_speed_mps"], c["dyno_speed_mps"]
+    kmh = 3.6 * vd
+    parasitic = rl.parasitic_f0_n + rl.parasitic_f1_n_per_kmh * kmh + rl.parasitic_f2_n_per_kmh2 * kmh**2
+    f_x = c["dyno_force_rear_n"] + 0.5 * parasitic  # the rear channel carries half the parasitic loss
+    c_k = 18.0 * sp.test_mass_kg * 9.81 * 0.5
+    # steady samples: the force moved by less than 0.5 % of itself from the previous output (the slip is that of
+    # the previous plant step's force, which lies between the two), moving at more than 5 m/s, in drive
+    df = np.abs(np.diff(f_x, prepend=np.nan))
+    k = np.flatnonzero((vd > 5.0) & (df < 0.005 * np.abs(f_x)) & (np.abs(f_x) > 200.0))
+    assert k.size > 200
+    slip = v[k] / vd[k] - 1.0
+    np.testing.assert_allclose(slip, f_x[k] / c_k, rtol=0.01)
+    assert slip.max() > 0.003  # the holds at 40 % pedal slip measurably
+    # the wheel and shaft speeds follow the wheels, the dyno measures the roller
+    np.testing.assert_allclose(c["wheel_speed_radps"] * sp.wheel_radius_m, v, rtol=1e-12)
+    np.testing.assert_allclose(c["shaft_speed_radps"] * sp.wheel_radius_m / sp.final_drive_ratio, v, rtol=1e-12)
+    # the slip loss is booked: F_x v s summed over the test, within the ledger's own closure
+    led = short_trace.meta["energy_ledger_j"]
+    assert led["tyre_slip"] > 0.0
+
+
+@pytest.mark.parametrize(("key", "value"), [("slip_stiffness_per_load", 0.0), ("driven_axle_load_share", 1.5)])
+def test_bad_tyre_table_is_a_clear_error(hifi: VehicleConfig, key: str, value: float) -> None:
+    data = hifi.model_dump()
+    data["high_fidelity"]["tyre"][key] = value
+    with pytest.raises(Exception, match=rf"high_fidelity\.tyre\.{key}"):
+        validate_data(VehicleConfig, data)

@@ -11,6 +11,11 @@ the motor), written as a 20 Hz CSV with the column names of ``scenarios/signal_m
 engine speed, torque and fuel, gears, pedal, lock-up, shaft torque, dyno and brakes; no pack, no motor.
 Specs without pack or rotor keys.
 
+Conventional log with converter driving: the P2 plant run as a conventional car (hybrid mode, engine forced on,
+K0 closed: the engine alone drives the pump, the motor's torque is zero and its rotor is part of the pump-side
+inertia), ramp-ups with the lock-up closed (transmission) and open (converter), written as the same CSV from
+where the engine first runs in each test.
+
 Tolerances are those the P2 path's tests derive for the same tests through the same ideal chain (each wire's
 resolution is what is left): battery 0.1 % (IVT-S and displayed SOC at their CAN resolution), motor 0.1 % on
 the Willans efficiencies and 1 % or 3 standard errors on the losses, road load 1 % (0.01 km/h speed
@@ -26,7 +31,8 @@ import numpy as np
 import pytest
 
 from benchtwin.cli import main
-from benchtwin.config._base import scenario_path
+from benchtwin.config._base import scenario_path, validate_data
+from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.identification.importers import import_log
 from benchtwin.identification.run import identify_all
@@ -152,7 +158,9 @@ def test_a_conventional_log_identifies_transmission_engine_and_shifts(quick_idea
     imported = import_log(log, CONV_MAP)
     assert not any(r.startswith(("battery", "em_", "hpcu")) for r in imported.channels)
     res = identify_all(imported, _conventional_specs(vehicle))
-    assert set(res.meta["skipped"]) == {"motor", "battery", "torque_converter"}
+    # the converter method runs on the engine's channels (this log has no converter-mode driving worth fitting:
+    # see test_a_conventional_log_identifies_its_converter)
+    assert set(res.meta["skipped"]) == {"motor", "battery"} and "torque_converter" in res.meta["ran"]
     fit = res.fits["transmission.gear5"]
     assert any("engine drives the gearbox input alone" in r for r in fit.reasons)
     np.testing.assert_allclose(fit.value("eta_m"), vehicle.transmission.eta_m[4], rtol=5e-3)
@@ -174,6 +182,75 @@ def test_a_conventional_log_identifies_transmission_engine_and_shifts(quick_idea
             np.testing.assert_allclose(f.value("c0_kmh") + f.value("c1_kmh_per_pct") * p,
                                        v0[g - 1] + s1[g - 1] * p, atol=1.0, err_msg=key)
     assert n_ok >= 8
+
+
+def _conventional_campaign() -> CampaignConfig:
+    """Ramp-ups driven by the engine alone: lock-up closed for the gearbox, open for the converter (0.4 < SR < 1)."""
+    def ramp(name: str, gear: int, kmh: float, pedals: list[float], lockup: str) -> dict:
+        return {"kind": "ramp_up", "name": name, "mode": "hybrid", "gear": gear, "speed_kmh": kmh,
+                "pedal_steps_pct": pedals, "step_hold_s": 6.0, "lead_in_s": 8.0, "engine": "on", "k0": "closed",
+                "lockup": lockup}
+
+    tests = [ramp("tx_g1_20", 1, 20.0, [10, 20, 30, 40], "closed"),
+             ramp("tx_g2_35", 2, 35.0, [10, 20, 30, 40], "closed"),
+             ramp("tx_g3_50", 3, 50.0, [10, 20, 30, 40], "closed"),
+             ramp("tc_g1_6", 1, 6.0, [15, 25, 35, 45, 55], "open"),
+             ramp("tc_g1_12", 1, 12.0, [10, 20, 30, 40, 50], "open"),
+             ramp("tc_g2_20", 2, 20.0, [5, 10, 20, 30, 40], "open"),
+             ramp("tc_g2_35", 2, 35.0, [3, 6, 10, 15], "open")]
+    return validate_data(CampaignConfig, {"name": "conventional_converter", "seed": 5,
+                                          "initial_displayed_soc_pct": 80.0, "tests": tests})
+
+
+def test_a_conventional_log_identifies_its_converter(tmp_path):
+    """Pump torque = engine torque, pump speed = engine speed: the converter curves come back within the P2
+    vehicle's own converter checks (validation.parameters, ideal profile: 0.5 % on the converter-mode TR and
+    CF curves, 2 % on the coupling CF), and params.json says the method ran on the engine's channels.
+    About 8 s (362 s simulated)."""
+    from benchtwin.chain.batch import run_batch
+    from benchtwin.config.setup import load_setup
+    from benchtwin.config.vehicle import load_vehicle
+    from benchtwin.emulator import simulate_campaign
+    from benchtwin.validation.parameters import _tc_checks
+
+    vehicle = load_vehicle(scenario_path("vehicles", "p2_phev_9at.toml"))
+    trace = simulate_campaign(vehicle, _conventional_campaign())
+    c = trace.channels
+    on = (c["engine_on"] > 0.5) & (c["k0_closed"] > 0.5)
+    open_drive = on & (c["lockup_closed"] < 0.5) & (c["gear_actual"] > 0) & (c["pedal_pct"] > 0)
+    assert open_drive.sum() > 5000 and np.all(c["em_torque_nm"][open_drive] == 0.0)  # the engine alone drives
+    rec = run_batch(trace, load_setup(scenario_path("setups", "ideal.toml")), seed=1)
+    ts = []
+    for s in rec.segments:  # from where the engine first runs with K0 closed (the lead-in is electric)
+        t = np.arange(np.ceil(s.start_s * 20), np.floor(s.end_s * 20)) / 20
+        k = np.flatnonzero((rec["engine_on"].at(t, hold=True) > 0.5) & (rec["k0_closed"].at(t, hold=True) > 0.5))
+        ts.append(t[k[0]:])
+    t = np.concatenate(ts)
+    cols, names = [t], ["time_s"]
+    for role, (column, _unit) in _inverse_map(CONV_MAP).items():
+        cols.append(rec[role].at(t, hold=role in _STATES))
+        names.append(column)
+    log = tmp_path / "conventional_tc.csv"
+    np.savetxt(log, np.column_stack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.6g")
+    specs = _conventional_specs(vehicle)
+    spec_file = tmp_path / "specs.toml"
+    spec_file.write_text("\n".join(f"{k} = {json.dumps(v)}" for k, v in specs.model_dump(exclude_none=True).items()),
+                         encoding="utf-8")
+    out = tmp_path / "out"
+    main(["identify", str(log), "--signal-map", str(CONV_MAP), "--specs", str(spec_file), "--out", str(out),
+          "--no-figures", "--methods", "transmission,torque_converter"])
+    params = json.loads((out / "params.json").read_text(encoding="utf-8"))
+    assert "torque_converter" in params["meta"]["ran"] and "torque_converter" not in params["meta"]["skipped"]
+    assert "torque_converter.converter" in params["fits"]
+    res = identify_all(import_log(log, CONV_MAP), specs, methods=["transmission", "torque_converter"])
+    assert "torque_converter" not in res.errors
+    assert any("engine drives the pump alone" in r for r in res.fits["torque_converter.converter"].reasons)
+    checks = _tc_checks(res, vehicle, "ideal")
+    assert {ch.name for ch in checks} == {"torque_converter.torque_ratio_curve",
+                                          "torque_converter.capacity_factor_curve",
+                                          "torque_converter.coupling_cf_curve"}
+    for ch in checks:
+        assert ch.passed and ch.tolerance in (5e-3, 2e-2), ch
 
 
 def test_contradictory_specs_are_a_one_line_error(tmp_path, capsys):
