@@ -127,7 +127,47 @@ def components(recording: Recording, roles: Iterable[str]) -> list[Component]:
     return comps
 
 
-def dithered(recording: Recording, comp: Component, rng: np.random.Generator) -> Recording:
+class _Rounding:
+    """What every draw of :func:`dithered` over one role shares: its good samples and their scaled levels.
+
+    The scaling ``(v - lo) / (BIN_STEPS q)`` does not depend on the draw, only the grid phase added to it does,
+    so the draws of one component compute it once (the same floating-point operations as a draw on its own,
+    hence the same errors). The largest level index of a draw is that of the largest reading (``floor`` of a
+    monotone expression), so the number of errors drawn is known without a maximum over the indices.
+    """
+
+    def __init__(self, ch: Any, q: float) -> None:
+        v = ch.values
+        # the good samples only: a flagged sample (clipped, lost, out of range) is excluded by every method, so
+        # its value must not move the grid of the others' rounding errors
+        fin = ch.good
+        self.usable = bool(fin.any()) and q > 0
+        if not self.usable:
+            return
+        self.all_good = bool(fin.all())
+        self.fin = None if self.all_good else fin
+        vf = v if self.all_good else v[fin]
+        lo = float(vf.min())
+        self.scaled = (vf - lo) / (BIN_STEPS * q)
+        self.top = float(self.scaled.max())
+        self.q = q
+
+    def moved(self, ch: Any, rng: np.random.Generator) -> np.ndarray:
+        """The channel's values with one draw of level-wise rounding errors added (see :func:`dithered`)."""
+        phase = rng.uniform(0.0, 1.0)
+        idx = np.floor(self.scaled + phase)
+        n_levels = math.floor(self.top + phase) + 1
+        errors = rng.uniform(-0.5 * self.q, 0.5 * self.q, n_levels)
+        add = errors[idx.astype(np.int64)]
+        if self.all_good:
+            return ch.values + add
+        moved = ch.values.copy()
+        moved[self.fin] += add
+        return moved
+
+
+def dithered(recording: Recording, comp: Component, rng: np.random.Generator,
+             shared: dict[str, _Rounding] | None = None) -> Recording:
     """One Monte Carlo draw of the rounding errors of the component's roles (GUM Supplement 1, JCGM 101).
 
     A reading rounded to a step ``q`` is off by an error uniform in ``+-q/2`` (JCGM 100 F.2.2.1) that is a
@@ -136,22 +176,21 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator) ->
     error ``U(-q/2, q/2)`` and adds to each sample the error of its interval: a steady point moves as a
     whole (also when its noise flickers it by a step), points at other levels move independently, and a
     channel whose noise spreads it over many steps averages its errors out, as the rounding does.
+
+    ``shared`` (role -> work shared by the draws, filled on first use) lets several draws of one component
+    skip what they have in common; the draws are the same with or without it.
     """
     channels = dict(recording.channels)
     for role, q in zip(comp.roles, comp.steps, strict=True):
         ch = recording.channels[role]
-        v = ch.values
-        # the good samples only: a flagged sample (clipped, lost, out of range) is excluded by every method, so
-        # its value must not move the grid of the others' rounding errors
-        fin = ch.good
-        if not fin.any() or not q > 0:
+        r = shared.get(role) if shared is not None else None
+        if r is None:
+            r = _Rounding(ch, q)
+            if shared is not None:
+                shared[role] = r
+        if not r.usable:
             continue
-        lo = float(v[fin].min())
-        idx = np.floor((v[fin] - lo) / (BIN_STEPS * q) + rng.uniform(0.0, 1.0)).astype(np.int64)
-        errors = rng.uniform(-0.5 * q, 0.5 * q, int(idx.max()) + 1)
-        moved = v.copy()
-        moved[fin] += errors[idx]
-        channels[role] = ch.with_values(moved)
+        channels[role] = ch.with_values(r.moved(ch, rng))
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
                      start_time=recording.start_time)
 
@@ -206,10 +245,12 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         for comp in components(recording, roles):
             draws = RESOLUTION_DRAWS if comp.kind == "resolution" else 1
             rng = np.random.default_rng(RESOLUTION_SEED)
+            shared: dict[str, _Rounding] = {}
             deltas: dict[str, list[float]] = {}
             for _ in range(draws):
                 reruns += 1
-                rec = dithered(recording, comp, rng) if comp.kind == "resolution" else perturbed(recording, comp)
+                rec = (dithered(recording, comp, rng, shared) if comp.kind == "resolution"
+                       else perturbed(recording, comp))
                 try:
                     other = run(rec).parameters()
                 except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
