@@ -33,14 +33,16 @@ statistical one, and ``meta["type_b"]`` says so.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
-from benchtwin.recording import Recording
+from benchtwin.recording import LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
 
@@ -206,9 +208,39 @@ def perturbed(recording: Recording, comp: Component) -> Recording:
                      start_time=recording.start_time)
 
 
+#: threads the re-runs share on a Recording held in memory (the machine's cores, at most 2: the fits' large
+#: array operations release the GIL, their Python glue does not, so a third thread gains little)
+WORKERS = max(1, min(2, os.cpu_count() or 1))
+
+#: one unit of work: the method's fits (names), its nominal parameters, the component, the function that runs it
+_Task = tuple[list[str], dict[str, Any], Component, Callable[[Recording], IdentificationResult]]
+
+
+def _propagate_one(recording: Recording, task: _Task) -> tuple[dict[str, list[float]], int, list[str]]:
+    """The re-runs of one method for one component: per parameter, the changes of its value; re-runs; failures."""
+    fits, nominal, comp, run = task
+    draws = RESOLUTION_DRAWS if comp.kind == "resolution" else 1
+    rng = np.random.default_rng(RESOLUTION_SEED)
+    shared: dict[str, _Rounding] = {}
+    deltas: dict[str, list[float]] = {}
+    failed: list[str] = []
+    for _ in range(draws):
+        rec = dithered(recording, comp, rng, shared) if comp.kind == "resolution" else perturbed(recording, comp)
+        try:
+            other = run(rec).parameters()
+        except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
+            failed.append(f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}")
+            continue
+        for key, p in nominal.items():
+            q = other.get(key)
+            if q is not None and math.isfinite(q.value) and math.isfinite(p.value):
+                deltas.setdefault(key, []).append(q.value - p.value)
+    return deltas, draws, failed
+
+
 def propagate_type_b(result: IdentificationResult, recording: Recording,
                      plan: Iterable[tuple[Iterable[str], Iterable[str], Callable[[Recording], IdentificationResult]]],
-                     ) -> dict[str, Any]:
+                     *, workers: int | None = None) -> dict[str, Any]:
     """Add the type B budget to every parameter of ``result`` (in place).
 
     Parameters
@@ -220,6 +252,11 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
     plan:
         Per method: the names of the fits it produced, the roles it reads, and a function that runs it
         (with whatever it depends on) on another Recording and returns its fits.
+    workers:
+        Threads that share the re-runs (default :data:`WORKERS`). Each re-run is independent of the others
+        and the contributions are put together in the plan's order, so the budget is the same for any
+        count. A lazy Recording (:meth:`Recording.open`) is worked through on one thread, method by method,
+        each method's channels dropped before the next's are read (its memory stays bounded by one method).
 
     Returns
     -------
@@ -231,40 +268,40 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
     if not table:
         return {"declared": False, "note": "the recording declares no systematic uncertainties (e.g. a real log "
                                            "without a budget): the total interval equals the statistical one"}
+    tasks: list[list[_Task]] = []
+    for fits, roles, run in plan:
+        fits = sorted(fits)
+        nominal = {f"{fk}.{pk}": p for fk in fits if fk in result.fits for pk, p in result.fits[fk].params.items()}
+        if nominal:
+            tasks.append([(fits, nominal, comp, run) for comp in components(recording, roles)])
+    lazy = any(isinstance(c, LazyChannel) for c in recording.channels.values())
+    n_threads = 1 if lazy else max(1, int(workers if workers is not None else WORKERS))
+    if n_threads == 1:
+        kept = recording.loaded()
+        done = []
+        for method_tasks in tasks:
+            # a lazy Recording: what one method's re-runs read goes before the next method's
+            recording.drop(recording.loaded() - kept)
+            done += [_propagate_one(recording, t) for t in method_tasks]
+        recording.drop(recording.loaded() - kept)
+    else:
+        flat = [t for method_tasks in tasks for t in method_tasks]
+        # the Monte Carlo components (several re-runs each) first, so that the threads end together
+        order = sorted(range(len(flat)), key=lambda i: flat[i][2].kind != "resolution")
+        with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
+            futures = {i: pool.submit(_propagate_one, recording, flat[i]) for i in order}
+            done = [futures[i].result() for i in range(len(flat))]
     contrib: dict[str, dict[str, float]] = {}
     dof: dict[str, dict[str, float]] = {}
     reruns, failed = 0, []
-    kept = recording.loaded()
-    for fits, roles, run in plan:
-        # a lazy Recording (Recording.open): what one method's re-runs read goes before the next method's
-        recording.drop(recording.loaded() - kept)
-        fits = sorted(fits)
-        nominal = {f"{fk}.{pk}": p for fk in fits if fk in result.fits for pk, p in result.fits[fk].params.items()}
-        if not nominal:
-            continue
-        for comp in components(recording, roles):
-            draws = RESOLUTION_DRAWS if comp.kind == "resolution" else 1
-            rng = np.random.default_rng(RESOLUTION_SEED)
-            shared: dict[str, _Rounding] = {}
-            deltas: dict[str, list[float]] = {}
-            for _ in range(draws):
-                reruns += 1
-                rec = (dithered(recording, comp, rng, shared) if comp.kind == "resolution"
-                       else perturbed(recording, comp))
-                try:
-                    other = run(rec).parameters()
-                except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
-                    failed.append(f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}")
-                    continue
-                for key, p in nominal.items():
-                    q = other.get(key)
-                    if q is not None and math.isfinite(q.value) and math.isfinite(p.value):
-                        deltas.setdefault(key, []).append(q.value - p.value)
-            for key, d in deltas.items():
-                contrib.setdefault(key, {})[comp.source] = float(np.sqrt(np.mean(np.square(d))))
-                if comp.kind == "resolution":
-                    dof.setdefault(key, {})[comp.source] = float(len(d))
-    recording.drop(recording.loaded() - kept)
+    for (_fits, _nominal, comp, _run), (deltas, n, fails) in zip(
+            [t for method_tasks in tasks for t in method_tasks], done, strict=True):
+        reruns += n
+        failed += fails
+        for key, d in deltas.items():
+            contrib.setdefault(key, {})[comp.source] = float(np.sqrt(np.mean(np.square(d))))
+            if comp.kind == "resolution":
+                dof.setdefault(key, {})[comp.source] = float(len(d))
     for fk, fit in result.fits.items():
         for pk, p in fit.params.items():
             c = contrib.get(f"{fk}.{pk}")
