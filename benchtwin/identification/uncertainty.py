@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
+from benchtwin.identification._reuse import reusing
 from benchtwin.recording import LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
@@ -276,7 +277,7 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             tasks.append([(fits, nominal, comp, run) for comp in components(recording, roles)])
     lazy = any(isinstance(c, LazyChannel) for c in recording.channels.values())
     n_threads = 1 if lazy else max(1, int(workers if workers is not None else WORKERS))
-    if n_threads == 1:
+    if n_threads == 1 and lazy:
         kept = recording.loaded()
         done = []
         for method_tasks in tasks:
@@ -288,7 +289,8 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         flat = [t for method_tasks in tasks for t in method_tasks]
         # the Monte Carlo components (several re-runs each) first, so that the threads end together
         order = sorted(range(len(flat)), key=lambda i: flat[i][2].kind != "resolution")
-        with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
+        # the channels a re-run does not move are resampled and averaged once for all re-runs (see _reuse)
+        with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
             futures = {i: pool.submit(_propagate_one, recording, flat[i]) for i in order}
             done = [futures[i].result() for i in range(len(flat))]
     contrib: dict[str, dict[str, float]] = {}
