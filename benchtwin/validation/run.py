@@ -73,7 +73,7 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         whether it hit.
     type_b:
         Propagate the setup's declared systematic uncertainties into every parameter's total interval (GUM
-        type B: each method re-run per component, about 15-20 s on the paper campaign). None: on for a
+        type B: each method re-run per component, about 8.5 s on two cores for the paper campaign). None: on for a
         whole-campaign validation, off for a family run (the fast inner loop of sweeps and property tests,
         whose total intervals then equal the statistical ones, as ``identification.meta['type_b']`` says).
 
