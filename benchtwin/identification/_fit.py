@@ -15,10 +15,10 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize
 
 from benchtwin.errors import CollinearError, FitFailedError, InsufficientDataError, NoExcitationError
-from benchtwin.identification._gum import Z95, coverage_factor, dof_of_interval
+from benchtwin.identification._gum import Z95, coverage_factor, dof_of_interval, t975
 
 __all__ = [
     "Z95",
@@ -369,7 +369,7 @@ def linear_fit(
     cov = cov * inflation
     dof_t = max(int(n / inflation) - p, 1) if serial else dof
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    tq = float(stats.t.ppf(0.975, dof_t)) if dof > 0 else float("nan")
+    tq = t975(dof_t) if dof > 0 else float("nan")
     r2, adj = r_squared(b, y_fit, p)
     rmse = float(np.sqrt(np.mean((b - y_fit) ** 2)))
     units = list(units) if units is not None else [""] * p
@@ -444,7 +444,7 @@ def nonlinear_fit(
         raise CollinearError(f"{what}: parameters {', '.join(names)} are not separable from these data")
     cov = s2 * np.linalg.pinv(J.T @ J)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    tq = float(stats.t.ppf(0.975, dof)) if dof > 0 else float("nan")
+    tq = t975(dof)
     y_fit = y + resid
     r2, adj = r_squared(y, y_fit, p)
     rmse = float(np.sqrt(np.mean(resid**2)))
@@ -491,7 +491,7 @@ def derived(fit: FitResult, name: str, func: Callable[[np.ndarray], float], *, u
     var = float(grad @ cov @ grad)
     se = math.sqrt(var) if var >= 0 and math.isfinite(var) else float("nan")
     dof = max(fit.n_points - x.size, 1)
-    tq = float(stats.t.ppf(0.975, dof))
+    tq = t975(dof)
     est = ParameterEstimate(name, val, se, (val - tq * se, val + tq * se), fit.r2, fit.n_points, unit,
                             list(fit.segments))
     fit.add(est)

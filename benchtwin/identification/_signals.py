@@ -24,6 +24,7 @@ from benchtwin.errors import (
     NoExcitationError,
 )
 from benchtwin.identification._derivative import runs, smooth_derivative
+from benchtwin.identification._reuse import reused
 from benchtwin.recording import Channel, Flag, Recording
 
 __all__ = [
@@ -186,14 +187,19 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
             ) -> tuple[np.ndarray, np.ndarray]:
     """Values of ``ch`` at ``t`` (linear, or zero-order hold; NaN outside its span) and a mask of grid
     samples touched by a flagged or non-finite source sample."""
-    ts, vs, fl = _in_order(ch)
-    fidx = (cache if cache is not None else _IndexCache(t)).fidx(ts, shift_s)
-    v = np.empty(t.shape, dtype=float)
-    flagged = np.empty(t.shape, dtype=bool)
-    for k in range(0, t.size, SAMPLE_BLOCK):  # block by block: the same numbers, bounded temporaries
-        part = slice(k, k + SAMPLE_BLOCK)
-        v[part], flagged[part] = _sample_block(ts, vs, fl, t[part], fidx[part], hold, shift_s)
-    return v, flagged
+    def compute() -> tuple[np.ndarray, np.ndarray]:
+        ts, vs, fl = _in_order(ch)
+        fidx = (cache if cache is not None else _IndexCache(t)).fidx(ts, shift_s)
+        v = np.empty(t.shape, dtype=float)
+        flagged = np.empty(t.shape, dtype=bool)
+        for k in range(0, t.size, SAMPLE_BLOCK):  # block by block: the same numbers, bounded temporaries
+            part = slice(k, k + SAMPLE_BLOCK)
+            v[part], flagged[part] = _sample_block(ts, vs, fl, t[part], fidx[part], hold, shift_s)
+        return v, flagged
+
+    # the type B re-runs sample the channels they do not move on the same grid again (see _reuse)
+    return reused("sample", (ch.timestamps, ch.values, ch.flags),
+                  (t.size, float(t[0]) if t.size else 0.0, t.tobytes(), hold, shift_s), compute)
 
 
 def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray, fidx: np.ndarray, hold: bool,

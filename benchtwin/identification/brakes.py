@@ -20,11 +20,11 @@ import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
-from scipy import stats
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError, MissingChannelError
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate, linear_fit
+from benchtwin.identification._gum import t975
 from benchtwin.identification._signals import (
     check_spread,
     gather,
@@ -183,7 +183,7 @@ def _distribution(ff: FitResult, fr: FitResult) -> FitResult:
     # delta method, independent fits: dk/dm_f = m_r / s^2, dk/dm_r = -m_f / s^2
     se = math.sqrt((mr.value / s**2 * mf.std_error) ** 2 + (mf.value / s**2 * mr.std_error) ** 2)
     dof = max(min(mf.n_points, mr.n_points) - 2, 1)
-    tq = float(stats.t.ppf(0.975, dof))
+    tq = t975(dof)
     n = mf.n_points + mr.n_points
     r2 = min(ff.r2, fr.r2)
     segs = sorted(set(ff.segments) | set(fr.segments))

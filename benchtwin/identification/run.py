@@ -392,6 +392,8 @@ def _rerun(name: str, specs: VehicleSpecs | None,
 
 #: fewest samples over which a continuous channel that never changes is taken for a stuck sensor
 STUCK_MIN_SAMPLES = 100
+#: samples looked at first (a channel that changes among them is not stuck)
+STUCK_HEAD = 4096
 
 
 def stuck_channels(recording: Recording) -> dict[str, float]:
@@ -409,9 +411,13 @@ def stuck_channels(recording: Recording) -> dict[str, float]:
     for name, ch in recording.channels.items():
         if name in STATE_ROLES or unit_of_role(name) == "" or len(ch) < STUCK_MIN_SAMPLES:
             continue
-        v = ch.values[np.isfinite(ch.values)]
-        if v.size >= STUCK_MIN_SAMPLES and v[0] != 0.0 and np.all(v == v[0]):
-            out[name] = float(v[0])
+        head = ch.values[:STUCK_HEAD]
+        head = head[np.isfinite(head)]
+        # two different readings among the first ones settle it without a pass over the whole channel
+        if not (head.size and bool(np.any(head != head[0]))):
+            v = ch.values[np.isfinite(ch.values)]
+            if v.size >= STUCK_MIN_SAMPLES and v[0] != 0.0 and np.all(v == v[0]):
+                out[name] = float(v[0])
         if name not in kept:
             recording.drop([name])  # a lazy Recording: one channel in memory at a time
     return out

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchtwin.errors import DataError
+from benchtwin.identification._reuse import reused
 from benchtwin.identification._signals import (
     BAD_FLAGS,
     Grid,
@@ -171,6 +172,18 @@ class SteadyWindows:
             rec.drop([n for n in (name, other) if n is not None and n not in kept])
 
     def _raw_average(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
+        if not self.windows:
+            return np.array([])
+        ch = rec[name]
+        ch2 = rec[other] if other is not None else None
+        arrays = (ch.timestamps, ch.values, ch.flags) + (() if ch2 is None else (ch2.timestamps, ch2.values, ch2.flags))
+        edges = np.array([(w.start_s, w.end_s) for w in self.windows])
+        shifts = self.grid.shifts
+        key = (edges.tobytes(), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
+        # the type B re-runs average the channels they do not move over the same windows again (see _reuse)
+        return reused("raw_average", arrays, key, lambda: self._raw_average_of(rec, name, other))
+
+    def _raw_average_of(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
         shifts = self.grid.shifts
         ch = rec[name]
         shift = shifts.get(ch.source, 0.0)

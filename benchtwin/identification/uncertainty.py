@@ -33,14 +33,18 @@ statistical one, and ``meta["type_b"]`` says so.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable, Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
-from benchtwin.recording import Recording
+from benchtwin.identification._reuse import reusing
+from benchtwin.recording import LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
 
@@ -127,7 +131,62 @@ def components(recording: Recording, roles: Iterable[str]) -> list[Component]:
     return comps
 
 
-def dithered(recording: Recording, comp: Component, rng: np.random.Generator) -> Recording:
+@numba.njit(cache=True, nogil=True)
+def _add_level_errors(values: np.ndarray, scaled: np.ndarray, phase: float, errors: np.ndarray,
+                      positions: np.ndarray) -> np.ndarray:
+    """``values`` plus, at each good sample (``positions``, or all), the error of its level ``floor(scaled + phase)``.
+
+    One pass without temporaries, free of the GIL; the same operations as the NumPy expression
+    ``values[good] + errors[np.floor(scaled + phase).astype(int)]``, so the same numbers.
+    """
+    if positions.size == 0:
+        out = np.empty_like(values)
+        for i in range(values.size):
+            out[i] = values[i] + errors[math.floor(scaled[i] + phase)]
+        return out
+    out = values.copy()
+    for j in range(positions.size):
+        k = positions[j]
+        out[k] = values[k] + errors[math.floor(scaled[j] + phase)]
+    return out
+
+
+class _Rounding:
+    """What every draw of :func:`dithered` over one role shares: its good samples and their scaled levels.
+
+    The scaling ``(v - lo) / (BIN_STEPS q)`` does not depend on the draw, only the grid phase added to it does,
+    so the draws of one component compute it once (the same floating-point operations as a draw on its own,
+    hence the same errors). The largest level index of a draw is that of the largest reading (``floor`` of a
+    monotone expression), so the number of errors drawn is known without a maximum over the indices.
+    """
+
+    def __init__(self, ch: Any, q: float) -> None:
+        v = ch.values
+        # the good samples only: a flagged sample (clipped, lost, out of range) is excluded by every method, so
+        # its value must not move the grid of the others' rounding errors
+        fin = ch.good
+        self.usable = bool(fin.any()) and q > 0
+        if not self.usable:
+            return
+        all_good = bool(fin.all())
+        #: the good samples' indices (none: every sample is good)
+        self.positions = np.empty(0, dtype=np.int64) if all_good else np.flatnonzero(fin).astype(np.int64)
+        vf = v if all_good else v[fin]
+        lo = float(vf.min())
+        self.scaled = (vf - lo) / (BIN_STEPS * q)
+        self.top = float(self.scaled.max())
+        self.q = q
+
+    def moved(self, ch: Any, rng: np.random.Generator) -> np.ndarray:
+        """The channel's values with one draw of level-wise rounding errors added (see :func:`dithered`)."""
+        phase = rng.uniform(0.0, 1.0)
+        n_levels = math.floor(self.top + phase) + 1
+        errors = rng.uniform(-0.5 * self.q, 0.5 * self.q, n_levels)
+        return _add_level_errors(ch.values, self.scaled, phase, errors, self.positions)
+
+
+def dithered(recording: Recording, comp: Component, rng: np.random.Generator,
+             shared: dict[str, _Rounding] | None = None) -> Recording:
     """One Monte Carlo draw of the rounding errors of the component's roles (GUM Supplement 1, JCGM 101).
 
     A reading rounded to a step ``q`` is off by an error uniform in ``+-q/2`` (JCGM 100 F.2.2.1) that is a
@@ -136,22 +195,21 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator) ->
     error ``U(-q/2, q/2)`` and adds to each sample the error of its interval: a steady point moves as a
     whole (also when its noise flickers it by a step), points at other levels move independently, and a
     channel whose noise spreads it over many steps averages its errors out, as the rounding does.
+
+    ``shared`` (role -> work shared by the draws, filled on first use) lets several draws of one component
+    skip what they have in common; the draws are the same with or without it.
     """
     channels = dict(recording.channels)
     for role, q in zip(comp.roles, comp.steps, strict=True):
         ch = recording.channels[role]
-        v = ch.values
-        # the good samples only: a flagged sample (clipped, lost, out of range) is excluded by every method, so
-        # its value must not move the grid of the others' rounding errors
-        fin = ch.good
-        if not fin.any() or not q > 0:
+        r = shared.get(role) if shared is not None else None
+        if r is None:
+            r = _Rounding(ch, q)
+            if shared is not None:
+                shared[role] = r
+        if not r.usable:
             continue
-        lo = float(v[fin].min())
-        idx = np.floor((v[fin] - lo) / (BIN_STEPS * q) + rng.uniform(0.0, 1.0)).astype(np.int64)
-        errors = rng.uniform(-0.5 * q, 0.5 * q, int(idx.max()) + 1)
-        moved = v.copy()
-        moved[fin] += errors[idx]
-        channels[role] = ch.with_values(moved)
+        channels[role] = ch.with_values(r.moved(ch, rng))
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
                      start_time=recording.start_time)
 
@@ -167,9 +225,39 @@ def perturbed(recording: Recording, comp: Component) -> Recording:
                      start_time=recording.start_time)
 
 
+#: threads the re-runs share on a Recording held in memory (the machine's cores, at most 2: the fits' large
+#: array operations release the GIL, their Python glue does not, so a third thread gains little)
+WORKERS = max(1, min(2, os.cpu_count() or 1))
+
+#: one unit of work: the method's fits (names), its nominal parameters, the component, the function that runs it
+_Task = tuple[list[str], dict[str, Any], Component, Callable[[Recording], IdentificationResult]]
+
+
+def _propagate_one(recording: Recording, task: _Task) -> tuple[dict[str, list[float]], int, list[str]]:
+    """The re-runs of one method for one component: per parameter, the changes of its value; re-runs; failures."""
+    fits, nominal, comp, run = task
+    draws = RESOLUTION_DRAWS if comp.kind == "resolution" else 1
+    rng = np.random.default_rng(RESOLUTION_SEED)
+    shared: dict[str, _Rounding] = {}
+    deltas: dict[str, list[float]] = {}
+    failed: list[str] = []
+    for _ in range(draws):
+        rec = dithered(recording, comp, rng, shared) if comp.kind == "resolution" else perturbed(recording, comp)
+        try:
+            other = run(rec).parameters()
+        except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
+            failed.append(f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}")
+            continue
+        for key, p in nominal.items():
+            q = other.get(key)
+            if q is not None and math.isfinite(q.value) and math.isfinite(p.value):
+                deltas.setdefault(key, []).append(q.value - p.value)
+    return deltas, draws, failed
+
+
 def propagate_type_b(result: IdentificationResult, recording: Recording,
                      plan: Iterable[tuple[Iterable[str], Iterable[str], Callable[[Recording], IdentificationResult]]],
-                     ) -> dict[str, Any]:
+                     *, workers: int | None = None) -> dict[str, Any]:
     """Add the type B budget to every parameter of ``result`` (in place).
 
     Parameters
@@ -181,6 +269,11 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
     plan:
         Per method: the names of the fits it produced, the roles it reads, and a function that runs it
         (with whatever it depends on) on another Recording and returns its fits.
+    workers:
+        Threads that share the re-runs (default :data:`WORKERS`). Each re-run is independent of the others
+        and the contributions are put together in the plan's order, so the budget is the same for any
+        count. A lazy Recording (:meth:`Recording.open`) is worked through on one thread, method by method,
+        each method's channels dropped before the next's are read (its memory stays bounded by one method).
 
     Returns
     -------
@@ -192,38 +285,41 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
     if not table:
         return {"declared": False, "note": "the recording declares no systematic uncertainties (e.g. a real log "
                                            "without a budget): the total interval equals the statistical one"}
+    tasks: list[list[_Task]] = []
+    for fits, roles, run in plan:
+        fits = sorted(fits)
+        nominal = {f"{fk}.{pk}": p for fk in fits if fk in result.fits for pk, p in result.fits[fk].params.items()}
+        if nominal:
+            tasks.append([(fits, nominal, comp, run) for comp in components(recording, roles)])
+    lazy = any(isinstance(c, LazyChannel) for c in recording.channels.values())
+    n_threads = 1 if lazy else max(1, int(workers if workers is not None else WORKERS))
+    if n_threads == 1 and lazy:
+        kept = recording.loaded()
+        done = []
+        for method_tasks in tasks:
+            # a lazy Recording: what one method's re-runs read goes before the next method's
+            recording.drop(recording.loaded() - kept)
+            done += [_propagate_one(recording, t) for t in method_tasks]
+        recording.drop(recording.loaded() - kept)
+    else:
+        flat = [t for method_tasks in tasks for t in method_tasks]
+        # the Monte Carlo components (several re-runs each) first, so that the threads end together
+        order = sorted(range(len(flat)), key=lambda i: flat[i][2].kind != "resolution")
+        # the channels a re-run does not move are resampled and averaged once for all re-runs (see _reuse)
+        with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
+            futures = {i: pool.submit(_propagate_one, recording, flat[i]) for i in order}
+            done = [futures[i].result() for i in range(len(flat))]
     contrib: dict[str, dict[str, float]] = {}
     dof: dict[str, dict[str, float]] = {}
     reruns, failed = 0, []
-    kept = recording.loaded()
-    for fits, roles, run in plan:
-        # a lazy Recording (Recording.open): what one method's re-runs read goes before the next method's
-        recording.drop(recording.loaded() - kept)
-        fits = sorted(fits)
-        nominal = {f"{fk}.{pk}": p for fk in fits if fk in result.fits for pk, p in result.fits[fk].params.items()}
-        if not nominal:
-            continue
-        for comp in components(recording, roles):
-            draws = RESOLUTION_DRAWS if comp.kind == "resolution" else 1
-            rng = np.random.default_rng(RESOLUTION_SEED)
-            deltas: dict[str, list[float]] = {}
-            for _ in range(draws):
-                reruns += 1
-                rec = dithered(recording, comp, rng) if comp.kind == "resolution" else perturbed(recording, comp)
-                try:
-                    other = run(rec).parameters()
-                except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
-                    failed.append(f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}")
-                    continue
-                for key, p in nominal.items():
-                    q = other.get(key)
-                    if q is not None and math.isfinite(q.value) and math.isfinite(p.value):
-                        deltas.setdefault(key, []).append(q.value - p.value)
-            for key, d in deltas.items():
-                contrib.setdefault(key, {})[comp.source] = float(np.sqrt(np.mean(np.square(d))))
-                if comp.kind == "resolution":
-                    dof.setdefault(key, {})[comp.source] = float(len(d))
-    recording.drop(recording.loaded() - kept)
+    for (_fits, _nominal, comp, _run), (deltas, n, fails) in zip(
+            [t for method_tasks in tasks for t in method_tasks], done, strict=True):
+        reruns += n
+        failed += fails
+        for key, d in deltas.items():
+            contrib.setdefault(key, {})[comp.source] = float(np.sqrt(np.mean(np.square(d))))
+            if comp.kind == "resolution":
+                dof.setdefault(key, {})[comp.source] = float(len(d))
     for fk, fit in result.fits.items():
         for pk, p in fit.params.items():
             c = contrib.get(f"{fk}.{pk}")

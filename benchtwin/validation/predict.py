@@ -34,6 +34,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
@@ -157,6 +158,32 @@ class Prediction:
         return {"fuel_g": self.fuel_g, "fuel_l": self.fuel_l, "co2_g": self.co2_g,
                 "co2_g_per_km": self.co2_g_per_km, "electric_wh": self.electric_wh,
                 "final_soc_pct": self.final_soc_pct, "distance_km": self.distance_km, "notes": list(self.notes)}
+
+
+@numba.njit(cache=True, nogil=True)
+def _battery_steps(p_w: np.ndarray, dt_s: float, soc0_pct: float, nodes: np.ndarray, ocv_cell: np.ndarray,
+                   r_dch: np.ndarray, r_ch: np.ndarray, n_cells: float, soc_per_ah: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The step-by-step pack of :meth:`MapVehicle.battery` (each step's SOC is the last one's; compiled, the same
+    floating-point operations as the loop over ``np.interp`` it replaces, so the same numbers)."""
+    n = p_w.size
+    i_out = np.zeros(n)
+    v_out = np.zeros(n)
+    s_out = np.zeros(n + 1)
+    s = soc0_pct
+    for k in range(n):
+        p = p_w[k]
+        ocv = np.interp(s, nodes, ocv_cell)
+        r = np.interp(s, nodes, r_dch) if p > 0 else np.interp(s, nodes, r_ch)
+        pc = p / n_cells
+        disc = ocv * ocv - 4.0 * r * pc
+        i = (ocv - math.sqrt(disc)) / (2.0 * r) if disc > 0 and r > 0 else pc / ocv
+        s_out[k] = s
+        i_out[k] = i
+        v_out[k] = (ocv - i * r) * n_cells
+        s -= soc_per_ah * i * dt_s / 3600.0
+    s_out[n] = s
+    return i_out, v_out, s_out[1:]
 
 
 def _fit(result: IdentificationResult, name: str, *params: str) -> FitResult | None:
@@ -390,22 +417,12 @@ class MapVehicle:
     def battery(self, p_w: np.ndarray, dt_s: float, soc0_pct: float
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Current, terminal voltage and displayed SOC for the battery power ``p_w`` (eq. 30, coulomb counting)."""
-        n_cells = self.specs.n_cells_series
-        i_out = np.zeros_like(p_w)
-        v_out = np.zeros_like(p_w)
-        s_out = np.zeros_like(p_w)
-        s = soc0_pct
-        for k, p in enumerate(p_w):
-            ocv = float(np.interp(s, self.soc_nodes, self.ocv_cell))
-            r = float(np.interp(s, self.soc_nodes, self.r_dch if p > 0 else self.r_ch))
-            pc = p / n_cells
-            disc = ocv * ocv - 4.0 * r * pc
-            i = (ocv - math.sqrt(disc)) / (2.0 * r) if disc > 0 and r > 0 else pc / ocv
-            s_out[k] = s
-            i_out[k] = i
-            v_out[k] = (ocv - i * r) * n_cells
-            s -= self.soc_per_ah * i * dt_s / 3600.0
-        return i_out, v_out, np.append(s_out[1:], s)
+        return _battery_steps(np.ascontiguousarray(p_w, dtype=np.float64), float(dt_s), float(soc0_pct),
+                              np.ascontiguousarray(self.soc_nodes, dtype=np.float64),
+                              np.ascontiguousarray(self.ocv_cell, dtype=np.float64),
+                              np.ascontiguousarray(self.r_dch, dtype=np.float64),
+                              np.ascontiguousarray(self.r_ch, dtype=np.float64),
+                              float(self.specs.n_cells_series), float(self.soc_per_ah))
 
     # ------------------------------------------------------------------ the drive
     def run(self, drive: DriveInputs, *, gear_source: str = "recorded") -> Prediction:
