@@ -17,6 +17,7 @@ relative to its value (float rounding leaves about 1e-15).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import platform
@@ -43,7 +44,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20, help="seeds of the sweep (default 20)")
     ap.add_argument("--first-seed", type=int, default=1000, help="first seed (default 1000)")
     ap.add_argument("--families", default="transmission,battery", help="comma-separated validation families")
+    ap.add_argument("--save-estimates", metavar="JSON", help="write the sweep's estimates (family -> parameter -> "
+                    "values over the seeds) to this file")
+    ap.add_argument("--estimates", metavar="JSON", help="read the sweep's estimates from a file written by "
+                    "--save-estimates instead of running the sweep (the plan is computed anew)")
+    ap.add_argument("--sweep-only", action="store_true", help="run the sweep and write --save-estimates only (no plan)")
     args = ap.parse_args()
+    if args.sweep_only and not args.save_estimates:
+        ap.error("--sweep-only needs --save-estimates")
 
     vehicle = load_vehicle()
     setup = load_setup(scenario_path("setups", f"{args.setup}.toml"))
@@ -53,17 +61,32 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     # one plan per family: its chain runs over the family's own tests, as the family's validation does
-    plans = {f: plan_campaign(vehicle, setup, campaign, trace=trace, families=[f]).parameters for f in fams}
+    plans = ({} if args.sweep_only else
+             {f: plan_campaign(vehicle, setup, campaign, trace=trace, families=[f]).parameters for f in fams})
     t_plan = time.perf_counter() - t0
     est: dict[str, dict[str, list[float]]] = {f: {} for f in fams}
     t0 = time.perf_counter()
-    for seed in range(args.first_seed, args.first_seed + args.seeds):
-        for fam in fams:
-            rep = validate(vehicle, setup, campaign.model_copy(update={"seed": seed}), trace=trace, families=[fam])
-            for fname, fit in rep.identification.fits.items():
-                for p in fit.params.values():
-                    est[fam].setdefault(f"{fname}.{p.name}", []).append(p.value)
+    if args.estimates:
+        with open(args.estimates, encoding="utf-8") as fh:
+            saved = json.load(fh)
+        est = {f: saved["estimates"][f] for f in fams}
+        args.seeds, args.first_seed = saved["seeds"], saved["first_seed"]
+    else:
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            for fam in fams:
+                rep = validate(vehicle, setup, campaign.model_copy(update={"seed": seed}), trace=trace,
+                               families=[fam])
+                for fname, fit in rep.identification.fits.items():
+                    for p in fit.params.values():
+                        est[fam].setdefault(f"{fname}.{p.name}", []).append(p.value)
     t_sweep = time.perf_counter() - t0
+    if args.save_estimates:
+        with open(args.save_estimates, "w", encoding="utf-8") as fh:
+            json.dump({"campaign": campaign.name, "setup": setup.name, "seeds": args.seeds,
+                       "first_seed": args.first_seed, "estimates": est}, fh)
+    if args.sweep_only:
+        print(f"sweep of {args.seeds} seeds x {len(fams)} families: {t_sweep:.0f} s -> {args.save_estimates}")
+        return
     n = args.seeds
     lo, hi = (math.sqrt(stats.chi2.ppf(a, n - 1) / (n - 1)) for a in (0.005, 0.995))
     rows = []

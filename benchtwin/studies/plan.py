@@ -56,20 +56,20 @@ from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.cache import cached_campaign
 from benchtwin.recording import Recording
+from benchtwin.studies.plan_brakes import plan_brakes
 from benchtwin.studies.plan_fits import (
     PlannedParameter,
     plan_battery,
-    plan_brakes,
     plan_motor,
     plan_presence,
     plan_shifts,
     plan_transmission,
 )
-from benchtwin.studies.plan_noise import noise_budget, poll_faults, reading_variance, truth_recording
+from benchtwin.studies.plan_noise import noise_budget, poll_fault_model, reading_variance, truth_recording
 from benchtwin.trace import Trace
 from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
 
-__all__ = ["Plan", "PlannedParameter", "plan_campaign", "reading_variance", "truth_recording"]
+__all__ = ["Plan", "PlannedParameter", "plan_campaign", "planned_recording", "reading_variance", "truth_recording"]
 
 @dataclass
 class Plan:
@@ -113,6 +113,26 @@ def _fmt(x: float) -> str:
 
 
 
+def planned_recording(setup: SetupConfig, campaign: CampaignConfig, trace: Trace,
+                      families: Iterable[str] | None = None) -> Recording:
+    """The noise-free Recording a plan works on: the bench's timestamps and flags, every channel its truth.
+
+    The batch chain runs over the tests of the kinds the families need (with every family, None, also over
+    the cycles), each contiguous run of tests with the seed a family run of the validation gives it.
+    """
+    fams = resolve_families(families) or list(FAMILIES.values())
+    truth, _noise = noise_budget(setup)
+    kinds = {k for f in fams for k in f.kinds}
+    if families is None:
+        kinds.add("cycle")  # the whole identification also reads a campaign's cycles (shift events, steady points)
+    spans = family_spans(trace.segments, kinds)
+    if not spans:
+        return Recording(segments=list(trace.segments))
+    recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k))
+            for k, (a, b) in enumerate(spans)]
+    return truth_recording(merge_recordings(recs), trace, truth)
+
+
 def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *,
                   trace: Trace | None = None, cache: bool | str = True,
                   families: Iterable[str] | None = None) -> Plan:
@@ -148,27 +168,19 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
             trace = simulate_campaign(vehicle, campaign)
         else:
             trace, _hit = cached_campaign(vehicle, campaign, directory=None if cache is True else cache)
-    truth, noise = noise_budget(setup)
-    kinds = {k for f in fams for k in f.kinds}
-    if families is None:
-        kinds.add("cycle")  # the whole identification also reads a campaign's cycles (shift events, steady points)
-    spans = family_spans(trace.segments, kinds)
+    _truth, noise = noise_budget(setup)
     plan = Plan(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
                       "seed": campaign.seed, "families": names,
                       "noise": {k: {"noise_std": v.sigma, "step": v.q} for k, v in sorted(noise.items())}})
     segments = list(trace.segments)
-    rec = Recording(segments=segments)
-    if spans:
-        recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k))
-                for k, (a, b) in enumerate(spans)]
-        rec = truth_recording(merge_recordings(recs), trace, truth)
+    rec = planned_recording(setup, campaign, trace, families)
     for fam in fams:
         if fam.name == "transmission":
             plan.parameters += plan_transmission(rec, vehicle, noise, segments)
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
         elif fam.name == "brakes":
-            plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_faults(setup))
+            plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_fault_model(setup))
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
         elif fam.name == "shifts":

@@ -26,7 +26,9 @@ from benchtwin.trace import Trace
 
 __all__ = [
     "ChannelNoise",
+    "PollFaults",
     "noise_budget",
+    "poll_fault_model",
     "poll_faults",
     "product_mean_variance",
     "reading_variance",
@@ -79,6 +81,39 @@ class ChannelNoise:
     def variances(self, truth_values: np.ndarray) -> np.ndarray:
         """Variance of each reading whose noise-free truth is ``truth_values``."""
         return np.asarray(reading_variance(self.sigma, self.q, (1.0 + self.gain) * truth_values + self.offset))
+
+
+@dataclass(frozen=True)
+class PollFaults:
+    """The declared poll faults of a polled device: per-poll probabilities, the client's timeout, the poll rate.
+
+    A timed-out poll is logged (flagged ``TIMEOUT``) after ``timeout_s`` and the polls that fall in that wait
+    are skipped; an exception answer is one reading flagged ``PROTOCOL_ERROR``
+    (:func:`~benchtwin.sensors.pressure.poll_snapshots`).
+    """
+
+    timeout_prob: float
+    exception_prob: float
+    timeout_s: float
+    poll_hz: float
+
+    @property
+    def prob(self) -> float:
+        """Probability that a poll fails."""
+        return self.timeout_prob + self.exception_prob
+
+
+def poll_fault_model(setup: SetupConfig) -> dict[str, PollFaults]:
+    """Role -> the declared poll faults of the device that polls it (roles of devices whose polls can fail)."""
+    out: dict[str, PollFaults] = {}
+    for d in devices(setup):
+        cfg = d.cfg
+        pt = float(getattr(cfg, "timeout_prob", 0.0) or 0.0)
+        pe = float(getattr(cfg, "exception_prob", 0.0) or 0.0)
+        if pt + pe > 0:
+            pf = PollFaults(pt, pe, float(getattr(cfg, "poll_timeout_s", 0.0)), float(getattr(cfg, "poll_hz", 0.0)))
+            out.update(dict.fromkeys(d.truth_channels(), pf))
+    return out
 
 
 def poll_faults(setup: SetupConfig) -> dict[str, float]:
