@@ -55,8 +55,9 @@ from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.cache import cached_campaign
-from benchtwin.recording import Recording
+from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan_brakes import plan_brakes
+from benchtwin.studies.plan_converter import CONVERTER_RECORDED, plan_converter
 from benchtwin.studies.plan_fits import (
     PlannedParameter,
     plan_battery,
@@ -114,11 +115,13 @@ def _fmt(x: float) -> str:
 
 
 def planned_recording(setup: SetupConfig, campaign: CampaignConfig, trace: Trace,
-                      families: Iterable[str] | None = None) -> Recording:
+                      families: Iterable[str] | None = None, *, recorded: Iterable[str] = ()
+                      ) -> tuple[Recording, dict[str, Channel]]:
     """The noise-free Recording a plan works on: the bench's timestamps and flags, every channel its truth.
 
     The batch chain runs over the tests of the kinds the families need (with every family, None, also over
-    the cycles), each contiguous run of tests with the seed a family run of the validation gives it.
+    the cycles), each contiguous run of tests with the seed a family run of the validation gives it. The
+    channels named in ``recorded`` are also returned as the bench recorded them (role -> Channel).
     """
     fams = resolve_families(families) or list(FAMILIES.values())
     truth, _noise = noise_budget(setup)
@@ -127,10 +130,11 @@ def planned_recording(setup: SetupConfig, campaign: CampaignConfig, trace: Trace
         kinds.add("cycle")  # the whole identification also reads a campaign's cycles (shift events, steady points)
     spans = family_spans(trace.segments, kinds)
     if not spans:
-        return Recording(segments=list(trace.segments))
+        return Recording(segments=list(trace.segments)), {}
     recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k))
             for k, (a, b) in enumerate(spans)]
-    return truth_recording(merge_recordings(recs), trace, truth)
+    merged = merge_recordings(recs)
+    return truth_recording(merged, trace, truth), {n: merged[n] for n in recorded if n in merged}
 
 
 def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *,
@@ -173,7 +177,8 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
                       "seed": campaign.seed, "families": names,
                       "noise": {k: {"noise_std": v.sigma, "step": v.q} for k, v in sorted(noise.items())}})
     segments = list(trace.segments)
-    rec = planned_recording(setup, campaign, trace, families)
+    conv = any(f.name == "torque_converter" for f in fams)
+    rec, raw = planned_recording(setup, campaign, trace, families, recorded=CONVERTER_RECORDED if conv else ())
     for fam in fams:
         if fam.name == "transmission":
             plan.parameters += plan_transmission(rec, vehicle, noise, segments)
@@ -183,6 +188,10 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
             plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_fault_model(setup))
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
+        elif fam.name == "torque_converter":
+            tx = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
+                plan_transmission(rec, vehicle, noise, segments)
+            plan.parameters += plan_converter(rec, vehicle, noise, segments, tx, recorded=raw)
         elif fam.name == "shifts":
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
         else:

@@ -341,9 +341,6 @@ _PRESENCE: dict[str, tuple[Callable[[list[Segment]], bool], str, str]] = {
                                 and s.settings.get("engine") in ("on", "auto") for s in segs),
                "a ramp_up with the engine on",
                "add [[tests]] kind = \"ramp_up\" with mode = \"hybrid\", engine = \"on\", k0 = \"closed\""),
-    "torque_converter": (lambda segs: any(s.kind in ("acceleration", "deceleration") for s in segs),
-                         "accelerations or decelerations (lock-up open)",
-                         "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"),
 }
 
 

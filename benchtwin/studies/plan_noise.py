@@ -27,6 +27,7 @@ from benchtwin.trace import Trace
 __all__ = [
     "ChannelNoise",
     "PollFaults",
+    "grid_variance",
     "noise_budget",
     "poll_fault_model",
     "poll_faults",
@@ -151,6 +152,21 @@ def sample_variances(rec: Recording, noise: Mapping[str, ChannelNoise], name: st
     if name not in rec or name not in noise:
         return None
     return noise[name].variances(rec[name].values)
+
+
+def grid_variance(rec: Recording, noise: Mapping[str, ChannelNoise], name: str, t: np.ndarray) -> np.ndarray:
+    """Variance of channel ``name`` linearly interpolated at times ``t`` (0 where it is noise-free).
+
+    A grid sample between readings ``k`` and ``k+1`` at fraction ``a`` has ``(1-a)^2 v_k + a^2 v_{k+1}``.
+    """
+    sv = sample_variances(rec, noise, name)
+    t = np.asarray(t, dtype=float)
+    if sv is None or len(rec[name]) < 2:
+        return np.zeros(t.shape)
+    ts = rec[name].timestamps
+    k = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 2)
+    a = np.clip((t - ts[k]) / np.maximum(ts[k + 1] - ts[k], 1e-12), 0.0, 1.0)
+    return (1.0 - a) ** 2 * sv[k] + a**2 * sv[k + 1]
 
 
 def truth_recording(rec: Recording, trace: Trace, truth: Mapping[str, Any]) -> Recording:
