@@ -100,15 +100,15 @@ def main() -> None:
                 sds = [float(np.std(v, ddof=1) / max(abs(float(np.mean(v))), 1e-300)) for k, v in est[fam].items()
                        if k.startswith(pre) and len(v) == n and np.all(np.isfinite(v))]
                 if sds:
-                    rows.append((p.name, p.se, max(sds), f"{len(sds)} estimates, largest relative spread"))
+                    rows.append((fam, p.name, p.se, max(sds), f"{len(sds)} estimates, largest relative spread"))
                 continue
             v = np.asarray(est[fam].get(p.name, []), dtype=float)
             v = v[np.isfinite(v)]
             if v.size < 3:
-                rows.append((p.name, p.se, float("nan"), f"estimated on {v.size} of {n} seeds"))
+                rows.append((fam, p.name, p.se, float("nan"), f"estimated on {v.size} of {n} seeds"))
                 continue
             note = f"mean {np.mean(v):.6g}" + ("" if v.size == n else f", estimated on {v.size} of {n} seeds")
-            rows.append((p.name, p.se, float(np.std(v, ddof=1)), note))
+            rows.append((fam, p.name, p.se, float(np.std(v, ddof=1)), note))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     print("## Planned standard errors against the spread over seeds (benchmarks/bench_plan.py)\n")
     print(f"- date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine {platform.machine()}, "
@@ -118,10 +118,10 @@ def main() -> None:
           f"load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after")
     print(f"- N = {n}: a correct prediction gives s / sigma in [{lo:.3f}, {hi:.3f}] with 99 % probability "
           f"(chi-square, {n - 1} degrees of freedom); the check is the factor 1.5, i.e. [0.667, 1.5]\n")
-    print("| parameter | predicted SE | std over seeds | ratio | within 1.5 | note |")
-    print("|---|---|---|---|---|---|")
+    print("| family | parameter | predicted SE | std over seeds | ratio | within 1.5 | note |")
+    print("|---|---|---|---|---|---|---|")
     n_ok = 0
-    for name, se, sd, note in rows:
+    for fam, name, se, sd, note in rows:
         if se == 0.0:
             ok = sd <= ZERO_REL
             ratio = "-"
@@ -130,7 +130,7 @@ def main() -> None:
             ok = bool(1 / 1.5 < r < 1.5)
             ratio = f"{r:.3f}"
         n_ok += ok
-        print(f"| {name} | {se:.4g} | {sd:.4g} | {ratio} | {'yes' if ok else 'NO'} | {note} |")
+        print(f"| {fam} | {name} | {se:.4g} | {sd:.4g} | {ratio} | {'yes' if ok else 'NO'} | {note} |")
     print(f"\n- {n_ok} of {len(rows)} predictions within the factor 1.5 (a predicted 0: every estimate the same over "
           f"the seeds to a relative {ZERO_REL:g}, float rounding)")
 
