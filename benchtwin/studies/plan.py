@@ -31,6 +31,12 @@ parameter the identification fits, without identifying anything from measured da
    derived parameters) are linearised by differentiating the identification's own fit at the planned
    points instead (the delta method on the same estimator).
 
+5. Where the rows of a fit themselves change with the seed, the plan models that from the setup: a bench
+   whose pressure polls can fail (declared timeout and exception rates) splits steady braking windows at
+   random, so the brake gains add the variance of the noise-free estimate over draws of those faults
+   (:mod:`benchtwin.studies.plan_brakes`). The torque converter's two linear fits are propagated at the
+   identification's own points and kept rows (:mod:`benchtwin.studies.plan_converter`).
+
 The prediction is the spread of the estimates over seeds of the sensor noise on one plant run, the
 figure a sweep over seeds measures; it holds no bias (gain and offset errors, model error) and no
 lack of fit (the identification's own standard errors carry the residual scatter, which includes it).
@@ -38,8 +44,7 @@ lack of fit (the identification's own standard errors carry the residual scatter
 Parameters whose fit will not get the points it needs are flagged *not identifiable*, with the reason
 and the test to add in the campaign's TOML terms. A family that reads no channel with a random error
 on the setup (engine, road load and shift lines on the paper bench) gets a standard error of 0: the
-same estimate for every seed. The torque converter's standard errors are not predicted (its pipeline
-resamples, rejects outliers and refines the coupling point); its excitation is checked.
+same estimate for every seed.
 """
 
 from __future__ import annotations

@@ -203,7 +203,7 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
             var = np.mean(vs, axis=0) + var_sel
             why += (f"; polls fail with p = {pf.prob:g} (timeouts {pf.timeout_prob:g}): over {draws} draws of the "
                     f"poll faults the windows left add {_share(var_sel[0], var[0])} of the gain's variance"
-                    + (f", the fit fails on {n_lost}" if n_lost else ""))
+                    + (f"; the fit fails on {n_lost} of the {draws} draws" if n_lost else ""))
         for j, (n, u) in enumerate(names):
             out.append(PlannedParameter(n, u, float(x0[j]), math.sqrt(max(float(var[j]), 0.0)), True, why, "",
                                         int(p.size)))
