@@ -14,7 +14,8 @@ are linear in their right-hand sides:
   ``J`` of the converter fit through ``-(q'q)^-1 q' dw_p``;
 - the transmission model each turbine torque goes through (``T_out / (i_g eta_m) + C0``) is itself estimated
   from the same seed's shaft torque: its planned ``eta_m`` and ``C0`` standard errors of each gear move all
-  the turbine rows of that gear together (``-(t_t - C0) / eta_m`` and ``1``), taken as independent.
+  the turbine rows that use that gear's model together (``-(t_t - C0) / eta_m`` and ``1``; a gear without a
+  model of its own uses the nearest one's), taken as independent.
 
 The derived parameters (``gamma_coupling``, ``k_at_gamma`` with its coupling point, ``sr_zero_torque``) follow
 by the delta method on the joint covariance. What is not in it: rows that the outlier rejection keeps on one
@@ -26,6 +27,8 @@ from __future__ import annotations
 import inspect
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,13 +42,19 @@ from benchtwin.identification.torque_converter import (
     identify_torque_converter,
     speed_products,
 )
-from benchtwin.identification.torque_converter_points import converter_points
+from benchtwin.identification.torque_converter_points import ConverterPoints, converter_points
 from benchtwin.recording import Channel, Recording
 from benchtwin.segments import Segment
 from benchtwin.studies.plan_fits import PlannedParameter
-from benchtwin.studies.plan_noise import ChannelNoise, grid_variance
+from benchtwin.studies.plan_noise import ChannelNoise, grid_error_sampler, grid_variance
 
-__all__ = ["CONVERTER_RECORDED", "plan_converter"]
+__all__ = ["CONVERTER_DRAWS", "CONVERTER_RECORDED", "plan_converter"]
+
+#: draws of the noise that decide the rows: the selection term's std is known to about 1 / sqrt(2 (K - 1)) (8 % at
+#: 80); one draw is one fit at the planned points (a few ms)
+CONVERTER_DRAWS = 80
+#: a set of rows met on fewer than this share of the draws is rare: left out of the standard error, and named
+RARE_ROWS = 0.05
 
 #: channels of the converter's points that the plan takes as recorded when they carry no random error: their
 #: quantisation and latency are the same every seed, and the narrow coupling range's ``a6..a8`` (and the slope of
@@ -94,7 +103,8 @@ def _delta(func: Callable[[np.ndarray], float], z: np.ndarray, cov: np.ndarray) 
 
 def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
                    segments: list[Segment], tx: Sequence[PlannedParameter], *, seed: int = 0,
-                   recorded: Mapping[str, Channel] | None = None) -> list[PlannedParameter]:
+                   draws: int = CONVERTER_DRAWS, recorded: Mapping[str, Channel] | None = None
+                   ) -> list[PlannedParameter]:
     """Predicted standard errors of ``a0..a8``, ``J_pump_kgm2``, the coupling point and its derived values.
 
     Parameters
@@ -113,8 +123,8 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     recorded:
         Role -> the channel as the bench recorded it (:data:`CONVERTER_RECORDED`); a role without random error
         on the setup is taken from here instead of its truth.
-    seed:
-        Seed of the one noise draw that decides the rows the outlier rejection keeps (module docstring).
+    seed, draws:
+        Seed and number of the draws of the noise that decide the rows the fits keep (module docstring).
 
     Returns
     -------
@@ -127,6 +137,7 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         return [PlannedParameter("torque_converter.*", "", float("nan"), float("nan"), False,
                                  "missing: accelerations or decelerations (lock-up open)", _HINT)]
     opts = _defaults()
+    truth = rec
     swap = {n: ch for n, ch in (recorded or {}).items() if n not in noise and n in rec}
     for n in ("shaft_torque_nm", *CONVERTER_RECORDED):
         if n in noise and n in rec and (noise[n].gain or noise[n].offset):  # the same gain and offset every seed
@@ -148,21 +159,116 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         return [PlannedParameter("torque_converter.*", "", float("nan"), float("nan"), False,
                                  f"no converter fit at the planned points: {exc}", _HINT)]
     # variance of each point's pump torque (motor torque) and turbine torque (shaft torque over k_out)
-    v_tp = grid_variance(rec, noise, "em_torque_nm", pts.t)
-    v_tt = grid_variance(rec, noise, "shaft_torque_nm", pts.t) / pts.k_out**2
-    rows = res
+    v_tp = grid_variance(truth, noise, "em_torque_nm", pts.t)
+    v_tt = grid_variance(truth, noise, "shaft_torque_nm", pts.t) / pts.k_out**2
+    e_tp = grid_error_sampler(truth, noise, "em_torque_nm", pts.t)
+    e_tt = grid_error_sampler(truth, noise, "shaft_torque_nm", pts.t)
+    model_gear = _model_gears(pts.gear, table)
+    lin = [_propagate(pts, res, v_tp, v_tt, table)]
+    n_lost = 0
     if np.any(v_tp > 0) or np.any(v_tt > 0):
-        # the outlier rejection scales its bound by the residuals' spread: on noise-free points it would leave out
-        # rows a noisy run keeps, and the coupling fit leans on the pump inertia of the converter fit. The rows,
-        # the coupling point and the coefficients the derivatives are taken at come from one draw of the noise.
+        # the rows each fit keeps (outlier rejection, whose bound scales with the residuals' spread) and the mode
+        # split at the refined coupling point change with the noise: over draws of it, the identification's own fit
+        # decides the rows, and the plan adds the variance of the noise-free estimate at those rows
         rng = np.random.default_rng(seed)
-        try:
-            rows = fit_torque_converter(pts.w_p, pts.w_t, pts.t_p + rng.normal(0.0, np.sqrt(v_tp)),
-                                        pts.t_t + rng.normal(0.0, np.sqrt(v_tt)), dw_p=pts.dw_p,
-                                        **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
-        except BenchtwinError:
-            rows = res
-    conv = rows["converter"]
+        lin = []
+        for _ in range(draws):
+            # the readings as the bench quantises them: the rounding's bias decides rows as it does on a bench
+            t_t = pts.t_t + (e_tt(rng) / pts.k_out if e_tt is not None else 0.0)
+            t_p = pts.t_p + (e_tp(rng) if e_tp is not None else 0.0)
+            for gear, (eta, c0, se_eta, se_c0) in table.items():
+                sel = model_gear == gear
+                t_t[sel] += -(pts.t_t[sel] - c0) / eta * rng.normal(0.0, se_eta) + rng.normal(0.0, se_c0)
+            try:
+                rows = fit_torque_converter(pts.w_p, pts.w_t, t_p, t_t,
+                                            dw_p=pts.dw_p, **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
+                lin.append(_propagate(pts, rows, v_tp, v_tt, table))
+            except BenchtwinError:
+                n_lost += 1
+        if len(lin) < 2:
+            return [PlannedParameter("torque_converter.*", "", float("nan"), float("nan"), False,
+                                     f"the converter fit fails on {n_lost} of {draws} draws of the noise", _HINT)]
+    # the row sets the draws meet; one met on fewer than RARE_ROWS of the draws is left out of the standard error
+    # (a sweep of tens of seeds seldom meets it, and its jump would dominate the variance) and named in the reason
+    count: dict[bytes, int] = {}
+    for x in lin:
+        count[x.key] = count.get(x.key, 0) + 1
+    modal = max(count, key=lambda k: count[k])
+    first = next(x for x in lin if x.key == modal)
+    names = first.names
+    same = [x for x in lin if x.names == names and count[x.key] >= RARE_ROWS * len(lin)]
+    n_rare = sum(c for k, c in count.items() if c < RARE_ROWS * len(lin))
+    z = np.array([x.z for x in same])
+    var = np.mean([np.diag(x.cov) for x in same], axis=0)
+    if len(same) > 1:
+        var = var + np.var(z, axis=0, ddof=1)
+    n1, n2 = first.n1, first.n2
+    n_sets = sum(c >= RARE_ROWS * len(lin) for c in count.values())
+    why = (f"{n1} converter-mode and {n2} coupling-mode points (SR 0..{float(np.max(pts.w_t / pts.w_p)):.2f}), "
+           f"Gamma {first.g:.3f}"
+           + (f"; over {len(lin)} draws of the noise the fits keep {n_sets} set(s) of rows" if len(lin) > 1 else "")
+           + (f" (and rarer ones on {n_rare} draws, left out)" if n_rare else "")
+           + (f"; the fit fails on {n_lost} draws" if n_lost else ""))
+    v0 = {f"converter.{p}": q.value for p, q in res["converter"].params.items()}
+    v0.update({f"coupling.{p}": q.value for p, q in res["coupling"].params.items()} if "coupling" in res else {})
+    out = []
+    for i, name in enumerate(names):
+        side = "coupling" if name in ("a6", "a7", "a8") else "converter"
+        unit = "kg*m^2" if name == "J_pump_kgm2" else "Nm*s^2/rad^2"
+        out.append(PlannedParameter(f"torque_converter.{side}.{name}", unit, v0.get(f"{side}.{name}", nan),
+                                    _se(float(var[i]), float(first.z[i])), True, why, "",
+                                    n1 if side == "converter" else n2))
+    for side, name, func in _DERIVED:
+        if side == "coupling" and "a6" not in names:
+            continue
+        vals = np.array([func(x.z, x.k1) for x in same])
+        dv = float(np.mean([_delta(lambda zz, x=x, f=func: f(zz, x.k1), x.z, x.cov) for x in same]))
+        if len(same) > 1:
+            dv += float(np.var(vals, ddof=1))
+        out.append(PlannedParameter(f"torque_converter.{side}.{name}", "Nm*s^2/rad^2" if name == "k_at_gamma" else "",
+                                    v0.get(f"{side}.{name}", nan), _se(dv, float(vals[0])), True, why, "",
+                                    n1 if side == "converter" else n2))
+    calib_noisy = any(r in noise for r in ("em_speed_rpm", "vehicle_speed_kmh"))
+    out.append(PlannedParameter("torque_converter.converter.turbine_speed_scale", "", pts.scale,
+                                float("nan") if calib_noisy else 0.0, True,
+                                "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
+                                "the speeds it reads are free of random error on this setup", "", pts.n_cal))
+    if "a6" not in names:
+        out.append(PlannedParameter("torque_converter.coupling.*", "", float("nan"), float("nan"), False,
+                                    f"{n2} coupling-mode points", "add [[tests]] kind = \"acceleration\" "
+                                    "with the lock-up open up to a higher speed (SR above the coupling point)", n2))
+    order = {n: k for k, n in enumerate(_ORDER)}
+    return sorted(out, key=lambda p: order.get(p.name.split(".")[-1], 99))
+
+
+@dataclass
+class _Linear:
+    """Both fits at one set of rows: parameter names, the noise-free estimates, their noise covariance."""
+
+    names: list[str]
+    z: np.ndarray
+    cov: np.ndarray
+    k1: int
+    n1: int
+    n2: int
+    g: float
+    key: bytes = b""
+
+
+def _model_gears(gear: np.ndarray, table: Mapping[int, object]) -> np.ndarray:
+    """The gear whose transmission model each point's turbine torque goes through: its own, else the nearest
+    identified one (ties: the lower), as :func:`~benchtwin.identification.torque_converter_points.converter_points`
+    does."""
+    if not table:
+        return np.zeros(gear.shape, dtype=int)
+    near = {int(k): min(table, key=lambda j: (abs(j - int(k)), j)) for k in np.unique(gear)}
+    return np.array([near[int(k)] for k in gear], dtype=int)
+
+
+def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, v_tt: np.ndarray,
+               table: Mapping[int, tuple[float, float, float, float]]) -> _Linear:
+    """The linear map of both fits at the rows ``rows`` (a result of the fit) kept, on the noise-free points."""
+    model_gear = _model_gears(pts.gear, table)
     data = rows["torque_ratio"].data
     g = float(data["gamma"][0])
     inlier = data["inlier"] > 0.5
@@ -170,13 +276,13 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     m1 = (sr < g) & inlier
     m2 = (sr >= g) & inlier
     A1 = converter_design(pts.w_p[m1], pts.w_t[m1], pts.dw_p[m1])
-    B1 = np.linalg.inv(A1.T @ A1)
-    L1 = B1 @ A1.T  # x_conv = L1 [t_p; t_t]
+    L1 = np.linalg.solve(A1.T @ A1, A1.T)  # x_conv = L1 [t_p; t_t]
     n1 = int(m1.sum())
+    x1 = L1 @ np.r_[pts.t_p[m1], pts.t_t[m1]]
     cov1 = (L1 * np.r_[v_tp[m1], v_tt[m1]]) @ L1.T
     # the transmission model of each gear moves its turbine rows together
     for gear, (eta, c0, se_eta, se_c0) in table.items():
-        sel = pts.gear[m1] == gear
+        sel = model_gear[m1] == gear
         if not sel.any():
             continue
         d_eta = np.r_[np.zeros(n1), np.where(sel, -(pts.t_t[m1] - c0) / eta, 0.0)]
@@ -184,59 +290,44 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         for d, se in ((d_eta, se_eta), (d_c0, se_c0)):
             u = L1 @ d
             cov1 += np.outer(u, u) * se**2
-    names1 = [p for p in conv.params if p not in ("gamma_coupling", "turbine_speed_scale")]
-    x1 = np.array([conv.value(p) for p in names1])
-    k1 = len(names1)
-    coup = rows.get("coupling")
-    if coup is not None and int(m2.sum()) >= 3:
-        q2 = speed_products(pts.w_p[m2], pts.w_t[m2])
-        L2 = np.linalg.inv(q2.T @ q2) @ q2.T
-        x2 = np.array([coup.value(f"a{k}") for k in (6, 7, 8)])
-        j_idx = names1.index("J_pump_kgm2")
-        dj = -L2 @ pts.dw_p[m2]  # d a678 / d J
-        cov = np.zeros((k1 + 3, k1 + 3))
-        cov[:k1, :k1] = cov1
-        cov[k1:, k1:] = (L2 * v_tp[m2]) @ L2.T + np.outer(dj, dj) * cov1[j_idx, j_idx]
-        cov[k1:, :k1] = np.outer(dj, cov1[j_idx])
-        cov[:k1, k1:] = cov[k1:, :k1].T
-        z = np.r_[x1, x2]
-    else:
-        x2, cov, z = None, cov1, x1
+    names = [f"a{k}" for k in range(6)] + ["J_pump_kgm2"]
+    k1 = len(names)
+    if "coupling" not in rows or int(m2.sum()) < 3:
+        return _Linear(names, x1, cov1, k1, n1, int(m2.sum()), g, np.packbits(np.r_[m1, m2]).tobytes())
+    q2 = speed_products(pts.w_p[m2], pts.w_t[m2])
+    L2 = np.linalg.solve(q2.T @ q2, q2.T)
+    x2 = L2 @ (pts.t_p[m2] - x1[6] * pts.dw_p[m2])
+    dj = -L2 @ pts.dw_p[m2]  # d a678 / d J
+    cov = np.zeros((k1 + 3, k1 + 3))
+    cov[:k1, :k1] = cov1
+    cov[k1:, k1:] = (L2 * v_tp[m2]) @ L2.T + np.outer(dj, dj) * cov1[6, 6]
+    cov[k1:, :k1] = np.outer(dj, cov1[6])
+    cov[:k1, k1:] = cov[k1:, :k1].T
+    return _Linear([*names, "a6", "a7", "a8"], np.r_[x1, x2], cov, k1, n1, int(m2.sum()), g,
+                   np.packbits(np.r_[m1, m2]).tobytes())
 
-    def gamma_of(z: np.ndarray) -> float:
-        return coupling_point(z[:6], lo=0.3, hi=1.0)
 
-    n_pts = int(inlier.sum())
-    why = f"{n1} converter-mode and {int(m2.sum())} coupling-mode points (SR 0..{sr.max():.2f}), Gamma {g:.3f}"
-    v0 = {f"converter.{p}": q.value for p, q in res["converter"].params.items()}
-    v0.update({f"coupling.{p}": q.value for p, q in res["coupling"].params.items()} if "coupling" in res else {})
-    out = [PlannedParameter(f"torque_converter.converter.{p}", conv.params[p].unit, v0.get(f"converter.{p}", nan),
-                            math.sqrt(max(float(cov[i, i]), 0.0)), True, why, "", n1) for i, p in enumerate(names1)]
-    gv = v0.get("converter.gamma_coupling", nan)
-    out.append(PlannedParameter("torque_converter.converter.gamma_coupling", "", gv,
-                                math.sqrt(max(_delta(gamma_of, z, cov), 0.0)), True, why, "", n1))
-    calib_noisy = any(r in noise for r in ("em_speed_rpm", "vehicle_speed_kmh"))
-    out.append(PlannedParameter("torque_converter.converter.turbine_speed_scale", "", pts.scale,
-                                float("nan") if calib_noisy else 0.0, True,
-                                "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
-                                "the speeds it reads are free of random error on this setup", "", pts.n_cal))
-    if x2 is None:
-        out.append(PlannedParameter("torque_converter.coupling.*", "", float("nan"), float("nan"), False,
-                                    f"{int(m2.sum())} coupling-mode points", "add [[tests]] kind = \"acceleration\" "
-                                    "with the lock-up open up to a higher speed (SR above the coupling point)", n_pts))
-        return out
-    for i, k in enumerate((6, 7, 8)):
-        out.append(PlannedParameter(f"torque_converter.coupling.a{k}", "Nm*s^2/rad^2", v0.get(f"coupling.a{k}", nan),
-                                    math.sqrt(max(float(cov[k1 + i, k1 + i]), 0.0)), True, why, "", int(m2.sum())))
+def _se(var: float, value: float) -> float:
+    """The standard error, 0 below float rounding of the value (a parameter that reads no noisy row)."""
+    se = math.sqrt(max(var, 0.0))
+    return 0.0 if se <= 1e-12 * max(abs(value), 1e-300) else se
 
-    def k_at_gamma(z: np.ndarray) -> float:
-        gg = gamma_of(z)
-        return float(z[k1] + z[k1 + 1] * gg + z[k1 + 2] * gg**2)
 
-    def sr0(z: np.ndarray) -> float:
-        return _zero_torque_sr(z[k1:k1 + 3])
+def _gamma(z: np.ndarray, _k1: int) -> float:
+    return coupling_point(z[:6], lo=0.3, hi=1.0)
 
-    for name, func, unit in (("k_at_gamma", k_at_gamma, "Nm*s^2/rad^2"), ("sr_zero_torque", sr0, "")):
-        out.append(PlannedParameter(f"torque_converter.coupling.{name}", unit, v0.get(f"coupling.{name}", nan),
-                                    math.sqrt(max(_delta(func, z, cov), 0.0)), True, why, "", int(m2.sum())))
-    return out
+
+def _k_at_gamma(z: np.ndarray, k1: int) -> float:
+    gg = _gamma(z, k1)
+    return float(z[k1] + z[k1 + 1] * gg + z[k1 + 2] * gg**2)
+
+
+def _sr0(z: np.ndarray, k1: int) -> float:
+    return _zero_torque_sr(z[k1:k1 + 3])
+
+
+_DERIVED: tuple[tuple[str, str, Callable[[np.ndarray, int], float]], ...] = (
+    ("converter", "gamma_coupling", _gamma), ("coupling", "k_at_gamma", _k_at_gamma),
+    ("coupling", "sr_zero_torque", _sr0))
+_ORDER = ("a0", "a1", "a2", "a3", "a4", "a5", "J_pump_kgm2", "gamma_coupling", "turbine_speed_scale", "a6", "a7",
+          "a8", "k_at_gamma", "sr_zero_torque")

@@ -11,7 +11,7 @@ of its weighted least squares (:func:`sandwich_covariance`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,6 +27,7 @@ from benchtwin.trace import Trace
 __all__ = [
     "ChannelNoise",
     "PollFaults",
+    "grid_error_sampler",
     "grid_variance",
     "noise_budget",
     "poll_fault_model",
@@ -167,6 +168,34 @@ def grid_variance(rec: Recording, noise: Mapping[str, ChannelNoise], name: str, 
     k = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 2)
     a = np.clip((t - ts[k]) / np.maximum(ts[k + 1] - ts[k], 1e-12), 0.0, 1.0)
     return (1.0 - a) ** 2 * sv[k] + a**2 * sv[k + 1]
+
+
+def grid_error_sampler(rec: Recording, noise: Mapping[str, ChannelNoise], name: str, t: np.ndarray
+                       ) -> Callable[[np.random.Generator], np.ndarray] | None:
+    """Draws of the error of channel ``name`` interpolated at times ``t``, as a bench records it (None: noise-free).
+
+    Each draw quantises the two readings around each time, ``q rint((y + n) / q)`` with ``y`` the reading's
+    noise-free value (the channel's truth with the sensor's gain and offset) and ``n ~ N(0, sigma^2)``,
+    interpolates them, and returns the difference from the interpolated noise-free values: the rounding's bias
+    (the same every draw) with its noise.
+    """
+    if name not in rec or name not in noise or len(rec[name]) < 2:
+        return None
+    cn = noise[name]
+    ch = rec[name]
+    ts = ch.timestamps
+    t = np.asarray(t, dtype=float)
+    k = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 2)
+    a = np.clip((t - ts[k]) / np.maximum(ts[k + 1] - ts[k], 1e-12), 0.0, 1.0)
+    g0, g1 = ((1.0 + cn.gain) * y + cn.offset for y in (ch.values[k], ch.values[k + 1]))
+
+    def draw(rng: np.random.Generator) -> np.ndarray:
+        r0, r1 = (g + rng.normal(0.0, cn.sigma, g.shape) for g in (g0, g1))
+        if cn.q > 0:
+            r0, r1 = cn.q * np.rint(r0 / cn.q), cn.q * np.rint(r1 / cn.q)
+        return (1.0 - a) * (r0 - g0) + a * (r1 - g1)
+
+    return draw
 
 
 def truth_recording(rec: Recording, trace: Trace, truth: Mapping[str, Any]) -> Recording:
