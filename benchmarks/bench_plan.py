@@ -48,6 +48,7 @@ def main() -> None:
                     "values over the seeds) to this file")
     ap.add_argument("--estimates", metavar="JSON", help="read the sweep's estimates from a file written by "
                     "--save-estimates instead of running the sweep (the plan is computed anew)")
+    ap.add_argument("--save-plan", metavar="JSON", help="also write the plans (family -> plan document) to this file")
     ap.add_argument("--sweep-only", action="store_true", help="run the sweep and write --save-estimates only (no plan)")
     args = ap.parse_args()
     if args.sweep_only and not args.save_estimates:
@@ -64,6 +65,9 @@ def main() -> None:
     plans = ({} if args.sweep_only else
              {f: plan_campaign(vehicle, setup, campaign, trace=trace, families=[f]).parameters for f in fams})
     t_plan = time.perf_counter() - t0
+    if args.save_plan:
+        with open(args.save_plan, "w", encoding="utf-8") as fh:
+            json.dump({f: [p.to_dict() for p in ps] for f, ps in plans.items()}, fh)
     est: dict[str, dict[str, list[float]]] = {f: {} for f in fams}
     t0 = time.perf_counter()
     if args.estimates:
