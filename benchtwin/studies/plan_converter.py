@@ -18,8 +18,17 @@ are linear in their right-hand sides:
   model of its own uses the nearest one's), taken as independent.
 
 The derived parameters (``gamma_coupling``, ``k_at_gamma`` with its coupling point, ``sr_zero_torque``) follow
-by the delta method on the joint covariance. What is not in it: rows that the outlier rejection keeps on one
-seed and leaves out on another (the plan keeps those of the noise-free data).
+by the delta method on the joint covariance.
+
+The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
+spread, and the split at the refined coupling point moves with it. So the rows are decided by the
+identification's own fit on :data:`CONVERTER_DRAWS` draws of the readings as the bench records them (the
+quantised noisy shaft torque at each point, the transmission model's errors), and the planned variance is the
+mean of the linear term at each draw's rows plus the variance of the noise-free estimate over them. A set of rows
+met on fewer than :data:`RARE_ROWS` of the draws is named in the reason and left out: a sweep of tens of seeds
+seldom meets it, and its jump would dominate the variance. The CAN signals the points are made of are taken as
+recorded (:data:`CONVERTER_RECORDED`: their quantisation is the same every seed) and the shaft torque with its
+declared gain and offset, so the derivatives are taken where a bench's estimates are.
 """
 
 from __future__ import annotations
