@@ -17,6 +17,7 @@ relative to its value (float rounding leaves about 1e-15).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import platform
@@ -43,7 +44,15 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20, help="seeds of the sweep (default 20)")
     ap.add_argument("--first-seed", type=int, default=1000, help="first seed (default 1000)")
     ap.add_argument("--families", default="transmission,battery", help="comma-separated validation families")
+    ap.add_argument("--save-estimates", metavar="JSON", help="write the sweep's estimates (family -> parameter -> "
+                    "values over the seeds) to this file")
+    ap.add_argument("--estimates", metavar="JSON", help="read the sweep's estimates from a file written by "
+                    "--save-estimates instead of running the sweep (the plan is computed anew)")
+    ap.add_argument("--save-plan", metavar="JSON", help="also write the plans (family -> plan document) to this file")
+    ap.add_argument("--sweep-only", action="store_true", help="run the sweep and write --save-estimates only (no plan)")
     args = ap.parse_args()
+    if args.sweep_only and not args.save_estimates:
+        ap.error("--sweep-only needs --save-estimates")
 
     vehicle = load_vehicle()
     setup = load_setup(scenario_path("setups", f"{args.setup}.toml"))
@@ -53,17 +62,35 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     # one plan per family: its chain runs over the family's own tests, as the family's validation does
-    plans = {f: plan_campaign(vehicle, setup, campaign, trace=trace, families=[f]).parameters for f in fams}
+    plans = ({} if args.sweep_only else
+             {f: plan_campaign(vehicle, setup, campaign, trace=trace, families=[f]).parameters for f in fams})
     t_plan = time.perf_counter() - t0
+    if args.save_plan:
+        with open(args.save_plan, "w", encoding="utf-8") as fh:
+            json.dump({f: [p.to_dict() for p in ps] for f, ps in plans.items()}, fh)
     est: dict[str, dict[str, list[float]]] = {f: {} for f in fams}
     t0 = time.perf_counter()
-    for seed in range(args.first_seed, args.first_seed + args.seeds):
-        for fam in fams:
-            rep = validate(vehicle, setup, campaign.model_copy(update={"seed": seed}), trace=trace, families=[fam])
-            for fname, fit in rep.identification.fits.items():
-                for p in fit.params.values():
-                    est[fam].setdefault(f"{fname}.{p.name}", []).append(p.value)
+    if args.estimates:
+        with open(args.estimates, encoding="utf-8") as fh:
+            saved = json.load(fh)
+        est = {f: saved["estimates"][f] for f in fams}
+        args.seeds, args.first_seed = saved["seeds"], saved["first_seed"]
+    else:
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            for fam in fams:
+                rep = validate(vehicle, setup, campaign.model_copy(update={"seed": seed}), trace=trace,
+                               families=[fam])
+                for fname, fit in rep.identification.fits.items():
+                    for p in fit.params.values():
+                        est[fam].setdefault(f"{fname}.{p.name}", []).append(p.value)
     t_sweep = time.perf_counter() - t0
+    if args.save_estimates:
+        with open(args.save_estimates, "w", encoding="utf-8") as fh:
+            json.dump({"campaign": campaign.name, "setup": setup.name, "seeds": args.seeds,
+                       "first_seed": args.first_seed, "estimates": est}, fh)
+    if args.sweep_only:
+        print(f"sweep of {args.seeds} seeds x {len(fams)} families: {t_sweep:.0f} s -> {args.save_estimates}")
+        return
     n = args.seeds
     lo, hi = (math.sqrt(stats.chi2.ppf(a, n - 1) / (n - 1)) for a in (0.005, 0.995))
     rows = []
@@ -77,15 +104,15 @@ def main() -> None:
                 sds = [float(np.std(v, ddof=1) / max(abs(float(np.mean(v))), 1e-300)) for k, v in est[fam].items()
                        if k.startswith(pre) and len(v) == n and np.all(np.isfinite(v))]
                 if sds:
-                    rows.append((p.name, p.se, max(sds), f"{len(sds)} estimates, largest relative spread"))
+                    rows.append((fam, p.name, p.se, max(sds), f"{len(sds)} estimates, largest relative spread"))
                 continue
             v = np.asarray(est[fam].get(p.name, []), dtype=float)
             v = v[np.isfinite(v)]
             if v.size < 3:
-                rows.append((p.name, p.se, float("nan"), f"estimated on {v.size} of {n} seeds"))
+                rows.append((fam, p.name, p.se, float("nan"), f"estimated on {v.size} of {n} seeds"))
                 continue
             note = f"mean {np.mean(v):.6g}" + ("" if v.size == n else f", estimated on {v.size} of {n} seeds")
-            rows.append((p.name, p.se, float(np.std(v, ddof=1)), note))
+            rows.append((fam, p.name, p.se, float(np.std(v, ddof=1)), note))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     print("## Planned standard errors against the spread over seeds (benchmarks/bench_plan.py)\n")
     print(f"- date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine {platform.machine()}, "
@@ -95,10 +122,10 @@ def main() -> None:
           f"load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after")
     print(f"- N = {n}: a correct prediction gives s / sigma in [{lo:.3f}, {hi:.3f}] with 99 % probability "
           f"(chi-square, {n - 1} degrees of freedom); the check is the factor 1.5, i.e. [0.667, 1.5]\n")
-    print("| parameter | predicted SE | std over seeds | ratio | within 1.5 | note |")
-    print("|---|---|---|---|---|---|")
+    print("| family | parameter | predicted SE | std over seeds | ratio | within 1.5 | note |")
+    print("|---|---|---|---|---|---|---|")
     n_ok = 0
-    for name, se, sd, note in rows:
+    for fam, name, se, sd, note in rows:
         if se == 0.0:
             ok = sd <= ZERO_REL
             ratio = "-"
@@ -107,7 +134,7 @@ def main() -> None:
             ok = bool(1 / 1.5 < r < 1.5)
             ratio = f"{r:.3f}"
         n_ok += ok
-        print(f"| {name} | {se:.4g} | {sd:.4g} | {ratio} | {'yes' if ok else 'NO'} | {note} |")
+        print(f"| {fam} | {name} | {se:.4g} | {sd:.4g} | {ratio} | {'yes' if ok else 'NO'} | {note} |")
     print(f"\n- {n_ok} of {len(rows)} predictions within the factor 1.5 (a predicted 0: every estimate the same over "
           f"the seeds to a relative {ZERO_REL:g}, float rounding)")
 

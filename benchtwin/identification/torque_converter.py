@@ -31,21 +31,23 @@ from collections.abc import Mapping
 import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
-from benchtwin.errors import InsufficientDataError, MissingChannelError
+from benchtwin.errors import InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
-from benchtwin.identification._signals import strict_resample
+from benchtwin.identification.torque_converter_points import RPM_PER_RADS, ConverterPoints, converter_points
 from benchtwin.recording import Recording
 
 __all__ = [
     "RPM_PER_RADS",
+    "ConverterPoints",
+    "converter_design",
+    "converter_points",
     "coupling_point",
     "fit_torque_converter",
     "identify_torque_converter",
+    "speed_products",
     "tc_torques",
 ]
 
-#: rpm per rad/s
-RPM_PER_RADS = 60.0 / (2.0 * np.pi)
 
 
 def tc_torques(a: np.ndarray, gamma: float, w_p: np.ndarray, w_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -94,6 +96,25 @@ def coupling_point(a_conv: np.ndarray, *, lo: float = 0.0, hi: float = 1.2) -> f
     roots = np.roots([c2, c1, c0]) if abs(c2) > 1e-30 else (np.array([-c0 / c1]) if c1 != 0 else np.array([]))
     real = np.sort([r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and lo < r.real <= hi])
     return float(real[0]) if real.size else float("nan")
+
+
+def speed_products(w_p: np.ndarray, w_t: np.ndarray) -> np.ndarray:
+    """The regressors of each mode's torque (eq. 35-36): columns ``w_p^2, w_p w_t, w_t^2``."""
+    return np.column_stack([w_p**2, w_p * w_t, w_t**2])
+
+
+def converter_design(w_p: np.ndarray, w_t: np.ndarray, dw_p: np.ndarray | None = None) -> np.ndarray:
+    """The stacked converter-mode design (eq. 37-38): pump rows over turbine rows.
+
+    Columns ``a0..a5`` (and the pump inertia when ``dw_p`` is given); the right-hand side is
+    ``[t_p; t_t]``. Shared by :func:`fit_torque_converter` and the planner.
+    """
+    q = speed_products(w_p, w_t)
+    n = q.shape[0]
+    z = np.zeros((n, 3))
+    top = [q, z] + ([np.asarray(dw_p, dtype=float)[:, None]] if dw_p is not None else [])
+    bot = [z, q] + ([np.zeros((n, 1))] if dw_p is not None else [])
+    return np.vstack([np.hstack(top), np.hstack(bot)])
 
 
 def _zero_torque_sr(x: np.ndarray) -> float:
@@ -203,7 +224,7 @@ def fit_torque_converter(
     if not np.isfinite(g0):
         g0 = float(sr.max()) + 1e-9
         reasons.append("the torque ratio never reaches 1 in the data: no coupling-mode points")
-    q = np.column_stack([w_p**2, w_p * w_t, w_t**2])
+    q = speed_products(w_p, w_t)
 
     names6 = [f"a{k}" for k in range(6)] + (["J_pump_kgm2"] if acc is not None else [])
     units6 = ["Nm*s^2/rad^2"] * 6 + (["kg*m^2"] if acc is not None else [])
@@ -238,10 +259,7 @@ def fit_torque_converter(
             raise InsufficientDataError(f"torque converter: {n} converter-mode points (SR < {g0:.3f}), "
                                         f"need {min_points}")
         inlier[:] = True
-        z = np.zeros((n, 3))
-        top = [q[mask], z] + ([acc[mask, None]] if acc is not None else [])
-        bot = [z, q[mask]] + ([np.zeros((n, 1))] if acc is not None else [])
-        A = np.vstack([np.hstack(top), np.hstack(bot)])
+        A = converter_design(w_p[mask], w_t[mask], None if acc is None else acc[mask])
         b = np.r_[t_p[mask], t_t[mask]]
         return robust(A, b, n, names6, units6, "torque converter (eq. 37-38)", 2 * min_points,
                       np.flatnonzero(mask), True)
@@ -309,26 +327,6 @@ def fit_torque_converter(
             {}, cf_r2c, float("nan"), float(np.sqrt(np.mean((cf[fin] - cf_model[fin]) ** 2))) if fin.any()
             else float("nan"), int(fin.sum()), segments=segments, data=curve_data)
     return out
-
-
-def _central_derivative(x: np.ndarray, t: np.ndarray, window_s: float) -> np.ndarray:
-    """Central difference ``(x[k+h] - x[k-h]) / (t[k+h] - t[k-h])`` over about ``window_s``."""
-    if x.size < 3:
-        return np.zeros_like(x)
-    dt = float(np.median(np.diff(t)))
-    h = max(1, round(0.5 * window_s / dt)) if dt > 0 else 1
-    h = min(h, (x.size - 1) // 2) or 1
-    out = np.gradient(x, t)
-    out[h:-h] = (x[2 * h:] - x[:-2 * h]) / (t[2 * h:] - t[:-2 * h])
-    return out
-
-
-def _hold_mask(gear_change: np.ndarray, n_hold: int) -> np.ndarray:
-    """True where no gear change happened within ``n_hold`` samples either side."""
-    if n_hold <= 0:
-        return ~gear_change
-    k = np.ones(2 * n_hold + 1)
-    return np.convolve(gear_change.astype(float), k, mode="same") == 0
 
 
 def identify_torque_converter(
@@ -407,90 +405,19 @@ def identify_torque_converter(
     ------
     MissingChannelError, InsufficientDataError
     """
-    engine_only = "em_speed_rpm" not in rec and "em_torque_nm" not in rec
-    n_role, t_role = ("engine_speed_rpm", "engine_torque_nm") if engine_only else ("em_speed_rpm", "em_torque_nm")
-    need = ["vehicle_speed_kmh", n_role, t_role, "shaft_torque_nm", "gear_actual"]
-    missing = [n for n in need if n not in rec]
-    if missing:
-        raise MissingChannelError(f"torque converter identification needs channel(s) {', '.join(missing)}")
-    opt = [n for n in ("lockup_closed", "gear_target", "k0_closed", "engine_on") if n in rec]
-    states = {"gear_actual", "lockup_closed", "gear_target", "k0_closed", "engine_on"}
-    t, d, bad = strict_resample(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)))
-    gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
-    change = np.r_[False, np.diff(gear) != 0]
-    if "gear_target" in d:
-        tgt = np.rint(np.nan_to_num(d["gear_target"])).astype(int)
-        change |= np.r_[False, np.diff(tgt) != 0] | (tgt != gear)
-    reasons = []
-    if engine_only:
-        reasons.append("no motor channels: the engine drives the pump alone (conventional layout), pump speed and "
-                       "torque are the engine's")
-    n_p, t_p = d[n_role], d[t_role]
-    g = np.clip(gear, 1, len(specs.gear_ratios))
-    ig = np.asarray(specs.gear_ratios)[g - 1]
-    w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
-    if "lockup_closed" not in d:
-        # many cars do not broadcast the lock-up state: take it as closed where there is no slip
-        with np.errstate(invalid="ignore", divide="ignore"):
-            slip = np.abs(1.0 - w_t / (n_p / RPM_PER_RADS))
-        d["lockup_closed"] = (slip < lockup_slip_tol).astype(float)
-        reasons.append(f"no lock-up state in the recording: closed where the slip is below {lockup_slip_tol:g} "
-                       "(turbine speed not calibrated)")
-        calibrate_turbine_speed = False
-    use = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz))
-    use &= (gear >= 1) & (gear <= len(specs.gear_ratios))
-    use &= np.nan_to_num(d["lockup_closed"]) < 0.5
-    if engine_only:
-        if "engine_on" in d:
-            use &= np.nan_to_num(d["engine_on"], nan=0.0) >= 0.5
-    elif "k0_closed" in d:
-        use &= np.nan_to_num(d["k0_closed"], nan=1.0) < 0.5
-    elif "engine_on" in d:
-        use &= np.nan_to_num(d["engine_on"], nan=1.0) < 0.5
-    else:
-        reasons.append("no K0 or engine state in the recording: pump torque taken as motor torque everywhere")
-    dn = _central_derivative(n_p, t, derivative_window_s)
-    use &= np.abs(dn) <= max_pump_accel_rpm_s
-    use &= (n_p >= min_pump_speed_rpm) & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
-    segs = sorted({s.name for s in rec.segments if np.any(s.contains(t[use]))}) if rec.segments else []
-    scale, scale_se, n_cal = 1.0, float("nan"), 0
-    if calibrate_turbine_speed:
-        cal = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz)) & (gear >= 1) \
-            & (gear <= len(specs.gear_ratios)) & (np.nan_to_num(d["lockup_closed"]) >= 0.5) \
-            & (n_p >= min_pump_speed_rpm) & (np.abs(dn) <= max_pump_accel_rpm_s) & (d["vehicle_speed_kmh"] > 10.0)
-        n_cal = int(cal.sum())
-        if n_cal >= min_calibration_points:
-            ratio = n_p[cal] / RPM_PER_RADS / w_t[cal]
-            scale = float(np.median(ratio))
-            scale_se = 1.2533 * float(np.std(ratio, ddof=1)) / np.sqrt(n_cal)
-            w_t = w_t * scale
-            if abs(scale - 1.0) > 0.1:
-                reasons.append(f"turbine speed from eq. 31 is off by {100 * (scale - 1):+.1f} % against the motor "
-                               "speed with the lock-up closed: check gear ratios, final drive and wheel radius")
-    if transmission:
-        table = {int(k): (float(e), float(c)) for k, (e, c) in transmission.items()}
-        lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in table})
-        for k in lacking:  # nearest identified gear (ties: the lower one)
-            near = min(table, key=lambda j: (abs(j - k), j))
-            reasons.append(f"gear {k} has no transmission model: eta_m and C0 of gear {near} used")
-        full = {k: table[k] if k in table else table[min(table, key=lambda j: (abs(j - k), j))]
-                for k in range(1, len(specs.gear_ratios) + 1)}
-        eta_tab = np.array([full[k][0] for k in range(1, len(specs.gear_ratios) + 1)])
-        c0_tab = np.array([full[k][1] for k in range(1, len(specs.gear_ratios) + 1)])
-        eta, c0 = eta_tab[g - 1], c0_tab[g - 1]
-    else:
-        eta, c0 = np.ones_like(ig), np.zeros_like(ig)
-        reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
-    t_t = d["shaft_torque_nm"] / (ig * eta) + c0
-    use &= np.isfinite(t_t)
-    n_total = int(t.size)
-    res = fit_torque_converter(n_p[use] / RPM_PER_RADS, w_t[use], t_p[use], t_t[use], gamma=gamma,
-                               min_points=min_points, segments=segs, n_excluded=n_total - int(use.sum()),
-                               dw_p=dn[use] / RPM_PER_RADS if pump_inertia else None, outlier_sigma=outlier_sigma)
+    pts = converter_points(rec, specs, transmission=transmission, rate_hz=rate_hz,
+                           max_pump_accel_rpm_s=max_pump_accel_rpm_s, min_pump_speed_rpm=min_pump_speed_rpm,
+                           min_pump_torque_nm=min_pump_torque_nm, shift_hold_s=shift_hold_s,
+                           derivative_window_s=derivative_window_s, calibrate_turbine_speed=calibrate_turbine_speed,
+                           min_calibration_points=min_calibration_points, lockup_slip_tol=lockup_slip_tol)
+    res = fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, pts.t_t, gamma=gamma, min_points=min_points,
+                               segments=pts.segments, n_excluded=pts.n_excluded,
+                               dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma)
+    scale, scale_se, segs = pts.scale, pts.scale_se, pts.segments
     res["converter"].add(ParameterEstimate(
         "turbine_speed_scale", scale, scale_se, (scale - 1.96 * scale_se, scale + 1.96 * scale_se), float("nan"),
-        n_cal, "", segs))
-    for r in reasons:
+        pts.n_cal, "", segs))
+    for r in pts.reasons:
         res["converter"].flag(r)
         if "coupling" in res:
             res["coupling"].flag(r)

@@ -31,6 +31,12 @@ parameter the identification fits, without identifying anything from measured da
    derived parameters) are linearised by differentiating the identification's own fit at the planned
    points instead (the delta method on the same estimator).
 
+5. Where the rows of a fit themselves change with the seed, the plan models that from the setup: a bench
+   whose pressure polls can fail (declared timeout and exception rates) splits steady braking windows at
+   random, so the brake gains add the variance of the noise-free estimate over draws of those faults
+   (:mod:`benchtwin.studies.plan_brakes`). The torque converter's two linear fits are propagated at the
+   identification's own points and kept rows (:mod:`benchtwin.studies.plan_converter`).
+
 The prediction is the spread of the estimates over seeds of the sensor noise on one plant run, the
 figure a sweep over seeds measures; it holds no bias (gain and offset errors, model error) and no
 lack of fit (the identification's own standard errors carry the residual scatter, which includes it).
@@ -38,8 +44,7 @@ lack of fit (the identification's own standard errors carry the residual scatter
 Parameters whose fit will not get the points it needs are flagged *not identifiable*, with the reason
 and the test to add in the campaign's TOML terms. A family that reads no channel with a random error
 on the setup (engine, road load and shift lines on the paper bench) gets a standard error of 0: the
-same estimate for every seed. The torque converter's standard errors are not predicted (its pipeline
-resamples, rejects outliers and refines the coupling point); its excitation is checked.
+same estimate for every seed.
 """
 
 from __future__ import annotations
@@ -55,21 +60,22 @@ from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.cache import cached_campaign
-from benchtwin.recording import Recording
+from benchtwin.recording import Channel, Recording
+from benchtwin.studies.plan_brakes import plan_brakes
+from benchtwin.studies.plan_converter import CONVERTER_RECORDED, plan_converter
 from benchtwin.studies.plan_fits import (
     PlannedParameter,
     plan_battery,
-    plan_brakes,
     plan_motor,
     plan_presence,
     plan_shifts,
     plan_transmission,
 )
-from benchtwin.studies.plan_noise import noise_budget, poll_faults, reading_variance, truth_recording
+from benchtwin.studies.plan_noise import noise_budget, poll_fault_model, reading_variance, truth_recording
 from benchtwin.trace import Trace
 from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
 
-__all__ = ["Plan", "PlannedParameter", "plan_campaign", "reading_variance", "truth_recording"]
+__all__ = ["Plan", "PlannedParameter", "plan_campaign", "planned_recording", "reading_variance", "truth_recording"]
 
 @dataclass
 class Plan:
@@ -113,6 +119,29 @@ def _fmt(x: float) -> str:
 
 
 
+def planned_recording(setup: SetupConfig, campaign: CampaignConfig, trace: Trace,
+                      families: Iterable[str] | None = None, *, recorded: Iterable[str] = ()
+                      ) -> tuple[Recording, dict[str, Channel]]:
+    """The noise-free Recording a plan works on: the bench's timestamps and flags, every channel its truth.
+
+    The batch chain runs over the tests of the kinds the families need (with every family, None, also over
+    the cycles), each contiguous run of tests with the seed a family run of the validation gives it. The
+    channels named in ``recorded`` are also returned as the bench recorded them (role -> Channel).
+    """
+    fams = resolve_families(families) or list(FAMILIES.values())
+    truth, _noise = noise_budget(setup)
+    kinds = {k for f in fams for k in f.kinds}
+    if families is None:
+        kinds.add("cycle")  # the whole identification also reads a campaign's cycles (shift events, steady points)
+    spans = family_spans(trace.segments, kinds)
+    if not spans:
+        return Recording(segments=list(trace.segments)), {}
+    recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k))
+            for k, (a, b) in enumerate(spans)]
+    merged = merge_recordings(recs)
+    return truth_recording(merged, trace, truth), {n: merged[n] for n in recorded if n in merged}
+
+
 def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *,
                   trace: Trace | None = None, cache: bool | str = True,
                   families: Iterable[str] | None = None) -> Plan:
@@ -148,29 +177,26 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
             trace = simulate_campaign(vehicle, campaign)
         else:
             trace, _hit = cached_campaign(vehicle, campaign, directory=None if cache is True else cache)
-    truth, noise = noise_budget(setup)
-    kinds = {k for f in fams for k in f.kinds}
-    if families is None:
-        kinds.add("cycle")  # the whole identification also reads a campaign's cycles (shift events, steady points)
-    spans = family_spans(trace.segments, kinds)
+    _truth, noise = noise_budget(setup)
     plan = Plan(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
                       "seed": campaign.seed, "families": names,
                       "noise": {k: {"noise_std": v.sigma, "step": v.q} for k, v in sorted(noise.items())}})
     segments = list(trace.segments)
-    rec = Recording(segments=segments)
-    if spans:
-        recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k))
-                for k, (a, b) in enumerate(spans)]
-        rec = truth_recording(merge_recordings(recs), trace, truth)
+    conv = any(f.name == "torque_converter" for f in fams)
+    rec, raw = planned_recording(setup, campaign, trace, families, recorded=CONVERTER_RECORDED if conv else ())
     for fam in fams:
         if fam.name == "transmission":
             plan.parameters += plan_transmission(rec, vehicle, noise, segments)
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
         elif fam.name == "brakes":
-            plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_faults(setup))
+            plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_fault_model(setup))
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
+        elif fam.name == "torque_converter":
+            tx = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
+                plan_transmission(rec, vehicle, noise, segments)
+            plan.parameters += plan_converter(rec, vehicle, noise, segments, tx, recorded=raw)
         elif fam.name == "shifts":
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
         else:

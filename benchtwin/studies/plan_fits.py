@@ -23,7 +23,6 @@ from benchtwin.identification.battery import (
     load_literature_maps,
     refine_soc,
 )
-from benchtwin.identification.brakes import brake_gain_windows
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor import motor_points, side_points
 from benchtwin.identification.shifts import find_shift_events
@@ -38,7 +37,7 @@ from benchtwin.studies.plan_noise import (
     window_mean_variance,
 )
 
-__all__ = ["PlannedParameter", "noise_free", "plan_battery", "plan_brakes", "plan_motor", "plan_presence",
+__all__ = ["PlannedParameter", "noise_free", "plan_battery", "plan_motor", "plan_presence",
            "plan_shifts", "plan_transmission"]
 
 
@@ -228,73 +227,6 @@ def plan_battery(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Cha
     return sorted(out, key=lambda p: order.get(p.name, 99))
 
 
-def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
-                segments: list[Segment], faults: Mapping[str, float] | None = None) -> list[PlannedParameter]:
-    """Brake gains ``T = m p + c`` per axle on the steady neutral-braking windows, and ``k_f``.
-
-    The roller torque is noise-free on the dyno's CAN; the axle pressure (mean of its calipers) is the
-    regressor, so its noise enters through the slope (errors in variables: ``s_i^2 = m^2 var(p_i)``).
-    ``faults`` (role -> failed-poll probability, :func:`~benchtwin.studies.plan_noise.poll_faults`): when the
-    pressures' polls can fail, each row says that windows split at random per seed, a spread not in the SE.
-    """
-    test = "add [[tests]] kind = \"neutral_braking\" with brake_steps_pct = [5.0, 10.0, 20.0, 30.0]"
-    names = [("brakes.front.m_f", "Nm/bar"), ("brakes.front.c_f", "Nm"), ("brakes.rear.m_r", "Nm/bar"),
-             ("brakes.rear.c_r", "Nm"), ("brakes.distribution.k_f", "-")]
-    try:
-        sw, front, rear = brake_gain_windows(rec)
-    except BenchtwinError as exc:
-        return [PlannedParameter(n, u, float("nan"), float("nan"), False, f"no braking window: {exc}", test)
-                for n, u in names]
-    st = np.array([w.start_s for w in sw.windows])
-    en = np.array([w.end_s for w in sw.windows])
-    r = vehicle.specs.wheel_radius_m
-    out: list[PlannedParameter] = []
-    gains: dict[str, tuple[float, float]] = {}
-    for axle, chans, force, (m_name, c_name) in (("front", front, "dyno_force_front_n", names[:2]),
-                                                 ("rear", rear, "dyno_force_rear_n", names[2:4])):
-        if not len(sw):
-            p = t = np.array([])
-        else:
-            p = np.mean([sw.raw_average(rec, c) for c in chans], axis=0)
-            t = -sw.raw_average(rec, force) * r
-        ok = np.isfinite(p) & np.isfinite(t)
-        p, t = p[ok], t[ok]
-        spread = float(np.ptp(p)) if p.size else 0.0
-        if p.size < 4 or spread < 5.0:
-            why = (f"{p.size} steady neutral-braking windows (need 4)" if p.size < 4 else
-                   f"{axle} pressure spans {spread:.3g} bar (need 5 bar)")
-            out += [PlannedParameter(n, u, float("nan"), float("nan"), False, why, test, int(p.size))
-                    for n, u in (m_name, c_name)]
-            continue
-        A = np.column_stack([p, np.ones_like(p)])
-        x0 = np.linalg.lstsq(A, t, rcond=None)[0]
-        var_p = np.zeros(p.size)
-        for c in chans:
-            sv = sample_variances(rec, noise, c)
-            if sv is not None:
-                var_p += window_mean_variance(rec, c, sv, st[ok], en[ok]) / len(chans) ** 2
-        cov = sandwich_covariance(A, None, x0[0] ** 2 * var_p)
-        why = f"{p.size} steady windows, {p.min():.1f}..{p.max():.1f} bar"
-        p_fail = max((faults or {}).get(c, 0.0) for c in chans)
-        if p_fail > 0:
-            why += (f"; polls fail with p = {p_fail:g}: windows split at random per seed, a spread not in the SE "
-                    "(paper campaign: 2-3x)")
-        out.append(PlannedParameter(m_name[0], m_name[1], float(x0[0]), math.sqrt(max(cov[0, 0], 0.0)), True, why,
-                                    "", int(p.size)))
-        out.append(PlannedParameter(c_name[0], c_name[1], float(x0[1]), math.sqrt(max(cov[1, 1], 0.0)), True, why,
-                                    "", int(p.size)))
-        gains[axle] = (float(x0[0]), math.sqrt(max(cov[0, 0], 0.0)))
-    if len(gains) == 2:
-        (mf, sf), (mr, sr) = gains["front"], gains["rear"]
-        tot = mf + mr
-        se = math.sqrt((mr / tot**2 * sf) ** 2 + (mf / tot**2 * sr) ** 2)  # the identification's delta method
-        out.append(PlannedParameter(names[4][0], "-", mf / tot, se, True, "from both gains", "", 0))
-    else:
-        out.append(PlannedParameter(names[4][0], "-", float("nan"), float("nan"), False, "needs both axle gains",
-                                    test))
-    return out
-
-
 def plan_motor(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
                segments: list[Segment]) -> list[PlannedParameter]:
     """Willans lines, motoring and generating, by the delta method on the identification's own fits.
@@ -409,9 +341,6 @@ _PRESENCE: dict[str, tuple[Callable[[list[Segment]], bool], str, str]] = {
                                 and s.settings.get("engine") in ("on", "auto") for s in segs),
                "a ramp_up with the engine on",
                "add [[tests]] kind = \"ramp_up\" with mode = \"hybrid\", engine = \"on\", k0 = \"closed\""),
-    "torque_converter": (lambda segs: any(s.kind in ("acceleration", "deceleration") for s in segs),
-                         "accelerations or decelerations (lock-up open)",
-                         "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"),
 }
 
 

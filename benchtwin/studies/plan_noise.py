@@ -11,7 +11,7 @@ of its weighted least squares (:func:`sandwich_covariance`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,7 +26,11 @@ from benchtwin.trace import Trace
 
 __all__ = [
     "ChannelNoise",
+    "PollFaults",
+    "grid_error_sampler",
+    "grid_variance",
     "noise_budget",
+    "poll_fault_model",
     "poll_faults",
     "product_mean_variance",
     "reading_variance",
@@ -81,6 +85,39 @@ class ChannelNoise:
         return np.asarray(reading_variance(self.sigma, self.q, (1.0 + self.gain) * truth_values + self.offset))
 
 
+@dataclass(frozen=True)
+class PollFaults:
+    """The declared poll faults of a polled device: per-poll probabilities, the client's timeout, the poll rate.
+
+    A timed-out poll is logged (flagged ``TIMEOUT``) after ``timeout_s`` and the polls that fall in that wait
+    are skipped; an exception answer is one reading flagged ``PROTOCOL_ERROR``
+    (:func:`~benchtwin.sensors.pressure.poll_snapshots`).
+    """
+
+    timeout_prob: float
+    exception_prob: float
+    timeout_s: float
+    poll_hz: float
+
+    @property
+    def prob(self) -> float:
+        """Probability that a poll fails."""
+        return self.timeout_prob + self.exception_prob
+
+
+def poll_fault_model(setup: SetupConfig) -> dict[str, PollFaults]:
+    """Role -> the declared poll faults of the device that polls it (roles of devices whose polls can fail)."""
+    out: dict[str, PollFaults] = {}
+    for d in devices(setup):
+        cfg = d.cfg
+        pt = float(getattr(cfg, "timeout_prob", 0.0) or 0.0)
+        pe = float(getattr(cfg, "exception_prob", 0.0) or 0.0)
+        if pt + pe > 0:
+            pf = PollFaults(pt, pe, float(getattr(cfg, "poll_timeout_s", 0.0)), float(getattr(cfg, "poll_hz", 0.0)))
+            out.update(dict.fromkeys(d.truth_channels(), pf))
+    return out
+
+
 def poll_faults(setup: SetupConfig) -> dict[str, float]:
     """Role -> probability that a poll of it fails (timeout or exception answer), for polled devices.
 
@@ -116,6 +153,49 @@ def sample_variances(rec: Recording, noise: Mapping[str, ChannelNoise], name: st
     if name not in rec or name not in noise:
         return None
     return noise[name].variances(rec[name].values)
+
+
+def grid_variance(rec: Recording, noise: Mapping[str, ChannelNoise], name: str, t: np.ndarray) -> np.ndarray:
+    """Variance of channel ``name`` linearly interpolated at times ``t`` (0 where it is noise-free).
+
+    A grid sample between readings ``k`` and ``k+1`` at fraction ``a`` has ``(1-a)^2 v_k + a^2 v_{k+1}``.
+    """
+    sv = sample_variances(rec, noise, name)
+    t = np.asarray(t, dtype=float)
+    if sv is None or len(rec[name]) < 2:
+        return np.zeros(t.shape)
+    ts = rec[name].timestamps
+    k = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 2)
+    a = np.clip((t - ts[k]) / np.maximum(ts[k + 1] - ts[k], 1e-12), 0.0, 1.0)
+    return (1.0 - a) ** 2 * sv[k] + a**2 * sv[k + 1]
+
+
+def grid_error_sampler(rec: Recording, noise: Mapping[str, ChannelNoise], name: str, t: np.ndarray
+                       ) -> Callable[[np.random.Generator], np.ndarray] | None:
+    """Draws of the error of channel ``name`` interpolated at times ``t``, as a bench records it (None: noise-free).
+
+    Each draw quantises the two readings around each time, ``q rint((y + n) / q)`` with ``y`` the reading's
+    noise-free value (the channel's truth with the sensor's gain and offset) and ``n ~ N(0, sigma^2)``,
+    interpolates them, and returns the difference from the interpolated noise-free values: the rounding's bias
+    (the same every draw) with its noise.
+    """
+    if name not in rec or name not in noise or len(rec[name]) < 2:
+        return None
+    cn = noise[name]
+    ch = rec[name]
+    ts = ch.timestamps
+    t = np.asarray(t, dtype=float)
+    k = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, ts.size - 2)
+    a = np.clip((t - ts[k]) / np.maximum(ts[k + 1] - ts[k], 1e-12), 0.0, 1.0)
+    g0, g1 = ((1.0 + cn.gain) * y + cn.offset for y in (ch.values[k], ch.values[k + 1]))
+
+    def draw(rng: np.random.Generator) -> np.ndarray:
+        r0, r1 = (g + rng.normal(0.0, cn.sigma, g.shape) for g in (g0, g1))
+        if cn.q > 0:
+            r0, r1 = cn.q * np.rint(r0 / cn.q), cn.q * np.rint(r1 / cn.q)
+        return (1.0 - a) * (r0 - g0) + a * (r1 - g1)
+
+    return draw
 
 
 def truth_recording(rec: Recording, trace: Trace, truth: Mapping[str, Any]) -> Recording:

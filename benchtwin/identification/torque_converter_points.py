@@ -1,0 +1,163 @@
+"""The points the torque converter is fitted on: selection and regressors from a Recording.
+
+:func:`converter_points` is the first half of
+:func:`~benchtwin.identification.torque_converter.identify_torque_converter` (resampling, lock-up, shift
+hold, quasi-steady pump speed, turbine speed by eq. 31 with its calibration, turbine torque through the
+transmission model); the planner (:mod:`benchtwin.studies.plan_converter`) runs the same function on the
+noise-free Recording of a campaign.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from benchtwin.config.specs import VehicleSpecs
+from benchtwin.errors import MissingChannelError
+from benchtwin.identification._signals import strict_resample
+from benchtwin.recording import Recording
+
+__all__ = ["RPM_PER_RADS", "ConverterPoints", "converter_points"]
+
+#: rpm per rad/s
+RPM_PER_RADS = 60.0 / (2.0 * np.pi)
+
+
+def _central_derivative(x: np.ndarray, t: np.ndarray, window_s: float) -> np.ndarray:
+    """Central difference ``(x[k+h] - x[k-h]) / (t[k+h] - t[k-h])`` over about ``window_s``."""
+    if x.size < 3:
+        return np.zeros_like(x)
+    dt = float(np.median(np.diff(t)))
+    h = max(1, round(0.5 * window_s / dt)) if dt > 0 else 1
+    h = min(h, (x.size - 1) // 2) or 1
+    out = np.gradient(x, t)
+    out[h:-h] = (x[2 * h:] - x[:-2 * h]) / (t[2 * h:] - t[:-2 * h])
+    return out
+
+
+def _hold_mask(gear_change: np.ndarray, n_hold: int) -> np.ndarray:
+    """True where no gear change happened within ``n_hold`` samples either side."""
+    if n_hold <= 0:
+        return ~gear_change
+    k = np.ones(2 * n_hold + 1)
+    return np.convolve(gear_change.astype(float), k, mode="same") == 0
+
+
+@dataclass
+class ConverterPoints:
+    """The points the converter is fitted on (:func:`converter_points`), on the grid of the identification.
+
+    ``t`` grid times; ``w_p``, ``w_t`` pump and turbine speed (rad/s); ``t_p`` the motor torque; ``t_t`` the
+    turbine torque ``T_out / k_out + C0`` with ``k_out = i_g eta_m`` per point; ``dw_p`` the pump acceleration
+    (rad/s^2); ``gear``; ``n_excluded`` grid points left out; the turbine-speed calibration (``scale``,
+    ``scale_se``, ``n_cal``) and the reasons to flag.
+    """
+
+    t: np.ndarray
+    w_p: np.ndarray
+    w_t: np.ndarray
+    t_p: np.ndarray
+    t_t: np.ndarray
+    dw_p: np.ndarray
+    gear: np.ndarray
+    k_out: np.ndarray
+    segments: list[str]
+    n_excluded: int
+    scale: float
+    scale_se: float
+    n_cal: int
+    reasons: list[str] = field(default_factory=list)
+
+
+def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mapping[int, tuple[float, float]] | None,
+                     rate_hz: float, max_pump_accel_rpm_s: float, min_pump_speed_rpm: float,
+                     min_pump_torque_nm: float, shift_hold_s: float, derivative_window_s: float,
+                     calibrate_turbine_speed: bool, min_calibration_points: int, lockup_slip_tol: float
+                     ) -> ConverterPoints:
+    """The selection and regressors of :func:`identify_torque_converter` (its arguments), shared with the planner.
+
+    Raises
+    ------
+    MissingChannelError
+    """
+    engine_only = "em_speed_rpm" not in rec and "em_torque_nm" not in rec
+    n_role, t_role = ("engine_speed_rpm", "engine_torque_nm") if engine_only else ("em_speed_rpm", "em_torque_nm")
+    need = ["vehicle_speed_kmh", n_role, t_role, "shaft_torque_nm", "gear_actual"]
+    missing = [n for n in need if n not in rec]
+    if missing:
+        raise MissingChannelError(f"torque converter identification needs channel(s) {', '.join(missing)}")
+    opt = [n for n in ("lockup_closed", "gear_target", "k0_closed", "engine_on") if n in rec]
+    states = {"gear_actual", "lockup_closed", "gear_target", "k0_closed", "engine_on"}
+    t, d, bad = strict_resample(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)))
+    gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
+    change = np.r_[False, np.diff(gear) != 0]
+    if "gear_target" in d:
+        tgt = np.rint(np.nan_to_num(d["gear_target"])).astype(int)
+        change |= np.r_[False, np.diff(tgt) != 0] | (tgt != gear)
+    reasons = []
+    if engine_only:
+        reasons.append("no motor channels: the engine drives the pump alone (conventional layout), pump speed and "
+                       "torque are the engine's")
+    n_p, t_p = d[n_role], d[t_role]
+    g = np.clip(gear, 1, len(specs.gear_ratios))
+    ig = np.asarray(specs.gear_ratios)[g - 1]
+    w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
+    if "lockup_closed" not in d:
+        # many cars do not broadcast the lock-up state: take it as closed where there is no slip
+        with np.errstate(invalid="ignore", divide="ignore"):
+            slip = np.abs(1.0 - w_t / (n_p / RPM_PER_RADS))
+        d["lockup_closed"] = (slip < lockup_slip_tol).astype(float)
+        reasons.append(f"no lock-up state in the recording: closed where the slip is below {lockup_slip_tol:g} "
+                       "(turbine speed not calibrated)")
+        calibrate_turbine_speed = False
+    use = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz))
+    use &= (gear >= 1) & (gear <= len(specs.gear_ratios))
+    use &= np.nan_to_num(d["lockup_closed"]) < 0.5
+    if engine_only:
+        if "engine_on" in d:
+            use &= np.nan_to_num(d["engine_on"], nan=0.0) >= 0.5
+    elif "k0_closed" in d:
+        use &= np.nan_to_num(d["k0_closed"], nan=1.0) < 0.5
+    elif "engine_on" in d:
+        use &= np.nan_to_num(d["engine_on"], nan=1.0) < 0.5
+    else:
+        reasons.append("no K0 or engine state in the recording: pump torque taken as motor torque everywhere")
+    dn = _central_derivative(n_p, t, derivative_window_s)
+    use &= np.abs(dn) <= max_pump_accel_rpm_s
+    use &= (n_p >= min_pump_speed_rpm) & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
+    segs = sorted({s.name for s in rec.segments if np.any(s.contains(t[use]))}) if rec.segments else []
+    scale, scale_se, n_cal = 1.0, float("nan"), 0
+    if calibrate_turbine_speed:
+        cal = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz)) & (gear >= 1) \
+            & (gear <= len(specs.gear_ratios)) & (np.nan_to_num(d["lockup_closed"]) >= 0.5) \
+            & (n_p >= min_pump_speed_rpm) & (np.abs(dn) <= max_pump_accel_rpm_s) & (d["vehicle_speed_kmh"] > 10.0)
+        n_cal = int(cal.sum())
+        if n_cal >= min_calibration_points:
+            ratio = n_p[cal] / RPM_PER_RADS / w_t[cal]
+            scale = float(np.median(ratio))
+            scale_se = 1.2533 * float(np.std(ratio, ddof=1)) / np.sqrt(n_cal)
+            w_t = w_t * scale
+            if abs(scale - 1.0) > 0.1:
+                reasons.append(f"turbine speed from eq. 31 is off by {100 * (scale - 1):+.1f} % against the motor "
+                               "speed with the lock-up closed: check gear ratios, final drive and wheel radius")
+    if transmission:
+        table = {int(k): (float(e), float(c)) for k, (e, c) in transmission.items()}
+        lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in table})
+        for k in lacking:  # nearest identified gear (ties: the lower one)
+            near = min(table, key=lambda j: (abs(j - k), j))
+            reasons.append(f"gear {k} has no transmission model: eta_m and C0 of gear {near} used")
+        full = {k: table[k] if k in table else table[min(table, key=lambda j: (abs(j - k), j))]
+                for k in range(1, len(specs.gear_ratios) + 1)}
+        eta_tab = np.array([full[k][0] for k in range(1, len(specs.gear_ratios) + 1)])
+        c0_tab = np.array([full[k][1] for k in range(1, len(specs.gear_ratios) + 1)])
+        eta, c0 = eta_tab[g - 1], c0_tab[g - 1]
+    else:
+        eta, c0 = np.ones_like(ig), np.zeros_like(ig)
+        reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
+    t_t = d["shaft_torque_nm"] / (ig * eta) + c0
+    use &= np.isfinite(t_t)
+    return ConverterPoints(t[use], n_p[use] / RPM_PER_RADS, w_t[use], t_p[use], t_t[use],
+                           dn[use] / RPM_PER_RADS, gear[use], ig[use] * eta[use], segs, int(t.size - use.sum()),
+                           scale, scale_se, n_cal, reasons)

@@ -1,0 +1,342 @@
+"""Planned torque-converter standard errors: the sandwich of its two linear fits at the planned points.
+
+The identification's own selection and regressors (:func:`~benchtwin.identification.torque_converter_points.
+converter_points`, :func:`~benchtwin.identification.torque_converter.converter_design`) run on the noise-free
+Recording, and its own fit (:func:`~benchtwin.identification.torque_converter.fit_torque_converter`) gives the
+coupling point, the rows each mode keeps (outlier rejection) and the values. With those rows fixed, both fits
+are linear in their right-hand sides:
+
+- converter mode (eq. 37-38), stacked ``[t_p; t_t] = A x``: ``x = (A'A)^-1 A' b``, whose covariance is the
+  sandwich with the variance of each row: the motor torque's grid sample for the pump rows, the shaft torque's
+  over ``k_out^2`` (``k_out = i_g eta_m``) for the turbine rows (a grid sample interpolated between two readings
+  at fraction ``a`` has ``(1-a)^2`` and ``a^2`` of their variances);
+- coupling mode (eq. 39), ``t_p - J dw_p = q a_678``: the pump rows of the coupling points, and the pump inertia
+  ``J`` of the converter fit through ``-(q'q)^-1 q' dw_p``;
+- the transmission model each turbine torque goes through (``T_out / (i_g eta_m) + C0``) is itself estimated
+  from the same seed's shaft torque: its planned ``eta_m`` and ``C0`` standard errors of each gear move all
+  the turbine rows that use that gear's model together (``-(t_t - C0) / eta_m`` and ``1``; a gear without a
+  model of its own uses the nearest one's), taken as independent.
+
+The derived parameters (``gamma_coupling``, ``k_at_gamma`` with its coupling point, ``sr_zero_torque``) follow
+by the delta method on the joint covariance.
+
+The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
+spread, and the split at the refined coupling point moves with it. So the rows are decided by the
+identification's own fit on :data:`CONVERTER_DRAWS` draws of the readings as the bench records them (the
+quantised noisy shaft torque at each point, the transmission model's errors), and the planned variance is the
+mean of the linear term at each draw's rows plus the variance of the noise-free estimate over them. A set of rows
+met on fewer than :data:`RARE_ROWS` of the draws is named in the reason and left out: a sweep of tens of seeds
+seldom meets it, and its jump would dominate the variance. The CAN signals the points are made of are taken as
+recorded (:data:`CONVERTER_RECORDED`: their quantisation is the same every seed) and the shaft torque with its
+declared gain and offset, so the derivatives are taken where a bench's estimates are.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from benchtwin.config.vehicle import VehicleConfig
+from benchtwin.errors import BenchtwinError
+from benchtwin.identification.torque_converter import (
+    _zero_torque_sr,
+    converter_design,
+    coupling_point,
+    fit_torque_converter,
+    identify_torque_converter,
+    speed_products,
+)
+from benchtwin.identification.torque_converter_points import ConverterPoints, converter_points
+from benchtwin.recording import Channel, Recording
+from benchtwin.segments import Segment
+from benchtwin.studies.plan_fits import PlannedParameter
+from benchtwin.studies.plan_noise import ChannelNoise, grid_error_sampler, grid_variance
+
+__all__ = ["CONVERTER_DRAWS", "CONVERTER_RECORDED", "plan_converter"]
+
+#: draws of the noise that decide the rows: the selection term's std is known to about 1 / sqrt(2 (K - 1)) (8 % at
+#: 80); one draw is one fit at the planned points (a few ms)
+CONVERTER_DRAWS = 80
+#: a set of rows met on fewer than this share of the draws is rare: left out of the standard error, and named
+RARE_ROWS = 0.05
+
+#: channels of the converter's points that the plan takes as recorded when they carry no random error: their
+#: quantisation and latency are the same every seed, and the narrow coupling range's ``a6..a8`` (and the slope of
+#: ``k_at_gamma`` along the coupling point) move with them; a noisy channel it reads keeps its truth with the
+#: sensor's declared gain and offset (also the same every seed), so the derivatives are taken where a run is
+CONVERTER_RECORDED = ("em_speed_rpm", "em_torque_nm", "vehicle_speed_kmh")
+
+nan = float("nan")
+_HINT = "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"
+_POINT_OPTS = ("rate_hz", "max_pump_accel_rpm_s", "min_pump_speed_rpm", "min_pump_torque_nm", "shift_hold_s",
+               "derivative_window_s", "calibrate_turbine_speed", "min_calibration_points", "lockup_slip_tol")
+_FIT_OPTS = ("gamma", "min_points", "outlier_sigma")
+
+
+def _defaults() -> dict[str, object]:
+    """The identification's own default options (one source of truth)."""
+    return {k: p.default for k, p in inspect.signature(identify_torque_converter).parameters.items()
+            if p.default is not inspect.Parameter.empty}
+
+
+def _transmission_table(tx: Sequence[PlannedParameter]) -> dict[int, tuple[float, float, float, float]]:
+    """Gear -> (eta_m, C0, se eta_m, se C0) of the identifiable drive fits of the transmission plan."""
+    by = {p.name: p for p in tx}
+    out = {}
+    for name, p in by.items():
+        if not (name.startswith("transmission.gear") and name.endswith(".eta_m") and "_coast" not in name):
+            continue
+        g = int(name[len("transmission.gear"):-len(".eta_m")])
+        c0 = by.get(f"transmission.gear{g}.C0")
+        if p.identifiable and c0 is not None and c0.identifiable:
+            out[g] = (p.value, c0.value, p.se if math.isfinite(p.se) else 0.0, c0.se if math.isfinite(c0.se) else 0.0)
+    return out
+
+
+def _delta(func: Callable[[np.ndarray], float], z: np.ndarray, cov: np.ndarray) -> float:
+    """Variance of ``func(z)`` by the delta method (central differences)."""
+    grad = np.zeros(z.size)
+    for i in range(z.size):
+        h = 1e-6 * max(1.0, abs(float(z[i])))
+        up, dn = z.copy(), z.copy()
+        up[i] += h
+        dn[i] -= h
+        grad[i] = (func(up) - func(dn)) / (2 * h)
+    return float(grad @ cov @ grad)
+
+
+def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
+                   segments: list[Segment], tx: Sequence[PlannedParameter], *, seed: int = 0,
+                   draws: int = CONVERTER_DRAWS, recorded: Mapping[str, Channel] | None = None
+                   ) -> list[PlannedParameter]:
+    """Predicted standard errors of ``a0..a8``, ``J_pump_kgm2``, the coupling point and its derived values.
+
+    Parameters
+    ----------
+    rec:
+        The noise-free truth Recording.
+    vehicle:
+        Gear ratios, final drive, wheel radius.
+    noise:
+        Role -> random error of its readings.
+    segments:
+        The campaign's tests.
+    tx:
+        The transmission plan (:func:`~benchtwin.studies.plan_fits.plan_transmission`): the table the turbine
+        torque goes through, and its standard errors.
+    recorded:
+        Role -> the channel as the bench recorded it (:data:`CONVERTER_RECORDED`); a role without random error
+        on the setup is taken from here instead of its truth.
+    seed, draws:
+        Seed and number of the draws of the noise that decide the rows the fits keep (module docstring).
+
+    Returns
+    -------
+    list of PlannedParameter
+        ``torque_converter.converter.*`` and ``torque_converter.coupling.*``, or one row
+        ``torque_converter.*`` flagged not identifiable with the test to add.
+    """
+    specs = vehicle.specs
+    if not any(s.kind in ("acceleration", "deceleration") for s in segments):
+        return [PlannedParameter("torque_converter.*", "", float("nan"), float("nan"), False,
+                                 "missing: accelerations or decelerations (lock-up open)", _HINT)]
+    opts = _defaults()
+    truth = rec
+    swap = {n: ch for n, ch in (recorded or {}).items() if n not in noise and n in rec}
+    for n in ("shaft_torque_nm", *CONVERTER_RECORDED):
+        if n in noise and n in rec and (noise[n].gain or noise[n].offset):  # the same gain and offset every seed
+            ch = rec[n]
+            swap[n] = Channel(n, ch.unit, ch.timestamps, (1.0 + noise[n].gain) * ch.values + noise[n].offset,
+                              ch.flags, ch.source)
+    if swap:
+        view = Recording(segments=list(rec.segments), meta=rec.meta)
+        for name, ch in rec.channels.items():
+            view.add(swap.get(name, ch))
+        rec = view
+    table = _transmission_table(tx)
+    try:
+        pts = converter_points(rec, specs, transmission={g: v[:2] for g, v in table.items()} or None,
+                               **{k: opts[k] for k in _POINT_OPTS})  # type: ignore[arg-type]
+        res = fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, pts.t_t, dw_p=pts.dw_p,
+                                   **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
+    except BenchtwinError as exc:
+        return [PlannedParameter("torque_converter.*", "", float("nan"), float("nan"), False,
+                                 f"no converter fit at the planned points: {exc}", _HINT)]
+    # variance of each point's pump torque (motor torque) and turbine torque (shaft torque over k_out)
+    v_tp = grid_variance(truth, noise, "em_torque_nm", pts.t)
+    v_tt = grid_variance(truth, noise, "shaft_torque_nm", pts.t) / pts.k_out**2
+    e_tp = grid_error_sampler(truth, noise, "em_torque_nm", pts.t)
+    e_tt = grid_error_sampler(truth, noise, "shaft_torque_nm", pts.t)
+    model_gear = _model_gears(pts.gear, table)
+    lin = [_propagate(pts, res, v_tp, v_tt, table)]
+    n_lost = 0
+    if np.any(v_tp > 0) or np.any(v_tt > 0):
+        # the rows each fit keeps (outlier rejection, whose bound scales with the residuals' spread) and the mode
+        # split at the refined coupling point change with the noise: over draws of it, the identification's own fit
+        # decides the rows, and the plan adds the variance of the noise-free estimate at those rows
+        rng = np.random.default_rng(seed)
+        lin = []
+        for _ in range(draws):
+            # the readings as the bench quantises them: the rounding's bias decides rows as it does on a bench
+            t_t = pts.t_t + (e_tt(rng) / pts.k_out if e_tt is not None else 0.0)
+            t_p = pts.t_p + (e_tp(rng) if e_tp is not None else 0.0)
+            for gear, (eta, c0, se_eta, se_c0) in table.items():
+                sel = model_gear == gear
+                t_t[sel] += -(pts.t_t[sel] - c0) / eta * rng.normal(0.0, se_eta) + rng.normal(0.0, se_c0)
+            try:
+                rows = fit_torque_converter(pts.w_p, pts.w_t, t_p, t_t,
+                                            dw_p=pts.dw_p, **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
+                lin.append(_propagate(pts, rows, v_tp, v_tt, table))
+            except BenchtwinError:
+                n_lost += 1
+        if len(lin) < 2:
+            return [PlannedParameter("torque_converter.*", "", float("nan"), float("nan"), False,
+                                     f"the converter fit fails on {n_lost} of {draws} draws of the noise", _HINT)]
+    # the row sets the draws meet; one met on fewer than RARE_ROWS of the draws is left out of the standard error
+    # (a sweep of tens of seeds seldom meets it, and its jump would dominate the variance) and named in the reason
+    count: dict[bytes, int] = {}
+    for x in lin:
+        count[x.key] = count.get(x.key, 0) + 1
+    modal = max(count, key=lambda k: count[k])
+    first = next(x for x in lin if x.key == modal)
+    names = first.names
+    same = [x for x in lin if x.names == names and count[x.key] >= RARE_ROWS * len(lin)]
+    n_rare = sum(c for k, c in count.items() if c < RARE_ROWS * len(lin))
+    z = np.array([x.z for x in same])
+    var = np.mean([np.diag(x.cov) for x in same], axis=0)
+    if len(same) > 1:
+        var = var + np.var(z, axis=0, ddof=1)
+    n1, n2 = first.n1, first.n2
+    n_sets = sum(c >= RARE_ROWS * len(lin) for c in count.values())
+    why = (f"{n1} converter-mode and {n2} coupling-mode points (SR 0..{float(np.max(pts.w_t / pts.w_p)):.2f}), "
+           f"Gamma {first.g:.3f}"
+           + (f"; over {len(lin)} draws of the noise the fits keep {n_sets} set(s) of rows" if len(lin) > 1 else "")
+           + (f" (and rarer ones on {n_rare} draws, left out)" if n_rare else "")
+           + (f"; the fit fails on {n_lost} draws" if n_lost else ""))
+    v0 = {f"converter.{p}": q.value for p, q in res["converter"].params.items()}
+    v0.update({f"coupling.{p}": q.value for p, q in res["coupling"].params.items()} if "coupling" in res else {})
+    out = []
+    for i, name in enumerate(names):
+        side = "coupling" if name in ("a6", "a7", "a8") else "converter"
+        unit = "kg*m^2" if name == "J_pump_kgm2" else "Nm*s^2/rad^2"
+        out.append(PlannedParameter(f"torque_converter.{side}.{name}", unit, v0.get(f"{side}.{name}", nan),
+                                    _se(float(var[i]), float(first.z[i])), True, why, "",
+                                    n1 if side == "converter" else n2))
+    for side, name, func in _DERIVED:
+        if side == "coupling" and "a6" not in names:
+            continue
+        vals = np.array([func(x.z, x.k1) for x in same])
+        dv = float(np.mean([_delta(lambda zz, x=x, f=func: f(zz, x.k1), x.z, x.cov) for x in same]))
+        if len(same) > 1:
+            dv += float(np.var(vals, ddof=1))
+        out.append(PlannedParameter(f"torque_converter.{side}.{name}", "Nm*s^2/rad^2" if name == "k_at_gamma" else "",
+                                    v0.get(f"{side}.{name}", nan), _se(dv, float(vals[0])), True, why, "",
+                                    n1 if side == "converter" else n2))
+    calib_noisy = any(r in noise for r in ("em_speed_rpm", "vehicle_speed_kmh"))
+    out.append(PlannedParameter("torque_converter.converter.turbine_speed_scale", "", pts.scale,
+                                float("nan") if calib_noisy else 0.0, True,
+                                "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
+                                "the speeds it reads are free of random error on this setup", "", pts.n_cal))
+    if "a6" not in names:
+        out.append(PlannedParameter("torque_converter.coupling.*", "", float("nan"), float("nan"), False,
+                                    f"{n2} coupling-mode points", "add [[tests]] kind = \"acceleration\" "
+                                    "with the lock-up open up to a higher speed (SR above the coupling point)", n2))
+    order = {n: k for k, n in enumerate(_ORDER)}
+    return sorted(out, key=lambda p: order.get(p.name.split(".")[-1], 99))
+
+
+@dataclass
+class _Linear:
+    """Both fits at one set of rows: parameter names, the noise-free estimates, their noise covariance."""
+
+    names: list[str]
+    z: np.ndarray
+    cov: np.ndarray
+    k1: int
+    n1: int
+    n2: int
+    g: float
+    key: bytes = b""
+
+
+def _model_gears(gear: np.ndarray, table: Mapping[int, object]) -> np.ndarray:
+    """The gear whose transmission model each point's turbine torque goes through: its own, else the nearest
+    identified one (ties: the lower), as :func:`~benchtwin.identification.torque_converter_points.converter_points`
+    does."""
+    if not table:
+        return np.zeros(gear.shape, dtype=int)
+    near = {int(k): min(table, key=lambda j: (abs(j - int(k)), j)) for k in np.unique(gear)}
+    return np.array([near[int(k)] for k in gear], dtype=int)
+
+
+def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, v_tt: np.ndarray,
+               table: Mapping[int, tuple[float, float, float, float]]) -> _Linear:
+    """The linear map of both fits at the rows ``rows`` (a result of the fit) kept, on the noise-free points."""
+    model_gear = _model_gears(pts.gear, table)
+    data = rows["torque_ratio"].data
+    g = float(data["gamma"][0])
+    inlier = data["inlier"] > 0.5
+    sr = pts.w_t / pts.w_p
+    m1 = (sr < g) & inlier
+    m2 = (sr >= g) & inlier
+    A1 = converter_design(pts.w_p[m1], pts.w_t[m1], pts.dw_p[m1])
+    L1 = np.linalg.solve(A1.T @ A1, A1.T)  # x_conv = L1 [t_p; t_t]
+    n1 = int(m1.sum())
+    x1 = L1 @ np.r_[pts.t_p[m1], pts.t_t[m1]]
+    cov1 = (L1 * np.r_[v_tp[m1], v_tt[m1]]) @ L1.T
+    # the transmission model of each gear moves its turbine rows together
+    for gear, (eta, c0, se_eta, se_c0) in table.items():
+        sel = model_gear[m1] == gear
+        if not sel.any():
+            continue
+        d_eta = np.r_[np.zeros(n1), np.where(sel, -(pts.t_t[m1] - c0) / eta, 0.0)]
+        d_c0 = np.r_[np.zeros(n1), sel.astype(float)]
+        for d, se in ((d_eta, se_eta), (d_c0, se_c0)):
+            u = L1 @ d
+            cov1 += np.outer(u, u) * se**2
+    names = [f"a{k}" for k in range(6)] + ["J_pump_kgm2"]
+    k1 = len(names)
+    if "coupling" not in rows or int(m2.sum()) < 3:
+        return _Linear(names, x1, cov1, k1, n1, int(m2.sum()), g, np.packbits(np.r_[m1, m2]).tobytes())
+    q2 = speed_products(pts.w_p[m2], pts.w_t[m2])
+    L2 = np.linalg.solve(q2.T @ q2, q2.T)
+    x2 = L2 @ (pts.t_p[m2] - x1[6] * pts.dw_p[m2])
+    dj = -L2 @ pts.dw_p[m2]  # d a678 / d J
+    cov = np.zeros((k1 + 3, k1 + 3))
+    cov[:k1, :k1] = cov1
+    cov[k1:, k1:] = (L2 * v_tp[m2]) @ L2.T + np.outer(dj, dj) * cov1[6, 6]
+    cov[k1:, :k1] = np.outer(dj, cov1[6])
+    cov[:k1, k1:] = cov[k1:, :k1].T
+    return _Linear([*names, "a6", "a7", "a8"], np.r_[x1, x2], cov, k1, n1, int(m2.sum()), g,
+                   np.packbits(np.r_[m1, m2]).tobytes())
+
+
+def _se(var: float, value: float) -> float:
+    """The standard error, 0 below float rounding of the value (a parameter that reads no noisy row)."""
+    se = math.sqrt(max(var, 0.0))
+    return 0.0 if se <= 1e-12 * max(abs(value), 1e-300) else se
+
+
+def _gamma(z: np.ndarray, _k1: int) -> float:
+    return coupling_point(z[:6], lo=0.3, hi=1.0)
+
+
+def _k_at_gamma(z: np.ndarray, k1: int) -> float:
+    gg = _gamma(z, k1)
+    return float(z[k1] + z[k1 + 1] * gg + z[k1 + 2] * gg**2)
+
+
+def _sr0(z: np.ndarray, k1: int) -> float:
+    return _zero_torque_sr(z[k1:k1 + 3])
+
+
+_DERIVED: tuple[tuple[str, str, Callable[[np.ndarray, int], float]], ...] = (
+    ("converter", "gamma_coupling", _gamma), ("coupling", "k_at_gamma", _k_at_gamma),
+    ("coupling", "sr_zero_torque", _sr0))
+_ORDER = ("a0", "a1", "a2", "a3", "a4", "a5", "J_pump_kgm2", "gamma_coupling", "turbine_speed_scale", "a6", "a7",
+          "a8", "k_at_gamma", "sr_zero_torque")
