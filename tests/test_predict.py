@@ -143,3 +143,32 @@ def test_the_model_never_reads_the_vehicle_file() -> None:
     assert "VehicleConfig" not in src.read_text(encoding="utf-8")
     # and it runs on an IdentificationResult plus VehicleSpecs alone
     assert MapVehicle(synthetic_result(), SPECS).run(cruise()).electric_wh > 0
+
+
+def _with_loss(better: bool) -> IdentificationResult:
+    res = synthetic_result()
+    res.fits["motor.loss"] = _fit({"P0": 200.0, "k_w": 2.0, "k_w2": 0.0, "k_cu": 0.03, "k_sw": 1.0},
+                                  speed_range_radps=np.array([50.0, 400.0]), better_than_willans=np.array([better]))
+    return res
+
+
+def test_the_loss_model_replaces_the_willans_lines_only_where_it_was_closer() -> None:
+    """Electric cruise at 60 km/h in 6th: T_m and w as in _by_hand; the loss model gives P_el = T w + 200 + 2 w
+    + 0.03 T^2 + |T| (w inside the identified 50..400 rad/s), and the battery energy follows it; with
+    better_than_willans False the auto model keeps the Willans lines, "loss" forces the loss model, and a result
+    without motor.loss cannot be forced."""
+    v, i_g = 60.0 / 3.6, SPECS.gear_ratios[5]
+    t_out = (F0 + F1 * 60.0 + F2 * 60.0**2) * SPECS.wheel_radius_m / SPECS.final_drive_ratio
+    t_m = t_out / (i_g * ETA_M) + C0
+    w = v / SPECS.wheel_radius_m * SPECS.final_drive_ratio * i_g
+    p_loss_model = t_m * w + 200.0 + 2.0 * w + 0.03 * t_m**2 + t_m
+    p_willans = (t_m * w + W_LOSS) / E
+    drive = cruise()
+    for res, mm, expect in ((_with_loss(True), "auto", p_loss_model), (_with_loss(False), "auto", p_willans),
+                            (_with_loss(False), "loss", p_loss_model), (_with_loss(True), "willans", p_willans)):
+        pred = MapVehicle(res, SPECS, motor_model=mm).run(drive)
+        np.testing.assert_allclose(pred.series["motor_elec_power_w"][5:-5], expect, rtol=1e-6, err_msg=mm)
+    with pytest.raises(IdentificationError, match=r"motor\.loss"):
+        MapVehicle(synthetic_result(), SPECS, motor_model="loss")
+    with pytest.raises(ValueError, match="motor_model"):
+        MapVehicle(synthetic_result(), SPECS, motor_model="map")

@@ -34,6 +34,7 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate, derived, linear_fit
 from benchtwin.identification._signals import check_spread, raise_all_failed
+from benchtwin.identification.motor_loss import ETA_DCDC_PLAUSIBLE, add_loss_fit
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
@@ -46,8 +47,6 @@ _LV = ("dcdc_lv_current_a", "dcdc_lv_voltage_v")
 _HPCU = ("hpcu_current_a", "hpcu_voltage_v")
 #: without an inverter-side sensor (a BEV's log often has only the pack's), the pack's power is the DC input
 _PACK = ("battery_current_a", "battery_voltage_v")
-#: range a DC/DC efficiency can take; a joint Willans estimate outside it is a leak of the loss's model-form error
-ETA_DCDC_PLAUSIBLE = (0.7, 1.0)
 #: largest standard error of a joint Willans estimate of eta_dcdc that is used as it is
 ETA_DCDC_MAX_SE = 0.05
 
@@ -434,9 +433,10 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
     Returns
     -------
     IdentificationResult
-        ``motor.motoring`` (e, W_loss, eta_dcdc, eta_peak, the map in ``data``) and
-        ``motor.generating`` (e_gen, W_loss_gen, eta_dcdc); a side that cannot be fitted is in
-        ``errors``.
+        ``motor.motoring`` (e, W_loss, eta_dcdc, eta_peak, the map in ``data``),
+        ``motor.generating`` (e_gen, W_loss_gen, eta_dcdc) and ``motor.loss`` (the loss model of
+        :mod:`benchtwin.identification.motor_loss` over both sides' points); a fit that cannot be made is
+        in ``errors``.
 
     Raises
     ------
@@ -465,6 +465,7 @@ def identify_motor(rec: Recording, specs: VehicleSpecs, *, points: MotorPoints |
         raise_all_failed("motor (motoring and generating)", failures)
     if eta_dcdc is None and pts.p_lv_w is not None:
         _refit_with_independent_eta(rec, specs, pts, out, segs, min_torque_nm, min_points, form)
+    add_loss_fit(out, pts.torque_nm, pts.speed_rpm, pts.p_hpcu_w, pts.p_lv_w, eta_dcdc, list(segs), pts.n_flagged)
     return out
 
 

@@ -19,6 +19,9 @@ battery_map_free   battery V/I (OCV/R without maps, R0 steps,   ``battery_map_fr
 torque_converter   speeds, torques, gear, lock-up (uses the     ``torque_converter.*``
                    transmission result of each gear)
 shifts             target gear, speed, pedal                    ``shifts.up_1_2`` ...
+reduction_gear     motor speed/torque, speed, dyno forces (a    ``reduction_gear``
+                   BEV's one fixed ratio; run by default for
+                   the ``bev`` layout only)
 =================  ===========================================  =================================
 
 A method whose roles are missing, or whose spec keys the vehicle's layout does not have (a BEV has no engine
@@ -54,6 +57,7 @@ from benchtwin.identification.brakes import identify_brakes
 from benchtwin.identification.engine import identify_engine
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor import identify_motor
+from benchtwin.identification.reduction_gear import identify_reduction_gear
 from benchtwin.identification.road_load import identify_road_load
 from benchtwin.identification.shifts import identify_shift_thresholds
 from benchtwin.identification.torque_converter import identify_torque_converter
@@ -196,6 +200,9 @@ METHODS: tuple[Method, ...] = (
     Method("torque_converter", ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual"), _torque_converter,
            spec_keys=_RATIOS, alternatives=_TC_PUMP),
     Method("shifts", ("gear_target", "vehicle_speed_kmh", "pedal_pct"), _shifts, needs_specs=False),
+    Method("reduction_gear", ("em_speed_rpm", "em_torque_nm", "vehicle_speed_kmh", "dyno_force_front_n",
+                              "dyno_force_rear_n"), _direct(identify_reduction_gear),
+           spec_keys=("final_drive_ratio", "wheel_radius_m")),
 )
 
 #: methods run by default; battery_map_free is for logs whose chemistry the literature maps do not fit
@@ -214,6 +221,7 @@ _TARGETS: dict[str, Callable[..., Any]] = {
     "battery_map_free": identify_battery_map_free,
     "torque_converter": identify_torque_converter,
     "shifts": identify_shift_thresholds,
+    "reduction_gear": identify_reduction_gear,
 }
 
 
@@ -330,6 +338,8 @@ def identify_all(
         raise DataError(f"unknown identification method(s) {', '.join(unknown)}; known: {', '.join(known)}")
     if methods is None and "displayed_soc_pct" not in recording and "battery_voltage_v" in recording:
         wanted.append("battery_map_free")
+    if methods is None and specs is not None and specs.layout == "bev":
+        wanted.append("reduction_gear")  # the one fixed ratio's efficiency (a gearbox's is the transmission's)
     options = options or {}
     result = IdentificationResult(meta={"ran": [], "skipped": {}, "seconds": {}})
     stuck = stuck_channels(recording)

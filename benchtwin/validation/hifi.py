@@ -21,6 +21,7 @@ from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey
 from benchtwin.trace import Trace
+from benchtwin.validation.predict import MapVehicle
 from benchtwin.validation.report import Check
 
 __all__ = ["converter_curve_checks", "hifi_submodel_checks", "no_truth", "true_converter_curves"]
@@ -99,7 +100,8 @@ def _window(trace: Trace, t0: float, t1: float) -> np.ndarray:
     return (trace.time_s >= t0) & (trace.time_s <= t1)
 
 
-def _motor_check(result: IdentificationResult, trace: Trace, sel: np.ndarray) -> list[Check]:
+def _motor_check(result: IdentificationResult, trace: Trace, sel: np.ndarray,
+                 model: MapVehicle | None = None) -> list[Check]:
     mot, gen = result.fits.get("motor.motoring"), result.fits.get("motor.generating")
     if mot is None or "e" not in mot.params:
         return []
@@ -108,9 +110,14 @@ def _motor_check(result: IdentificationResult, trace: Trace, sel: np.ndarray) ->
     t, w, p_true = t[use], w[use], p_true[use]
     if t.size < 10:
         return []
-    e_g = gen.value("e_gen") if gen is not None and "e_gen" in gen.params else 1 / mot.value("e")
-    wl_g = gen.value("W_loss_gen") if gen is not None and "W_loss_gen" in gen.params else -mot.value("W_loss")
-    p_id = np.where(t >= 0, (t * w + mot.value("W_loss")) / mot.value("e"), e_g * t * w + wl_g)
+    if model is not None:
+        p_id = model.motor_power_w(t, w)
+        form = "identified loss model (motor.loss)" if model.loss_model is not None else "identified Willans lines"
+    else:
+        e_g = gen.value("e_gen") if gen is not None and "e_gen" in gen.params else 1 / mot.value("e")
+        wl_g = gen.value("W_loss_gen") if gen is not None and "W_loss_gen" in gen.params else -mot.value("W_loss")
+        p_id = np.where(t >= 0, (t * w + mot.value("W_loss")) / mot.value("e"), e_g * t * w + wl_g)
+        form = "identified Willans lines"
     rms = float(np.sqrt(np.mean((p_id - p_true) ** 2)))
     scale = float(np.sqrt(np.mean(p_true**2)))
     err = rms / scale
@@ -122,7 +129,7 @@ def _motor_check(result: IdentificationResult, trace: Trace, sel: np.ndarray) ->
     eta_rms = float(np.sqrt(np.mean((eta_i - eta_t) ** 2))) if eff.any() else float("nan")
     return [Check("prediction", "submodel.motor_power_rms", rms, scale, err, ENERGY_GOAL, "abs", "-",
                   bool(err <= ENERGY_GOAL),
-                  f"identified Willans lines against the true motor and inverter (loss model, not a Willans line) at "
+                  f"{form} (as the map-based model uses it) against the true motor and inverter at "
                   f"the {t.size} operating points of the held-out drive: RMS DC-power error over the RMS DC power; "
                   f"the tolerance is the 2 % electric-energy goal. The same error is {loss_err:.0%} of the RMS "
                   f"loss; the efficiency RMS error where motoring above 1 kW is {eta_rms * 100:.2f} points")]
@@ -158,7 +165,7 @@ def _transmission_checks(result: IdentificationResult, vehicle: VehicleConfig, t
 
 
 def hifi_submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, trace: Trace, start_s: float,
-                         end_s: float) -> list[Check]:
+                         end_s: float, model: MapVehicle | None = None) -> list[Check]:
     """Motor and gearbox sub-models against what the true sub-systems did over a held-out drive.
 
     Parameters
@@ -171,6 +178,9 @@ def hifi_submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, t
         The truth Trace holding the drive.
     start_s, end_s:
         The held-out window.
+    model:
+        The map-based model: the motor is judged in the form it uses (the loss model or the Willans lines);
+        None: the Willans lines.
 
     Returns
     -------
@@ -178,7 +188,7 @@ def hifi_submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, t
         ``submodel.motor_power_rms`` and ``submodel.transmission_loss.gear<g>`` (group ``prediction``).
     """
     sel = _window(trace, start_s, end_s)
-    checks = _motor_check(result, trace, sel) + _transmission_checks(result, vehicle, trace, sel)
+    checks = _motor_check(result, trace, sel, model) + _transmission_checks(result, vehicle, trace, sel)
     for c in checks:
         if not math.isfinite(c.error):
             c.passed = False

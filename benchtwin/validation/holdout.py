@@ -407,7 +407,7 @@ def submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, trace:
         # no true Willans line, eq. 14 or eq. 35-36: motor and gearbox against what the true sub-systems did
         # over the drive; the converter's curves are checked against the true table with the parameters
         window = (float(drive.t_s[0]), float(drive.t_s[-1])) if drive is not None else (0.0, -1.0)
-        return (hifi_submodel_checks(result, vehicle, trace, *window)
+        return (hifi_submodel_checks(result, vehicle, trace, *window, model=model)
                 + _bsfc_checks(result, vehicle, model, pred, profile, tols)
                 + _battery_checks(pred, trace, drive, profile) + _shift_checks(result, drive, model))
     return (_motor_checks(result, vehicle, pred, tols) + _transmission_checks(result, vehicle, pred, tols)

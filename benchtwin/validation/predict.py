@@ -14,8 +14,9 @@ trace of a drive the model computes, per time step and backwards from the wheels
    pump speed that carries the turbine torque), rigid when it is closed;
 5. the split between engine and motor: a replay of the measured strategy (engine on/off, K0 and the
    engine's CAN torque), the motor taking the rest, so that what is tested are the maps;
-6. the motor's DC power from the identified Willans lines, plus the measured 12 V load through the
-   identified DC/DC efficiency;
+6. the motor's DC power from the identified loss model ``motor.loss`` (copper, speed and switching terms,
+   :mod:`benchtwin.identification.motor_loss`) when it was identified, else from the Willans lines, plus the
+   measured 12 V load through the identified DC/DC efficiency;
 7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
    literature maps, ``soc_per_ah``);
 8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
@@ -41,6 +42,7 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.keys import FitKey
+from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 
 __all__ = ["CO2_G_PER_G_DIESEL", "DIESEL_DENSITY_KG_PER_L", "DriveInputs", "MapVehicle", "Prediction"]
 
@@ -203,15 +205,33 @@ class MapVehicle:
     specs:
         Public specification: ratios, wheel radius, displacement, cells in series, test mass, LHV.
 
+    motor_model:
+        ``"auto"`` (the loss model ``motor.loss`` when identified and closer to the steady points than the Willans
+        lines, :func:`~benchtwin.identification.motor_loss.add_loss_fit`; else the Willans lines), ``"loss"`` (the
+        loss model; an error when it was not identified) or ``"willans"`` (the paper's lines).
+
     Raises
     ------
     IdentificationError
         When a map the model cannot do without (road load, transmission, motor, battery) is missing.
     """
 
-    def __init__(self, result: IdentificationResult, specs: VehicleSpecs) -> None:
+    def __init__(self, result: IdentificationResult, specs: VehicleSpecs, *, motor_model: str = "auto") -> None:
         self.specs = specs
         self.notes: list[str] = []
+        if motor_model not in ("auto", "loss", "willans"):
+            raise ValueError(f"motor_model {motor_model!r}: allowed are 'auto', 'loss' and 'willans'")
+        self.loss_model: tuple[np.ndarray, tuple[float, float]] | None = None
+        lf = _fit(result, "motor.loss", *LOSS_TERMS)
+        usable = lf is not None and lf.status == "ok"
+        better = usable and bool(np.all(np.asarray(lf.data.get("better_than_willans", [True]))))
+        if (usable and motor_model == "loss") or (better and motor_model == "auto"):
+            rng = np.asarray(lf.data.get("speed_range_radps", [0.0, np.inf]), float)
+            self.loss_model = (np.array([lf.value(k) for k in LOSS_TERMS]), (float(rng[0]), float(rng[1])))
+            self.notes.append("motor DC power from the loss model motor.loss (T w + P0 + k_w w + k_w2 w^2 + k_cu T^2 "
+                              "+ k_sw |T|, speed clamped to the range identified); the Willans lines not used")
+        elif motor_model == "loss":  # not usable
+            raise IdentificationError("prediction: motor.loss (the motor's loss model) not identified or flagged")
         missing = []
         rl = _fit(result, "road_load", "F0", "F1", "F2")
         if rl is None:
@@ -424,6 +444,14 @@ class MapVehicle:
                               np.ascontiguousarray(self.r_ch, dtype=np.float64),
                               float(self.specs.n_cells_series), float(self.soc_per_ah))
 
+    # ------------------------------------------------------------------ motor
+    def motor_power_w(self, torque_nm: np.ndarray, speed_radps: np.ndarray) -> np.ndarray:
+        """Motor DC power (W): the loss model when the model uses it, else the Willans lines per side."""
+        t, w = np.asarray(torque_nm, float), np.asarray(speed_radps, float)
+        if self.loss_model is not None:
+            return t * w + loss_w(self.loss_model[0], t, w, self.loss_model[1])
+        return np.where(t >= 0, (t * w + self.w_loss) / self.e, self.e_gen * t * w + self.w_loss_gen)
+
     # ------------------------------------------------------------------ the drive
     def run(self, drive: DriveInputs, *, gear_source: str = "recorded") -> Prediction:
         """Predict fuel, electric energy and SOC of one drive.
@@ -483,8 +511,7 @@ class MapVehicle:
         w_e = np.where(on & k0, w_p, drive.engine_speed_rpm * _RPM)
         t_m = np.where(k0, t_p - t_e, t_p)
         w_m = w_p
-        p_mech = t_m * w_m
-        p_el = np.where(t_m >= 0, (p_mech + self.w_loss) / self.e, self.e_gen * p_mech + self.w_loss_gen)
+        p_el = self.motor_power_w(t_m, w_m)
         p_el = np.where((w_m < 1.0) & (np.abs(t_m) < 0.5), 0.0, p_el)
         p_bat = p_el + drive.p_lv_w / self.eta_dcdc
         i_b, v_b, soc = self.battery(p_bat, dt, drive.initial_soc_pct)
