@@ -19,20 +19,22 @@ Each block's draws come from :func:`~benchtwin.sensors.blocks.block_rng` keyed b
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
 from benchtwin.chain.acquisition import AcquisitionInput
 from benchtwin.chain.buslog import DEFAULT_START
 from benchtwin.config.setup import SetupConfig
-from benchtwin.sensors import devices
+from benchtwin.sensors import ChunkEncoder, devices
 from benchtwin.sensors.blocks import BLOCK_S, block_rng
 from benchtwin.sensors.encoder import complete_before
 from benchtwin.sensors.imperfections import disconnect, span_frame_faults
+from benchtwin.trace import Trace
 from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, PollLog, ProcessImage, RegisterSnapshots
 from benchtwin.wire.merge import insert_frames, merge_frames
 
-__all__ = ["ChunkDeliverer"]
+__all__ = ["ChunkDeliverer", "iter_delivered"]
 
 #: a poll block is delivered once the plant is encoded this far past its last request's reach
 _POLL_MARGIN_S = 1e-3
@@ -230,3 +232,34 @@ class ChunkDeliverer:
         return PollLog(logs[0].device, logs[0].unit_id, logs[0].function_code, logs[0].first_register,
                        np.concatenate([g.times for g in logs]), np.concatenate([g.values for g in logs]),
                        np.concatenate([g.status for g in logs]))
+
+
+def iter_delivered(chunks: Iterable[Trace], setup: SetupConfig, seed: int | None = 0, *,
+                   block_s: float = BLOCK_S) -> Iterator[AcquisitionInput]:
+    """Encode and deliver a Trace given chunk by chunk (e.g. :func:`~benchtwin.emulator.iter_campaign`).
+
+    Yields one :class:`~benchtwin.chain.acquisition.AcquisitionInput` per chunk (the frames and polls it
+    completes, with the chunk's segments); put end to end they are the whole run's
+    ``deliver(encode(trace, setup, seed), setup, seed=seed, span_s=(first, last sample))``, byte for byte.
+    Polling runs from the first sample to the last; one chunk is read ahead to know which is the last.
+    """
+    enc = ChunkEncoder(setup, seed, block_s=block_s)
+    dl: ChunkDeliverer | None = None
+    pending: Trace | None = None
+
+    def one(chunk: Trace, final: bool) -> AcquisitionInput:
+        nonlocal dl
+        if dl is None:
+            dl = ChunkDeliverer(setup, seed, start_s=float(chunk.time_s[0]), block_s=block_s)
+        got = dl.feed(enc.feed(chunk, final=final), end_s=float(chunk.time_s[-1]) if final else None)
+        got.segments = list(chunk.segments)
+        return got
+
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        if pending is not None:
+            yield one(pending, False)
+        pending = chunk
+    if pending is not None:
+        yield one(pending, True)

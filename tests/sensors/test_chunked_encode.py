@@ -1,8 +1,8 @@
 """Encode -> deliver chunk by chunk: the same bytes for any chunking, and the device state carried across blocks.
 
 1. The quick campaign (922 s, 92 k plant samples) through the paper bench and the fault bench (every fault
-   kind), fed whole, test by test (``iter_campaign``) and in 37-s slices: every bus's frame table and the
-   poll log are byte-identical.
+   kind): ``deliver(encode(...))`` at once, and ``iter_delivered`` fed whole, test by test
+   (``iter_campaign``) and in 37-s slices: every bus's frame table and the poll log are byte-identical.
 2. Chunking cannot change the draws (they are keyed by block), so (1) alone would not notice a state that
    is not carried from one block to the next: every block would restart it the same way. A bench without
    random draws (the paper bench with noise and fault probabilities at zero, its filters, clocks and
@@ -10,7 +10,7 @@
    in one block (the whole-array algorithm). Mutants that drop the filter state, the counters or the
    charge integral at each block edge must break that equality: they do (checked here).
 
-Cost: about 25 s (one quick-campaign simulation, six chain runs), plus 2 s for (2).
+Cost: about 30 s of CPU (one quick-campaign simulation, eight chain runs), plus 10 s for (2).
 """
 
 from __future__ import annotations
@@ -21,13 +21,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from benchtwin.chain.delivery import ChunkDeliverer
+from benchtwin.chain.batch import deliver
+from benchtwin.chain.delivery import iter_delivered
 from benchtwin.config import load_campaign, load_setup, load_vehicle
 from benchtwin.config._base import validate_data
 from benchtwin.config.setup import SetupConfig
 from benchtwin.emulator import iter_campaign
 from benchtwin.errors import DataError
-from benchtwin.sensors import ChunkEncoder
+from benchtwin.sensors import ChunkEncoder, encode
 from benchtwin.sensors.blocks import Block
 from benchtwin.sensors.synthetic import synthetic_trace
 from benchtwin.trace import Trace
@@ -54,13 +55,8 @@ def _slices(trace: Trace, step_s: float) -> list[Trace]:
 
 def _chain(chunks: list[Trace], setup: SetupConfig, block_s: float = 60.0) -> dict[str, Any]:
     """Encode and deliver the chunks in turn; every bus's frames and every poll log, put end to end."""
-    span = (float(chunks[0].time_s[0]), float(chunks[-1].time_s[-1]))
-    enc = ChunkEncoder(setup, SEED, block_s=block_s)
-    dl = ChunkDeliverer(setup, SEED, start_s=span[0], block_s=block_s)
     got: dict[str, list[np.ndarray]] = {}
-    for i, chunk in enumerate(chunks):
-        out = enc.feed(chunk, final=i == len(chunks) - 1)
-        rec = dl.feed(out, end_s=span[1])
+    for rec in iter_delivered(chunks, setup, SEED, block_s=block_s):
         for bus, table in rec.can.items():
             got.setdefault(bus, []).append(table.frames)
         for dev, log in rec.polls.items():
@@ -79,9 +75,14 @@ def _assert_same(a: dict[str, Any], b: dict[str, Any]) -> None:
 @pytest.mark.parametrize("setup_name", ["paper", "faults"])
 def test_any_chunking_gives_the_same_bytes(quick_tests: list[Trace], setup_name: str) -> None:
     setup = load_setup(setup_name)
-    whole = _chain([_join(quick_tests)], setup)
+    trace = _join(quick_tests)
+    once = deliver(encode(trace, setup, SEED), setup, seed=SEED, span_s=(trace.time_s[0], trace.time_s[-1]))
+    whole = {bus: t.frames for bus, t in once.can.items()}
+    whole.update({f"{d}.{f}": getattr(log, f) for d, log in once.polls.items() for f in ("times", "values", "status")})
     assert len(whole["instrument"]) > 1_000_000 and len(whole["brake_pressure.times"]) > 90_000
-    assert np.all(np.diff(whole["vehicle"]["timestamp"]) >= 0)
+    for bus in ("vehicle", "instrument", "dyno"):
+        assert np.all(np.diff(whole[bus]["timestamp"]) >= 0), bus
+    _assert_same(whole, _chain([trace], setup))  # the whole-run API is the one-chunk case
     _assert_same(whole, _chain(quick_tests, setup))  # a test per chunk (iter_campaign)
     _assert_same(whole, _chain(_slices(_join(quick_tests), 37.0), setup))  # edges nowhere near a block's
 
