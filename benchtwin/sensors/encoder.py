@@ -202,14 +202,16 @@ class ChunkEncoder:
                     images.setdefault(d.name, []).append(res)
                 else:
                     snaps.setdefault(res.device, []).append(res)
+        done.clear()  # the blocks' outputs are held once, by the lists above
         edge = np.inf if self.finished else complete_before(self.devices, self.until_s)
         per_bus: dict[str, list[np.ndarray]] = {b: [] for b in self.setup.buses}
         for d in self.devices:
             if d.wire != "can":
                 continue
-            parts = self._frames[d.name]
+            parts, self._frames[d.name] = self._frames[d.name], []
             frames = _sorted(np.concatenate(parts) if len(parts) > 1 else parts[0]) if parts else \
                 np.zeros(0, FRAME_DTYPE)
+            del parts  # the blocks' arrays go as soon as they are joined
             cut = int(np.searchsorted(frames["timestamp"], edge, side="left"))
             per_bus.setdefault(d.bus, []).append(frames[:cut])
             self._frames[d.name] = [frames[cut:]] if cut < len(frames) else []
