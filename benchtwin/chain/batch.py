@@ -31,17 +31,17 @@ from benchtwin.chain.buslog import (
     write_poll_csv,
     write_poll_log,
 )
+from benchtwin.chain.delivery import ChunkDeliverer
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Recording
 from benchtwin.segments import load_segments, save_segments, segments_from_json, segments_to_json
 from benchtwin.sensors import devices, encode, write_bus_dbcs
-from benchtwin.sensors.imperfections import device_rng, disconnect, span_frame_faults, truncate_log
+from benchtwin.sensors.imperfections import truncate_log
 from benchtwin.trace import Trace
-from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, TransportEvent
-from benchtwin.wire.merge import insert_frames
+from benchtwin.wire.frames import DeviceOutputs, FrameTable, TransportEvent
 
-__all__ = ["TRUNCATION_TOLERANCE_S", "as_logged", "deliver", "read_logs", "run_batch", "write_logs"]
+__all__ = ["TRUNCATION_TOLERANCE_S", "ChunkDeliverer", "as_logged", "deliver", "read_logs", "run_batch", "write_logs"]
 
 #: a bus whose time base ends this much before the segment table or another source is flagged as cut short
 TRUNCATION_TOLERANCE_S = 0.5
@@ -49,7 +49,8 @@ TRUNCATION_TOLERANCE_S = 0.5
 
 def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
             span_s: tuple[float, float] | None = None) -> AcquisitionInput:
-    """What the bench's acquisition receives from the devices' outputs (batch).
+    """What the bench's acquisition receives from a whole run's device outputs: the one-chunk case of
+    :class:`~benchtwin.chain.delivery.ChunkDeliverer`.
 
     Parameters
     ----------
@@ -58,35 +59,15 @@ def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
     setup:
         The bench.
     seed:
-        Campaign seed (poll faults draw from the ``modbus_poll`` stream).
+        Campaign seed (poll faults draw from the ``modbus_poll`` stream, bus faults from ``faults:<bus>``).
     span_s:
         Acquisition span for polling; defaults to the span of the register snapshots.
     """
-    can = {bus: FrameTable(bus, t.frames, t.bitrate) for bus, t in outputs.can.items()}
-    events: list[TransportEvent] = []
-    polls = {}
-    for d in devices(setup):
-        if d.wire == "canopen" and d.name in outputs.canopen:
-            got = d.deliver(outputs.canopen[d.name], seed, span_s)
-        elif d.wire == "modbus" and d.poll_device in outputs.modbus:
-            got = d.deliver(outputs.modbus[d.poll_device], seed, span_s)
-        else:
-            continue
-        if got.frames is not None:
-            old = can.get(d.bus, FrameTable(d.bus, np.zeros(0, FRAME_DTYPE), setup.bitrate(d.bus)))
-            can[d.bus] = FrameTable(d.bus, insert_frames(old.frames, got.frames), old.bitrate)
-        if got.polls is not None:
-            polls[got.polls.device] = got.polls
-    for bus, table in list(can.items()):  # faults injected on a whole bus (the setup's [[faults]] with bus = ...)
-        faults = setup.faults_of(bus)
-        if not faults:
-            continue
-        frames = span_frame_faults(table.frames, table.frames["arbitration_id"].astype(np.int64), faults,
-                                   device_rng(seed, f"faults:{bus}"))
-        frames, spans = disconnect(frames, faults)
-        events += [TransportEvent(a, bus, "drop", b, "injected transport disconnect") for a, b in spans]
-        can[bus] = FrameTable(bus, frames, table.bitrate)
-    return AcquisitionInput(can=can, polls=polls, events=events, start_time=DEFAULT_START)
+    if outputs.until_s is not None:
+        raise DataError(f"deliver() takes a whole run's outputs; these end at {outputs.until_s:.3f} s of a "
+                        "chunked run (use ChunkDeliverer)")
+    start, end = (None, None) if span_s is None else span_s
+    return ChunkDeliverer(setup, seed, start_s=start).feed(outputs, end_s=end)
 
 
 def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Path, *, blf: bool = False,

@@ -4,30 +4,27 @@ Every device kind is a :class:`~benchtwin.sensors.base.Device` subclass in its o
 :data:`~benchtwin.sensors.registry.DEVICE_KINDS` by its setup section. :func:`encode` runs every device
 of a setup over a Trace and returns the :class:`~benchtwin.wire.frames.DeviceOutputs` (CAN frame tables
 per bus, Modbus register snapshots, CANopen process images), with the imperfections of the setup file and
-random draws from the campaign seed split per device. :func:`bus_database` is every CAN layout on one
+random draws from the campaign seed split per device and block of plant time; :class:`ChunkEncoder` does
+the same over a Trace fed chunk by chunk, with the same bytes. :func:`bus_database` is every CAN layout on one
 bus of a setup, as one cantools Database.
 """
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cantools
-import numpy as np
 from cantools.database.can import Database, Message, Node
 
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.sensors.base import Device
-from benchtwin.sensors.imperfections import device_rng
+from benchtwin.sensors.encoder import ChunkEncoder
 from benchtwin.sensors.registry import devices
 from benchtwin.trace import Trace
-from benchtwin.wire.frames import DeviceOutputs, FrameTable
-from benchtwin.wire.merge import merge_frames
+from benchtwin.wire.frames import DeviceOutputs
 
-__all__ = ["Device", "bus_database", "device_names", "devices", "encode", "write_bus_dbcs"]
+__all__ = ["ChunkEncoder", "Device", "bus_database", "device_names", "devices", "encode", "write_bus_dbcs"]
 
 
 def device_names(setup: SetupConfig) -> list[str]:
@@ -35,12 +32,8 @@ def device_names(setup: SetupConfig) -> list[str]:
     return [d.name for d in devices(setup)]
 
 
-def _workers(workers: int | None) -> int:
-    return max(1, min(4, os.cpu_count() or 1)) if workers is None else max(1, int(workers))
-
-
 def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0, *, workers: int | None = None) -> DeviceOutputs:
-    """Encode every device of ``setup`` over ``trace``.
+    """Encode every device of ``setup`` over the whole ``trace``: the one-chunk case of :class:`ChunkEncoder`.
 
     Parameters
     ----------
@@ -49,7 +42,7 @@ def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0, *, workers: i
     setup:
         The bench.
     seed:
-        Campaign seed; each device draws from its own stream split from it.
+        Campaign seed; each device draws from its own stream per block of plant time, split from it.
     workers:
         Threads encoding devices in parallel (numpy releases the GIL in the heavy loops); the
         result does not depend on it. Default: the CPU count, at most 4.
@@ -63,29 +56,7 @@ def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0, *, workers: i
     """
     if len(trace) < 2:
         raise DataError("trace needs at least two samples to encode")
-    devs = devices(setup)
-
-    def run(d: Device):
-        return d.encode(trace, device_rng(seed, d.name))
-
-    n = _workers(workers)
-    if n == 1:
-        results = [run(d) for d in devs]
-    else:
-        with ThreadPoolExecutor(max_workers=n, thread_name_prefix="encode") as pool:
-            results = list(pool.map(run, devs))
-    out = DeviceOutputs()
-    per_bus: dict[str, list[np.ndarray]] = {b: [] for b in setup.buses}
-    for d, res in zip(devs, results):
-        if d.wire == "can":
-            per_bus[d.bus].append(res)
-        elif d.wire == "canopen":
-            out.canopen[d.name] = res
-        else:
-            out.modbus[res.device] = res
-    for bus, parts in per_bus.items():
-        out.can[bus] = FrameTable(bus, merge_frames(parts), setup.bitrate(bus))
-    return out
+    return ChunkEncoder(setup, seed, workers=workers).feed(trace, final=True)
 
 
 def bus_database(setup: SetupConfig, bus: str) -> Database:

@@ -6,7 +6,7 @@ subclass is the device and its mirror in the acquisition, over one wire descript
 an EDS mapping, a register map), as canopen's LocalNode and RemoteNode mirror each other:
 
 ==========================  ==================================================================
-emulation                   :meth:`Device.encode` (Trace -> frames / process image / registers)
+emulation                   :meth:`Device.encode` (a block of the Trace -> frames / image / registers)
 batch delivery              :meth:`Device.deliver` (what an acquisition receives of the output)
 wire description            :meth:`Device.database` (cantools messages on its bus)
 acquisition                 :meth:`Device.frame_decoders` (CAN ids), :meth:`Device.decode_polls`
@@ -32,7 +32,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from benchtwin.config.setup import ChannelErrors, LinkErrors, SetupConfig
-from benchtwin.trace import Trace
+from benchtwin.sensors.blocks import Block
+from benchtwin.sensors.imperfections import DeviceClock
 from benchtwin.wire.frames import PollLog, ProcessImage, RegisterSnapshots
 from benchtwin.wire.quality import DecodeSink, FrameStream
 
@@ -181,15 +182,35 @@ class Device(ABC):
     # ------------------------------------------------------------------ emulation
 
     @abstractmethod
-    def encode(self, trace: Trace, rng: np.random.Generator) -> DeviceOutput:
-        """What the device puts on its wire over the whole Trace."""
+    def encode(self, blk: Block) -> DeviceOutput:
+        """What the device puts on its wire over one block of plant time (``blk``: window, draws, carried state)."""
 
-    def deliver(self, output: DeviceOutput, seed: int | None, span_s: tuple[float, float] | None) -> Delivered:
-        """What an acquisition receives of ``output`` beyond the raw CAN frames (batch delivery).
+    def deliver(self, output: DeviceOutput, rng: np.random.Generator, span_s: tuple[float, float],
+                state: dict[str, Any]) -> Delivered:
+        """What an acquisition receives of one block of ``output`` beyond the raw CAN frames (batch delivery).
+
+        Parameters
+        ----------
+        output:
+            The device's output of one block (a polled device: the updates the block's polls can read).
+        rng:
+            The block's generator of the delivery's stream.
+        span_s:
+            The block's span (a polled device: of poll requests, plant time).
+        state:
+            What the delivery carries from one block to the next.
 
         CAN devices' frames are already on their bus: the default delivers nothing more.
         """
         return Delivered()
+
+    def clock(self) -> DeviceClock:
+        """The device's clock (device time of a plant time), with its injected clock faults."""
+        return DeviceClock.of(self.link)
+
+    def poll_reach_s(self) -> float:
+        """A polled device: how far past a request (plant seconds) the updates it reads may lie."""
+        return 0.0
 
     # ------------------------------------------------------------------ wire description
 

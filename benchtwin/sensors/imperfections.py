@@ -22,8 +22,10 @@ clock that drifts or steps), :func:`disconnect` (a transport drop span) and :fun
 that ends early). Kinds that change what a device measures or reports (IVT-S status, Modbus restart and
 slow answers, telemetry clip, thermocouple open circuit) are injected in the device's own module.
 
-All random draws come from one :class:`numpy.random.Generator` per device made by :func:`device_rng`
-from the campaign seed, so adding a device does not change the draws of the others.
+Random draws come from one :class:`numpy.random.Generator` per device and block of plant time
+(:func:`benchtwin.sensors.blocks.block_rng`, split from the campaign seed by the device's name and the
+block index), so adding a device does not change the draws of the others and cutting the Trace into
+chunks does not change any draw.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import functools
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -135,7 +138,8 @@ def hold_sample(t_src: np.ndarray, x: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, errors: ChannelErrors,
-            rng: np.random.Generator, *, latency_s: float = 0.0, hold: bool = False) -> np.ndarray:
+            rng: np.random.Generator, *, latency_s: float = 0.0, hold: bool = False, blk: Any = None,
+            key: str = "") -> np.ndarray:
     """The measured value at plant times ``t_sample`` (see the module docstring).
 
     Parameters
@@ -152,9 +156,15 @@ def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, error
         Measurement age at sampling.
     hold:
         Zero-order hold instead of interpolation (discrete states).
+    blk, key:
+        The block of plant time being encoded (:class:`~benchtwin.sensors.blocks.Block`) and the channel's
+        key in the device's carried state: the filter runs on from the previous block and a stuck output
+        stays at the reading it froze at. None: the whole signal at once, from steady state.
     """
     x = np.asarray(x_true, dtype=np.float64)
-    if errors.bandwidth_hz > 0 and len(t_trace) > 1:
+    if blk is not None:
+        x = blk.filtered(key, x, errors)
+    elif errors.bandwidth_hz > 0 and len(t_trace) > 1:
         dt = float(np.median(np.diff(t_trace)))
         x = lti_filter(x, dt, errors.bandwidth_hz, errors.filter_order, errors.damping)
     ts = np.asarray(t_sample, dtype=np.float64) - latency_s
@@ -169,10 +179,11 @@ def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, error
         y = np.rint(y / errors.quantisation_step) * errors.quantisation_step
     if errors.saturation_min is not None or errors.saturation_max is not None:
         y = np.clip(y, errors.saturation_min, errors.saturation_max)
-    for iv in errors.stuck:  # the output freezes at its first reading in the interval
+    frozen = blk.state.setdefault("stuck", {}) if blk is not None else {}
+    for k, iv in enumerate(errors.stuck):  # the output freezes at its first reading in the interval
         inside = np.flatnonzero((ts >= iv.start_s) & (ts < iv.end_s))
         if inside.size:
-            y[inside] = y[inside[0]]
+            y[inside] = frozen.setdefault((key, k), y[inside[0]])
     return y
 
 

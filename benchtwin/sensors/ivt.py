@@ -35,6 +35,7 @@ from benchtwin.config.setup import IVT_PLACES, ChannelErrors, FaultSpec, IvtConf
 from benchtwin.errors import FrameError
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Device, FrameDecoder, TriggerSpec, TruthChannel
+from benchtwin.sensors.blocks import Block
 from benchtwin.sensors.imperfections import (
     DeviceClock,
     frame_faults,
@@ -131,7 +132,7 @@ def _adc(x: np.ndarray, full_range: float, bits: int) -> tuple[np.ndarray, np.nd
 
 
 def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator, t_device: np.ndarray,
-                faults: Sequence[FaultSpec] = ()) -> IvtSamples:
+                faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> IvtSamples:
     """All eight results of the shunt at device times ``t_device``.
 
     Parameters
@@ -149,15 +150,19 @@ def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generat
     faults:
         Injected faults of this shunt: ``stuck`` on its current or voltage role, ``ivt_error`` (the status
         nibble of every result over the span).
+    blk:
+        The block of plant time being encoded (carries the filters and the charge and energy integrals);
+        None: ``trace`` is the whole run.
     """
+    blk = Block.whole(trace, rng) if blk is None else blk
     ch_i, ch_u, role_i, role_u = IVT_PLACES[place]
     clock = DeviceClock.of(cfg.link)
     t = clock.to_plant(t_device)
     i_true, u_true = trace[ch_i], trace[ch_u]
     i_m = measure(trace.time_s, i_true, t, with_stuck(cfg.current_errors, faults, role_i), rng,
-                  latency_s=cfg.link.latency_s)
+                  latency_s=cfg.link.latency_s, blk=blk, key="i")
     u_m = measure(trace.time_s, u_true, t, with_stuck(cfg.voltage_errors, faults, role_u), rng,
-                  latency_s=cfg.link.latency_s)
+                  latency_s=cfg.link.latency_s, blk=blk, key="u")
     i_q, i_over = _adc(i_m, cfg.current_range_a, cfg.adc_bits)
     u_q, u_over = _adc(u_m, cfg.voltage_range_v, cfg.adc_bits)
     # charge and energy integrate the measured signals on the trace grid (the shunt integrates internally)
@@ -167,8 +172,8 @@ def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generat
     u_g = np.clip(u_true * (1 + cfg.voltage_errors.gain_error_frac) + cfg.voltage_errors.offset,
                   -cfg.voltage_range_v, cfg.voltage_range_v)
     p_g = i_g * u_g
-    q = np.concatenate([[0.0], np.cumsum(0.5 * (i_g[1:] + i_g[:-1]) * dt[1:])])
-    e = np.concatenate([[0.0], np.cumsum(0.5 * (p_g[1:] + p_g[:-1]) * dt[1:])]) / 3600.0
+    q = blk.accumulated("charge", np.concatenate([[0.0], 0.5 * (i_g[1:] + i_g[:-1]) * dt[1:]]))
+    e = blk.accumulated("energy", np.concatenate([[0.0], 0.5 * (p_g[1:] + p_g[:-1]) * dt[1:]])) / 3600.0
     ts = t - cfg.link.latency_s
     n = t.shape[0]
     values = np.zeros((8, n), dtype=np.int64)
@@ -192,19 +197,22 @@ def ivt_samples(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generat
 
 
 def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generator,
-               faults: Sequence[FaultSpec] = ()) -> np.ndarray:
+               faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> np.ndarray:
     """All frames the shunt (and, in triggered mode, the bench's trigger commands) put on the bus.
 
     ``faults``: the shunt's injected faults (``silent`` spans send nothing, frame faults over spans,
-    ``stuck`` and ``ivt_error`` in :func:`ivt_samples`).
+    ``stuck`` and ``ivt_error`` in :func:`ivt_samples`). ``blk``: the block of plant time to encode (its
+    window, generator and carried state; ``trace`` and ``rng`` are then unused); None: the whole ``trace``.
 
     Returns
     -------
     numpy.ndarray
         FRAME_DTYPE array sorted by timestamp.
     """
+    blk = Block.whole(trace, rng) if blk is None else blk
+    trace, rng = blk.trace, blk.rng
     clock = DeviceClock.of(cfg.link)
-    t0, t1 = float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9
+    t0, t1 = blk.start_s, blk.end_s
     enabled = [RESULT_NAMES.index(r) for r in cfg.results]
     parts = []
     if cfg.mode == "cyclic":
@@ -213,7 +221,8 @@ def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generato
         # the bench triggers every trigger_period on its own (plant) clock; the shunt answers on its clock
         t_cmd = np.arange(np.ceil(t0 * 1000.0 / cfg.trigger_period_ms), np.ceil(t1 * 1000.0 / cfg.trigger_period_ms)
                           ) * cfg.trigger_period_ms / 1000.0
-        t_cmd = t_cmd[t_cmd < t1 - TRIGGER_RESPONSE_S - RESULT_SPACING_S * 8]
+        if blk.final:  # the run ends before the answer to its last trigger
+            t_cmd = t_cmd[t_cmd < t1 - TRIGGER_RESPONSE_S - RESULT_SPACING_S * 8]
         t_dev = clock.to_device(t_cmd + TRIGGER_RESPONSE_S)
         mask = sum(1 << k for k in enabled)
         for cid, payload, dt in ((cfg.command_id, [CMD_TRIGGER, 0, mask, 0, 0, 0, 0, 0], 0.0),
@@ -225,9 +234,9 @@ def encode_ivt(trace: Trace, place: str, cfg: IvtConfig, rng: np.random.Generato
             fr["data"] = np.array(payload, dtype=np.uint8)
             parts.append(fr)
     t_dev = silent_ticks(t_dev, clock, faults)
-    s = ivt_samples(trace, place, cfg, rng, t_dev, faults)
+    s = ivt_samples(trace, place, cfg, rng, t_dev, faults, blk)
     n = s.t_device.shape[0]
-    counter = np.arange(n, dtype=np.int64) & 0xF
+    counter = blk.counter("results", n) & 0xF
     # the results of one measurement follow each other in mux order: build them interleaved
     # packed with the codec compiled from the shunt's DBC messages (the layout's one source of truth)
     codecs = result_codecs(cfg.result_base_id, ivt_node_name(place))
@@ -362,9 +371,9 @@ class IvtShunt(Device):
         """One device per configured place."""
         return [cls(f"ivt_{place}", cfg, setup, place) for place, cfg in setup.ivt.items()]
 
-    def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
-        """Result frames (and the bench's trigger commands in triggered mode)."""
-        return encode_ivt(trace, self.place, self.cfg, rng, self.setup.faults_of(self.name))
+    def encode(self, blk: Block) -> np.ndarray:
+        """Result frames (and the bench's trigger commands in triggered mode) over one block."""
+        return encode_ivt(blk.trace, self.place, self.cfg, blk.rng, self.setup.faults_of(self.name), blk)
 
     def database(self) -> Database:
         """The shunt's result, command and answer messages on its own identifiers."""

@@ -24,7 +24,8 @@ import numpy as np
 from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, PressureConfig
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Delivered, Device, ModbusEndpoint, TruthChannel
-from benchtwin.sensors.imperfections import device_rng, faulty_clock, in_spans, measure, with_stuck
+from benchtwin.sensors.blocks import Block
+from benchtwin.sensors.imperfections import DeviceClock, faulty_clock, in_spans, measure, with_stuck
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import POLL_OK, POLL_TIMEOUT, PollLog, RegisterSnapshots
 from benchtwin.wire.modbus_map import (
@@ -50,17 +51,22 @@ PA_PER_BAR = 1e5
 
 
 def encode_pressure(trace: Trace, cfg: PressureConfig, rng: np.random.Generator,
-                    faults: Sequence[FaultSpec] = ()) -> RegisterSnapshots:
-    """The module's input registers 0..13 at every update (module clock, with its injected clock faults)."""
+                    faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> RegisterSnapshots:
+    """The module's input registers 0..13 at every update (module clock, with its injected clock faults).
+
+    ``blk``: the block of plant time to encode (``trace`` and ``rng`` are then unused); None: the whole ``trace``.
+    """
+    blk = Block.whole(trace, rng) if blk is None else blk
+    trace, rng = blk.trace, blk.rng
     clock = faulty_clock(cfg.link, faults)
-    t_dev = clock.ticks(float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9, 1.0 / cfg.update_hz)
+    t_dev = clock.ticks(blk.start_s, blk.end_s, 1.0 / cfg.update_hz)
     t = clock.to_plant(t_dev)
     n = t.shape[0]
     regs = np.zeros((n, INPUT_COUNT), dtype=np.uint16)
     status = np.zeros(n, dtype=np.int64)
     for k, (trace_name, role) in enumerate(CHANNELS):
         bar = measure(trace.time_s, trace[trace_name] / PA_PER_BAR, t, with_stuck(cfg.errors, faults, role), rng,
-                      latency_s=cfg.link.latency_s)
+                      latency_s=cfg.link.latency_s, blk=blk, key=role)
         volts = np.minimum(bar / cfg.full_scale_bar * cfg.full_scale_v, cfg.output_max_v)  # transducer saturation
         counts, high, low = volts_to_counts(volts)
         regs[:, REG_RAW + k] = counts
@@ -69,7 +75,7 @@ def encode_pressure(trace: Trace, cfg: PressureConfig, rng: np.random.Generator,
         status |= high.astype(np.int64) << k
         status |= low.astype(np.int64) << (8 + k)
     regs[:, REG_STATUS] = status.astype(np.uint16)
-    regs[:, REG_COUNTER] = (np.arange(n) & 0xFFFF).astype(np.uint16)
+    regs[:, REG_COUNTER] = (blk.counter("updates", n) & 0xFFFF).astype(np.uint16)
     uptime = np.rint(t_dev * 1000.0).astype(np.int64) & 0xFFFFFFFF
     regs[:, REG_UPTIME_HI] = (uptime >> 16).astype(np.uint16)
     regs[:, REG_UPTIME_LO] = (uptime & 0xFFFF).astype(np.uint16)
@@ -77,7 +83,7 @@ def encode_pressure(trace: Trace, cfg: PressureConfig, rng: np.random.Generator,
 
 
 def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.Generator, start_s: float,
-                   end_s: float, faults: Sequence[FaultSpec] = ()) -> PollLog:
+                   end_s: float, faults: Sequence[FaultSpec] = (), state: dict | None = None) -> PollLog:
     """Batch polling: what a Modbus client polling at ``poll_hz`` from ``start_s`` to ``end_s`` would log.
 
     Each request is sent at ``k / poll_hz`` (acquisition clock = plant clock), reaches the module
@@ -85,7 +91,12 @@ def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.
     that times out is logged ``poll_timeout_s`` after it was sent, and the poll slots that fall in
     that wait are skipped (a Modbus client waits for one answer at a time). Over a ``modbus_restart``
     every request times out; over a ``modbus_slow`` each answer comes ``latency_s`` later.
+
+    ``state`` carries the client's wait from one span to the next (``busy_until``: a timeout at the end
+    of one span skips the first slots of the next); ``snap`` must hold the last update before ``start_s``
+    reaches the module (a module with no update yet does not answer).
     """
+    state = {} if state is None else state
     clock = faulty_clock(cfg.link, faults)
     t_req = np.arange(np.ceil(start_s * cfg.poll_hz), np.ceil(end_s * cfg.poll_hz)) / cfg.poll_hz
     t_at_module = clock.to_device(t_req + 0.5 * cfg.poll_latency_s)
@@ -104,7 +115,8 @@ def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.
     t_log = t_req + latency
     keep = np.ones(n, dtype=bool)
     timed_out = (status == POLL_TIMEOUT) & (idx >= 0)
-    busy_until = -np.inf
+    busy_until = state.get("busy_until", -np.inf)
+    keep[t_req < busy_until] = False  # slots inside a wait that began in the previous span
     for i in np.flatnonzero(timed_out | (latency >= 1.0 / cfg.poll_hz)):  # rare: a short loop
         if t_req[i] < busy_until:
             keep[i] = False  # this slot fell inside an earlier wait
@@ -113,6 +125,7 @@ def poll_snapshots(snap: RegisterSnapshots, cfg: PressureConfig, rng: np.random.
         t_log[i] = busy_until
         hi = np.searchsorted(t_req, busy_until, side="left")
         keep[i + 1:hi] = False
+    state["busy_until"] = busy_until
     values = snap.registers[np.clip(idx, 0, None)].copy()
     values[status != POLL_OK] = 0
     return PollLog(snap.device, snap.unit_id, 4, snap.first_register, t_log[keep], values[keep], status[keep])
@@ -349,17 +362,23 @@ class PressureModule(Device):
         """The module's device name (its poll log's name)."""
         return self.cfg.device
 
-    def encode(self, trace: Trace, rng: np.random.Generator) -> RegisterSnapshots:
-        """The module's input registers at every update."""
-        return encode_pressure(trace, self.cfg, rng, self.setup.faults_of(self.cfg.device))
+    def encode(self, blk: Block) -> RegisterSnapshots:
+        """The module's input registers at every update of one block."""
+        return encode_pressure(blk.trace, self.cfg, blk.rng, self.setup.faults_of(self.cfg.device), blk)
 
-    def deliver(self, output: RegisterSnapshots, seed: int | None, span_s: tuple[float, float] | None
-                ) -> Delivered:
-        """The acquisition's polls over ``span_s`` (default: the snapshots' span), faults from ``modbus_poll``."""
-        if span_s is None:
-            span_s = (float(output.times[0]), float(output.times[-1])) if len(output.times) else (0.0, 0.0)
-        return Delivered(polls=poll_snapshots(output, self.cfg, device_rng(seed, "modbus_poll"), *span_s,
-                                              faults=self.setup.faults_of(self.cfg.device)))
+    def clock(self) -> DeviceClock:
+        """The module's clock with its injected clock faults."""
+        return faulty_clock(self.cfg.link, self.setup.faults_of(self.cfg.device))
+
+    def deliver(self, output: RegisterSnapshots, rng: np.random.Generator, span_s: tuple[float, float],
+                state: dict) -> Delivered:
+        """The acquisition's polls over ``span_s`` (one block of requests), faults from ``modbus_poll``."""
+        return Delivered(polls=poll_snapshots(output, self.cfg, rng, *span_s,
+                                              faults=self.setup.faults_of(self.cfg.device), state=state))
+
+    def poll_reach_s(self) -> float:
+        """How far past a request the snapshots it reads may lie (plant seconds): half the poll's round trip."""
+        return 0.5 * self.cfg.poll_latency_s
 
     def decode_polls(self, log: PollLog, sink: DecodeSink, drops: np.ndarray) -> None:
         """See :func:`decode_pressure_polls`."""

@@ -26,6 +26,7 @@ from benchtwin.config.setup import K_TEL_STEPS, ChannelErrors, FaultSpec, LinkEr
 from benchtwin.errors import ConfigError
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Device, FrameDecoder, TruthChannel
+from benchtwin.sensors.blocks import Block
 from benchtwin.sensors.imperfections import (
     DeviceClock,
     frame_faults,
@@ -134,18 +135,21 @@ def torque_from_code(code: np.ndarray, cfg: TelemetryConfig) -> np.ndarray:
 
 
 def encode_telemetry(trace: Trace, cfg: TelemetryConfig, rng: np.random.Generator,
-                     faults: Sequence[FaultSpec] = ()) -> np.ndarray:
+                     faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> np.ndarray:
     """AD module frames of the propeller-shaft torque (FRAME_DTYPE, time-sorted).
 
     ``faults``: injected faults; a ``clip`` holds the telemetry output at its rail over the span (the AD
-    module sees its input at full scale and sets its clip bit).
+    module sees its input at full scale and sets its clip bit). ``blk``: the block of plant time to encode
+    (``trace`` and ``rng`` are then unused); None: the whole ``trace``.
     """
+    blk = Block.whole(trace, rng) if blk is None else blk
+    trace, rng = blk.trace, blk.rng
     clock = DeviceClock.of(cfg.link)
-    t_dev = clock.ticks(float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9, 1.0 / cfg.rate_hz)
+    t_dev = clock.ticks(blk.start_s, blk.end_s, 1.0 / cfg.rate_hz)
     t_dev = silent_ticks(t_dev, clock, faults)
     t = clock.to_plant(t_dev)
     torque = measure(trace.time_s, trace["shaft_torque_nm"], t, with_stuck(cfg.errors, faults, "shaft_torque_nm"),
-                     rng, latency_s=cfg.link.latency_s)
+                     rng, latency_s=cfg.link.latency_s, blk=blk, key="torque")
     vout = cfg.k_tel * bridge_voltage(torque, cfg.shaft)
     for f in faults:
         if f.kind == "clip":
@@ -161,7 +165,7 @@ def encode_telemetry(trace: Trace, cfg: TelemetryConfig, rng: np.random.Generato
     frames["arbitration_id"] = cfg.can_id
     frames["dlc"] = 3
     frames["data"] = ad_codec(cfg.can_id).pack(
-        {"AD_Torque_Vout": code, "AD_Torque_Counter": np.arange(n), "AD_Torque_Clip": clip}, n)
+        {"AD_Torque_Vout": code, "AD_Torque_Counter": blk.counter("frames", n), "AD_Torque_Clip": clip}, n)
     frames = frame_faults(frames, np.zeros(n, np.int64), cfg.link, rng)
     return span_frame_faults(frames, np.zeros(len(frames), np.int64), faults, rng, clock)
 
@@ -173,9 +177,9 @@ class ShaftTorqueTelemetry(Device):
     wire = "can"
     counters = True
 
-    def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
-        """AD module frames."""
-        return encode_telemetry(trace, self.cfg, rng, self.setup.faults_of(self.name))
+    def encode(self, blk: Block) -> np.ndarray:
+        """AD module frames over one block."""
+        return encode_telemetry(blk.trace, self.cfg, blk.rng, self.setup.faults_of(self.name), blk)
 
     def database(self) -> Database:
         """The AD module's frame, its value scaled by this setup's K_TOT: ``AD_Torque_ShaftTorque`` in Nm."""

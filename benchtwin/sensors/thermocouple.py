@@ -19,9 +19,9 @@ from thermocouple_its90._data import TYPES as _ITS90
 
 from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, ThermoConfig
 from benchtwin.sensors.base import CanopenEndpoint, Delivered, Device, FrameDecoder, TruthChannel
+from benchtwin.sensors.blocks import Block
 from benchtwin.sensors.imperfections import (
     DeviceClock,
-    device_rng,
     frame_faults,
     in_spans,
     measure,
@@ -92,16 +92,19 @@ def temperature_type_k(emf_mv: np.ndarray, newton_steps: int = 3) -> np.ndarray:
 
 
 def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
-                  faults: Sequence[FaultSpec] = ()) -> ProcessImage:
+                  faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> ProcessImage:
     """The thermo module's object-dictionary values at each TPDO event (its own clock).
 
     Columns follow the EDS TPDO mapping (0x9130 sub 1..9, then 0x2100); inputs without a
     thermocouple read -0x8000 (open circuit), as does an input with an injected ``open_circuit`` over
-    its span. A ``silent`` node sends no TPDO over its span.
+    its span. A ``silent`` node sends no TPDO over its span. ``blk``: the block of plant time to encode
+    (``trace`` and ``rng`` are then unused); None: the whole ``trace``.
     """
+    blk = Block.whole(trace, rng) if blk is None else blk
+    trace, rng = blk.trace, blk.rng
     layout = pdo_layout(cfg.node_id)
     clock = DeviceClock.of(cfg.link)
-    t_dev = clock.ticks(float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9, cfg.pdo_period_ms / 1000.0)
+    t_dev = clock.ticks(blk.start_s, blk.end_s, cfg.pdo_period_ms / 1000.0)
     t_dev = silent_ticks(t_dev, clock, faults)
     t = clock.to_plant(t_dev)
     n = t.shape[0]
@@ -112,7 +115,7 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
     e_cj_meas = float(emf_type_k(np.array([t_cj + cfg.cold_junction_error_degc]))[0])
     for k, place in enumerate(cfg.places):
         temp = measure(trace.time_s, trace[place], t, with_stuck(cfg.errors, faults, place), rng,
-                       latency_s=cfg.link.latency_s)
+                       latency_s=cfg.link.latency_s, blk=blk, key=place)
         v_term = emf_type_k(np.clip(temp, _T_MIN, _T_MAX)) - e_cj_true
         if cfg.emf_resolution_uv > 0:
             step = cfg.emf_resolution_uv * 1e-3
@@ -136,14 +139,15 @@ class ThermoModule(Device):
     section = "thermo"
     wire = "canopen"
 
-    def encode(self, trace: Trace, rng: np.random.Generator) -> ProcessImage:
-        """The object-dictionary values at each TPDO event."""
-        return encode_thermo(trace, self.cfg, rng, self.setup.faults_of(self.name))
+    def encode(self, blk: Block) -> ProcessImage:
+        """The object-dictionary values at each TPDO event of one block."""
+        return encode_thermo(blk.trace, self.cfg, blk.rng, self.setup.faults_of(self.name), blk)
 
-    def deliver(self, output: ProcessImage, seed: int | None, span_s: tuple[float, float] | None) -> Delivered:
-        """The TPDO frames on the module's bus, with its link's frame faults (stream ``thermo_pdo``)."""
+    def deliver(self, output: ProcessImage, rng: np.random.Generator, span_s: tuple[float, float],
+                state: dict) -> Delivered:
+        """The TPDO frames of ``output`` (the updates of one block) on the module's bus, with its link's frame
+        faults (stream ``thermo_pdo``)."""
         pdo = pdo_layout(self.cfg.node_id).pack(output)
-        rng = device_rng(seed, "thermo_pdo")
         frames = frame_faults(pdo, pdo["arbitration_id"].astype(np.int64), self.cfg.link, rng)
         return Delivered(frames=span_frame_faults(frames, frames["arbitration_id"].astype(np.int64),
                                                   self.setup.faults_of(self.name), rng, DeviceClock.of(self.cfg.link)))

@@ -19,6 +19,7 @@ import numpy as np
 from benchtwin.config.setup import ChannelErrors, DynoConfig, FaultSpec, LinkErrors, VehicleCanConfig
 from benchtwin.roles import unit_of_role
 from benchtwin.sensors.base import Device, FrameDecoder, TruthChannel
+from benchtwin.sensors.blocks import Block
 from benchtwin.sensors.imperfections import (
     DeviceClock,
     frame_faults,
@@ -103,10 +104,15 @@ def message_codecs(stem: str) -> tuple[MessageCodec, ...]:
 
 
 def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfig, rng: np.random.Generator,
-                      faults: Sequence[FaultSpec] = ()) -> np.ndarray:
-    """All frames of the vehicle CAN (``stem='vehicle'``) or the dyno (``'dyno'``), time-sorted."""
+                      faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> np.ndarray:
+    """All frames of the vehicle CAN (``stem='vehicle'``) or the dyno (``'dyno'``), time-sorted.
+
+    ``blk``: the block of plant time to encode (``trace`` and ``rng`` are then unused); None: the whole ``trace``.
+    """
+    blk = Block.whole(trace, rng) if blk is None else blk
+    trace, rng = blk.trace, blk.rng
     clock = DeviceClock.of(cfg.link)
-    t0, t1 = float(trace.time_s[0]), float(trace.time_s[-1]) + 1e-9
+    t0, t1 = blk.start_s, blk.end_s
     parts = []
     sources = SIGNAL_MAP[stem]
     ideal = ChannelErrors()
@@ -120,11 +126,11 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
         for name in codec.signals:
             src = sources[name]
             if src.trace is None:
-                raw[name] = np.arange(n, dtype=np.int64)
+                raw[name] = blk.counter(f"{codec.name}.{name}", n)
                 continue
             errors = with_stuck(cfg.errors.get(src.role or "", ideal), faults, src.role or "")
             x = measure(trace.time_s, trace[src.trace] * src.factor, t, errors, rng, latency_s=cfg.link.latency_s,
-                        hold=src.hold)
+                        hold=src.hold, blk=blk, key=f"{codec.name}.{name}")
             raw[name], _ = codec.to_raw(name, x)
         fr = np.zeros(n, dtype=FRAME_DTYPE)
         fr["timestamp"] = t_dev
@@ -144,9 +150,9 @@ class _DbcDevice(Device):
     #: stem of the shipped DBC
     stem: ClassVar[str]
 
-    def encode(self, trace: Trace, rng: np.random.Generator) -> np.ndarray:
-        """Every message at its cycle time on the sender's clock."""
-        return encode_can_device(trace, self.stem, self.cfg, rng, self.setup.faults_of(self.name))
+    def encode(self, blk: Block) -> np.ndarray:
+        """Every message at its cycle time on the sender's clock, over one block."""
+        return encode_can_device(blk.trace, self.stem, self.cfg, blk.rng, self.setup.faults_of(self.name), blk)
 
     def database(self) -> Database:
         """The shipped DBC."""

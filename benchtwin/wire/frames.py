@@ -159,6 +159,8 @@ class DeviceOutputs:
     can: dict[str, FrameTable] = field(default_factory=dict)
     modbus: dict[str, RegisterSnapshots] = field(default_factory=dict)
     canopen: dict[str, ProcessImage] = field(default_factory=dict)
+    #: a chunk of a run: the plant time up to which it was encoded (None: the run's end, nothing follows)
+    until_s: float | None = None
 
     def n_frames(self) -> int:
         """Total CAN frames over all buses."""
