@@ -30,11 +30,9 @@ The readers here take the run start back off (``origin``) and return run times.
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import struct
-import zipfile
 import zlib
 from datetime import UTC, datetime
 from pathlib import Path
@@ -42,9 +40,10 @@ from typing import Any
 
 import numpy as np
 
+from benchtwin.chain.polllog import read_poll_log, write_poll_csv, write_poll_log
 from benchtwin.errors import DataError
 from benchtwin.mdf import DEFAULT_COMPRESSION, check_compression, open_mdf
-from benchtwin.wire.frames import FRAME_DTYPE, FrameTable, PollLog
+from benchtwin.wire.frames import FRAME_DTYPE, FrameTable
 from benchtwin.wire.merge import merge_frames
 
 __all__ = [
@@ -477,45 +476,3 @@ def read_bus_log(path: str | Path, bus: str | None = None, bitrate: int = 500_00
     if p.suffix.lower() == ".blf":
         return _read_blf(p, bus, bitrate, origin)
     return _read_mf4(p, bus, bitrate, origin)
-
-
-def write_poll_log(log: PollLog, path: str | Path) -> Path:
-    """Save a poll log as ``.npz``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, device=np.array(log.device), unit_id=log.unit_id, function_code=log.function_code,
-             first_register=log.first_register, times=log.times, values=log.values, status=log.status)
-    return path
-
-
-def read_poll_log(path: str | Path) -> PollLog:
-    """Load a poll log written by :func:`write_poll_log`.
-
-    Raises
-    ------
-    DataError
-        If the file is missing or not a poll log.
-    """
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return PollLog(str(z["device"]), int(z["unit_id"]), int(z["function_code"]), int(z["first_register"]),
-                           z["times"], z["values"], z["status"])
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such poll log") from None
-    except (KeyError, ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
-        why = "not an .npz archive" if "pickle" in str(exc) else (str(exc) or type(exc).__name__)
-        raise DataError(f"{path}: not a poll log ({why})") from None
-
-
-def write_poll_csv(log: PollLog, path: str | Path) -> Path:
-    """Human-readable CSV of a poll log: time, unit, function code, status, then one column per register."""
-    path = Path(path)
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(["time_s", "unit_id", "function_code", "status",
-                    *[f"reg{log.first_register + k}" for k in range(log.count)]])
-        for k in range(len(log)):
-            w.writerow([f"{log.times[k]:.6f}", log.unit_id, log.function_code, int(log.status[k]),
-                        *log.values[k].tolist()])
-    return path

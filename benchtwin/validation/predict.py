@@ -35,7 +35,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-import numba
 import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
@@ -43,6 +42,7 @@ from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
+from benchtwin.validation._pack_steps import battery_steps as _battery_steps
 
 __all__ = ["CO2_G_PER_G_DIESEL", "DIESEL_DENSITY_KG_PER_L", "DriveInputs", "MapVehicle", "Prediction"]
 
@@ -160,32 +160,6 @@ class Prediction:
         return {"fuel_g": self.fuel_g, "fuel_l": self.fuel_l, "co2_g": self.co2_g,
                 "co2_g_per_km": self.co2_g_per_km, "electric_wh": self.electric_wh,
                 "final_soc_pct": self.final_soc_pct, "distance_km": self.distance_km, "notes": list(self.notes)}
-
-
-@numba.njit(cache=True, nogil=True)
-def _battery_steps(p_w: np.ndarray, dt_s: float, soc0_pct: float, nodes: np.ndarray, ocv_cell: np.ndarray,
-                   r_dch: np.ndarray, r_ch: np.ndarray, n_cells: float, soc_per_ah: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The step-by-step pack of :meth:`MapVehicle.battery` (each step's SOC is the last one's; compiled, the same
-    floating-point operations as the loop over ``np.interp`` it replaces, so the same numbers)."""
-    n = p_w.size
-    i_out = np.zeros(n)
-    v_out = np.zeros(n)
-    s_out = np.zeros(n + 1)
-    s = soc0_pct
-    for k in range(n):
-        p = p_w[k]
-        ocv = np.interp(s, nodes, ocv_cell)
-        r = np.interp(s, nodes, r_dch) if p > 0 else np.interp(s, nodes, r_ch)
-        pc = p / n_cells
-        disc = ocv * ocv - 4.0 * r * pc
-        i = (ocv - math.sqrt(disc)) / (2.0 * r) if disc > 0 and r > 0 else pc / ocv
-        s_out[k] = s
-        i_out[k] = i
-        v_out[k] = (ocv - i * r) * n_cells
-        s -= soc_per_ah * i * dt_s / 3600.0
-    s_out[n] = s
-    return i_out, v_out, s_out[1:]
 
 
 def _fit(result: IdentificationResult, name: str, *params: str) -> FitResult | None:
