@@ -367,11 +367,18 @@ class Recording:
         for ch in self.channels.values():
             by_source.setdefault(ch.source or "default", []).append(ch)
         for source, chans in sorted(by_source.items()):
-            # channels of one source may still have different time bases: one group per time base
-            groups: dict[bytes, list[Channel]] = {}
+            # channels of one source may still have different time bases: one group per time base, compared whole
+            # (two streams of one device lose different frames: same length and start, other times)
+            groups: list[tuple[np.ndarray, list[Channel]]] = []
             for ch in chans:
-                groups.setdefault(ch.timestamps[:8].tobytes() + bytes(str(len(ch)), "ascii"), []).append(ch)
-            for group in groups.values():
+                ts = ch.timestamps
+                for ref, members in groups:
+                    if ref is ts or (ref.shape == ts.shape and np.array_equal(ref, ts)):
+                        members.append(ch)
+                        break
+                else:
+                    groups.append((ts, [ch]))
+            for _ref, group in groups:
                 sigs = []
                 for ch in group:
                     sigs.append(Signal(ch.values, ch.timestamps, name=ch.name, unit=ch.unit,
@@ -384,7 +391,7 @@ class Recording:
         if self.start_time is not None:
             mdf.header.start_time = self.start_time
         mdf.header.comment = json.dumps({"benchtwin": {"meta": self.meta, "segments": json.loads(
-            segments_to_json(self.segments))}}, default=str)
+            segments_to_json(self.segments)), "channels": list(self.channels)}}, default=str)
         # asammdf makes the suffix .mf4: the real name
         path = Path(mdf.save(path, overwrite=True, compression=check_compression(compression)))
         mdf.close()
@@ -425,7 +432,16 @@ class Recording:
                     flags_of[ch.name[:-6]] = (gi, ci)
                 else:
                     found[ch.name] = (gi, ci, ch, acq)
-        wanted = list(found) if channels is None else list(dict.fromkeys(channels))
+        comment = getattr(mdf.header, "description", "") or ""
+        try:
+            blob = json.loads(comment)["benchtwin"]
+        except (ValueError, KeyError, TypeError):
+            blob = None
+        if channels is None:  # in the order they were saved in (the groups hold them by source and time base)
+            order = [n for n in blob.get("channels", []) if n in found] if isinstance(blob, dict) else []
+            wanted = order + [n for n in found if n not in set(order)]
+        else:
+            wanted = list(dict.fromkeys(channels))
         absent = [n for n in wanted if n not in found]
         if absent:
             source.close()
@@ -450,12 +466,12 @@ class Recording:
             n = int(mdf.groups[gi].channel_group.cycles_nr)
             rec.add(LazyChannel(name, unit, acq, n, source.loader(name, gi, ci, numeric, flags_of.get(name)),
                                 _texts_of(conv)))
-        comment = getattr(mdf.header, "description", "") or ""
         rec.start_time = mdf.header.start_time
         rec.own(source)
         side = path.with_suffix(".segments.json")
         try:
-            blob = json.loads(comment)["benchtwin"]
+            if blob is None:
+                raise KeyError("benchtwin")
             rec.meta = dict(blob.get("meta", {}))
             rec.segments = segments_from_json(json.dumps(blob.get("segments", [])), str(path))
         except (ValueError, KeyError, TypeError):

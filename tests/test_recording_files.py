@@ -101,3 +101,17 @@ def test_compressed_trace_round_trip_is_bit_for_bit(compression: int | None, tmp
     assert back.time_s.tobytes() == tr.time_s.tobytes()
     assert all(back[k].tobytes() == np.asarray(v, np.float64).tobytes() for k, v in tr.channels.items())
     assert back.segments == tr.segments and back.meta == tr.meta
+
+
+def test_streams_of_one_device_with_other_lost_frames_keep_their_own_times(tmp_path) -> None:
+    """Two channels of one source, as long and starting alike, that lost different frames (one IVT-S result
+    each): each keeps its own time base in the file, and the saved channel order is the order read back."""
+    full = np.arange(200) / 50.0
+    a_t, b_t = np.delete(full, [60]), np.delete(full, [150])  # same length, same first samples, other gaps
+    out = Recording()
+    out.add(Channel("ivt_battery_u2_v", "V", b_t, np.arange(b_t.size, dtype=float), None, "ivt_battery"))
+    out.add(Channel("battery_current_a", "A", a_t, -np.arange(a_t.size, dtype=float), None, "ivt_battery"))
+    back = Recording.load(out.save(tmp_path / "r.mf4"))
+    assert list(back.channels) == ["ivt_battery_u2_v", "battery_current_a"]
+    for name in out.channels:
+        assert _same(out[name], back[name]), name
