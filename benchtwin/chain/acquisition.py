@@ -421,7 +421,9 @@ class Acquisition:
             return rec
         saved = rec.save(self.path)  # drops every channel it reads: nothing of the chunks' files stays mapped
         self._store.cleanup()
-        return Recording.open(saved)
+        opened = Recording.open(saved)
+        opened.meta = rec.meta  # as decoded (the file's copy went through JSON: integer keys became text)
+        return opened
 
 
 def _decode_frames(dec: FrameDecoder, owner: str, bus: str, cid: int, t: np.ndarray, dlc: np.ndarray,

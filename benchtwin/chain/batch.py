@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from benchtwin.chain.acquisition import AcquisitionInput, acquire
+from benchtwin.chain.acquisition import AcquisitionInput
 from benchtwin.chain.buslog import (
     DEFAULT_START,
     read_bus_log,
@@ -35,11 +35,11 @@ from benchtwin.chain.delivery import ChunkDeliverer
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Recording
-from benchtwin.segments import load_segments, save_segments, segments_from_json, segments_to_json
-from benchtwin.sensors import devices, encode, write_bus_dbcs
+from benchtwin.segments import Segment, load_segments, save_segments, segments_from_json, segments_to_json
+from benchtwin.sensors import devices, write_bus_dbcs
 from benchtwin.sensors.imperfections import truncate_log
 from benchtwin.trace import Trace
-from benchtwin.wire.frames import DeviceOutputs, FrameTable, TransportEvent
+from benchtwin.wire.frames import DeviceOutputs, FrameTable, PollLog, TransportEvent
 
 __all__ = ["TRUNCATION_TOLERANCE_S", "ChunkDeliverer", "as_logged", "deliver", "read_logs", "run_batch", "write_logs"]
 
@@ -88,14 +88,32 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
     buses = sorted((b, FrameTable(b, truncate_log(t.frames, setup.faults_of(b)), t.bitrate))
                    for b, t in received.can.items() if len(t))
     with ThreadPoolExecutor(max_workers=max(1, min(len(buses), os.cpu_count() or 1))) as pool:
-        done = pool.map(lambda item: write_mf4(item[1][1], out / f"{item[1][0]}.mf4", channel=item[0],
-                                               start_time=start), enumerate(buses, start=1))
+        done = pool.map(lambda item: write_mf4(item[1], out / f"{item[0]}.mf4", channel=bus_channel(setup, item[0]),
+                                               start_time=start), buses)
         for (bus, _), p in zip(buses, done):
             paths[f"{bus}.mf4"] = p
     if blf:
-        for ch, (bus, table) in enumerate(buses, start=1):
-            paths[f"{bus}.blf"] = write_blf(table, out / f"{bus}.blf", channel=ch, start_time=start)
-    for dev, plog in received.polls.items():
+        for bus, table in buses:
+            paths[f"{bus}.blf"] = write_blf(table, out / f"{bus}.blf", channel=bus_channel(setup, bus),
+                                            start_time=start)
+    paths.update(write_side_files(out, setup, received.segments, received.meta, received.events, start,
+                                  polls=received.polls, poll_csv=poll_csv))
+    return paths
+
+
+def bus_channel(setup: SetupConfig, bus: str) -> int:
+    """The bus's channel number in its log (``CAN_DataFrame.BusChannel``): its place among the setup's buses."""
+    return 1 + sorted(setup.buses).index(bus) if bus in setup.buses else 1
+
+
+def write_side_files(out: Path, setup: SetupConfig, segments: list[Segment], meta: dict[str, Any],
+                     events: list[TransportEvent], start: datetime, *, polls: dict[str, PollLog] | None = None,
+                     poll_csv: bool = False) -> dict[str, Path]:
+    """The files of a log folder beside the bus logs: the poll logs, the DBCs and EDS to decode the buses,
+    ``setup.json``, ``segments.json`` and ``meta.json`` (``meta`` with the start time and the transport events).
+    """
+    paths: dict[str, Path] = {}
+    for dev, plog in (polls or {}).items():
         paths[f"{dev}.polls.npz"] = write_poll_log(plog, out / f"{dev}.polls.npz")
         if poll_csv:
             paths[f"{dev}.polls.csv"] = write_poll_csv(plog, out / f"{dev}.polls.csv")
@@ -107,10 +125,10 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
             paths[node.eds.name] = Path(shutil.copyfile(node.eds, out / node.eds.name))
     paths["setup.json"] = out / "setup.json"
     paths["setup.json"].write_text(setup.model_dump_json(indent=1), encoding="utf-8")
-    paths["segments.json"] = save_segments(received.segments, out / "segments.json")
+    paths["segments.json"] = save_segments(segments, out / "segments.json")
     paths["meta.json"] = out / "meta.json"
-    events = [[e.time_s, e.source, e.kind, e.end_s, e.detail] for e in received.events]
-    paths["meta.json"].write_text(json.dumps({**received.meta, _LOG_START: start.isoformat(), _EVENTS: events},
+    rows = [[e.time_s, e.source, e.kind, e.end_s, e.detail] for e in events]
+    paths["meta.json"].write_text(json.dumps({**meta, _LOG_START: start.isoformat(), _EVENTS: rows},
                                              indent=1, default=str), encoding="utf-8")
     return paths
 
@@ -208,12 +226,21 @@ def _damaged_logs(received: AcquisitionInput, file_damage: dict[str, tuple[str, 
                   tol_s: float = TRUNCATION_TOLERANCE_S) -> list[dict[str, Any]]:
     """Buses whose log is damaged or cut short: what the file says of itself, and the end of its time base
     against the segment table and the other sources (buses and poll logs)."""
-    spans = {b: (float(t.frames["timestamp"][0]), float(t.frames["timestamp"][-1]))
-             for b, t in received.can.items() if len(t)}
+    nan = float("nan")
+    buses = {b: ((float(t.frames["timestamp"][0]), float(t.frames["timestamp"][-1]), len(t)) if len(t)
+                 else (nan, nan, 0)) for b, t in received.can.items()}
     polled = [(float(pl.times[0]), float(pl.times[-1])) for pl in received.polls.values() if len(pl.times)]
     seg = [(float(s.start_s), float(s.end_s)) for s in received.segments]
+    return _damaged_from_spans(buses, polled, seg, file_damage, tol_s)
+
+
+def _damaged_from_spans(buses: dict[str, tuple[float, float, int]], polled: list[tuple[float, float]],
+                        seg: list[tuple[float, float]], file_damage: dict[str, tuple[str, str | None]],
+                        tol_s: float = TRUNCATION_TOLERANCE_S) -> list[dict[str, Any]]:
+    """:func:`_damaged_logs` from each bus's first and last frame time and frame count (NaN, NaN, 0: no frame)."""
+    spans = {b: (a, z) for b, (a, z, n) in buses.items() if n}
     out = []
-    for bus, table in sorted(received.can.items()):
+    for bus, (_a, _z, count) in sorted(buses.items()):
         file, reason = file_damage.get(bus, (bus, None))
         reasons = [reason] if reason else []
         refs = [("the segment table", a, b) for a, b in seg]
@@ -222,14 +249,14 @@ def _damaged_logs(received: AcquisitionInput, file_damage: dict[str, tuple[str, 
         first, last = spans.get(bus, (float("nan"), float("nan")))
         exp_start = min([a for _, a, _ in refs] + ([first] if np.isfinite(first) else []), default=first)
         exp_end = max([b for _, _, b in refs] + ([last] if np.isfinite(last) else []), default=last)
-        if not len(table):
+        if not count:
             reasons.append("no frame in the log")
         elif exp_end - last > tol_s:
             by = next(name for name, _, b in refs if b == exp_end)
             reasons.append(f"its frames end at {last:.3f} s, {exp_end - last:.3f} s before {by} ({exp_end:.3f} s)")
         if reasons:
             covered_end = last if np.isfinite(last) else exp_start
-            out.append({"bus": bus, "file": file, "reason": "; ".join(reasons), "frames_read": len(table),
+            out.append({"bus": bus, "file": file, "reason": "; ".join(reasons), "frames_read": count,
                         "covered_s": [first if np.isfinite(first) else exp_start, covered_end],
                         "expected_s": [exp_start, exp_end]})
     return out
@@ -246,8 +273,11 @@ def _read_json(path: Path, what: str) -> Any:
 
 
 def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,
-              blf: bool = False, meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
-    """The whole batch chain: encode the trace, deliver, write and re-read the raw logs, acquire.
+              blf: bool = False, meta: dict[str, Any] | None = None) -> Recording:
+    """The whole batch chain: encode the trace, deliver, write the raw logs, acquire, test by test.
+
+    The Trace goes through the chain one test at a time (:func:`benchtwin.chain.stream.run_chunked`), so the
+    frames of one test are in memory at a time; the result equals decoding the whole run's raw logs.
 
     Parameters
     ----------
@@ -258,31 +288,16 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
     seed:
         Campaign seed.
     out_dir:
-        Where to write the raw logs and ``recording.mf4``; with None nothing is written and the
-        decoded input is the in-memory delivery (same content, no file round trip).
+        Where to write the raw logs and ``recording.mf4`` (the Recording returned is then read from it lazily);
+        with None nothing is written and the Recording is kept in memory.
     blf:
         Also export BLF files.
     meta:
         Extra metadata for the Recording.
-    save_recording:
-        Save ``recording.mf4`` into ``out_dir`` (False: the caller saves it, e.g. beside other work).
     """
-    outputs = encode(trace, setup, seed)
-    received = deliver(outputs, setup, seed=seed, span_s=(float(trace.time_s[0]), float(trace.time_s[-1])))
-    del outputs  # the delivery holds every frame now (no second copy of the encoders' tables)
-    received.segments = list(trace.segments)
-    received.meta = {"trace": dict(trace.meta), "seed": seed, **(meta or {})}
-    if out_dir is None:
-        return acquire(received, setup)
-    # the logs are written on one thread while the other decodes what they hold (as_logged), so the frames
-    # are never read back from the files; the Recording equals the one decoded from the written logs
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="write_logs") as pool:
-        written = pool.submit(write_logs, received, setup, out_dir, blf=blf)
-        rec = acquire(as_logged(received, setup), setup)
-        written.result()
-    if save_recording:
-        rec.save(Path(out_dir) / "recording.mf4")
-    return rec
+    from benchtwin.chain.stream import run_chunked, trace_pieces
+
+    return run_chunked(trace_pieces(trace), setup, seed, out_dir, blf=blf, meta=meta)
 
 
 def as_logged(received: AcquisitionInput, setup: SetupConfig) -> AcquisitionInput:

@@ -87,3 +87,24 @@ def test_mf4_bus_log_written_in_blocks_reads_back_whole(tmp_path: Path) -> None:
     k = n - 1
     assert msgs[k].arbitration_id == f["arbitration_id"][k] and msgs[k].is_extended_id == f["is_extended"][k]
     assert msgs[k].timestamp - DEFAULT_START.timestamp() == pytest.approx(f["timestamp"][k], abs=1e-6)
+
+
+def test_a_campaign_streamed_from_the_plant_test_by_test_is_the_whole_run(tmp_path: Path) -> None:
+    """The plant's tests straight into the chain (one test's Trace and frames in memory at a time, the logs and
+    recording.mf4 written as they come) give the Recording of the whole Trace run at once, and its logs."""
+    from benchtwin.chain.stream import run_chunked
+    from benchtwin.config import load_campaign, load_vehicle
+    from benchtwin.emulator import iter_campaign, simulate_campaign
+
+    vehicle, campaign = load_vehicle(), load_campaign("quick.toml")
+    setup = _with_faults(PAPER, [{"kind": "log_truncation", "bus": "dyno", "start_s": 600.0},
+                                 {"kind": "transport_disconnect", "bus": "vehicle", "start_s": 299.0,
+                                  "duration_s": 2.0}])
+    streamed = run_chunked(iter_campaign(vehicle, campaign), setup, campaign.seed, tmp_path / "streamed")
+    whole = run_batch(simulate_campaign(vehicle, campaign), setup, seed=campaign.seed)
+    assert_same_recording(streamed, whole)
+    assert [d["bus"] for d in streamed.meta["damaged_logs"]] == ["dyno"]
+    again, _ = read_logs(tmp_path / "streamed", setup)
+    assert_same_recording(streamed, acquire(again, setup))
+    assert (tmp_path / "streamed" / "recording.mf4").exists()
+    assert not list((tmp_path / "streamed").glob(".acquisition-*"))  # the chunks' files are gone

@@ -1,0 +1,169 @@
+"""The batch chain chunk by chunk: Trace pieces -> encode -> deliver -> raw logs and Recording, one chunk in memory.
+
+:func:`run_chunked` is what :func:`benchtwin.chain.batch.run_batch` runs: the Trace comes in pieces (a test
+each, from :func:`trace_pieces` or straight from :func:`benchtwin.emulator.iter_campaign`); each piece is
+encoded and delivered (:func:`~benchtwin.chain.delivery.iter_delivered`, the same bytes for any chunking), its
+frames are appended to the MF4 bus logs as the logger writes them (:class:`~benchtwin.chain.buslog.BusLogWriter`,
+each bus cut at its injected ``log_truncation``) and decoded as the logs hold them
+(:class:`~benchtwin.chain.acquisition.Acquisition`, bit-identical to decoding the whole run), and dropped. The
+Recording is saved to ``recording.mf4`` and opened lazily when a folder is given, else kept in memory. What
+needs the whole run is done at the end from what was counted on the way: the buses whose log ends early
+(``damaged_logs`` and their ``truncated`` events, from each bus's first and last frame time), the poll logs
+(a hundredth of the frames), the segment table and ``meta.json``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Iterator
+from contextlib import ExitStack
+from itertools import pairwise
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchtwin.chain.acquisition import Acquisition, AcquisitionInput
+from benchtwin.chain.buslog import DEFAULT_START, BusLogWriter, read_mf4, write_blf
+from benchtwin.chain.delivery import iter_delivered
+from benchtwin.config.setup import SetupConfig
+from benchtwin.recording import Recording
+from benchtwin.sensors.imperfections import truncate_log
+from benchtwin.trace import Trace
+from benchtwin.wire.frames import FrameTable, PollLog, TransportEvent
+
+__all__ = ["run_chunked", "trace_pieces"]
+
+
+def trace_pieces(trace: Trace) -> Iterator[Trace]:
+    """A Trace cut at its tests' starts (views on its arrays; the whole Trace if it has no segments).
+
+    Each segment goes with the piece its start falls in (the first piece also takes those that start before the
+    Trace's first sample, as in a Trace sliced from a longer one).
+    """
+    t = trace.time_s
+    starts = sorted({float(s.start_s) for s in trace.segments})
+    edges = [0, *sorted({int(k) for k in np.searchsorted(t, starts[1:], side="left")} - {0, len(t)}), len(t)]
+    for a, b in pairwise(edges):
+        lo = -np.inf if a == 0 else float(t[a])
+        hi = np.inf if b == len(t) else float(t[b])
+        segs = [s for s in trace.segments if lo <= s.start_s < hi]
+        yield Trace(t[a:b], {k: v[a:b] for k, v in trace.channels.items()}, segs, dict(trace.meta))
+
+
+class _Polls:
+    """The poll logs of a run gathered chunk by chunk (small: a hundredth of the frames)."""
+
+    def __init__(self) -> None:
+        self.parts: dict[str, list[PollLog]] = {}
+
+    def add(self, polls: dict[str, PollLog]) -> None:
+        for dev, plog in polls.items():
+            self.parts.setdefault(dev, []).append(plog)
+
+    def whole(self) -> dict[str, PollLog]:
+        out = {}
+        for dev, parts in self.parts.items():
+            p0 = parts[0]
+            out[dev] = p0 if len(parts) == 1 else PollLog(
+                dev, p0.unit_id, p0.function_code, p0.first_register, np.concatenate([p.times for p in parts]),
+                np.concatenate([p.values for p in parts]), np.concatenate([p.status for p in parts]))
+        return out
+
+
+def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 0,
+                out_dir: str | Path | None = None, *, blf: bool = False,
+                meta: dict[str, Any] | None = None) -> Recording:
+    """The batch chain over a Trace given in pieces, one chunk in memory at a time.
+
+    Parameters
+    ----------
+    pieces:
+        The Trace in time order (e.g. :func:`trace_pieces` of a whole Trace, or
+        :func:`benchtwin.emulator.iter_campaign`); each piece's segments are the run's segment table.
+    setup:
+        The bench.
+    seed:
+        Campaign seed.
+    out_dir:
+        Where to write the raw logs (as :func:`benchtwin.chain.batch.write_logs` names them) and
+        ``recording.mf4``; None: nothing is written and the Recording is kept in memory.
+    blf:
+        Also export BLF files (converted from each bus's MF4 log at the end: one bus in memory at a time).
+    meta:
+        Extra metadata for the Recording (``trace`` holds the last piece's meta: the ledger to the run's end).
+
+    Returns
+    -------
+    Recording
+        Equal to the one :func:`benchtwin.chain.acquisition.acquire` decodes of the raw logs written (opened
+        lazily from ``recording.mf4`` with ``out_dir``).
+    """
+    from benchtwin.chain.batch import _damaged_from_spans, bus_channel, write_side_files  # built on this module
+
+    out = Path(out_dir) if out_dir is not None else None
+    start = DEFAULT_START
+    trace_meta: dict[str, Any] = {}
+    segments = []
+
+    def tracked(it: Iterable[Trace]) -> Iterator[Trace]:
+        for piece in it:
+            trace_meta.clear()
+            trace_meta.update(piece.meta)
+            yield piece
+
+    acq = Acquisition(setup, out / "recording.mf4" if out is not None else None)
+    spans: dict[str, list[float]] = {}  # bus -> [first, last, frames] as logged
+    bitrates: dict[str, int] = {}
+    polls = _Polls()
+    events: list[TransportEvent] = []
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    try:
+        with ExitStack() as stack:
+            writers: dict[str, BusLogWriter] = {}
+            for got in iter_delivered(tracked(pieces), setup, seed):
+                segments += got.segments
+                events += got.events
+                polls.add(got.polls)
+                chunk = AcquisitionInput(events=list(got.events), polls=dict(got.polls), start_time=start)
+                for bus in sorted(got.can):
+                    table = got.can[bus]
+                    frames = truncate_log(table.frames, setup.faults_of(bus))
+                    if not len(frames) and bus not in spans:
+                        continue  # as the whole-run logs: a bus is logged from its first frame
+                    bitrates[bus] = setup.buses[bus].bitrate if bus in setup.buses else 500_000
+                    if len(frames):
+                        sp = spans.setdefault(bus, [float(frames["timestamp"][0]), 0.0, 0])
+                        sp[1], sp[2] = float(frames["timestamp"][-1]), sp[2] + len(frames)
+                    if out is not None:
+                        if bus not in writers:
+                            channel = bus_channel(setup, bus)
+                            writers[bus] = stack.enter_context(BusLogWriter(out / f"{bus}.mf4", bus, bitrates[bus],
+                                                                            channel=channel, start_time=start))
+                        writers[bus].append(frames)
+                    chunk.can[bus] = FrameTable(bus, frames, bitrates[bus])
+                acq.feed(chunk)
+    except BaseException:
+        acq.close()  # the chunk files go; the raw logs written so far are kept
+        raise
+    whole_polls = polls.whole()
+    run_meta = json.loads(json.dumps({"trace": dict(trace_meta), "seed": seed, **(meta or {})}, default=str))
+    polled = [(float(p.times[0]), float(p.times[-1])) for p in whole_polls.values() if len(p.times)]
+    seg_spans = [(float(s.start_s), float(s.end_s)) for s in segments]
+    damaged = _damaged_from_spans({b: (s[0], s[1], int(s[2])) for b, s in spans.items()}, polled, seg_spans,
+                                  {bus: (f"{bus}.mf4", None) for bus in spans})
+    if damaged:
+        run_meta["damaged_logs"] = damaged
+        truncated = [TransportEvent(d["covered_s"][1], d["bus"], "truncated", d["expected_s"][1],
+                                    f"damaged log {d['file']}: {d['reason']}") for d in damaged]
+        acq.feed(AcquisitionInput(events=truncated, start_time=start))
+    if out is not None:
+        write_side_files(out, setup, segments, {"trace": dict(trace_meta), "seed": seed, **(meta or {})}, events,
+                         start, polls=whole_polls)
+        if blf:
+            for bus in sorted(spans):
+                write_blf(read_mf4(out / f"{bus}.mf4", bus, bitrates[bus]), out / f"{bus}.blf",
+                          channel=bus_channel(setup, bus), start_time=start)
+    return acq.finish(segments=segments, meta=run_meta)
+
