@@ -18,7 +18,7 @@ import numpy as np
 
 from benchtwin.errors import DataError
 
-__all__ = ["DEFAULT_COMPRESSION", "ChannelFile", "check_compression", "open_mdf"]
+__all__ = ["DEFAULT_COMPRESSION", "ChannelFile", "check_compression", "open_mdf", "texts_of", "value_text_conversion"]
 
 
 def _is_mdf_del(unraisable: Any) -> bool:
@@ -216,3 +216,27 @@ class ChannelFile:
             return ts, vs, fl
 
         return load
+
+
+def value_text_conversion(texts: dict[int, str] | None) -> dict[str, Any] | None:
+    """An MDF value-to-text conversion (asammdf dict form) of a value table, or None."""
+    if not texts:
+        return None
+    conv: dict[str, Any] = {}
+    for k, (value, text) in enumerate(sorted(texts.items())):
+        conv[f"val_{k}"] = float(value)
+        conv[f"text_{k}"] = str(text)
+    conv["default_addr"] = ""
+    return conv
+
+
+def texts_of(conversion: Any) -> dict[int, str] | None:
+    """The value table of an MDF value-to-text conversion (None for any other conversion)."""
+    if conversion is None or getattr(conversion, "conversion_type", None) != 7:  # 7: value to text (TABX)
+        return None
+    out = {}
+    for k in range(int(conversion.ref_param_nr) - 1):
+        text = conversion.referenced_blocks.get(f"text_{k}")
+        if isinstance(text, bytes):
+            out[int(conversion[f"val_{k}"])] = text.decode("utf-8", "replace")
+    return out or None

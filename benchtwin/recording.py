@@ -19,7 +19,7 @@ from typing import Any, cast
 import numpy as np
 
 from benchtwin.errors import DataError, MissingChannelError
-from benchtwin.mdf import DEFAULT_COMPRESSION, ChannelFile, check_compression, open_mdf
+from benchtwin.mdf import DEFAULT_COMPRESSION, ChannelFile, check_compression, open_mdf, texts_of, value_text_conversion
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
 __all__ = [
@@ -63,30 +63,6 @@ FLAG_CONVERSION: dict[str, Any] = {}
 for _k, _f in enumerate(f for f in Flag if f.value):
     FLAG_CONVERSION[f"mask_{_k}"] = int(_f.value)
     FLAG_CONVERSION[f"text_{_k}"] = {"val_0": int(_f.value), "text_0": _f.name, "default_addr": ""}
-
-
-def _value_text_conversion(texts: dict[int, str] | None) -> dict[str, Any] | None:
-    """An MDF value-to-text conversion (asammdf dict form) of a value table, or None."""
-    if not texts:
-        return None
-    conv: dict[str, Any] = {}
-    for k, (value, text) in enumerate(sorted(texts.items())):
-        conv[f"val_{k}"] = float(value)
-        conv[f"text_{k}"] = str(text)
-    conv["default_addr"] = ""
-    return conv
-
-
-def _texts_of(conversion: Any) -> dict[int, str] | None:
-    """The value table of an MDF value-to-text conversion (None for any other conversion)."""
-    if conversion is None or getattr(conversion, "conversion_type", None) != 7:  # 7: value to text (TABX)
-        return None
-    out = {}
-    for k in range(int(conversion.ref_param_nr) - 1):
-        text = conversion.referenced_blocks.get(f"text_{k}")
-        if isinstance(text, bytes):
-            out[int(conversion[f"val_{k}"])] = text.decode("utf-8", "replace")
-    return out or None
 
 
 @dataclass
@@ -382,7 +358,7 @@ class Recording:
                 sigs = []
                 for ch in group:
                     sigs.append(Signal(ch.values, ch.timestamps, name=ch.name, unit=ch.unit,
-                                       comment=f"source={source}", conversion=_value_text_conversion(ch.value_texts)))
+                                       comment=f"source={source}", conversion=value_text_conversion(ch.value_texts)))
                     sigs.append(Signal(ch.flags, ch.timestamps, name=f"{ch.name}.flags", unit="",
                                        comment="benchtwin quality flags (see benchtwin.recording.Flag)",
                                        conversion=FLAG_CONVERSION))
@@ -465,7 +441,7 @@ class Recording:
             unit = (getattr(conv, "unit", "") if conv is not None else "") or ch.unit or ""
             n = int(mdf.groups[gi].channel_group.cycles_nr)
             rec.add(LazyChannel(name, unit, acq, n, source.loader(name, gi, ci, numeric, flags_of.get(name)),
-                                _texts_of(conv)))
+                                texts_of(conv)))
         rec.start_time = mdf.header.start_time
         rec.own(source)
         side = path.with_suffix(".segments.json")

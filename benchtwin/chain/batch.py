@@ -13,13 +13,10 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from benchtwin.chain.acquisition import AcquisitionInput
 from benchtwin.chain.buslog import (
@@ -28,23 +25,26 @@ from benchtwin.chain.buslog import (
     read_poll_log,
     write_blf,
     write_mf4,
-    write_poll_csv,
-    write_poll_log,
 )
 from benchtwin.chain.delivery import ChunkDeliverer
+from benchtwin.chain.logfolder import (
+    EVENTS_KEY,
+    LOG_START_KEY,
+    TRUNCATION_TOLERANCE_S,
+    bus_channel,
+    damaged_from_spans,
+    write_side_files,
+)
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Recording
-from benchtwin.segments import Segment, load_segments, save_segments, segments_from_json, segments_to_json
-from benchtwin.sensors import devices, write_bus_dbcs
+from benchtwin.segments import load_segments, segments_from_json, segments_to_json
 from benchtwin.sensors.imperfections import truncate_log
 from benchtwin.trace import Trace
-from benchtwin.wire.frames import DeviceOutputs, FrameTable, PollLog, TransportEvent
+from benchtwin.wire.frames import DeviceOutputs, FrameTable, TransportEvent
 
 __all__ = ["TRUNCATION_TOLERANCE_S", "ChunkDeliverer", "as_logged", "deliver", "read_logs", "run_batch", "write_logs"]
 
-#: a bus whose time base ends this much before the segment table or another source is flagged as cut short
-TRUNCATION_TOLERANCE_S = 0.5
 
 
 def deliver(outputs: DeviceOutputs, setup: SetupConfig, *, seed: int | None = 0,
@@ -101,44 +101,6 @@ def write_logs(received: AcquisitionInput, setup: SetupConfig, out_dir: str | Pa
     return paths
 
 
-def bus_channel(setup: SetupConfig, bus: str) -> int:
-    """The bus's channel number in its log (``CAN_DataFrame.BusChannel``): its place among the setup's buses."""
-    return 1 + sorted(setup.buses).index(bus) if bus in setup.buses else 1
-
-
-def write_side_files(out: Path, setup: SetupConfig, segments: list[Segment], meta: dict[str, Any],
-                     events: list[TransportEvent], start: datetime, *, polls: dict[str, PollLog] | None = None,
-                     poll_csv: bool = False) -> dict[str, Path]:
-    """The files of a log folder beside the bus logs: the poll logs, the DBCs and EDS to decode the buses,
-    ``setup.json``, ``segments.json`` and ``meta.json`` (``meta`` with the start time and the transport events).
-    """
-    paths: dict[str, Path] = {}
-    for dev, plog in (polls or {}).items():
-        paths[f"{dev}.polls.npz"] = write_poll_log(plog, out / f"{dev}.polls.npz")
-        if poll_csv:
-            paths[f"{dev}.polls.csv"] = write_poll_csv(plog, out / f"{dev}.polls.csv")
-    for bus, p in write_bus_dbcs(setup, out).items():
-        paths[f"{bus}.dbc"] = p
-    for d in devices(setup):  # the object dictionary of every CANopen node, to decode its PDOs
-        node = d.canopen_endpoint()
-        if node is not None:
-            paths[node.eds.name] = Path(shutil.copyfile(node.eds, out / node.eds.name))
-    paths["setup.json"] = out / "setup.json"
-    paths["setup.json"].write_text(setup.model_dump_json(indent=1), encoding="utf-8")
-    paths["segments.json"] = save_segments(segments, out / "segments.json")
-    paths["meta.json"] = out / "meta.json"
-    rows = [[e.time_s, e.source, e.kind, e.end_s, e.detail] for e in events]
-    paths["meta.json"].write_text(json.dumps({**meta, _LOG_START: start.isoformat(), _EVENTS: rows},
-                                             indent=1, default=str), encoding="utf-8")
-    return paths
-
-
-#: key of ``meta.json`` holding the logs' start time (time 0 of every log in the folder)
-_LOG_START = "log_start_utc"
-#: key of ``meta.json`` holding the transport events of the run (time, source, kind, end, detail)
-_EVENTS = "transport_events_logged"
-
-
 def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[AcquisitionInput, SetupConfig]:
     """Read the raw logs written by :func:`write_logs` (or a logger with the same names).
 
@@ -174,11 +136,11 @@ def read_logs(directory: str | Path, setup: SetupConfig | None = None) -> tuple[
             raise DataError(f"{meta}: not the logs' meta data (a JSON object is expected)")
         received.meta = blob
     try:
-        start = datetime.fromisoformat(str(received.meta.pop(_LOG_START)))
+        start = datetime.fromisoformat(str(received.meta.pop(LOG_START_KEY)))
     except (KeyError, ValueError):
         start = DEFAULT_START  # logs of another logger: times since the campaign start epoch
     received.start_time = start
-    for e in received.meta.pop(_EVENTS, []):
+    for e in received.meta.pop(EVENTS_KEY, []):
         received.events.append(TransportEvent(float(e[0]), str(e[1]), str(e[2]), float(e[3]), str(e[4])))
 
     def read_one(p: Path) -> tuple[FrameTable, str | None] | DataError:
@@ -231,35 +193,7 @@ def _damaged_logs(received: AcquisitionInput, file_damage: dict[str, tuple[str, 
                  else (nan, nan, 0)) for b, t in received.can.items()}
     polled = [(float(pl.times[0]), float(pl.times[-1])) for pl in received.polls.values() if len(pl.times)]
     seg = [(float(s.start_s), float(s.end_s)) for s in received.segments]
-    return _damaged_from_spans(buses, polled, seg, file_damage, tol_s)
-
-
-def _damaged_from_spans(buses: dict[str, tuple[float, float, int]], polled: list[tuple[float, float]],
-                        seg: list[tuple[float, float]], file_damage: dict[str, tuple[str, str | None]],
-                        tol_s: float = TRUNCATION_TOLERANCE_S) -> list[dict[str, Any]]:
-    """:func:`_damaged_logs` from each bus's first and last frame time and frame count (NaN, NaN, 0: no frame)."""
-    spans = {b: (a, z) for b, (a, z, n) in buses.items() if n}
-    out = []
-    for bus, (_a, _z, count) in sorted(buses.items()):
-        file, reason = file_damage.get(bus, (bus, None))
-        reasons = [reason] if reason else []
-        refs = [("the segment table", a, b) for a, b in seg]
-        refs += [(f"bus {o}", a, b) for o, (a, b) in spans.items() if o != bus]
-        refs += [("the poll logs", a, b) for a, b in polled]
-        first, last = spans.get(bus, (float("nan"), float("nan")))
-        exp_start = min([a for _, a, _ in refs] + ([first] if np.isfinite(first) else []), default=first)
-        exp_end = max([b for _, _, b in refs] + ([last] if np.isfinite(last) else []), default=last)
-        if not count:
-            reasons.append("no frame in the log")
-        elif exp_end - last > tol_s:
-            by = next(name for name, _, b in refs if b == exp_end)
-            reasons.append(f"its frames end at {last:.3f} s, {exp_end - last:.3f} s before {by} ({exp_end:.3f} s)")
-        if reasons:
-            covered_end = last if np.isfinite(last) else exp_start
-            out.append({"bus": bus, "file": file, "reason": "; ".join(reasons), "frames_read": count,
-                        "covered_s": [first if np.isfinite(first) else exp_start, covered_end],
-                        "expected_s": [exp_start, exp_end]})
-    return out
+    return damaged_from_spans(buses, polled, seg, file_damage, tol_s)
 
 
 def _read_json(path: Path, what: str) -> Any:

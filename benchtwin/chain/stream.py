@@ -26,6 +26,7 @@ import numpy as np
 from benchtwin.chain.acquisition import Acquisition, AcquisitionInput
 from benchtwin.chain.buslog import DEFAULT_START, BusLogWriter, read_mf4, write_blf
 from benchtwin.chain.delivery import iter_delivered
+from benchtwin.chain.logfolder import bus_channel, damaged_from_spans, write_side_files
 from benchtwin.config.setup import SetupConfig
 from benchtwin.recording import Recording
 from benchtwin.sensors.imperfections import truncate_log
@@ -99,8 +100,6 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
         Equal to the one :func:`benchtwin.chain.acquisition.acquire` decodes of the raw logs written (opened
         lazily from ``recording.mf4`` with ``out_dir``).
     """
-    from benchtwin.chain.batch import _damaged_from_spans, bus_channel, write_side_files  # built on this module
-
     out = Path(out_dir) if out_dir is not None else None
     start = DEFAULT_START
     trace_meta: dict[str, Any] = {}
@@ -151,7 +150,7 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
     run_meta = json.loads(json.dumps({"trace": dict(trace_meta), "seed": seed, **(meta or {})}, default=str))
     polled = [(float(p.times[0]), float(p.times[-1])) for p in whole_polls.values() if len(p.times)]
     seg_spans = [(float(s.start_s), float(s.end_s)) for s in segments]
-    damaged = _damaged_from_spans({b: (s[0], s[1], int(s[2])) for b, s in spans.items()}, polled, seg_spans,
+    damaged = damaged_from_spans({b: (s[0], s[1], int(s[2])) for b, s in spans.items()}, polled, seg_spans,
                                   {bus: (f"{bus}.mf4", None) for bus in spans})
     if damaged:
         run_meta["damaged_logs"] = damaged
