@@ -108,6 +108,13 @@ def converter_design(w_p: np.ndarray, w_t: np.ndarray, dw_p: np.ndarray | None =
 
     Columns ``a0..a5`` (and the pump inertia when ``dw_p`` is given); the right-hand side is
     ``[t_p; t_t]``. Shared by :func:`fit_torque_converter` and the planner.
+
+    Parameters
+    ----------
+    w_p, w_t:
+        Pump and turbine speeds, rad/s.
+    dw_p:
+        Pump acceleration, rad/s^2 (None: no inertia column).
     """
     q = speed_products(w_p, w_t)
     n = q.shape[0]

@@ -76,7 +76,19 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
                      min_pump_torque_nm: float, shift_hold_s: float, derivative_window_s: float,
                      calibrate_turbine_speed: bool, min_calibration_points: int, lockup_slip_tol: float
                      ) -> ConverterPoints:
-    """The selection and regressors of :func:`identify_torque_converter` (its arguments), shared with the planner.
+    """The selection and regressors of :func:`identify_torque_converter`, shared with the planner.
+
+    Parameters
+    ----------
+    rec, specs:
+        The Recording and the vehicle's specs.
+    transmission:
+        Gear -> (eta_m, C0) of the identified transmission (None: losses ignored, said in the reasons).
+    rate_hz, max_pump_accel_rpm_s, min_pump_speed_rpm, min_pump_torque_nm, shift_hold_s, derivative_window_s:
+        Resampling rate and the quasi-steady selection, as :func:`identify_torque_converter` takes them.
+    calibrate_turbine_speed, min_calibration_points, lockup_slip_tol:
+        The turbine-speed calibration where the lock-up is closed, and the slip taken as closed without a
+        lock-up channel.
 
     Raises
     ------

@@ -121,7 +121,12 @@ def test_modbus_exceptions_and_timeouts_are_logged_and_flagged(run_inputs, tmp_p
     assert live.meta["modbus"][setup.pressure.device]["exceptions"].get("6", live.meta["modbus"][
         setup.pressure.device]["exceptions"].get(6)) == faults["exceptions"]
     assert np.count_nonzero(ch.flags & int(Flag.PROTOCOL_ERROR | Flag.TIMEOUT)) > 0
-    assert np.count_nonzero(ch.good) == np.count_nonzero(st == 0)
+    # every answered poll is a good sample, unless the checks that judge the live timing (the module's clock,
+    # a value frozen while the server was starved on a loaded machine) flagged it; never an answer lost
+    answered, good = np.count_nonzero(st == 0), np.count_nonzero(ch.good)
+    timing = np.count_nonzero((ch.flags & int(Flag.CLOCK | Flag.STALE) != 0)
+                              & (ch.flags & int(Flag.PROTOCOL_ERROR | Flag.TIMEOUT) == 0))
+    assert good <= answered <= good + timing
 
 
 def test_out_of_map_polls_answer_exception_2(run_inputs, tmp_path):
