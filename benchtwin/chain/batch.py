@@ -207,7 +207,7 @@ def _read_json(path: Path, what: str) -> Any:
 
 
 def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,
-              blf: bool = False, meta: dict[str, Any] | None = None) -> Recording:
+              blf: bool = False, meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
     """The whole batch chain: encode the trace, deliver, write the raw logs, acquire, test by test.
 
     The Trace goes through the chain one test at a time (:func:`benchtwin.chain.stream.run_chunked`), so the
@@ -222,16 +222,19 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
     seed:
         Campaign seed.
     out_dir:
-        Where to write the raw logs and ``recording.mf4`` (the Recording returned is then read from it lazily);
-        with None nothing is written and the Recording is kept in memory.
+        Where to write the raw logs and ``recording.mf4``; with None nothing is written and the Recording is kept
+        in memory.
     blf:
         Also export BLF files.
     meta:
         Extra metadata for the Recording.
+    save_recording:
+        Save ``recording.mf4`` into ``out_dir`` as the acquisition goes and return it opened lazily (False: the
+        Recording stays in memory and the caller saves it, e.g. beside other work).
     """
     from benchtwin.chain.stream import run_chunked, trace_pieces
 
-    return run_chunked(trace_pieces(trace), setup, seed, out_dir, blf=blf, meta=meta)
+    return run_chunked(trace_pieces(trace), setup, seed, out_dir, blf=blf, meta=meta, save_recording=save_recording)
 
 
 def as_logged(received: AcquisitionInput, setup: SetupConfig) -> AcquisitionInput:

@@ -74,7 +74,7 @@ class _Polls:
 
 def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 0,
                 out_dir: str | Path | None = None, *, blf: bool = False,
-                meta: dict[str, Any] | None = None) -> Recording:
+                meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
     """The batch chain over a Trace given in pieces, one chunk in memory at a time.
 
     Parameters
@@ -93,12 +93,16 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
         Also export BLF files (converted from each bus's MF4 log at the end: one bus in memory at a time).
     meta:
         Extra metadata for the Recording (``trace`` holds the last piece's meta: the ledger to the run's end).
+    save_recording:
+        With ``out_dir``: write ``recording.mf4`` as the acquisition goes and return it opened lazily (memory
+        bounded by a chunk); False: keep the Recording in memory and leave saving it to the caller (e.g. on a
+        thread while identification runs, which then reads no channel twice from the compressed file).
 
     Returns
     -------
     Recording
         Equal to the one :func:`benchtwin.chain.acquisition.acquire` decodes of the raw logs written (opened
-        lazily from ``recording.mf4`` with ``out_dir``).
+        lazily from ``recording.mf4`` with ``out_dir`` and ``save_recording``).
     """
     out = Path(out_dir) if out_dir is not None else None
     start = DEFAULT_START
@@ -111,7 +115,7 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
             trace_meta.update(piece.meta)
             yield piece
 
-    acq = Acquisition(setup, out / "recording.mf4" if out is not None else None)
+    acq = Acquisition(setup, out / "recording.mf4" if out is not None and save_recording else None)
     spans: dict[str, list[float]] = {}  # bus -> [first, last, frames] as logged
     bitrates: dict[str, int] = {}
     polls = _Polls()

@@ -96,10 +96,13 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         trace = simulate_campaign(vehicle, campaign, progress=progress)
     t1 = time.perf_counter()
     bench = setup
+    saver = None
     if fams is None:
-        # with out_dir the chain writes recording.mf4 as it decodes, and the Recording is read from it lazily
-        rec = run_batch(trace, setup, seed=campaign.seed, out_dir=out_dir)
+        rec = run_batch(trace, setup, seed=campaign.seed, out_dir=out_dir, save_recording=False)
         checked = trace
+        if out_dir is not None:  # recording.mf4 is written on another thread while identification runs
+            saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="save_recording")
+            saved = saver.submit(rec.save, Path(out_dir) / "recording.mf4")
     else:
         spans = family_spans(trace.segments, {k for f in fams for k in f.kinds})
         if not spans:
@@ -142,6 +145,9 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         t4 = time.perf_counter()
         report.checks += _prediction(report, vehicle, setup, campaign, trace, rec, prof)
         report.timings_s["predict"] = round(time.perf_counter() - t4, 3)
+    if saver is not None:
+        saved.result()
+        saver.shutdown()
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
