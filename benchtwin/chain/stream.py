@@ -147,26 +147,26 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
                         writers[bus].append(frames)
                     chunk.can[bus] = FrameTable(bus, frames, bitrates[bus])
                 acq.feed(chunk)
+        whole_polls = polls.whole()
+        run_meta = json.loads(json.dumps({"trace": dict(trace_meta), "seed": seed, **(meta or {})}, default=str))
+        polled = [(float(p.times[0]), float(p.times[-1])) for p in whole_polls.values() if len(p.times)]
+        seg_spans = [(float(s.start_s), float(s.end_s)) for s in segments]
+        damaged = damaged_from_spans({b: (s[0], s[1], int(s[2])) for b, s in spans.items()}, polled, seg_spans,
+                                      {bus: (f"{bus}.mf4", None) for bus in spans})
+        if damaged:
+            run_meta["damaged_logs"] = damaged
+            truncated = [TransportEvent(d["covered_s"][1], d["bus"], "truncated", d["expected_s"][1],
+                                        f"damaged log {d['file']}: {d['reason']}") for d in damaged]
+            acq.feed(AcquisitionInput(events=truncated, start_time=start))
+        if out is not None:
+            write_side_files(out, setup, segments, {"trace": dict(trace_meta), "seed": seed, **(meta or {})}, events,
+                             start, polls=whole_polls)
+            if blf:
+                for bus in sorted(spans):
+                    write_blf(read_mf4(out / f"{bus}.mf4", bus, bitrates[bus]), out / f"{bus}.blf",
+                              channel=bus_channel(setup, bus), start_time=start)
+        return acq.finish(segments=segments, meta=run_meta)
     except BaseException:
         acq.close()  # the chunk files go; the raw logs written so far are kept
         raise
-    whole_polls = polls.whole()
-    run_meta = json.loads(json.dumps({"trace": dict(trace_meta), "seed": seed, **(meta or {})}, default=str))
-    polled = [(float(p.times[0]), float(p.times[-1])) for p in whole_polls.values() if len(p.times)]
-    seg_spans = [(float(s.start_s), float(s.end_s)) for s in segments]
-    damaged = damaged_from_spans({b: (s[0], s[1], int(s[2])) for b, s in spans.items()}, polled, seg_spans,
-                                  {bus: (f"{bus}.mf4", None) for bus in spans})
-    if damaged:
-        run_meta["damaged_logs"] = damaged
-        truncated = [TransportEvent(d["covered_s"][1], d["bus"], "truncated", d["expected_s"][1],
-                                    f"damaged log {d['file']}: {d['reason']}") for d in damaged]
-        acq.feed(AcquisitionInput(events=truncated, start_time=start))
-    if out is not None:
-        write_side_files(out, setup, segments, {"trace": dict(trace_meta), "seed": seed, **(meta or {})}, events,
-                         start, polls=whole_polls)
-        if blf:
-            for bus in sorted(spans):
-                write_blf(read_mf4(out / f"{bus}.mf4", bus, bitrates[bus]), out / f"{bus}.blf",
-                          channel=bus_channel(setup, bus), start_time=start)
-    return acq.finish(segments=segments, meta=run_meta)
 
