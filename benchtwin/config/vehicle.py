@@ -1,4 +1,9 @@
-"""The vehicle file: every true parameter of the emulated P2 PHEV.
+"""The vehicle file: every true parameter of the emulated vehicle (the paper's P2 PHEV, or a conventional car).
+
+``specs.layout`` picks the plant: ``p2_phev`` (the default: engine, K0, motor, HV pack, DC/DC) needs the
+``[motor]``, ``[battery]`` and ``[hybrid]`` tables; ``conventional`` (engine, torque converter and the stepped
+automatic, no motor, no HV pack, the 12 V loads on an engine-driven alternator) must not have them
+(:data:`MOTOR_TABLES`). A battery-electric plant is not emulated.
 
 A vehicle file has a ``[specs]`` table with exactly the public specification that identification may
 know (:class:`~benchtwin.config.specs.VehicleSpecs`) and one table per subsystem with the true
@@ -19,6 +24,7 @@ from benchtwin.config._base import StrictModel, load_model, scenario_path
 from benchtwin.config.specs import VehicleSpecs
 
 __all__ = [
+    "MOTOR_TABLES",
     "BatteryConfig",
     "BrakesConfig",
     "EngineConfig",
@@ -78,6 +84,10 @@ class EngineConfig(StrictModel):
     friction_torque_nm_per_krpm: float = Field(ge=0)
     start_fuel_g: float = Field(ge=0)
     spin_rate_radps2: float = Field(default=600.0, gt=0, description="free run-up/spin-down rate with K0 open")
+    idle_gain_nm_per_radps: float = Field(default=8.0, gt=0, description="conventional layout: the idle "
+                                          "controller's gain (the P2 car's is [motor] idle_gain_nm_per_radps)")
+    max_wheel_force_n: float = Field(default=1e9, gt=0, description="conventional layout: traction / gearbox "
+                                     "torque limiter (the P2 car's is [hybrid] max_wheel_force_n); default none")
     bsfc_speed_rpm: list[float] = Field(min_length=2)
     bsfc_bmep_bar: list[float] = Field(min_length=2)
     bsfc_g_per_kwh: list[list[float]] = Field(min_length=2)
@@ -137,6 +147,8 @@ class TorqueConverterConfig(StrictModel):
     lockup_min_speed_kmh: float = Field(default=15.0, ge=0)
     lockup_capacity_nm: float = Field(default=900.0, gt=0)
     lockup_engage_time_s: float = Field(default=0.6, gt=0, description="capacity ramp while engaging")
+    pump_inertia_kgm2: float = Field(default=0.0, ge=0, description="pump (impeller) inertia of a conventional "
+                                     "car; in the P2 car it is part of [motor] inertia_kgm2")
 
 
 class TransmissionConfig(StrictModel):
@@ -365,23 +377,37 @@ class VehicleConfig(StrictModel):
     specs: VehicleSpecs
     road_load: RoadLoadConfig
     engine: EngineConfig
-    motor: MotorConfig
+    motor: MotorConfig | None = None
     torque_converter: TorqueConverterConfig
     transmission: TransmissionConfig
     shift_schedule: ShiftScheduleConfig
     brakes: BrakesConfig
-    battery: BatteryConfig
+    battery: BatteryConfig | None = None
     low_voltage: LowVoltageConfig
-    hybrid: HybridConfig
+    hybrid: HybridConfig | None = None
     thermal: ThermalConfig
     fidelity: Literal["paper", "high"] = "paper"
     high_fidelity: HighFidelityConfig | None = None
 
     @model_validator(mode="after")
     def _per_gear_lengths(self) -> VehicleConfig:
-        if self.specs.layout != "p2_phev":
-            raise ValueError(f"specs.layout = {self.specs.layout!r}: the emulator's plant is a P2 PHEV "
-                             "(layout = \"p2_phev\")")
+        layout = self.specs.layout
+        if layout not in ("p2_phev", "conventional"):
+            raise ValueError(f"specs.layout = {layout!r}: the emulator's plants are a P2 PHEV (layout = \"p2_phev\") "
+                             "and a conventional car (layout = \"conventional\")")
+        tables = [t for t in MOTOR_TABLES if getattr(self, t) is not None]
+        if layout == "p2_phev" and len(tables) < len(MOTOR_TABLES):
+            missing = [t for t in MOTOR_TABLES if t not in tables]
+            raise ValueError(f"layout 'p2_phev' needs the table(s) {', '.join(f'[{t}]' for t in missing)}")
+        if layout == "conventional":
+            if tables:
+                raise ValueError(f"layout 'conventional' has no motor or HV pack: remove the table(s) "
+                                 f"{', '.join(f'[{t}]' for t in tables)}")
+            if self.brakes.coast_regen_torque_nm != 0.0:
+                raise ValueError("layout 'conventional' has no motor to recuperate: brakes.coast_regen_torque_nm "
+                                 "must be 0")
+            if self.fidelity != "paper":
+                raise ValueError('layout \'conventional\' is emulated at fidelity = "paper" only')
         n = len(self.specs.gear_ratios or ())
         if len(self.transmission.eta_m) != n or len(self.transmission.c0_nm) != n:
             raise ValueError(f"transmission.eta_m and transmission.c0_nm need one value per gear ({n})")
@@ -395,9 +421,24 @@ class VehicleConfig(StrictModel):
         return self
 
     @property
+    def layout(self) -> str:
+        """The plant's layout, ``p2_phev`` or ``conventional`` (from ``specs.layout``)."""
+        return str(self.specs.layout)
+
+    @property
+    def has_motor(self) -> bool:
+        """Whether the vehicle has the P2 motor, its HV pack and the DC/DC (the ``p2_phev`` layout)."""
+        return self.motor is not None
+
+    @property
     def n_gears(self) -> int:
         """Number of forward gears."""
         return len(self.specs.gear_ratios or ())
+
+
+#: the tables of the P2 motor, its HV pack and the hybrid strategy: the p2_phev layout has them, a conventional
+#: car does not
+MOTOR_TABLES: tuple[str, ...] = ("motor", "battery", "hybrid")
 
 
 def load_vehicle(path: str | Path | None = None) -> VehicleConfig:

@@ -46,6 +46,9 @@ import numpy as np
 from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.vehicle import LowVoltageConfig, VehicleConfig
 from benchtwin.emulator.params import (
+    C_ENG,
+    C_HMODE,
+    C_K0,
     C_LVLOAD,
     L_KE0,
     L_KE1,
@@ -111,7 +114,8 @@ from benchtwin.errors import ConfigError, SimulationError
 from benchtwin.segments import Segment
 from benchtwin.trace import TRACE_CHANNELS, Trace
 
-__all__ = ["check_campaign", "energy_balance", "iter_campaign", "lv_load_profile", "simulate_campaign"]
+__all__ = ["ABSENT_CONVENTIONAL", "check_campaign", "conventional_tests", "energy_balance", "iter_campaign",
+           "lv_load_profile", "needs_motor", "simulate_campaign"]
 
 #: Trace channel -> loop output column
 _DIRECT: dict[str, int] = {
@@ -130,6 +134,19 @@ _DIRECT: dict[str, int] = {
     "dcdc_lv_current_a": O_ILV, "dcdc_lv_voltage_v": O_VLV, "lv_battery_current_a": O_ILVB,
     "lv_battery_voltage_v": O_VLV,
 }
+
+#: Trace channels a conventional car does not have (no motor, no HV pack, no HPCU, no K0: the engine is the
+#: converter's pump, whose speed the engine speed is): NaN in its Trace, named in ``meta["absent_channels"]``
+ABSENT_CONVENTIONAL: tuple[str, ...] = (
+    "k0_closed", "em_speed_radps", "em_torque_nm", "em_elec_power_w", "hpcu_hv_current_a", "hpcu_hv_voltage_v",
+    "battery_current_a", "battery_voltage_v", "battery_ocv_v", "battery_soc_frac", "displayed_soc_pct",
+    "battery_temp_degc", "battery_coolant_in_degc", "battery_coolant_out_degc", "hpcu_coolant_in_degc",
+    "hpcu_coolant_out_degc", "motor_coolant_in_degc", "motor_coolant_out_degc",
+)
+
+#: what a test asks that only the P2 motor and its pack can do: refused on a conventional car
+_MOTOR_ONLY_MODES = {"electric": "drives on the motor alone", "e_save": "holds the pack's charge",
+                     "charge": "charges the pack"}
 
 #: settings keys ending in ``_s`` that are durations, not times on the test's clock
 _DURATION_KEYS = frozenset({"step_hold_s", "lead_in_s", "approach_s", "max_duration_s"})
@@ -189,8 +206,13 @@ def _initial_state(tables: PlantTables, vehicle: VehicleConfig, campaign: Campai
 
     st = np.zeros(N_STATE)
     b = vehicle.battery
-    st[pl.S_SOC_FRAC] = (b.soc_min_frac
-                         + campaign.initial_displayed_soc_pct / 100.0 * (b.soc_max_frac - b.soc_min_frac))
+    if b is not None:
+        st[pl.S_SOC_FRAC] = (b.soc_min_frac
+                             + campaign.initial_displayed_soc_pct / 100.0 * (b.soc_max_frac - b.soc_min_frac))
+    else:  # conventional: the engine idles with the converter's pump (K0 "closed": one shaft), no pack
+        st[pl.S_SOC_FRAC] = 0.5
+        st[pl.S_ENGINE_ON] = st[pl.S_K0_CLOSED] = 1.0
+        st[pl.S_PUMP_SPEED_RADPS] = st[pl.S_ENGINE_SPEED_RADPS] = vehicle.engine.idle_speed_rpm * np.pi / 30.0
     st[pl.S_LV_SOC_FRAC] = vehicle.low_voltage.battery_initial_soc_frac
     st[pl.S_GEAR] = 1
     st[pl.S_GEAR_TARGET] = 1
@@ -215,13 +237,20 @@ def check_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> None:
     """
     problems = []
     n = vehicle.n_gears
-    max_rpm_any = min(vehicle.motor.max_speed_rpm, vehicle.engine.max_speed_rpm)
+    motor_rpm = vehicle.motor.max_speed_rpm if vehicle.motor is not None else vehicle.engine.max_speed_rpm
+    max_rpm_any = min(motor_rpm, vehicle.engine.max_speed_rpm)
     for k, test in enumerate(campaign.tests):
         # with K0 held open and the engine held off only the motor spins with the gearbox input
         electric = getattr(test, "k0", "auto") == "open" and getattr(test, "engine", "auto") == "off"
-        max_rpm = vehicle.motor.max_speed_rpm if electric else max_rpm_any
+        max_rpm = motor_rpm if electric else max_rpm_any
         gear = getattr(test, "gear", 0)
         label = f"campaign {campaign.name!r}: tests[{k}] ({test.name or test.kind})"
+        if not vehicle.has_motor:
+            why = needs_motor(test)
+            if why:
+                problems.append(f"{label}: {why}, and vehicle {vehicle.name!r} (layout 'conventional') has no motor "
+                                f"or HV pack; drop the test, or use conventional_tests() / campaigns/conventional.toml")
+                continue
         if gear > n:
             problems.append(f"{label}: key 'gear' = {gear}: the vehicle has {n} gears (1..{n})")
             continue
@@ -236,6 +265,53 @@ def check_campaign(vehicle: VehicleConfig, campaign: CampaignConfig) -> None:
         raise ConfigError("\n".join(problems))
 
 
+def needs_motor(test: object) -> str:
+    """Why a campaign test needs the P2 motor or its HV pack ("" if a conventional car can drive it).
+
+    The rule: a test that holds the engine off or K0 open, runs in a mode that drives on the motor, holds or
+    charges the pack (electric, e-save, charge), or ends on a displayed SOC needs them; a coastdown and
+    neutral braking (gearbox in neutral, no traction) never do, whatever their mode says.
+    """
+    kind = getattr(test, "kind", "")
+    if getattr(test, "engine", "auto") == "off":
+        return "it holds the engine off (engine = \"off\")"
+    if getattr(test, "k0", "auto") == "open":
+        return "it holds K0 open (k0 = \"open\"): only the motor drives"
+    if getattr(test, "end_displayed_soc_pct", None) is not None:
+        return "it ends on the pack's displayed SOC (end_displayed_soc_pct)"
+    mode = getattr(test, "mode", "hybrid")
+    if kind not in ("coastdown", "neutral_braking") and mode in _MOTOR_ONLY_MODES:
+        return f"its mode {mode!r} {_MOTOR_ONLY_MODES[mode]}"
+    return ""
+
+
+def conventional_tests(campaign: CampaignConfig) -> tuple[CampaignConfig, dict[str, str]]:
+    """The campaign's tests a conventional car can drive (:func:`needs_motor`'s rule), and those dropped with why.
+
+    Parameters
+    ----------
+    campaign:
+        A campaign written for the P2 PHEV (e.g. the paper's).
+
+    Returns
+    -------
+    tuple
+        The campaign with the kept tests (same seed, rates, dyno and driver; its name suffixed ``:conventional``)
+        and ``{test name: reason}`` of the dropped ones.
+
+    Raises
+    ------
+    ConfigError
+        If no test is left.
+    """
+    dropped = {t.name or t.kind: why for t in campaign.tests if (why := needs_motor(t))}
+    kept = [t for t in campaign.tests if not needs_motor(t)]
+    if not kept:
+        raise ConfigError(f"campaign {campaign.name!r}: no test a conventional car can drive (each needs the motor "
+                          f"or the pack)")
+    return campaign.model_copy(update={"tests": kept, "name": f"{campaign.name}:conventional"}), dropped
+
+
 @dataclass
 class _Run:
     """A campaign being simulated: its tables, per-step commands and the plant's state (carried across tests)."""
@@ -248,6 +324,7 @@ class _Run:
     st: np.ndarray
     led: np.ndarray
     thermal: np.ndarray
+    conventional: bool = False
 
     @property
     def n_steps(self) -> int:
@@ -262,6 +339,8 @@ class _Run:
         block, seg = self.proto.block(k), self.proto.segments[k]
         k0 = int(self.st[S_STEP])
         block[C_LVLOAD] = self.lv_load.steps(k0, k0 + block.shape[1])
+        if self.conventional:  # one shaft from the engine to the pump, the engine always running
+            block[C_ENG], block[C_K0], block[C_HMODE] = 1.0, 1.0, 0.0
         t_start = self.st[S_TIME_S]
         written, steps = run_plant(self.tables, block, self.decim, self.st, out, row0, self.led)
         settings = {key: (float(v + t_start) if key.endswith("_s") and key not in _DURATION_KEYS else v)
@@ -282,13 +361,13 @@ def _start(vehicle: VehicleConfig, campaign: CampaignConfig, *, lazy: bool = Fal
     led = np.zeros(NL)
     led[L_KE0] = kinetic_energy(tables.p, st)
     return _Run(tables, dt, decim, proto, lv_load, st, led,
-                thermal_state(vehicle.thermal, campaign.ambient_degc))
+                thermal_state(vehicle.thermal, campaign.ambient_degc), conventional=not vehicle.has_motor)
 
 
 def _trace_of(run: _Run, vehicle: VehicleConfig, campaign: CampaignConfig, out: np.ndarray, row0: int,
               segments: list[Segment]) -> Trace:
     """The Trace of output rows ``out`` (the campaign's rows from ``row0``); advances the thermal state."""
-    if not np.all(np.isfinite(out[[O_V, O_WP, O_IB, O_SOC]])):
+    if not np.all(np.isfinite(out[[O_V, O_WP, O_IB, O_SOC] if vehicle.has_motor else [O_V, O_WP]])):
         raise SimulationError(f"campaign {campaign.name!r}: the plant left its physical domain (non-finite states)")
     dt_out = run.dt * run.decim
     time_s = (row0 + np.arange(out.shape[1])) * dt_out
@@ -309,6 +388,9 @@ def _trace_of(run: _Run, vehicle: VehicleConfig, campaign: CampaignConfig, out: 
     missing = set(TRACE_CHANNELS) - set(channels)
     if missing:  # pragma: no cover - guarded by the tests
         raise SimulationError(f"emulator does not produce {sorted(missing)}")
+    absent = () if vehicle.has_motor else ABSENT_CONVENTIONAL
+    for name in absent:  # the plant has no such signal: NaN, not a placeholder value a sensor could pass on
+        channels[name] = np.full(out.shape[1], np.nan)
     ordered = {name: channels[name] for name in TRACE_CHANNELS}
     led = run.led.copy()
     led[L_KE1] = kinetic_energy(run.tables.p, run.st)
@@ -320,6 +402,9 @@ def _trace_of(run: _Run, vehicle: VehicleConfig, campaign: CampaignConfig, out: 
         "output_rate_hz": campaign.plant_rate_hz / run.decim,
         "energy_ledger_j": {name: float(led[k]) for k, name in enumerate(LEDGER_NAMES)},
     }
+    if absent:
+        meta["layout"] = vehicle.layout
+        meta["absent_channels"] = list(absent)
     return Trace(time_s, ordered, segments, meta)
 
 

@@ -125,7 +125,8 @@ P_HF_ENGINE_HEAT_FRAC = 99
 P_HF_RADIATOR_UA_W_PER_K = 100
 P_HF_THERMOSTAT_DEGC = 101
 P_HF_SLIP_STIFFNESS_N = 102  # driven axle's longitudinal slip stiffness, N per unit slip (0: no slip)
-NP = 103
+P_CONVENTIONAL = 103  # 1: conventional layout (no motor, no HV pack: the 12 V loads on an alternator), 0: P2 PHEV
+NP = 104
 
 # ---- command rows (one value per plant step) ----
 C_DYNO_MODE = 0  # 0 road-load, 1 speed-controlled
@@ -219,16 +220,18 @@ L_KE0 = 16  # stored kinetic energy at start
 L_KE1 = 17  # at end
 L_SHIFT = 18  # gearshift clutches synchronising the pump side
 L_TYRE = 19  # driven tyres slipping on the rollers (high-fidelity plant)
-NL = 20
+L_ALTERNATOR = 20  # conventional layout: the alternator's drive, inside the engine's map (as its auxiliaries)
+NL = 21
 
 LEDGER_NAMES: tuple[str, ...] = (
     "fuel_chemical", "hv_battery_chemical", "lv_battery_chemical", "engine_loss", "motor_loss",
     "hv_battery_resistive", "lv_battery_resistive", "torque_converter_slip", "lockup_slip", "k0_slip",
     "transmission_loss", "brakes", "dcdc_loss", "lv_loads", "road_load_work", "dyno_absorbed",
-    "kinetic_start", "kinetic_end", "shift_clutch_slip", "tyre_slip",
+    "kinetic_start", "kinetic_end", "shift_clutch_slip", "tyre_slip", "alternator_drive",
 )
 #: ledger entries that feed energy in; the stored kinetic energy is ``kinetic_end - kinetic_start``
-LEDGER_INPUTS: tuple[str, ...] = ("fuel_chemical", "hv_battery_chemical", "lv_battery_chemical")
+LEDGER_INPUTS: tuple[str, ...] = ("fuel_chemical", "hv_battery_chemical", "lv_battery_chemical",
+                                  "alternator_drive")
 
 
 class PlantTables(NamedTuple):
@@ -326,12 +329,21 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     p[P_ENGINE_SPIN_RADPS2] = en.spin_rate_radps2
     p[P_DISPLACEMENT_M3] = s.engine_displacement_m3
     p[P_FUEL_LHV_J_PER_KG] = s.fuel_lhv_j_per_kg
-    p[P_MOTOR_MAX_RADPS] = mo.max_speed_rpm * RPM
-    p[P_MOTOR_INERTIA_KGM2] = mo.inertia_kgm2
-    p[P_WILLANS_E], p[P_WILLANS_LOSS_W] = mo.willans_e, mo.willans_w_loss_w
-    p[P_WILLANS_E_GEN], p[P_WILLANS_LOSS_GEN_W] = mo.willans_e_gen, mo.willans_w_loss_gen_w
-    p[P_MOTOR_IDLE_RADPS] = mo.idle_speed_rpm * RPM
-    p[P_IDLE_GAIN_NM_PER_RADPS] = mo.idle_gain_nm_per_radps
+    if mo is not None:
+        p[P_MOTOR_MAX_RADPS] = mo.max_speed_rpm * RPM
+        p[P_MOTOR_INERTIA_KGM2] = mo.inertia_kgm2
+        p[P_WILLANS_E], p[P_WILLANS_LOSS_W] = mo.willans_e, mo.willans_w_loss_w
+        p[P_WILLANS_E_GEN], p[P_WILLANS_LOSS_GEN_W] = mo.willans_e_gen, mo.willans_w_loss_gen_w
+        p[P_MOTOR_IDLE_RADPS] = mo.idle_speed_rpm * RPM
+        p[P_IDLE_GAIN_NM_PER_RADPS] = mo.idle_gain_nm_per_radps
+    else:
+        # conventional: no rotor, the converter's pump on the crankshaft; a lossless motor of zero torque (its
+        # full-load curve is 0) draws exactly nothing, and the engine's idle controller keeps its gain
+        p[P_CONVENTIONAL] = 1.0
+        p[P_MOTOR_MAX_RADPS] = p[P_ENGINE_MAX_RADPS]
+        p[P_MOTOR_INERTIA_KGM2] = tc.pump_inertia_kgm2
+        p[P_WILLANS_E], p[P_WILLANS_E_GEN] = 1.0, 1.0
+        p[P_IDLE_GAIN_NM_PER_RADPS] = en.idle_gain_nm_per_radps
     p[P_TC_COUPLING_SPEED_RATIO] = tc.coupling_speed_ratio
     p[P_LOCKUP_MIN_GEAR] = tc.lockup_min_gear
     p[P_LOCKUP_MIN_SPEED_MPS] = tc.lockup_min_speed_kmh * KMH
@@ -342,32 +354,42 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     p[P_BRAKE_GAIN_FRONT_NM_PER_BAR] = br.gain_front_nm_per_bar
     p[P_BRAKE_GAIN_REAR_NM_PER_BAR] = br.gain_rear_nm_per_bar
     p[P_BRAKE_MAX_TORQUE_NM] = br.max_brake_torque_nm
-    p[P_REGEN_CUTOFF_MPS] = br.regen_cutoff_speed_kmh * KMH
+    # conventional: no regeneration and no blending (the blending branch never runs: cut-off out of reach)
+    p[P_REGEN_CUTOFF_MPS] = br.regen_cutoff_speed_kmh * KMH if mo is not None else 1e9
     p[P_BRAKE_FRONT_SHARE_BASE] = br.front_share_base
     p[P_BRAKE_FRONT_SHARE_PER_MPS2] = br.front_share_per_mps2
     p[P_BRAKE_FRONT_SHARE_MAX] = br.front_share_max
     p[P_COAST_REGEN_TORQUE_NM] = br.coast_regen_torque_nm
-    p[P_BATT_CAPACITY_AS] = ba.capacity_ah * 3600.0
-    p[P_BATT_ALPHA], p[P_BATT_BETA_DISCHARGE], p[P_BATT_BETA_CHARGE] = ba.alpha, ba.beta_discharge, ba.beta_charge
-    p[P_SOC_MIN_FRAC], p[P_SOC_MAX_FRAC] = ba.soc_min_frac, ba.soc_max_frac
-    p[P_BATT_MAX_DISCHARGE_W], p[P_BATT_MAX_CHARGE_W] = ba.max_discharge_power_w, ba.max_charge_power_w
-    p[P_N_CELLS_SERIES] = s.n_cells_series
+    if ba is not None:
+        p[P_BATT_CAPACITY_AS] = ba.capacity_ah * 3600.0
+        p[P_BATT_ALPHA], p[P_BATT_BETA_DISCHARGE], p[P_BATT_BETA_CHARGE] = ba.alpha, ba.beta_discharge, ba.beta_charge
+        p[P_SOC_MIN_FRAC], p[P_SOC_MAX_FRAC] = ba.soc_min_frac, ba.soc_max_frac
+        p[P_BATT_MAX_DISCHARGE_W], p[P_BATT_MAX_CHARGE_W] = ba.max_discharge_power_w, ba.max_charge_power_w
+    else:  # no HV pack: a placeholder the loop never draws on (its current is 0, its outputs are dropped)
+        p[P_BATT_CAPACITY_AS], p[P_BATT_ALPHA], p[P_BATT_BETA_DISCHARGE], p[P_BATT_BETA_CHARGE] = 3600.0, 1, 1, 1
+        p[P_SOC_MIN_FRAC], p[P_SOC_MAX_FRAC] = 0.0, 1.0
+    p[P_N_CELLS_SERIES] = s.n_cells_series or 1
     p[P_DCDC_EFFICIENCY], p[P_DCDC_SET_V] = lv.dcdc_efficiency, lv.dcdc_voltage_v
     p[P_LV_CAPACITY_AS] = lv.battery_capacity_ah * 3600.0
     p[P_LV_OCV_EMPTY_V], p[P_LV_OCV_FULL_V] = lv.battery_ocv_empty_v, lv.battery_ocv_full_v
     p[P_LV_RESISTANCE_OHM] = lv.battery_resistance_ohm
     p[P_DCDC_DROOP_OHM] = lv.dcdc_droop_ohm
-    p[P_HYB_ENGINE_ON_W] = hy.engine_on_power_w
-    p[P_HYB_ENGINE_OFF_W] = hy.engine_off_power_w
-    p[P_HYB_ENGINE_ON_MPS] = hy.engine_on_speed_kmh * KMH
-    p[P_HYB_MIN_ON_S] = hy.engine_min_on_time_s
-    p[P_HYB_SUSTAIN_SOC_PCT] = hy.sustain_soc_pct
-    p[P_HYB_SUSTAIN_W_PER_PCT] = hy.sustain_gain_w_per_pct
-    p[P_HYB_SUSTAIN_MAX_W] = hy.max_sustain_power_w
-    p[P_HYB_KICKDOWN_PEDAL_PCT] = hy.electric_kickdown_pedal_pct
-    p[P_HYB_CHARGE_W] = hy.charge_power_w
-    p[P_HYB_ESAVE_ON_W] = hy.esave_on_power_w
-    p[P_HYB_MAX_WHEEL_FORCE_N] = hy.max_wheel_force_n
+    if hy is not None:
+        p[P_HYB_ENGINE_ON_W] = hy.engine_on_power_w
+        p[P_HYB_ENGINE_OFF_W] = hy.engine_off_power_w
+        p[P_HYB_ENGINE_ON_MPS] = hy.engine_on_speed_kmh * KMH
+        p[P_HYB_MIN_ON_S] = hy.engine_min_on_time_s
+        p[P_HYB_SUSTAIN_SOC_PCT] = hy.sustain_soc_pct
+        p[P_HYB_SUSTAIN_W_PER_PCT] = hy.sustain_gain_w_per_pct
+        p[P_HYB_SUSTAIN_MAX_W] = hy.max_sustain_power_w
+        p[P_HYB_KICKDOWN_PEDAL_PCT] = hy.electric_kickdown_pedal_pct
+        p[P_HYB_CHARGE_W] = hy.charge_power_w
+        p[P_HYB_ESAVE_ON_W] = hy.esave_on_power_w
+        p[P_HYB_MAX_WHEEL_FORCE_N] = hy.max_wheel_force_n
+    else:  # conventional: the engine runs all the time (commands forced), no sustain term; the limiter is the engine's
+        p[P_HYB_SUSTAIN_SOC_PCT] = -1.0
+        p[P_HYB_KICKDOWN_PEDAL_PCT] = 100.0
+        p[P_HYB_MAX_WHEEL_FORCE_N] = en.max_wheel_force_n
     drv, dyn = campaign.driver, campaign.dyno
     p[P_DRIVER_B0_N_PER_MPS], p[P_DRIVER_B1_N_PER_MPS] = _pi_coefficients(s.test_mass_kg, drv.bandwidth_radps,
                                                                           drv.damping, dt)
@@ -430,8 +452,8 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
         bsfc_w=np.asarray(en.bsfc_speed_rpm, float) * RPM,
         bsfc_b=np.asarray(en.bsfc_bmep_bar, float) * 1e5,
         bsfc_kgpj=np.ascontiguousarray(bsfc),
-        m_fl_w=np.asarray(mo.full_load_speed_rpm, float) * RPM,
-        m_fl_t=np.asarray(mo.full_load_torque_nm, float),
+        m_fl_w=np.asarray(mo.full_load_speed_rpm, float) * RPM if mo is not None else np.array([0.0, 1.0]),
+        m_fl_t=np.asarray(mo.full_load_torque_nm, float) if mo is not None else np.zeros(2),
         cell_soc=cells[:, 0] / 100.0,
         cell_ocv=cells[:, 1].copy(),
         cell_rd=cells[:, 2].copy(),

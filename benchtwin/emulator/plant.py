@@ -15,7 +15,8 @@ of :mod:`benchtwin.emulator.steps_control`, :mod:`~benchtwin.emulator.steps_powe
 A vehicle file with ``fidelity = "high"`` sets ``P_HIFI`` and the high-fidelity tables: the same sub-steps
 take the motor loss model, the RC/hysteresis pack with R0(T), the spin-loss gear drag, the tabulated converter,
 the cold-start fuel factor and the tyre slip (wheel speed = roller speed x (1 + s), s from the last step's axle
-force); battery, coolant and oil temperatures are states (docs/fidelity.md). The paper form skips them all.
+force); battery, coolant and oil temperatures are states (docs/fidelity.md). The paper form skips them all. A
+conventional car is the record with the motor's terms zeroed and ``P_CONVENTIONAL`` set (docs/models.md).
 
 Parameters travel as one record, :class:`~benchtwin.emulator.params.PlantTables` (scalars ``p`` with
 named ``P_*`` indices, lookup tables); the state between steps and calls is ``st`` (``S_*`` below).
@@ -96,6 +97,7 @@ from benchtwin.emulator.steps_energy import (
     dyno_forces,
     engine_fuel,
     hifi_thermal_step,
+    hv_auxiliary_draw_w,
     hv_battery,
     hv_battery_dynamics,
     hv_battery_hifi,
@@ -336,8 +338,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     engine_torque_nm, motor_torque_nm, idle_gain_nm_per_radps = pump_torque_control(
         p, gear, lockup_closed, k0_closed, engine_on, speed_mps, pump_speed_radps, pedal_pct, pump_inertia_kgm2,
         gain_rad_per_m * kin, old_gain_rad_per_m * kin, inertia_phase_left_s, engine_torque_nm, motor_torque_nm,
-        engine_max_nm,
-        motor_max_nm, motor_gen_max_nm)
+        engine_max_nm, motor_max_nm, motor_gen_max_nm)
     front_brake_nm, rear_brake_nm, brake_force_n = brake_split(p, brake_demand_nm, hydraulic_brake_nm)
 
     # ---- engine fuel (BSFC map, eq. 26-28) ----
@@ -385,12 +386,12 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     lv_load_w = cmd[C_LVLOAD, i]
     lv_ocv_v, lv_bus_v, lv_battery_current_a, dcdc_lv_current_a, dcdc_lv_power_w, dcdc_hv_power_w = lv_system(
         p, lv_soc_frac, lv_load_w)
+    hv_aux_w = hv_auxiliary_draw_w(p, led, dcdc_hv_power_w)  # 0 for a conventional car (alternator)
     if hifi:
         hv_ocv_v, hv_resistance_ohm, hv_current_a, hv_terminal_v = hv_battery_hifi(
-            tab, soc_frac, motor_elec_w + dcdc_hv_power_w, rc1_v, rc2_v, hysteresis, battery_degc)
+            tab, soc_frac, motor_elec_w + hv_aux_w, rc1_v, rc2_v, hysteresis, battery_degc)
     else:
-        hv_ocv_v, hv_resistance_ohm, hv_current_a, hv_terminal_v = hv_battery(tab, soc_frac,
-                                                                             motor_elec_w + dcdc_hv_power_w)
+        hv_ocv_v, hv_resistance_ohm, hv_current_a, hv_terminal_v = hv_battery(tab, soc_frac, motor_elec_w + hv_aux_w)
 
     # ---- ledger ----
     ledger_electrical(p, led, fuel_energy_j, hv_ocv_v, hv_resistance_ohm, hv_current_a, lv_ocv_v,
@@ -495,11 +496,9 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     st[S_ENGINE_ON] = 1.0 if engine_on else 0.0
     st[S_K0_CLOSED] = 1.0 if k0_closed else 0.0
     st[S_LOCKUP_CLOSED] = 1.0 if lockup_closed else 0.0
-    st[S_GEAR] = gear
-    st[S_GEAR_TARGET] = gear_target
+    st[S_GEAR], st[S_GEAR_TARGET] = gear, gear_target
     st[S_SHIFT_TIMER_S] = shift_timer_s
-    st[S_SOC_FRAC] = soc_frac
-    st[S_LV_SOC_FRAC] = lv_soc_frac
+    st[S_SOC_FRAC], st[S_LV_SOC_FRAC] = soc_frac, lv_soc_frac
     st[S_DRIVER_FORCE_N] = driver_force_n
     st[S_DRIVER_ERROR_MPS] = driver_error_mps
     st[S_DYNO_FORCE_N] = dyno_force_n

@@ -18,6 +18,7 @@ from benchtwin.emulator.models import (
     road_load_force_n,
 )
 from benchtwin.emulator.params import (
+    L_ALTERNATOR,
     L_BRAKES,
     L_DCDC,
     L_DYNO,
@@ -38,6 +39,7 @@ from benchtwin.emulator.params import (
     P_BATT_ALPHA,
     P_BATT_BETA_CHARGE,
     P_BATT_BETA_DISCHARGE,
+    P_CONVENTIONAL,
     P_DCDC_DROOP_OHM,
     P_DCDC_EFFICIENCY,
     P_DCDC_SET_V,
@@ -173,6 +175,25 @@ def lv_system(p: np.ndarray, lv_soc_frac: float, lv_load_w: float) -> tuple:
     plv = vlv * idc
     pdc_in = plv / p[P_DCDC_EFFICIENCY]
     return ocv_lv, vlv, ilvb, idc, plv, pdc_in
+
+
+@njit(cache=True, _nrt=False)
+def hv_auxiliary_draw_w(p: np.ndarray, led: np.ndarray, dcdc_hv_power_w: float) -> float:
+    """The 12 V system's draw on the HV pack: the DC/DC's input power, or 0 for a conventional car.
+
+    A conventional car (``P_CONVENTIONAL``) has no pack: its "DC/DC" is the alternator, driven by the engine
+    inside the engine's map (as the engine's own auxiliaries are, so its torque and fuel channels are those of
+    the map); the drive is booked as the ledger's ``alternator_drive`` input.
+
+    Returns
+    -------
+    float
+        Power drawn from the HV pack, W.
+    """
+    if p[P_CONVENTIONAL] > 0.5:
+        led[L_ALTERNATOR] += dcdc_hv_power_w * p[P_DT_S]
+        return 0.0
+    return dcdc_hv_power_w
 
 
 @njit(cache=True, _nrt=False)
