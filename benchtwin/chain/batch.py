@@ -231,9 +231,18 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
     save_recording:
         Save ``recording.mf4`` into ``out_dir`` as the acquisition goes and return it opened lazily (False: the
         Recording stays in memory and the caller saves it, e.g. beside other work).
+
+    A Trace without some channels (a conventional car's, ``meta["absent_channels"]``) feeds the setup that
+    :func:`~benchtwin.sensors.registry.setup_for_trace` keeps of ``setup`` (its rule: shunts and thermocouple
+    places on absent channels removed, the vehicle CAN's roles on them not sent); the Recording's
+    ``meta["dropped_devices"]`` lists what was taken out.
     """
     from benchtwin.chain.stream import run_chunked, trace_pieces
+    from benchtwin.sensors import setup_for_trace
 
+    setup, dropped = setup_for_trace(setup, trace.meta.get("absent_channels", ()))
+    if dropped:
+        meta = {**(meta or {}), "dropped_devices": dropped}
     return run_chunked(trace_pieces(trace), setup, seed, out_dir, blf=blf, meta=meta, save_recording=save_recording)
 
 

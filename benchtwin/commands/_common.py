@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -119,9 +120,21 @@ def load_campaign_arg(value: str | Path, seed: int | None = None) -> CampaignCon
 
 
 def load_scenario(args: argparse.Namespace) -> tuple[VehicleConfig, SetupConfig, CampaignConfig]:
-    """Load the vehicle, setup and campaign named by the arguments (ConfigError on any problem)."""
-    return (load_vehicle_arg(args.vehicle), load_setup_arg(args.setup),
-            load_campaign_arg(args.campaign, getattr(args, "seed", None)))
+    """Load the vehicle, setup and campaign named by the arguments (ConfigError on any problem).
+
+    For a conventional car (no motor) the campaign's tests that need the motor or the pack are left out by
+    :func:`benchtwin.emulator.conventional_tests`'s rule, and a note on stderr names them.
+    """
+    vehicle = load_vehicle_arg(args.vehicle)
+    campaign = load_campaign_arg(args.campaign, getattr(args, "seed", None))
+    if not vehicle.has_motor:
+        from benchtwin.emulator import conventional_tests
+
+        campaign, dropped = conventional_tests(campaign)
+        if dropped:
+            print(f"note: vehicle {vehicle.name!r} has no motor: {len(dropped)} test(s) of the campaign need it and "
+                  f"are left out ({', '.join(dropped)})", file=sys.stderr)
+    return vehicle, load_setup_arg(args.setup), campaign
 
 
 def check_writable(path: str | Path, *, directory: bool = False, what: str = "--out",

@@ -299,11 +299,23 @@ class VehicleCanConfig(StrictModel):
     errors: dict[str, ChannelErrors] = Field(default_factory=dict,
                                              description="per Recording role, in the role's unit")
     link: LinkErrors = Field(default_factory=LinkErrors)
+    not_sent: list[str] = Field(default_factory=list,
+                                description="roles the car does not send (a conventional car: the motor's, the "
+                                            "pack's): their signals carry the DBC's raw maximum, 'not available', "
+                                            "and nothing is recorded for them")
 
     @field_validator("errors")
     @classmethod
     def _roles(cls, v: dict[str, ChannelErrors]) -> dict[str, ChannelErrors]:
         return _known_roles(v, VEHICLE_CAN_ROLES, "the vehicle CAN")
+
+    @field_validator("not_sent")
+    @classmethod
+    def _not_sent_roles(cls, v: list[str]) -> list[str]:
+        bad = [r for r in v if r not in VEHICLE_CAN_ROLES]
+        if bad:
+            raise ValueError(f"not_sent: unknown role(s) {', '.join(bad)}; allowed: {', '.join(VEHICLE_CAN_ROLES)}")
+        return v
 
 
 class DynoConfig(StrictModel):

@@ -89,7 +89,8 @@ from benchtwin.emulator.steps_control import ROAD_LOAD_FADE_MPS
 def engine_fuel(tab: PlantTables, engine_on: bool, k0_closed: bool, engine_torque_nm: float, pump_speed_radps: float,
                 engine_speed_radps: float, start_fuel_kg: float, coolant_degc: float) -> tuple[float, float]:
     """Engine fuel (eq. 26-28): BSFC(omega, BMEP = 4 pi T / V_d) T omega when driving through K0, the map's
-    lowest-BMEP flow when motoring or idling free, nothing when off, plus the start's fuel mass. The
+    lowest-BMEP flow when motoring or idling free, nothing when off or (a conventional car) in overrun, plus the
+    start's fuel mass. The
     high-fidelity plant multiplies the running flow by the cold-start factor of the coolant temperature.
 
     Returns
@@ -107,6 +108,8 @@ def engine_fuel(tab: PlantTables, engine_on: bool, k0_closed: bool, engine_torqu
         if k0_closed and te > 0.0:
             bmep = 4.0 * np.pi * te / p[P_DISPLACEMENT_M3]
             fuel_flow += bsfc_kg_per_j(tab.bsfc_w, tab.bsfc_b, tab.bsfc_kgpj, wp, bmep) * te * wp
+        elif te < 0.0 and p[P_CONVENTIONAL] > 0.5:
+            pass  # a conventional car's overrun: fuel cut
         else:
             wf = wp if k0_closed else engine_speed_radps
             bmin = tab.bsfc_b[0]

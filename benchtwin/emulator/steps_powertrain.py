@@ -18,6 +18,7 @@ from benchtwin.emulator.params import (
     P_BRAKE_FRONT_SHARE_MAX,
     P_BRAKE_FRONT_SHARE_PER_MPS2,
     P_BRAKE_MAX_TORQUE_NM,
+    P_CONVENTIONAL,
     P_DT_S,
     P_ENGINE_FRICTION_NM,
     P_ENGINE_FRICTION_NM_PER_RADPS,
@@ -218,7 +219,8 @@ def pump_torque_control(p: np.ndarray, gear: int, lockup_closed: bool, k0_closed
 
     During the inertia phase the motor takes the pump side's inertia torque J_p (k_new - k_old) v / t_phase.
     With the pump side free (lock-up open or neutral) a proportional idle controller holds the engine or
-    motor at idle (the motor lets the pump run down at standstill with the pedal released).
+    motor at idle (the motor lets the pump run down at standstill with the pedal released). A conventional car
+    (``P_CONVENTIONAL``) in overrun cuts the fuel: the engine drags its friction torque.
 
     Returns
     -------
@@ -256,6 +258,10 @@ def pump_torque_control(p: np.ndarray, gear: int, lockup_closed: bool, k0_closed
         elif (pedal_pct > 0.0 or v > 0.3) and wp < widle_m:  # the motor stops at standstill, pedal released
             tm = min(tm + kidle * (widle_m - wp), tm_max)
             d_idle = kidle
+    elif p[P_CONVENTIONAL] > 0.5 and pedal_pct <= 0.0 and wp > 1.25 * widle_e:
+        # a conventional car in overrun (lock-up closed, pedal released, above idle): fuel cut, the wheels drive
+        # the engine against its friction (the P2 car recuperates with its motor instead)
+        te = -(p[P_ENGINE_FRICTION_NM] + p[P_ENGINE_FRICTION_NM_PER_RADPS] * wp)
     return te, tm, d_idle
 
 

@@ -20,11 +20,12 @@ from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.sensors.base import Device
 from benchtwin.sensors.encoder import ChunkEncoder
-from benchtwin.sensors.registry import devices
+from benchtwin.sensors.registry import devices, setup_for_trace
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import DeviceOutputs
 
-__all__ = ["ChunkEncoder", "Device", "bus_database", "device_names", "devices", "encode", "write_bus_dbcs"]
+__all__ = ["ChunkEncoder", "Device", "bus_database", "device_names", "devices", "encode", "setup_for_trace",
+           "write_bus_dbcs"]
 
 
 def device_names(setup: SetupConfig) -> list[str]:

@@ -172,6 +172,8 @@ class _DbcDevice(Device):
                 texts[sig.name] = {round(sig.scale * raw + sig.offset): str(text)
                                    for raw, text in sig.choices.items()}
 
+        not_sent = set(getattr(self.cfg, "not_sent", ()))
+
         def decode(s: FrameStream, sink: DecodeSink) -> None:
             good, proto, nbad = split_bad(s.dlc, codec.length)
             sink.protocol_error(s.where, nbad)
@@ -185,7 +187,7 @@ class _DbcDevice(Device):
             mark_after(base, t, s.drops, FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"])
             for name, r in raw.items():
                 src = sources[name]
-                if src.role is None:
+                if src.role is None or src.role in not_sent:
                     continue
                 sig = codec.signals[name]
                 v = codec.to_physical(name, r)
@@ -203,10 +205,11 @@ class _DbcDevice(Device):
         """Every signal with a role, to one step of its DBC scaling."""
         out = {}
         sources = SIGNAL_MAP[self.stem]
+        not_sent = set(getattr(self.cfg, "not_sent", ()))
         for codec in message_codecs(self.stem):
             for name, sig in codec.signals.items():
                 src = sources.get(name)
-                if src is not None and src.role is not None and src.trace is not None:
+                if src is not None and src.role is not None and src.trace is not None and src.role not in not_sent:
                     out[src.role] = TruthChannel(src.trace, src.factor, src.hold, float(sig.scale))
         return out
 

@@ -63,8 +63,11 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
                   "2-3 % of the torque; a coast fit rests on 3-4 regenerative steps per ramp-up, too few for "
                   "those roundings to average out, so the bound is the one that step allows, not 0.1 %. "
                   "Where the propagated step (3 sigma through the fit) is larger, that is the bound")
+    # a conventional car's only negative gearbox input is the engine's overrun drag, one torque per speed: the
+    # paper's protocol (regeneration steps) has no conventional counterpart, so no coast line is expected
+    directions = ("drive", "coast") if vehicle.has_motor else ("drive",)
     for g in range(vehicle.n_gears):
-        for direction in ("drive", "coast"):
+        for direction in directions:
             fit = FitKey.transmission(g + 1, direction)
             coast = direction == "coast"
             exp.append(_Expect("transmission", param_key(fit, "eta_m"), tx.eta_m[g], "-",
@@ -79,34 +82,35 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
                                + ("; " + quant_note if coast else ": 0.3 Nm is 0.1 % of the ~300 Nm mean input")
                                + "; realistic: plus the offsets of the input torques and the shaft torque",
                                lambda b: b["engine_torque_offset"] + b["em_torque_offset"] + b["shaft_offset"]))
-    m = vehicle.motor
-    # the HPCU shunt's current offset is a constant power offset (offset x pack voltage, nominal 3.7 V a cell):
-    # it moves the Willans intercepts by that power and the DC/DC term, ~the LV base load, by as much
-    u_pack = 3.7 * vehicle.specs.n_cells_series
-    p_lv = max(vehicle.low_voltage.base_load_w, 1.0)
-    exp += [
-        _Expect("motor", "motor.motoring.e", m.willans_e, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
-                "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
-                lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
-        _Expect("motor", "motor.motoring.W_loss", m.willans_w_loss_w, "W",
-                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)},
-                "W_loss is the intercept of the Willans line: 1 % of 650 W is 0.1 % of the ~6.5 kW mean "
-                "electrical power of the points; realistic: plus the HPCU shunt's current offset as a power",
-                lambda b, w=m.willans_w_loss_w: b["hpcu_current_offset"] * u_pack / w),
-        _Expect("motor", "motor.generating.e_gen", m.willans_e_gen, "-",
-                {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
-                "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
-                lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
-        _Expect("motor", "motor.generating.W_loss_gen", m.willans_w_loss_gen_w, "W",
-                {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss",
-                lambda b, w=m.willans_w_loss_gen_w: b["hpcu_current_offset"] * u_pack / w),
-        _Expect("motor", "motor.motoring.eta_dcdc", vehicle.low_voltage.dcdc_efficiency, "-",
-                {"ideal": ("rel", 1.5e-2), "realistic": ("rel", 3e-2)},
-                "the DC/DC draws 0.3-0.5 kW beside 5-90 kW of motor power through the HPCU shunt: a 0.01 % "
-                "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %; realistic: "
-                "plus the HPCU shunt's current offset as a power against the LV base load",
-                lambda b: b["hpcu_current_offset"] * u_pack / p_lv),
-    ]
+    if vehicle.motor is not None:  # a conventional car has no motor to identify
+        m = vehicle.motor
+        # the HPCU shunt's current offset is a constant power offset (offset x pack voltage, nominal 3.7 V a cell):
+        # it moves the Willans intercepts by that power and the DC/DC term, ~the LV base load, by as much
+        u_pack = 3.7 * vehicle.specs.n_cells_series
+        p_lv = max(vehicle.low_voltage.base_load_w, 1.0)
+        exp += [
+            _Expect("motor", "motor.motoring.e", m.willans_e, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
+                    "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
+                    lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
+            _Expect("motor", "motor.motoring.W_loss", m.willans_w_loss_w, "W",
+                    {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)},
+                    "W_loss is the intercept of the Willans line: 1 % of 650 W is 0.1 % of the ~6.5 kW mean "
+                    "electrical power of the points; realistic: plus the HPCU shunt's current offset as a power",
+                    lambda b, w=m.willans_w_loss_w: b["hpcu_current_offset"] * u_pack / w),
+            _Expect("motor", "motor.generating.e_gen", m.willans_e_gen, "-",
+                    {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)},
+                    "realistic: plus the gain errors of the CAN motor torque and the HPCU shunt",
+                    lambda b: b["em_torque_gain"] + b["hpcu_gain"]),
+            _Expect("motor", "motor.generating.W_loss_gen", m.willans_w_loss_gen_w, "W",
+                    {"ideal": ("rel", 1e-2), "realistic": ("rel", 0.1)}, "intercept, as W_loss",
+                    lambda b, w=m.willans_w_loss_gen_w: b["hpcu_current_offset"] * u_pack / w),
+            _Expect("motor", "motor.motoring.eta_dcdc", vehicle.low_voltage.dcdc_efficiency, "-",
+                    {"ideal": ("rel", 1.5e-2), "realistic": ("rel", 3e-2)},
+                    "the DC/DC draws 0.3-0.5 kW beside 5-90 kW of motor power through the HPCU shunt: a 0.01 % "
+                    "error of the HPCU power is ~1 % of the DC/DC term, so its efficiency is known to ~1 %; realistic: "
+                    "plus the HPCU shunt's current offset as a power against the LV base load",
+                    lambda b: b["hpcu_current_offset"] * u_pack / p_lv),
+        ]
     rl = vehicle.road_load
     for name, val, unit in (("F0", rl.f0_n, "N"), ("F1", rl.f1_n_per_kmh, "N/(km/h)"), ("F2", rl.f2_n_per_kmh2,
                                                                                           "N/(km/h)^2")):
@@ -124,19 +128,21 @@ def truth_expectations(vehicle: VehicleConfig) -> list[_Expect]:
                 "realistic: plus the pressure transducers' gain error", lambda b_: b_["pressure_gain"]),
         _Expect("brakes", "brakes.distribution.k_f", kf, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 1e-2)}),
     ]
-    bat = vehicle.battery
-    exp += [
-        _Expect("battery", "battery.alpha", bat.alpha, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 2e-3)},
-                "realistic: plus the voltage gain error of the battery shunt", lambda b_: b_["battery_voltage_gain"]),
-        _Expect("battery", "battery.beta_discharge", bat.beta_discharge, "-",
-                {"ideal": ("rel", 1e-3), "realistic": ("rel", 3e-2)},
-                "realistic: plus the shunt's gain errors",
-                lambda b_: b_["battery_voltage_gain"] + b_["battery_current_gain"]),
-        _Expect("battery", "battery.beta_charge", bat.beta_charge, "-",
-                {"ideal": ("rel", 1e-3), "realistic": ("rel", 3e-2)},
-                "realistic: plus the shunt's gain errors",
-                lambda b_: b_["battery_voltage_gain"] + b_["battery_current_gain"]),
-    ]
+    if vehicle.battery is not None:  # nor a pack
+        bat = vehicle.battery
+        exp += [
+            _Expect("battery", "battery.alpha", bat.alpha, "-", {"ideal": ("rel", 1e-3), "realistic": ("rel", 2e-3)},
+                    "realistic: plus the voltage gain error of the battery shunt",
+                    lambda b_: b_["battery_voltage_gain"]),
+            _Expect("battery", "battery.beta_discharge", bat.beta_discharge, "-",
+                    {"ideal": ("rel", 1e-3), "realistic": ("rel", 3e-2)},
+                    "realistic: plus the shunt's gain errors",
+                    lambda b_: b_["battery_voltage_gain"] + b_["battery_current_gain"]),
+            _Expect("battery", "battery.beta_charge", bat.beta_charge, "-",
+                    {"ideal": ("rel", 1e-3), "realistic": ("rel", 3e-2)},
+                    "realistic: plus the shunt's gain errors",
+                    lambda b_: b_["battery_voltage_gain"] + b_["battery_current_gain"]),
+        ]
     exp.append(_Expect("torque_converter", "torque_converter.converter.gamma_coupling",
                        vehicle.torque_converter.coupling_speed_ratio, "-",
                        {"ideal": ("abs", 0.01), "realistic": ("abs", 0.03)},
@@ -340,6 +346,8 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
     checks += _bsfc_checks(result, vehicle, profile, budget)
     if profile == "realistic":
         for fit_name, (attr, minimum, what) in PAPER_R2.items():
+            if not vehicle.has_motor and fit_name.startswith(("motor", "battery")):
+                continue  # a conventional car: nothing of the kind to fit
             fit = (paper_sets or {}).get(fit_name) or result.fits.get(fit_name)
             val = float(getattr(fit, attr)) if fit is not None else float("nan")
             ok = bool(math.isfinite(val) and val >= minimum)

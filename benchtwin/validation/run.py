@@ -21,7 +21,7 @@ from benchtwin.emulator.cache import cached_campaign
 from benchtwin.errors import BenchtwinError, ConfigError
 from benchtwin.identification.run import identify_all
 from benchtwin.recording import Flag
-from benchtwin.sensors import devices
+from benchtwin.sensors import devices, setup_for_trace
 from benchtwin.trace import Trace
 from benchtwin.validation.chain import chain_checks
 from benchtwin.validation.coverage import interval_coverage
@@ -95,6 +95,11 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     elif trace is None:
         trace = simulate_campaign(vehicle, campaign, progress=progress)
     t1 = time.perf_counter()
+    # a car without some channels (a conventional car) is measured by the part of the setup it can feed
+    setup, dropped = setup_for_trace(setup, trace.meta.get("absent_channels", ()))
+    if dropped:
+        report.meta["layout"] = vehicle.layout
+        report.meta["dropped_devices"] = dropped
     bench = setup
     saver = None
     if fams is None:
@@ -132,7 +137,9 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
         "clipped_samples": {k: int(np.count_nonzero(c.flags & int(Flag.SATURATED))) for k, c in rec.channels.items()
                             if np.count_nonzero(c.flags & int(Flag.SATURATED))},
     }
-    gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings})
+    # a ramp-up with the lock-up held open drives the converter, not the gearbox at a known input speed
+    gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings
+                    and s.settings.get("lockup") != "open"})
     roles = None if fams is None else set().union(*(f.roles() for f in fams))
     report.checks = chain_checks(checked, rec, bench, profile=prof, roles=roles)
     want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
@@ -178,6 +185,10 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
     cycles = [s for s in trace.segments if s.kind == "cycle"]
     pred: dict[str, Any] = {"drives": [], "notes": []}
     report.prediction = pred
+    if not vehicle.has_motor:
+        pred["notes"].append("no prediction: the map-based vehicle model (validation/predict.py) is a P2 PHEV's; a "
+                             "conventional car's is not built")
+        return []
     if not cycles or len(trace.segments) < 2:
         pred["notes"].append("no prediction: the campaign has no driving cycle beside its identification tests to "
                              "hold out")
