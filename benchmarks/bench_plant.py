@@ -7,6 +7,8 @@ Measured:
 - numba compile time of the plant loop (cold, in a subprocess with an empty numba cache dir);
 - real-time factor of ``simulate_campaign`` over ``paper.toml`` at 100 Hz (median of >= 3 runs after a
   warm-up), whole call: protocol, loop, thermal post-processing, Trace assembly;
+- real-time factor of the conventional-layout plant (``conventional_9at.toml``) over ``conventional.toml`` at
+  100 Hz, measured as the paper campaign;
 - WLTC 3b with 1 Hz output: ours with the plant stepping internally at 10 Hz (and at 100 Hz for reference),
   FASTSim 3.1 with its bundled 2021 Sonata Hybrid on the same cycle (loaded from our cycle file), each the
   median of >= 7 runs in the same process.
@@ -26,6 +28,7 @@ import time
 import numpy as np
 
 from benchtwin.config import load_campaign, load_vehicle, validate_data
+from benchtwin.config._base import scenario_path
 from benchtwin.config.campaign import CampaignConfig
 from benchtwin.emulator import energy_balance, simulate_campaign
 from benchtwin.emulator.protocols import load_cycle
@@ -106,6 +109,20 @@ def main(argv: list[str] | None = None) -> int:
                  f"in {med:.2f} s wall median of {len(times)} ({', '.join(f'{t:.2f}' for t in times)} s): "
                  f"**real-time factor {tr.duration_s / med:,.0f}x** wall, {tr.duration_s / cpu:,.0f}x on CPU time "
                  f"({1e6 * cpu / steps:.2f} us CPU per step, whole simulate_campaign call)")
+
+    # the conventional layout: the same loop with the motor's terms zeroed, over the paper's engine tests
+    conv_vehicle = load_vehicle(scenario_path("vehicles", "conventional_9at.toml"))
+    conv = load_campaign("conventional.toml")
+    simulate_campaign(conv_vehicle, conv)
+    med, times = _median_time(lambda: simulate_campaign(conv_vehicle, conv), 3)
+    tr = simulate_campaign(conv_vehicle, conv)
+    steps = round(tr.duration_s * conv.plant_rate_hz)
+    cpu = _CPU[-1]
+    lines.append(f"- conventional.toml on conventional_9at at 100 Hz: {tr.duration_s:.0f} s simulated "
+                 f"({steps:,} steps, {len(tr.segments)} tests) in {med:.2f} s wall median of {len(times)}: "
+                 f"real-time factor {tr.duration_s / med:,.0f}x wall, {tr.duration_s / cpu:,.0f}x on CPU time "
+                 f"({1e6 * cpu / steps:.2f} us CPU per step)")
+    del tr
 
     # WLTC at 1 Hz output
     wltc = load_campaign("wltc.toml")
