@@ -333,8 +333,8 @@ def test_cli_bad_vehicle_and_setup_values_are_one_line(tmp_path: Path, capsys: p
     _fails_with(capsys, "--synthetic inf: give a duration in seconds",
                 "serve", "--setup", "ideal", "--synthetic", "inf")
     _fails_with(capsys,
-                "no such file, and no shipped campaign of that name (shipped: paper, paper_motor_map, paper_x10, "
-                "paper_x3, quick, wltc)",
+                "no such file, and no shipped campaign of that name (shipped: conventional, conventional_quick, "
+                "paper, paper_motor_map, paper_x10, paper_x3, quick, wltc)",
                 "simulate", "--campaign", "quik", "--out", tmp_path / "o")
     assert not (tmp_path / "o").exists()
 

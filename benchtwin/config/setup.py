@@ -14,7 +14,7 @@ from __future__ import annotations
 import difflib
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -282,8 +282,7 @@ class ThermoConfig(StrictModel):
         return self
 
 
-def _known_roles(errors: dict[str, ChannelErrors], allowed: tuple[str, ...], where: str
-                 ) -> dict[str, ChannelErrors]:
+def _known_roles(errors: dict[str, Any], allowed: tuple[str, ...], where: str) -> dict[str, Any]:
     for role in errors:
         if role not in allowed:
             close = difflib.get_close_matches(role, allowed, n=1, cutoff=0.6)
@@ -299,22 +298,13 @@ class VehicleCanConfig(StrictModel):
     errors: dict[str, ChannelErrors] = Field(default_factory=dict,
                                              description="per Recording role, in the role's unit")
     link: LinkErrors = Field(default_factory=LinkErrors)
-    not_sent: list[str] = Field(default_factory=list,
-                                description="roles the car does not send (a conventional car: the motor's, the "
-                                            "pack's): their signals carry the DBC's raw maximum, 'not available', "
-                                            "and nothing is recorded for them")
+    not_sent: list[str] = Field(default_factory=list, description="roles the car does not send (a conventional "
+                                "car's motor and pack roles): 'not available' on the wire, nothing recorded")
 
-    @field_validator("errors")
+    @field_validator("errors", "not_sent")
     @classmethod
-    def _roles(cls, v: dict[str, ChannelErrors]) -> dict[str, ChannelErrors]:
-        return _known_roles(v, VEHICLE_CAN_ROLES, "the vehicle CAN")
-
-    @field_validator("not_sent")
-    @classmethod
-    def _not_sent_roles(cls, v: list[str]) -> list[str]:
-        bad = [r for r in v if r not in VEHICLE_CAN_ROLES]
-        if bad:
-            raise ValueError(f"not_sent: unknown role(s) {', '.join(bad)}; allowed: {', '.join(VEHICLE_CAN_ROLES)}")
+    def _roles(cls, v: dict[str, ChannelErrors] | list[str]) -> dict[str, ChannelErrors] | list[str]:
+        _known_roles(dict.fromkeys(v), VEHICLE_CAN_ROLES, "the vehicle CAN")
         return v
 
 
