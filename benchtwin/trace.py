@@ -23,7 +23,8 @@ __all__ = ["TRACE_CHANNELS", "Trace", "TraceWriter"]
 
 #: The channels every Trace from the emulator carries, with their meaning. Sign conventions:
 #: torques positive when driving the wheels; battery and HV currents positive when discharging;
-#: brake pressures gauge; forces positive in the direction of travel resisting the vehicle.
+#: brake pressures gauge; forces positive in the direction of travel resisting the vehicle. A conventional car's
+#: Trace is NaN in the channels it does not have (the motor's, the pack's, K0: ``meta["absent_channels"]``).
 TRACE_CHANNELS: dict[str, str] = {
     "vehicle_speed_mps": "vehicle (wheel) speed",
     "vehicle_accel_mps2": "vehicle acceleration",

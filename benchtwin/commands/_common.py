@@ -27,6 +27,7 @@ __all__ = [
     "MIN_FREE_BYTES",
     "add_scenario_args",
     "add_seed_arg",
+    "campaign_for_vehicle",
     "check_writable",
     "load_campaign_arg",
     "load_scenario",
@@ -119,6 +120,20 @@ def load_campaign_arg(value: str | Path, seed: int | None = None) -> CampaignCon
     return with_seed(load_campaign(resolve_scenario("campaigns", value)), seed)
 
 
+def campaign_for_vehicle(vehicle: VehicleConfig, campaign: CampaignConfig) -> CampaignConfig:
+    """The campaign's tests the vehicle can drive: all of them, or for a conventional car (no motor) those that
+    :func:`benchtwin.emulator.conventional_tests`'s rule keeps, with a note on stderr naming the others."""
+    if vehicle.has_motor:
+        return campaign
+    from benchtwin.emulator import conventional_tests
+
+    campaign, dropped = conventional_tests(campaign)
+    if dropped:
+        print(f"note: vehicle {vehicle.name!r} has no motor: {len(dropped)} test(s) of the campaign need it and are "
+              f"left out ({', '.join(dropped)})", file=sys.stderr)
+    return campaign
+
+
 def load_scenario(args: argparse.Namespace) -> tuple[VehicleConfig, SetupConfig, CampaignConfig]:
     """Load the vehicle, setup and campaign named by the arguments (ConfigError on any problem).
 
@@ -126,14 +141,7 @@ def load_scenario(args: argparse.Namespace) -> tuple[VehicleConfig, SetupConfig,
     :func:`benchtwin.emulator.conventional_tests`'s rule, and a note on stderr names them.
     """
     vehicle = load_vehicle_arg(args.vehicle)
-    campaign = load_campaign_arg(args.campaign, getattr(args, "seed", None))
-    if not vehicle.has_motor:
-        from benchtwin.emulator import conventional_tests
-
-        campaign, dropped = conventional_tests(campaign)
-        if dropped:
-            print(f"note: vehicle {vehicle.name!r} has no motor: {len(dropped)} test(s) of the campaign need it and "
-                  f"are left out ({', '.join(dropped)})", file=sys.stderr)
+    campaign = campaign_for_vehicle(vehicle, load_campaign_arg(args.campaign, getattr(args, "seed", None)))
     return vehicle, load_setup_arg(args.setup), campaign
 
 

@@ -92,6 +92,9 @@ def _load_trace(args: argparse.Namespace) -> tuple[Any, int]:
 
     campaign = load_campaign_arg(args.campaign, args.seed)
     vehicle = load_vehicle_arg(args.vehicle)
+    if not vehicle.has_motor:
+        raise ConfigError(f"serve: vehicle {vehicle.name!r} is a conventional car; the live bench emulates the P2 "
+                          "PHEV only (use benchtwin validate / acquire for a conventional car)")
     seed = int(campaign.seed)
     print(f"simulating {args.campaign} ...", flush=True)
     return simulate_campaign(vehicle, campaign), seed

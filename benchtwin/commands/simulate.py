@@ -11,7 +11,13 @@ import argparse
 import time
 from pathlib import Path
 
-from benchtwin.commands._common import add_seed_arg, load_campaign_arg, load_vehicle_arg, writable_dir
+from benchtwin.commands._common import (
+    add_seed_arg,
+    campaign_for_vehicle,
+    load_campaign_arg,
+    load_vehicle_arg,
+    writable_dir,
+)
 from benchtwin.errors import DataError
 
 __all__ = ["add_subparser", "run"]
@@ -37,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from benchtwin.trace import TraceWriter
 
     vehicle = load_vehicle_arg(args.vehicle)
-    campaign = load_campaign_arg(args.campaign, args.seed)
+    campaign = campaign_for_vehicle(vehicle, load_campaign_arg(args.campaign, args.seed))
     writable_dir(args.out, "--out")
     bar = None
     steps = lazy_protocol(campaign).steps
