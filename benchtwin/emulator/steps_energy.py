@@ -90,8 +90,8 @@ def engine_fuel(tab: PlantTables, engine_on: bool, k0_closed: bool, engine_torqu
                 engine_speed_radps: float, start_fuel_kg: float, coolant_degc: float) -> tuple[float, float]:
     """Engine fuel (eq. 26-28): BSFC(omega, BMEP = 4 pi T / V_d) T omega when driving through K0, the map's
     lowest-BMEP flow when motoring or idling free, nothing when off or (a conventional car) in overrun, plus the
-    start's fuel mass. The
-    high-fidelity plant multiplies the running flow by the cold-start factor of the coolant temperature.
+    start's fuel mass. The high-fidelity plant multiplies the running flow by the cold-start factor of the
+    coolant temperature.
 
     Returns
     -------
