@@ -296,8 +296,8 @@ def conventional_tests(campaign: CampaignConfig) -> tuple[CampaignConfig, dict[s
     Returns
     -------
     tuple
-        The campaign with the kept tests (same seed, rates, dyno and driver; its name suffixed ``:conventional``)
-        and ``{test name: reason}`` of the dropped ones.
+        The campaign with the kept tests (same seed, rates, dyno and driver; its name suffixed ``:conventional``
+        when a test was dropped) and ``{test name: reason}`` of the dropped ones.
 
     Raises
     ------
@@ -309,6 +309,8 @@ def conventional_tests(campaign: CampaignConfig) -> tuple[CampaignConfig, dict[s
     if not kept:
         raise ConfigError(f"campaign {campaign.name!r}: no test a conventional car can drive (each needs the motor "
                           f"or the pack)")
+    if not dropped:
+        return campaign, dropped
     return campaign.model_copy(update={"tests": kept, "name": f"{campaign.name}:conventional"}), dropped
 
 

@@ -170,6 +170,10 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         An unknown family.
     """
     fams = resolve_families(families) or list(FAMILIES.values())
+    # a conventional car: no motor or pack to plan for, and no coast line (its only negative gearbox input is
+    # the engine's overrun drag, one torque per speed; validation expects none either)
+    unplanned = [f.name for f in fams if not vehicle.has_motor and f.name in ("motor", "battery")]
+    fams = [f for f in fams if f.name not in unplanned]
     names = [f.name for f in fams]
     if trace is None:
         if cache is False:
@@ -181,6 +185,8 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
     plan = Plan(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
                       "seed": campaign.seed, "families": names,
                       "noise": {k: {"noise_std": v.sigma, "step": v.q} for k, v in sorted(noise.items())}})
+    if unplanned:
+        plan.meta["not_planned"] = {n: "a conventional car has no motor or HV pack" for n in unplanned}
     segments = list(trace.segments)
     conv = any(f.name == "torque_converter" for f in fams)
     rec, raw = planned_recording(setup, campaign, trace, families, recorded=CONVERTER_RECORDED if conv else ())
@@ -201,4 +207,6 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
         else:
             plan.parameters += plan_presence(fam.name, segments, noise, fam.roles())
+    if not vehicle.has_motor:
+        plan.parameters = [p for p in plan.parameters if "_coast." not in p.name]
     return plan
