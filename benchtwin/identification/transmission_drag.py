@@ -1,23 +1,26 @@
-"""The gearbox's drag as a function of the oil temperature: ``C0_g(T) = C0_g,ref exp(-k_T (T - T_ref))``.
+"""The gearbox's drag as a function of oil temperature and input speed (issue 9).
 
 Eq. 14 gives each gear one constant drag ``C0``. A real gearbox's load-independent spin loss falls as the oil
-warms (the ATF's viscosity falls about 1-2 %/K), so a ``C0`` identified on points run with the oil at one
-temperature misjudges a drive at another. When the Recording logs the gearbox oil (role ``gearbox_oil_degc``,
-a thermocouple in the sump), every steady point of :func:`~benchtwin.identification.transmission
-.transmission_points` carries its oil temperature, and one fit over all gears and directions finds
+warms (the ATF's viscosity falls about 1-2 %/K) and grows with the input speed (churning, the pump), so a ``C0``
+identified on points run with the oil at one temperature and speed misjudges a drive at others. When the
+Recording logs the gearbox oil (role ``gearbox_oil_degc``, a thermocouple in the sump), every steady point of
+:func:`~benchtwin.identification.transmission.transmission_points` carries its oil temperature, and one fit over
+all gears and directions finds
 
-``eta = eta_m,g - eta_m,g C0_g,ref exp(-k_T (T - T_ref)) / C``  (drive ``C = C_in``; coast ``C = |T_out| / i_g``)
+``eta = eta_m,g - eta_m,g C0_g (1 + k_w |w_in|) exp(-k_T (T - T_ref)) / C``
 
-with one ``k_T`` shared by the gears (the same oil) and ``eta_m``, ``C0_ref`` per gear and direction, weighted as
-eq. 15-17 (``C^2``, normalised per group). For a given ``k_T`` the problem is linear per group; ``k_T`` minimises
-the profile sum of squares, and its standard error comes from the profile's curvature
-(``se^2 = 2 s^2 / SSE''``, ``s^2 = SSE / (N - 2 G - 1)``). ``T_ref`` is the points' median oil temperature.
+(drive ``C = C_in``; coast ``C = |T_out| / i_g``) with ``k_T`` and ``k_w`` shared by the gears (the same oil and
+pump) and ``eta_m``, ``C0`` per gear and direction, weighted as eq. 15-17 (``C^2``, normalised per group). For
+given ``(k_T, k_w)`` the problem is linear per group; the two minimise the profile sum of squares, and their
+covariance comes from the profile's curvature (``2 s^2 H^-1``, ``s^2 = SSE / (N - 2 G - 2)``). ``T_ref`` is the
+points' median oil temperature. When the speed term is not supported (Hessian not positive definite or ``k_w``
+within three standard errors of zero) it is dropped and ``k_T`` fitted alone.
 
-Fit ``transmission.drag``: ``k_T`` (1/K), ``T_ref`` (degC) and ``eta_m_<group>``, ``C0_<group>`` per group
-(``g5``, ``g5_coast``). The map-based vehicle model applies it (``data["use"]``) only when the data support it:
-the oil temperature spans at least :data:`MIN_SPAN_K`, ``k_T`` is at least three standard errors from zero and
-the drag it implies changes by at least :data:`MIN_EFFECT` over the span; else eq. 14's constant ``C0`` stays
-and the fit says why (flagged when the span is too small to tell).
+Fit ``transmission.drag``: ``k_T`` (1/K), ``k_w`` (s/rad), ``T_ref`` (degC) and ``eta_m_<group>``,
+``C0_<group>`` per group (``g5``, ``g5_coast``). The map-based vehicle model applies it (``data["use"]``) only
+when the data support it: the oil temperature spans at least :data:`MIN_SPAN_K`, ``k_T`` is at least three
+standard errors from zero and the drag it implies changes by at least :data:`MIN_EFFECT` over the span; else
+eq. 14's constant ``C0`` stays and the fit says why (flagged when the span is too small to tell).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.optimize import minimize
 
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate
 
@@ -37,34 +40,75 @@ DRAG_KEY = "transmission.drag"
 MIN_SPAN_K = 15.0
 #: the least relative change of the drag over the points' span that is worth a model (below it eq. 14 stays)
 MIN_EFFECT = 0.05
-#: bounds of the search for k_T, 1/K (an ATF's viscosity falls 1-3 %/K; a negative value is allowed to be found)
-K_BOUNDS = (-0.05, 0.08)
+
+Groups = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
-def drag_c0(fit: FitResult, group: str, oil_degc: np.ndarray | float) -> np.ndarray:
-    """The drag ``C0`` of one group (``"g5"``, ``"g5_coast"``) at the oil temperature ``oil_degc``, Nm."""
+def drag_c0(fit: FitResult, group: str, oil_degc: np.ndarray | float, speed_radps: np.ndarray | float
+            ) -> np.ndarray:
+    """The drag of one group (``"g5"``, ``"g5_coast"``) at oil temperature ``oil_degc`` and input speed, Nm."""
     t = np.asarray(oil_degc, dtype=float)
-    return fit.value(f"C0_{group}") * np.exp(-fit.value("k_T") * (t - fit.value("T_ref")))
+    w = np.abs(np.asarray(speed_radps, dtype=float))
+    kw = fit.value("k_w") if "k_w" in fit.params else 0.0
+    return fit.value(f"C0_{group}") * (1.0 + kw * w) * np.exp(-fit.value("k_T") * (t - fit.value("T_ref")))
 
 
-def _solve(groups: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], k: float, t_ref: float
-           ) -> tuple[float, dict[str, tuple[np.ndarray, np.ndarray]]]:
-    """Weighted least squares per group at a given ``k_T``: the total SSE and each group's (x, covariance / s^2)."""
+def _solve(groups: Groups, k: float, kw: float, t_ref: float) -> tuple[float, dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """Weighted least squares per group at given ``(k_T, k_w)``: the total SSE and each group's (x, (A'WA)^-1)."""
     sse = 0.0
     sol = {}
-    for name, (c, eta, oil) in groups.items():
+    for name, (c, eta, oil, w_in) in groups.items():
         w = c**2 / np.mean(c**2)
-        A = np.column_stack([np.ones_like(c), -np.exp(-k * (oil - t_ref)) / c])
-        sw = np.sqrt(w)
-        x, *_ = np.linalg.lstsq(A * sw[:, None], eta * sw, rcond=None)
-        r = (eta - A @ x) * sw
+        A = np.column_stack([np.ones_like(c), -(1.0 + kw * w_in) * np.exp(-k * (oil - t_ref)) / c])
+        Aw = A * np.sqrt(w)[:, None]
+        x, *_ = np.linalg.lstsq(Aw, eta * np.sqrt(w), rcond=None)
+        r = (eta - A @ x) * np.sqrt(w)
         sse += float(r @ r)
-        sol[name] = (x, np.linalg.pinv((A * sw[:, None]).T @ (A * sw[:, None])))
+        sol[name] = (x, np.linalg.pinv(Aw.T @ Aw))
     return sse, sol
 
 
-def add_drag_fit(result: IdentificationResult, groups: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
-                 segments: list[str]) -> None:
+def _hessian(f, x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    n = x.size
+    H = np.zeros((n, n))
+    f0 = f(x)
+    for i in range(n):
+        ei = np.zeros(n)
+        ei[i] = h[i]
+        H[i, i] = (f(x + ei) - 2.0 * f0 + f(x - ei)) / h[i] ** 2
+        for j in range(i + 1, n):
+            ej = np.zeros(n)
+            ej[j] = h[j]
+            H[i, j] = H[j, i] = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (4 * h[i] * h[j])
+    return H
+
+
+def _profile(groups: Groups, t_ref: float, with_speed: bool, dof: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(k_T, k_w)``, their covariance and the SSE at the minimum (``k_w`` = 0 without the speed term)."""
+    if with_speed:
+        def f(x: np.ndarray) -> float:
+            return _solve(groups, float(x[0]), float(x[1]), t_ref)[0]
+        x0, h = np.array([0.01, 0.001]), np.array([1e-4, 1e-5])
+    else:
+        def f(x: np.ndarray) -> float:
+            return _solve(groups, float(x[0]), 0.0, t_ref)[0]
+        x0, h = np.array([0.01]), np.array([1e-4])
+    res = minimize(f, x0, method="Nelder-Mead", options={"xatol": 1e-8, "fatol": 1e-14, "maxiter": 4000})
+    x = np.asarray(res.x, dtype=float)
+    sse = float(f(x))
+    H = _hessian(f, x, h)
+    try:
+        cov = 2.0 * sse / dof * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        cov = np.full(H.shape, np.inf)
+    if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) <= 0):
+        cov = np.diag(np.full(x.size, np.inf))
+    if not with_speed:
+        x, cov = np.array([x[0], 0.0]), np.array([[cov[0, 0], 0.0], [0.0, 0.0]])
+    return x, cov, sse
+
+
+def add_drag_fit(result: IdentificationResult, groups: Groups, segments: list[str], *, note: str = "") -> None:
     """Fit ``transmission.drag`` on the steady points (with their oil temperature) and put it into ``result``.
 
     Parameters
@@ -72,10 +116,12 @@ def add_drag_fit(result: IdentificationResult, groups: dict[str, tuple[np.ndarra
     result:
         Where the fit (or why not) goes.
     groups:
-        Group name (``"g5"``, ``"g5_coast"``) -> ``(C, eta, T_oil)`` of its points inside eq. 14's domain with an
-        oil reading (:func:`~benchtwin.identification.transmission.identify_transmission` builds them).
+        Group name (``"g5"``, ``"g5_coast"``) -> ``(C, eta, T_oil, |w_in|)`` of its points inside eq. 14's domain
+        with an oil reading (:func:`~benchtwin.identification.transmission.identify_transmission` builds them).
     segments:
         Segments the points came from.
+    note:
+        Which points the groups hold (goes into the fit's reasons).
 
     Notes
     -----
@@ -89,46 +135,50 @@ def add_drag_fit(result: IdentificationResult, groups: dict[str, tuple[np.ndarra
     oil = np.concatenate([v[2] for v in groups.values()])
     t_ref = float(np.median(oil))
     span = float(oil.max() - oil.min())
-    dof = n - 2 * len(groups) - 1
+    dof = n - 2 * len(groups) - 2
     if dof < 1:
-        result.errors[DRAG_KEY] = (f"InsufficientDataError: transmission.drag: {n} points for {2 * len(groups) + 1} "
+        result.errors[DRAG_KEY] = (f"InsufficientDataError: transmission.drag: {n} points for {2 * len(groups) + 2} "
                                    "unknowns")
         return
-    res = minimize_scalar(lambda k: _solve(groups, k, t_ref)[0], bounds=K_BOUNDS, method="bounded",
-                          options={"xatol": 1e-7})
-    k = float(res.x)
-    sse, sol = _solve(groups, k, t_ref)
-    sse0, _ = _solve(groups, 0.0, t_ref)
+    notes = []
+    x, cov, sse = _profile(groups, t_ref, True, dof)
+    se = np.sqrt(np.diag(cov))
+    if not (np.isfinite(se[1]) and abs(x[1]) >= 3.0 * se[1] and x[1] > -1.0 / 1000.0):
+        notes.append(f"speed term not supported (k_w = {x[1]:.2e} +/- {se[1]:.1e} s/rad): dropped")
+        x, cov, sse = _profile(groups, t_ref, False, dof + 1)
+        se = np.sqrt(np.diag(cov))
+    k, kw = float(x[0]), float(x[1])
+    se_k, se_kw = float(se[0]), float(se[1])
+    sse0, _ = _solve(groups, 0.0, 0.0, t_ref)
+    _, sol = _solve(groups, k, kw, t_ref)
     s2 = sse / dof
-    h = 1e-4
-    curv = (_solve(groups, k + h, t_ref)[0] - 2.0 * sse + _solve(groups, k - h, t_ref)[0]) / h**2
-    se_k = math.sqrt(2.0 * s2 / curv) if curv > 0 else float("inf")
     segs = sorted({s for s in segments if s})
 
-    def est(name: str, value: float, se: float, unit: str) -> ParameterEstimate:
-        return ParameterEstimate(name, value, se, (value - 1.96 * se, value + 1.96 * se), float("nan"), n, unit,
+    def est(name: str, value: float, std: float, unit: str) -> ParameterEstimate:
+        return ParameterEstimate(name, value, std, (value - 1.96 * std, value + 1.96 * std), float("nan"), n, unit,
                                  segs)
 
-    params = {"k_T": est("k_T", k, se_k, "1/K"), "T_ref": est("T_ref", t_ref, 0.0, "degC")}
-    for name, (x, cov) in sol.items():
-        se = np.sqrt(np.maximum(np.diag(cov) * s2, 0.0))
-        eta_m = float(x[0])
-        c0 = float(x[1] / x[0])
-        se_c0 = float(abs(c0) * math.hypot(se[1] / max(abs(x[1]), 1e-12), se[0] / max(abs(x[0]), 1e-12)))
-        params[f"eta_m_{name}"] = est(f"eta_m_{name}", eta_m, float(se[0]), "-")
+    params = {"k_T": est("k_T", k, se_k, "1/K"), "k_w": est("k_w", kw, se_kw, "s/rad"),
+              "T_ref": est("T_ref", t_ref, 0.0, "degC")}
+    for name, (xg, covg) in sol.items():
+        seg_ = np.sqrt(np.maximum(np.diag(covg) * s2, 0.0))
+        eta_m = float(xg[0])
+        c0 = float(xg[1] / xg[0])
+        se_c0 = float(abs(c0) * math.hypot(seg_[1] / max(abs(xg[1]), 1e-12), seg_[0] / max(abs(xg[0]), 1e-12)))
+        params[f"eta_m_{name}"] = est(f"eta_m_{name}", eta_m, float(seg_[0]), "-")
         params[f"C0_{name}"] = est(f"C0_{name}", c0, se_c0, "Nm")
     y = np.concatenate([v[1] for v in groups.values()])
-    ybar = float(np.mean(y))
-    sst = float(np.sum((y - ybar) ** 2))
-    fit = FitResult(params, r2=1.0 - sse / sst if sst > 0 else float("nan"),
-                    adj_r2=float("nan"), rmse=math.sqrt(sse / n), n_points=n, segments=segs)
+    sst = float(np.sum((y - np.mean(y)) ** 2))
+    fit = FitResult(params, r2=1.0 - sse / sst if sst > 0 else float("nan"), adj_r2=float("nan"),
+                    rmse=math.sqrt(sse / n), n_points=n, segments=segs)
     effect = abs(math.expm1(-k * span))
-    significant = abs(k) >= 3.0 * se_k
+    significant = bool(np.isfinite(se_k) and abs(k) >= 3.0 * se_k)
     use = span >= MIN_SPAN_K and significant and effect >= MIN_EFFECT and all(
         0.5 < params[f"eta_m_{g}"].value <= 1.0 for g in sol)
     fit.reasons.append(f"oil {oil.min():.1f}..{oil.max():.1f} degC over {n} points in {len(groups)} gear/direction "
-                       f"groups; k_T = {k:.4f} +/- {se_k:.4f} 1/K (drag {-k * 100:+.2f} %/K); weighted SSE "
-                       f"{sse:.3g} against {sse0:.3g} with a constant C0 per group")
+                       f"groups; k_T = {k:.4f} +/- {se_k:.4f} 1/K (drag {-k * 100:+.2f} %/K), k_w = {kw:.2e} +/- "
+                       f"{se_kw:.1e} s/rad; weighted SSE {sse:.3g} against {sse0:.3g} with a constant C0 per group")
+    fit.reasons.extend(([note] if note else []) + notes)
     if span < MIN_SPAN_K:
         fit.flag(f"the oil temperature spans {span:.1f} K < {MIN_SPAN_K:g} K: too little to identify k_T; the "
                  "constant C0 of eq. 14 is kept")
@@ -137,6 +187,6 @@ def add_drag_fit(result: IdentificationResult, groups: dict[str, tuple[np.ndarra
                            f"or the drag moves by {effect:.1%} < {MIN_EFFECT:.0%} over the span, or an eta_m "
                            "outside (0.5, 1]): the constant C0 of eq. 14 is kept")
     else:
-        fit.reasons.append("used by the map-based vehicle model at the drive's oil temperature")
+        fit.reasons.append("used by the map-based vehicle model at the drive's oil temperature and input speed")
     fit.data.update(use=np.array([use]), oil_span_k=np.array([span]), sse_constant=np.array([sse0]))
     result.fits[DRAG_KEY] = fit

@@ -117,8 +117,9 @@ class MapVehicle:
         self.drag: FitResult | None = None
         if drag is not None and drag.status == "ok" and bool(np.all(np.asarray(drag.data.get("use", [False])))):
             self.drag = drag
-            self.notes.append(f"gearbox drag C0(T_oil) = C0_ref exp(-k_T (T - T_ref)) from {DRAG_KEY} "
-                              f"(k_T = {drag.value('k_T'):.4f} 1/K) at the drive's measured oil temperature")
+            self.notes.append(f"gearbox drag C0 (1 + k_w |w_in|) exp(-k_T (T_oil - T_ref)) from {DRAG_KEY} "
+                              f"(k_T = {drag.value('k_T'):.4f} 1/K, k_w = {drag.value('k_w'):.2e} s/rad) at the "
+                              "drive's measured oil temperature (a measured input, as the ambient)")
         mot = _fit(result, "motor.motoring", "e", "W_loss")
         gen = _fit(result, "motor.generating", "e_gen", "W_loss_gen")
         if mot is None:
@@ -242,30 +243,32 @@ class MapVehicle:
         near = min(gears, key=lambda g: abs(g - gear))
         return self.tx[(near, "drive")]
 
-    def _eta_c0_at(self, gear: int, direction: str, oil: np.ndarray | None) -> tuple[Any, Any]:
+    def _eta_c0_at(self, gear: int, direction: str, oil: np.ndarray | None, w_in: np.ndarray) -> tuple[Any, Any]:
         """``(eta_m, C0)`` of a gear and direction, C0 at the oil temperature when the drag model is used."""
         group = f"g{gear}" + ("_coast" if direction == "coast" else "")
         if self.drag is not None and oil is not None and f"C0_{group}" in self.drag.params:
-            return self.drag.value(f"eta_m_{group}"), drag_c0(self.drag, group, oil)
+            return self.drag.value(f"eta_m_{group}"), drag_c0(self.drag, group, oil, w_in)
         if self.drag is not None and oil is not None and direction == "coast" and f"C0_g{gear}" in self.drag.params:
-            return self._eta_c0_at(gear, "drive", oil)
+            return self._eta_c0_at(gear, "drive", oil, w_in)
         return self._eta_c0(gear, direction)
 
-    def input_torque_nm(self, gear: np.ndarray, out_torque_nm: np.ndarray, oil_degc: np.ndarray | None = None
-                        ) -> np.ndarray:
+    def input_torque_nm(self, gear: np.ndarray, out_torque_nm: np.ndarray, oil_degc: np.ndarray | None = None,
+                        input_speed_radps: np.ndarray | None = None) -> np.ndarray:
         """Gearbox input torque from the output (propeller shaft) torque, eq. 14 per gear and direction.
 
-        With ``oil_degc`` (per sample) and an identified ``transmission.drag`` the drag is taken at the oil
-        temperature; else eq. 14's constant ``C0``.
+        With ``oil_degc`` and ``input_speed_radps`` (per sample) and an identified ``transmission.drag`` the drag
+        is taken at the oil temperature and input speed; else eq. 14's constant ``C0``.
         """
         t_in = np.zeros_like(out_torque_nm)
+        use_drag = oil_degc is not None and input_speed_radps is not None
         for g in np.unique(gear[gear > 0]).astype(int):
             i_g = self.specs.gear_ratios[g - 1]
             m = gear == g
             to = out_torque_nm[m]
-            oil = None if oil_degc is None else np.asarray(oil_degc, dtype=float)[m]
-            eta_d, c0_d = self._eta_c0_at(g, "drive", oil)
-            eta_c, c0_c = self._eta_c0_at(g, "coast", oil)
+            oil = np.asarray(oil_degc, dtype=float)[m] if use_drag else None
+            w_in = np.asarray(input_speed_radps, dtype=float)[m] if use_drag else np.zeros(int(m.sum()))
+            eta_d, c0_d = self._eta_c0_at(g, "drive", oil, w_in)
+            eta_c, c0_c = self._eta_c0_at(g, "coast", oil, w_in)
             t_in[m] = np.where(to >= 0, to / (i_g * eta_d) + c0_d, eta_c * (to / i_g + c0_c))
         return t_in
 
@@ -385,7 +388,7 @@ class MapVehicle:
         t_out = np.where(gear > 0, t_out, 0.0)
         ratio = np.array([0.0, *list(sp.gear_ratios)])[gear]
         w_t = v / sp.wheel_radius_m * sp.final_drive_ratio * ratio
-        t_t = self.input_torque_nm(gear, t_out, drive.oil_degc)
+        t_t = self.input_torque_nm(gear, t_out, drive.oil_degc, w_t)
         t_t = np.where(moving & (gear > 0), t_t, 0.0)
         lock = drive.lockup_closed > 0.5
         w_p, t_p = w_t.copy(), t_t.copy()
