@@ -53,19 +53,35 @@ def drag_c0(fit: FitResult, group: str, oil_degc: np.ndarray | float, speed_radp
     return fit.value(f"C0_{group}") * (1.0 + kw * w) * np.exp(-fit.value("k_T") * (t - fit.value("T_ref")))
 
 
-def _solve(groups: Groups, k: float, kw: float, t_ref: float) -> tuple[float, dict[str, tuple[np.ndarray, np.ndarray]]]:
-    """Weighted least squares per group at given ``(k_T, k_w)``: the total SSE and each group's (x, (A'WA)^-1)."""
-    sse = 0.0
-    sol = {}
-    for name, (c, eta, oil, w_in) in groups.items():
-        w = c**2 / np.mean(c**2)
-        A = np.column_stack([np.ones_like(c), -(1.0 + kw * w_in) * np.exp(-k * (oil - t_ref)) / c])
-        Aw = A * np.sqrt(w)[:, None]
-        x, *_ = np.linalg.lstsq(Aw, eta * np.sqrt(w), rcond=None)
-        r = (eta - A @ x) * np.sqrt(w)
-        sse += float(r @ r)
-        sol[name] = (x, np.linalg.pinv(Aw.T @ Aw))
-    return sse, sol
+class _Points:
+    """The groups' points concatenated, with each point's group index and weight (one vectorised solve per call)."""
+
+    def __init__(self, groups: Groups) -> None:
+        self.names = list(groups)
+        self.idx = np.concatenate([np.full(v[0].size, k) for k, v in enumerate(groups.values())])
+        self.c = np.concatenate([v[0] for v in groups.values()])
+        self.eta = np.concatenate([v[1] for v in groups.values()])
+        self.oil = np.concatenate([v[2] for v in groups.values()])
+        self.w_in = np.concatenate([v[3] for v in groups.values()])
+        self.w = np.concatenate([v[0] ** 2 / np.mean(v[0] ** 2) for v in groups.values()])
+        g = len(self.names)
+        self.s11 = np.bincount(self.idx, self.w, g)
+        self.r1 = np.bincount(self.idx, self.w * self.eta, g)
+        self.yy = float(np.sum(self.w * self.eta**2))
+
+    def solve(self, k: float, kw: float, t_ref: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """Weighted least squares of every group at ``(k_T, k_w)``: total SSE, ``eta_m``, ``eta_m C0`` per group
+        and the normal matrices' entries ``(S11, S12, S22)`` per group (rows of a ``(G, 3)`` array)."""
+        g = len(self.names)
+        b = -(1.0 + kw * self.w_in) * np.exp(-k * (self.oil - t_ref)) / self.c
+        s12 = np.bincount(self.idx, self.w * b, g)
+        s22 = np.bincount(self.idx, self.w * b * b, g)
+        r2 = np.bincount(self.idx, self.w * b * self.eta, g)
+        det = self.s11 * s22 - s12**2
+        x1 = (s22 * self.r1 - s12 * r2) / det
+        x2 = (self.s11 * r2 - s12 * self.r1) / det
+        sse = max(self.yy - float(np.sum(x1 * self.r1 + x2 * r2)), 0.0)
+        return sse, x1, x2, np.column_stack([self.s11, s12, s22])
 
 
 def _hessian(f, x: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -83,15 +99,15 @@ def _hessian(f, x: np.ndarray, h: np.ndarray) -> np.ndarray:
     return H
 
 
-def _profile(groups: Groups, t_ref: float, with_speed: bool, dof: int) -> tuple[np.ndarray, np.ndarray, float]:
+def _profile(pts: _Points, t_ref: float, with_speed: bool, dof: int) -> tuple[np.ndarray, np.ndarray, float]:
     """``(k_T, k_w)``, their covariance and the SSE at the minimum (``k_w`` = 0 without the speed term)."""
     if with_speed:
         def f(x: np.ndarray) -> float:
-            return _solve(groups, float(x[0]), float(x[1]), t_ref)[0]
+            return pts.solve(float(x[0]), float(x[1]), t_ref)[0]
         x0, h = np.array([0.01, 0.001]), np.array([1e-4, 1e-5])
     else:
         def f(x: np.ndarray) -> float:
-            return _solve(groups, float(x[0]), 0.0, t_ref)[0]
+            return pts.solve(float(x[0]), 0.0, t_ref)[0]
         x0, h = np.array([0.01]), np.array([1e-4])
     res = minimize(f, x0, method="Nelder-Mead", options={"xatol": 1e-8, "fatol": 1e-14, "maxiter": 4000})
     x = np.asarray(res.x, dtype=float)
@@ -101,7 +117,7 @@ def _profile(groups: Groups, t_ref: float, with_speed: bool, dof: int) -> tuple[
         cov = 2.0 * sse / dof * np.linalg.inv(H)
     except np.linalg.LinAlgError:
         cov = np.full(H.shape, np.inf)
-    if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) <= 0):
+    if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) < 0):
         cov = np.diag(np.full(x.size, np.inf))
     if not with_speed:
         x, cov = np.array([x[0], 0.0]), np.array([[cov[0, 0], 0.0], [0.0, 0.0]])
@@ -141,16 +157,17 @@ def add_drag_fit(result: IdentificationResult, groups: Groups, segments: list[st
                                    "unknowns")
         return
     notes = []
-    x, cov, sse = _profile(groups, t_ref, True, dof)
+    pts = _Points(groups)
+    x, cov, sse = _profile(pts, t_ref, True, dof)
     se = np.sqrt(np.diag(cov))
     if not (np.isfinite(se[1]) and abs(x[1]) >= 3.0 * se[1] and x[1] > -1.0 / 1000.0):
         notes.append(f"speed term not supported (k_w = {x[1]:.2e} +/- {se[1]:.1e} s/rad): dropped")
-        x, cov, sse = _profile(groups, t_ref, False, dof + 1)
+        x, cov, sse = _profile(pts, t_ref, False, dof + 1)
         se = np.sqrt(np.diag(cov))
     k, kw = float(x[0]), float(x[1])
     se_k, se_kw = float(se[0]), float(se[1])
-    sse0, _ = _solve(groups, 0.0, 0.0, t_ref)
-    _, sol = _solve(groups, k, kw, t_ref)
+    sse0 = pts.solve(0.0, 0.0, t_ref)[0]
+    _, x1, x2, nm = pts.solve(k, kw, t_ref)
     s2 = sse / dof
     segs = sorted({s for s in segments if s})
 
@@ -160,10 +177,13 @@ def add_drag_fit(result: IdentificationResult, groups: Groups, segments: list[st
 
     params = {"k_T": est("k_T", k, se_k, "1/K"), "k_w": est("k_w", kw, se_kw, "s/rad"),
               "T_ref": est("T_ref", t_ref, 0.0, "degC")}
-    for name, (xg, covg) in sol.items():
-        seg_ = np.sqrt(np.maximum(np.diag(covg) * s2, 0.0))
-        eta_m = float(xg[0])
-        c0 = float(xg[1] / xg[0])
+    for gi, name in enumerate(pts.names):
+        s11, s12, s22 = nm[gi]
+        det = s11 * s22 - s12**2
+        seg_ = np.sqrt(np.maximum(np.array([s22, s11]) / det * s2, 0.0))  # diagonal of (A'WA)^-1 s^2
+        xg = (float(x1[gi]), float(x2[gi]))
+        eta_m = xg[0]
+        c0 = xg[1] / xg[0]
         se_c0 = float(abs(c0) * math.hypot(seg_[1] / max(abs(xg[1]), 1e-12), seg_[0] / max(abs(xg[0]), 1e-12)))
         params[f"eta_m_{name}"] = est(f"eta_m_{name}", eta_m, float(seg_[0]), "-")
         params[f"C0_{name}"] = est(f"C0_{name}", c0, se_c0, "Nm")
@@ -174,7 +194,7 @@ def add_drag_fit(result: IdentificationResult, groups: Groups, segments: list[st
     effect = abs(math.expm1(-k * span))
     significant = bool(np.isfinite(se_k) and abs(k) >= 3.0 * se_k)
     use = span >= MIN_SPAN_K and significant and effect >= MIN_EFFECT and all(
-        0.5 < params[f"eta_m_{g}"].value <= 1.0 for g in sol)
+        0.5 < params[f"eta_m_{g}"].value <= 1.0 for g in pts.names)
     fit.reasons.append(f"oil {oil.min():.1f}..{oil.max():.1f} degC over {n} points in {len(groups)} gear/direction "
                        f"groups; k_T = {k:.4f} +/- {se_k:.4f} 1/K (drag {-k * 100:+.2f} %/K), k_w = {kw:.2e} +/- "
                        f"{se_kw:.1e} s/rad; weighted SSE {sse:.3g} against {sse0:.3g} with a constant C0 per group")
