@@ -60,6 +60,7 @@ ROLES: dict[str, tuple[str, str]] = {
     "hpcu_coolant_out_degc": ("degC", "HPCU coolant outlet"),
     "motor_coolant_in_degc": ("degC", "motor coolant inlet"),
     "motor_coolant_out_degc": ("degC", "motor coolant outlet"),
+    "gearbox_oil_degc": ("degC", "gearbox oil (ATF) sump"),
 }
 
 

@@ -78,6 +78,7 @@ TRACE_CHANNELS: dict[str, str] = {
     "hpcu_coolant_out_degc": "HPCU coolant outlet",
     "motor_coolant_in_degc": "motor coolant inlet",
     "motor_coolant_out_degc": "motor coolant outlet",
+    "gearbox_oil_degc": "gearbox oil (ATF) sump temperature",
     "dcdc_lv_current_a": "DC/DC converter low-voltage output current",
     "dcdc_lv_voltage_v": "DC/DC converter low-voltage output voltage",
     "lv_battery_current_a": "12 V battery current (positive discharge)",

@@ -52,11 +52,12 @@ IVT_PLACES: dict[str, tuple[str, str, str, str]] = {
     "lv_battery": ("lv_battery_current_a", "lv_battery_voltage_v", "lv_battery_current_a", "lv_battery_voltage_v"),
 }
 
-#: thermocouple places of the paper (trace channel = role name)
+#: thermocouple places (trace channel = role name): the paper's nine, then the gearbox oil sump (issue 9: the
+#: gearbox's spin loss falls with the oil temperature, which a test engineer logs to identify it)
 THERMO_PLACES: tuple[str, ...] = (
     "engine_coolant_in_degc", "engine_coolant_out_degc", "battery_coolant_in_degc", "battery_coolant_out_degc",
     "battery_temp_degc", "hpcu_coolant_in_degc", "hpcu_coolant_out_degc", "motor_coolant_in_degc",
-    "motor_coolant_out_degc",
+    "motor_coolant_out_degc", "gearbox_oil_degc",
 )
 
 #: telemetry gains selectable on the rotary switch (paper, Table 2)
@@ -261,7 +262,7 @@ class ThermoConfig(StrictModel):
     node_id: int = Field(5, ge=1, le=127)
     pdo_period_ms: int = Field(100, ge=1, le=65535, description="TPDO event timer")
     places: list[str] = Field(default_factory=lambda: list(THERMO_PLACES),
-                              description="trace channel of each input, in input order (max 9)")
+                              description="trace channel of each input, in input order (max 10)")
     cold_junction_degc: float = Field(25.0, ge=-40, le=125, description="terminal temperature")
     cold_junction_error_degc: float = Field(0.0, ge=-50, le=50, description="error of the module's cold-junction "
                                                                             "sensor")
@@ -274,8 +275,8 @@ class ThermoConfig(StrictModel):
     @model_validator(mode="after")
     def _places(self) -> ThermoConfig:
         bad = [p for p in self.places if p not in THERMO_PLACES]
-        if bad or len(self.places) > 9 or len(set(self.places)) != len(self.places):
-            raise ValueError(f"places must be up to 9 distinct of {list(THERMO_PLACES)}; got {self.places}")
+        if bad or len(self.places) > 10 or len(set(self.places)) != len(self.places):
+            raise ValueError(f"places must be up to 10 distinct of {list(THERMO_PLACES)}; got {self.places}")
         if not self.range_max_degc > self.range_min_degc:
             raise ValueError(f"range_max_degc ({self.range_max_degc}) must be above range_min_degc "
                              f"({self.range_min_degc})")

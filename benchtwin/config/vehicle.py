@@ -277,6 +277,10 @@ class ThermalConfig(StrictModel):
     edrive_ua_w_per_k: float = Field(ge=0)
     edrive_coolant_flow_kgps: float = Field(gt=0)
     hpcu_share_of_motor_loss: float = Field(ge=0, le=1)
+    # assumption (as [high_fidelity.transmission]): 8 l ATF plus the case, cooled by the engine coolant; the
+    # paper-form plant's oil lump does not feed back (its gearbox has no temperature dependence)
+    gearbox_oil_heat_capacity_j_per_k: float = Field(40000.0, gt=0)
+    gearbox_oil_ua_w_per_k: float = Field(40.0, ge=0, description="oil to the engine coolant (heat exchanger)")
 
 
 class MotorLossConfig(StrictModel):

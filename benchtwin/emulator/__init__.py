@@ -85,6 +85,7 @@ from benchtwin.emulator.params import (
     O_SOC,
     O_T_BATT,
     O_T_COOLANT,
+    O_T_OIL,
     O_TBF,
     O_TBR,
     O_TE,
@@ -378,8 +379,9 @@ def _trace_of(run: _Run, vehicle: VehicleConfig, campaign: CampaignConfig, out: 
     for name, col in _DIRECT.items():  # views on the output rows; a row shared by two channels is copied once
         channels[name] = out[col] if col not in used else out[col].copy()
         used.add(col)
+    q_trans = out[O_TIN] * out[O_WT] - out[O_TOUT] * out[O_WS]  # gearbox input minus output power
     channels.update(simulate_thermal(vehicle.thermal, dt_out, out[O_Q_ENGINE], out[O_Q_MOTOR],
-                                     out[O_Q_BATT], campaign.ambient_degc, run.thermal))
+                                     out[O_Q_BATT], campaign.ambient_degc, run.thermal, q_trans))
     if vehicle.high_fidelity is not None:
         # the high-fidelity plant carries the cell and coolant temperatures it feeds back: the thermocouples
         # read those states (the coolant inlet keeps the post-processed radiator drop)
@@ -387,6 +389,7 @@ def _trace_of(run: _Run, vehicle: VehicleConfig, campaign: CampaignConfig, out: 
         channels["battery_temp_degc"] = out[O_T_BATT].copy()
         channels["engine_coolant_out_degc"] = out[O_T_COOLANT].copy()
         channels["engine_coolant_in_degc"] = out[O_T_COOLANT] - drop
+        channels["gearbox_oil_degc"] = out[O_T_OIL].copy()
     missing = set(TRACE_CHANNELS) - set(channels)
     if missing:  # pragma: no cover - guarded by the tests
         raise SimulationError(f"emulator does not produce {sorted(missing)}")

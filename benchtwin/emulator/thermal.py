@@ -19,14 +19,15 @@ CP_COOLANT = 3600.0  # J/(kg K), water-glycol
 
 
 @njit(cache=True)
-def _thermal(dt, q_eng, q_mot, q_batt, amb, state, th, c_eng, mdot_e, frac, ua_rad, c_b, ua_b, mdot_b, c_ed, ua_ed,
-             mdot_ed, share, out):
+def _thermal(dt, q_eng, q_mot, q_batt, q_trans, amb, state, th, c_eng, mdot_e, frac, ua_rad, c_b, ua_b, mdot_b, c_ed,
+             ua_ed, mdot_ed, share, c_oil, ua_oil, out):
     n = q_eng.shape[0]
     te = state[0]
     tb = state[1]
     th_h = state[2]
     th_m = state[3]
     tloop = state[4]
+    to = state[5]
     for i in range(n):
         # engine: block/coolant lump with a thermostat that opens over 8 K
         op = min(max((te - (th - 4.0)) / 8.0, 0.03), 1.0)
@@ -54,21 +55,26 @@ def _thermal(dt, q_eng, q_mot, q_batt, amb, state, th, c_eng, mdot_e, frac, ua_r
         th_h += dt * (share * ql - q_h) / (0.4 * c_ed)
         th_m += dt * ((1.0 - share) * ql - q_m) / (0.6 * c_ed)
         tloop += dt * (q_h + q_m - 4.0 * ua_ed * (tloop - amb)) / (0.3 * c_ed)
+        # gearbox oil: heated by the gearbox loss, exchanging heat with the engine coolant
+        out[i, 9] = to
+        to += dt * (max(q_trans[i], 0.0) - ua_oil * (to - out[i, 1])) / c_oil
     state[0] = te
     state[1] = tb
     state[2] = th_h
     state[3] = th_m
     state[4] = tloop
+    state[5] = to
 
 
 def thermal_state(cfg: ThermalConfig, ambient_degc: float) -> np.ndarray:
     """The thermal lumps at the campaign start (engine below its thermostat, the rest at ambient)."""
-    return np.array([cfg.engine_thermostat_degc - 8.0, ambient_degc, ambient_degc, ambient_degc, ambient_degc])
+    return np.array([cfg.engine_thermostat_degc - 8.0, ambient_degc, ambient_degc, ambient_degc, ambient_degc,
+                     ambient_degc])
 
 
 def simulate_thermal(cfg: ThermalConfig, dt: float, q_engine_w: np.ndarray, q_motor_w: np.ndarray,
-                     q_battery_w: np.ndarray, ambient_degc: float, state: np.ndarray | None = None
-                     ) -> dict[str, np.ndarray]:
+                     q_battery_w: np.ndarray, ambient_degc: float, state: np.ndarray | None = None,
+                     q_transmission_w: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Integrate the thermal lumps over the output time base.
 
     Parameters
@@ -85,6 +91,9 @@ def simulate_thermal(cfg: ThermalConfig, dt: float, q_engine_w: np.ndarray, q_mo
         The lumps' temperatures where the previous part of the campaign left them (:func:`thermal_state`),
         updated in place to where this part ends (a campaign run in parts equals it run whole); None: the
         campaign start.
+    q_transmission_w:
+        Gearbox loss (input power minus output power), heating the oil lump; None: no loss (the oil follows
+        the engine coolant).
 
     Returns
     -------
@@ -92,15 +101,17 @@ def simulate_thermal(cfg: ThermalConfig, dt: float, q_engine_w: np.ndarray, q_mo
         The thermocouple channels of the Trace (degC).
     """
     n = q_engine_w.shape[0]
-    out = np.empty((n, 9))
+    out = np.empty((n, 10))
     st = thermal_state(cfg, ambient_degc) if state is None else state
+    q_trans = np.zeros(n) if q_transmission_w is None else np.ascontiguousarray(q_transmission_w, dtype=np.float64)
     _thermal(dt, np.ascontiguousarray(q_engine_w), np.ascontiguousarray(q_motor_w),
-             np.ascontiguousarray(q_battery_w), ambient_degc, st, cfg.engine_thermostat_degc,
+             np.ascontiguousarray(q_battery_w), q_trans, ambient_degc, st, cfg.engine_thermostat_degc,
              cfg.engine_heat_capacity_j_per_k, cfg.engine_coolant_flow_kgps, cfg.engine_heat_to_coolant_frac,
              cfg.engine_radiator_ua_w_per_k, cfg.battery_heat_capacity_j_per_k, cfg.battery_ua_w_per_k,
              cfg.battery_coolant_flow_kgps, cfg.edrive_heat_capacity_j_per_k, cfg.edrive_ua_w_per_k,
-             cfg.edrive_coolant_flow_kgps, cfg.hpcu_share_of_motor_loss, out)
+             cfg.edrive_coolant_flow_kgps, cfg.hpcu_share_of_motor_loss, cfg.gearbox_oil_heat_capacity_j_per_k,
+             cfg.gearbox_oil_ua_w_per_k, out)
     names = ("engine_coolant_in_degc", "engine_coolant_out_degc", "battery_temp_degc", "battery_coolant_in_degc",
              "battery_coolant_out_degc", "hpcu_coolant_in_degc", "hpcu_coolant_out_degc", "motor_coolant_in_degc",
-             "motor_coolant_out_degc")
+             "motor_coolant_out_degc", "gearbox_oil_degc")
     return {name: out[:, k] for k, name in enumerate(names)}

@@ -28,6 +28,8 @@ from benchtwin.identification._fit import FitResult, IdentificationResult, deriv
 from benchtwin.identification._signals import check_spread, raise_all_failed
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
+from benchtwin.identification.transmission_drag import MIN_SPAN_K as DRAG_MIN_SPAN_K
+from benchtwin.identification.transmission_drag import add_drag_fit
 from benchtwin.recording import Recording
 
 __all__ = ["TransmissionPoints", "direction_points", "efficiency_design", "fit_transmission_efficiency",
@@ -39,6 +41,8 @@ _REQUIRED = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "engine_torque
 #: a conventional car (no traction motor): the engine drives the gearbox input alone
 _REQUIRED_ENGINE_ONLY = ("vehicle_speed_kmh", "engine_speed_rpm", "engine_torque_nm", "shaft_torque_nm")
 _STATES = ("gear_actual", "gear_target", "k0_closed", "lockup_closed")
+#: the gearbox oil thermocouple: read when logged, for the temperature-dependent drag (transmission_drag)
+OIL_ROLE = "gearbox_oil_degc"
 
 
 @dataclass
@@ -65,6 +69,11 @@ class TransmissionPoints:
         Grid samples excluded because a source sample was flagged.
     windows:
         The steady windows the points are means over (one per point).
+    oil_degc:
+        Gearbox oil temperature per point (degC), when the Recording logs it (role ``gearbox_oil_degc``).
+    engine_in:
+        Whether the engine's (ECU-estimated) torque is part of ``c_in`` at each point (K0 closed); None when
+        the input is the engine alone (a conventional car).
     """
 
     gear: np.ndarray
@@ -79,6 +88,8 @@ class TransmissionPoints:
     reasons: list[str]
     n_flagged: int
     windows: SteadyWindows | None = None
+    oil_degc: np.ndarray | None = None
+    engine_in: np.ndarray | None = None
 
 
 def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWindows | None = None,
@@ -176,8 +187,10 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
     if (still & usable).any():
         reasons.append(f"{int((still & usable).sum())} windows at standstill")
     usable &= ~still
+    oil = steady.raw_average(rec, OIL_ROLE) if OIL_ROLE in rec else None
     return TransmissionPoints(gear, c_in, w_in, t_out, w_out, p_in, p_out, usable,
-                              [w.segment for w in steady.windows], reasons, steady.n_excluded, steady)
+                              [w.segment for w in steady.windows], reasons, steady.n_excluded, steady, oil,
+                              None if engine_only else np.asarray(k0, dtype=bool))
 
 
 def efficiency_design(c: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
@@ -276,6 +289,27 @@ def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "
     return fit
 
 
+def _drag_groups(pts: TransmissionPoints, ratios: np.ndarray, min_points: int, *, motor_only: bool = False
+                 ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Per gear and direction with enough points: ``(C, eta, T_oil, |w_in|)`` of the points with an oil reading
+    (``motor_only``: of the points with the engine decoupled)."""
+    out = {}
+    oil_all = pts.oil_degc if pts.oil_degc is not None else np.full(pts.gear.shape, np.nan)
+    if motor_only and pts.engine_in is not None:
+        oil_all = np.where(pts.engine_in, np.nan, oil_all)
+    for g in sorted({int(x) for x in pts.gear[pts.usable]}):
+        if not 1 <= g <= ratios.size:
+            continue
+        for direction in ("drive", "coast"):
+            m, dom, c, eta = direction_points(pts, g, direction, float(ratios[g - 1]))
+            oil = oil_all[m]
+            keep = dom & np.isfinite(oil)
+            if int(keep.sum()) >= min_points:
+                out[f"g{g}" + ("_coast" if direction == "coast" else "")] = (c[keep], eta[keep], oil[keep],
+                                                                             np.abs(pts.w_in[m][keep]))
+    return out
+
+
 def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterable[int] | None = None,
                           points: TransmissionPoints | None = None, min_points: int = 3,
                           **kwargs: object) -> IdentificationResult:
@@ -298,7 +332,9 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
     -------
     IdentificationResult
         Fits ``transmission.gear<g>`` (drive) and ``transmission.gear<g>_coast``; gears or
-        directions that could not be fitted are in ``errors`` with the reason.
+        directions that could not be fitted are in ``errors`` with the reason. With the oil temperature
+        logged (and every gear fitted), also ``transmission.drag``
+        (:mod:`~benchtwin.identification.transmission_drag`).
 
     Raises
     ------
@@ -334,6 +370,16 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
             out.fits[key] = fit
     out.meta["transmission"] = {"steady_points": int(pts.gear.size), "dropped_points": n_dropped,
                                 "flagged_samples": pts.n_flagged}
+    if out.fits and gears is None and pts.oil_degc is not None and np.isfinite(pts.oil_degc).any():
+        # the drag is a few Nm: the engine's torque is the ECU's estimate (a few % and Nm off on a real car), the
+        # motor's the inverter's, so the points with the engine decoupled identify it when they span the oil range
+        groups = _drag_groups(pts, ratios, max(min_points, 3), motor_only=True)
+        oil = np.concatenate([v[2] for v in groups.values()]) if groups else np.array([0.0])
+        note = "points with the engine decoupled (K0 open): the ECU's engine torque left out"
+        if np.ptp(oil) < DRAG_MIN_SPAN_K or len(groups) < 2:
+            groups = _drag_groups(pts, ratios, max(min_points, 3))
+            note = "all points (too few with the engine decoupled span the oil temperature)"
+        add_drag_fit(out, groups, list(pts.segments), note=note)
     if not out.fits:
         if not failures:
             raise InsufficientDataError("transmission: no steady point in any gear with the lock-up closed")

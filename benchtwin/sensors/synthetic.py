@@ -96,7 +96,7 @@ def synthetic_trace(duration_s: float = 60.0, rate_hz: float = 100.0, seed: int 
         "battery_temp_degc": (25.0, 30.0), "battery_coolant_in_degc": (20.0, 35.0),
         "battery_coolant_out_degc": (24.0, 35.0), "hpcu_coolant_in_degc": (40.0, 40.0),
         "hpcu_coolant_out_degc": (45.0, 40.0), "motor_coolant_in_degc": (45.0, 45.0),
-        "motor_coolant_out_degc": (50.0, 45.0),
+        "motor_coolant_out_degc": (50.0, 45.0), "gearbox_oil_degc": (60.0, 50.0),
     }.items():
         c[name] = wave(mean, amp)
     c["dcdc_lv_voltage_v"] = wave(14.0, 0.5)

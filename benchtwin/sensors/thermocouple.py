@@ -95,7 +95,7 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
                   faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> ProcessImage:
     """The thermo module's object-dictionary values at each TPDO event (its own clock).
 
-    Columns follow the EDS TPDO mapping (0x9130 sub 1..9, then 0x2100); inputs without a
+    Columns follow the EDS TPDO mapping (0x9130 sub 1..10, then 0x2100); inputs without a
     thermocouple read -0x8000 (open circuit), as does an input with an injected ``open_circuit`` over
     its span. A ``silent`` node sends no TPDO over its span. ``blk``: the block of plant time to encode
     (``trace`` and ``rng`` are then unused); None: the whole ``trace``.

@@ -108,7 +108,7 @@ def drive_inputs(rec: Recording, start_s: float, end_s: float, *, name: str = "d
     req = ["vehicle_speed_kmh", "gear_actual", "lockup_closed", "k0_closed", "engine_on", "engine_torque_nm",
            "engine_speed_rpm", "pedal_pct"]
     opt = ["brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar", "brake_pressure_rr_bar",
-           "dcdc_lv_current_a", "dcdc_lv_voltage_v"]
+           "dcdc_lv_current_a", "dcdc_lv_voltage_v", "gearbox_oil_degc"]
     g = gather(rec, req, rate_hz, optional=opt, span=(start_s, end_s), what="prediction")
 
     def mean(*names: str) -> np.ndarray:
@@ -126,7 +126,8 @@ def drive_inputs(rec: Recording, start_s: float, end_s: float, *, name: str = "d
                        engine_torque_nm=g["engine_torque_nm"], engine_speed_rpm=g["engine_speed_rpm"],
                        pedal_pct=g["pedal_pct"], brake_front_bar=mean("brake_pressure_fl_bar", "brake_pressure_fr_bar"),
                        brake_rear_bar=mean("brake_pressure_rl_bar", "brake_pressure_rr_bar"), p_lv_w=p_lv,
-                       initial_soc_pct=_initial_soc(rec, start_s, soc_per_ah), name=name)
+                       initial_soc_pct=_initial_soc(rec, start_s, soc_per_ah), name=name,
+                       oil_degc=g["gearbox_oil_degc"] if "gearbox_oil_degc" in g.present else None)
 
 
 def measured(trace: Trace, start_s: float, end_s: float) -> dict[str, float]:

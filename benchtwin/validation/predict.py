@@ -9,7 +9,10 @@ trace of a drive the model computes, per time step and backwards from the wheels
    pressures give through the identified brake gains;
 2. the gear: the recorded gear (a replay) or the identified shift lines driven by the recorded pedal;
 3. the gearbox input torque by eq. 14 with that gear's identified ``eta_m`` and ``C0`` (drive fit when
-   the output torque is positive, coast fit when negative);
+   the output torque is positive, coast fit when negative); when the temperature-dependent drag
+   ``transmission.drag`` was identified and is supported by the data
+   (:mod:`benchtwin.identification.transmission_drag`), its ``eta_m`` and ``C0(T_oil)`` at the drive's measured
+   oil temperature (a measured boundary input, as the ambient temperature);
 4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
    pump speed that carries the turbine torque), rigid when it is closed;
 5. the split between engine and motor: a replay of the measured strategy (engine on/off, K0 and the
@@ -32,7 +35,6 @@ the public specs), the fuel of an engine start, the converter's idle-speed holdi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -42,124 +44,14 @@ from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
+from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
+from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
 
 __all__ = ["CO2_G_PER_G_DIESEL", "DIESEL_DENSITY_KG_PER_L", "DriveInputs", "MapVehicle", "Prediction"]
 
-#: CO2 per gram of diesel burnt (2.64 kg CO2 per litre at 0.832 kg/l is 3.17 g/g; the carbon balance gives 3.16)
-CO2_G_PER_G_DIESEL = 3.16
-#: diesel density, kg/l (EN 590 reference fuel, about 0.832)
-DIESEL_DENSITY_KG_PER_L = 0.832
-
 _RPM = np.pi / 30.0
 _KMH = 1.0 / 3.6
-
-
-@dataclass
-class DriveInputs:
-    """The measured inputs of one drive, on one uniform time base.
-
-    Attributes
-    ----------
-    t_s:
-        Time, s (uniform).
-    speed_kmh:
-        Vehicle speed.
-    gear:
-        Engaged gear (0 neutral), replayed when the model is run with ``gear_source="recorded"``.
-    lockup_closed, k0_closed, engine_on:
-        Clutch and engine states of the measurement (0/1).
-    engine_torque_nm, engine_speed_rpm:
-        The engine's reported torque and speed (the strategy's split, replayed).
-    pedal_pct:
-        Accelerator pedal (for the shift lines).
-    brake_front_bar, brake_rear_bar:
-        Mean caliper pressure per axle (0 when not measured).
-    p_lv_w:
-        DC/DC low-voltage output power (12 V loads), W.
-    initial_soc_pct:
-        Displayed SOC at the start of the drive.
-    name:
-        What the drive is.
-    """
-
-    t_s: np.ndarray
-    speed_kmh: np.ndarray
-    gear: np.ndarray
-    lockup_closed: np.ndarray
-    k0_closed: np.ndarray
-    engine_on: np.ndarray
-    engine_torque_nm: np.ndarray
-    engine_speed_rpm: np.ndarray
-    pedal_pct: np.ndarray
-    brake_front_bar: np.ndarray
-    brake_rear_bar: np.ndarray
-    p_lv_w: np.ndarray
-    initial_soc_pct: float
-    name: str = "drive"
-
-    def __post_init__(self) -> None:
-        n = np.asarray(self.t_s).size
-        for k in ("t_s", "speed_kmh", "gear", "lockup_closed", "k0_closed", "engine_on", "engine_torque_nm",
-                  "engine_speed_rpm", "pedal_pct", "brake_front_bar", "brake_rear_bar", "p_lv_w"):
-            arr = np.asarray(getattr(self, k), dtype=float)
-            if arr.shape != (n,):
-                raise ValueError(f"DriveInputs.{k} has shape {arr.shape}, expected ({n},)")
-            setattr(self, k, np.nan_to_num(arr, nan=0.0))
-        if n < 3:
-            raise ValueError("DriveInputs: a drive needs at least 3 samples")
-
-    @property
-    def dt_s(self) -> float:
-        """Time step."""
-        return float(np.median(np.diff(self.t_s)))
-
-
-@dataclass
-class Prediction:
-    """What the map-based model predicts for one drive.
-
-    Attributes
-    ----------
-    fuel_g, co2_g:
-        Fuel burnt and CO2 emitted over the drive.
-    electric_wh:
-        Battery terminal energy (integral of V I, positive when discharging).
-    final_soc_pct:
-        Displayed SOC at the end.
-    distance_km:
-        Distance driven.
-    series:
-        Time series of the model (``t_s``, ``gear``, ``motor_torque_nm``, ``motor_speed_rpm``,
-        ``engine_torque_nm``, ``engine_speed_rpm``, ``fuel_gps``, ``battery_current_a``,
-        ``battery_voltage_v``, ``soc_pct``, ``motor_elec_power_w``).
-    notes:
-        What the model replayed, assumed or could not know.
-    """
-
-    fuel_g: float
-    co2_g: float
-    electric_wh: float
-    final_soc_pct: float
-    distance_km: float
-    series: dict[str, np.ndarray] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def fuel_l(self) -> float:
-        """Fuel volume, litres."""
-        return self.fuel_g / 1000.0 / DIESEL_DENSITY_KG_PER_L
-
-    @property
-    def co2_g_per_km(self) -> float:
-        """CO2 per km driven."""
-        return self.co2_g / self.distance_km if self.distance_km > 0 else float("nan")
-
-    def summary(self) -> dict[str, Any]:
-        """The scalar results, JSON-ready."""
-        return {"fuel_g": self.fuel_g, "fuel_l": self.fuel_l, "co2_g": self.co2_g,
-                "co2_g_per_km": self.co2_g_per_km, "electric_wh": self.electric_wh,
-                "final_soc_pct": self.final_soc_pct, "distance_km": self.distance_km, "notes": list(self.notes)}
 
 
 def _fit(result: IdentificationResult, name: str, *params: str) -> FitResult | None:
@@ -221,6 +113,13 @@ class MapVehicle:
                     self.tx[(g, d)] = (f.value("eta_m"), f.value("C0"))
         if not any(d == "drive" for _, d in self.tx):
             missing.append("transmission (no gear's eta_m/C0)")
+        drag = result.fits.get(DRAG_KEY)
+        self.drag: FitResult | None = None
+        if drag is not None and drag.status == "ok" and bool(np.all(np.asarray(drag.data.get("use", [False])))):
+            self.drag = drag
+            self.notes.append(f"gearbox drag C0 (1 + k_w |w_in|) exp(-k_T (T_oil - T_ref)) from {DRAG_KEY} "
+                              f"(k_T = {drag.value('k_T'):.4f} 1/K, k_w = {drag.value('k_w'):.2e} s/rad) at the "
+                              "drive's measured oil temperature (a measured input, as the ambient)")
         mot = _fit(result, "motor.motoring", "e", "W_loss")
         gen = _fit(result, "motor.generating", "e_gen", "W_loss_gen")
         if mot is None:
@@ -344,15 +243,32 @@ class MapVehicle:
         near = min(gears, key=lambda g: abs(g - gear))
         return self.tx[(near, "drive")]
 
-    def input_torque_nm(self, gear: np.ndarray, out_torque_nm: np.ndarray) -> np.ndarray:
-        """Gearbox input torque from the output (propeller shaft) torque, eq. 14 per gear and direction."""
+    def _eta_c0_at(self, gear: int, direction: str, oil: np.ndarray | None, w_in: np.ndarray) -> tuple[Any, Any]:
+        """``(eta_m, C0)`` of a gear and direction, C0 at the oil temperature when the drag model is used."""
+        group = f"g{gear}" + ("_coast" if direction == "coast" else "")
+        if self.drag is not None and oil is not None and f"C0_{group}" in self.drag.params:
+            return self.drag.value(f"eta_m_{group}"), drag_c0(self.drag, group, oil, w_in)
+        if self.drag is not None and oil is not None and direction == "coast" and f"C0_g{gear}" in self.drag.params:
+            return self._eta_c0_at(gear, "drive", oil, w_in)
+        return self._eta_c0(gear, direction)
+
+    def input_torque_nm(self, gear: np.ndarray, out_torque_nm: np.ndarray, oil_degc: np.ndarray | None = None,
+                        input_speed_radps: np.ndarray | None = None) -> np.ndarray:
+        """Gearbox input torque from the output (propeller shaft) torque, eq. 14 per gear and direction.
+
+        With ``oil_degc`` and ``input_speed_radps`` (per sample) and an identified ``transmission.drag`` the drag
+        is taken at the oil temperature and input speed; else eq. 14's constant ``C0``.
+        """
         t_in = np.zeros_like(out_torque_nm)
+        use_drag = oil_degc is not None and input_speed_radps is not None
         for g in np.unique(gear[gear > 0]).astype(int):
             i_g = self.specs.gear_ratios[g - 1]
             m = gear == g
             to = out_torque_nm[m]
-            eta_d, c0_d = self._eta_c0(g, "drive")
-            eta_c, c0_c = self._eta_c0(g, "coast")
+            oil = np.asarray(oil_degc, dtype=float)[m] if use_drag else None
+            w_in = np.asarray(input_speed_radps, dtype=float)[m] if use_drag else np.zeros(int(m.sum()))
+            eta_d, c0_d = self._eta_c0_at(g, "drive", oil, w_in)
+            eta_c, c0_c = self._eta_c0_at(g, "coast", oil, w_in)
             t_in[m] = np.where(to >= 0, to / (i_g * eta_d) + c0_d, eta_c * (to / i_g + c0_c))
         return t_in
 
@@ -472,7 +388,7 @@ class MapVehicle:
         t_out = np.where(gear > 0, t_out, 0.0)
         ratio = np.array([0.0, *list(sp.gear_ratios)])[gear]
         w_t = v / sp.wheel_radius_m * sp.final_drive_ratio * ratio
-        t_t = self.input_torque_nm(gear, t_out)
+        t_t = self.input_torque_nm(gear, t_out, drive.oil_degc, w_t)
         t_t = np.where(moving & (gear > 0), t_t, 0.0)
         lock = drive.lockup_closed > 0.5
         w_p, t_p = w_t.copy(), t_t.copy()

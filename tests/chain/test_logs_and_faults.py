@@ -111,8 +111,9 @@ def test_cantools_decodes_logged_frames(received: AcquisitionInput, logdir: Path
     dec = ivt.decode_message(0x185, inst["data"][k, :8].tobytes())
     assert dec["Thermo_engine_coolant_in_degc"] == pytest.approx(rec["engine_coolant_in_degc"].values[7])
     k = int(np.flatnonzero(inst["arbitration_id"] == 0x385)[2])
-    dec = ivt.decode_message(0x385, inst["data"][k, :4].tobytes())
+    dec = ivt.decode_message(0x385, inst["data"][k, :6].tobytes())  # inputs 9 and 10 (gearbox oil), cold junction
     assert dec["Thermo_motor_coolant_out_degc"] == pytest.approx(rec["motor_coolant_out_degc"].values[2])
+    assert dec["Thermo_gearbox_oil_degc"] == pytest.approx(rec["gearbox_oil_degc"].values[2])
     assert dec["Thermo_Cold_Junction"] == pytest.approx(IDEAL.thermo.cold_junction_degc)
 
 

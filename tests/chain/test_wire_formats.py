@@ -81,10 +81,11 @@ def test_eds_pdo_layout_from_canopen_od() -> None:
     assert od[0x1000].default == 0x00040194
     layout = pdo_layout(7)
     assert [t.cob_id for t in layout.tpdos] == [0x187, 0x287, 0x387]
-    assert layout.entries[:9] == [(0x9130, k) for k in range(1, 10)]
-    assert layout.entries[9] == (0x2100, 0)
+    assert layout.entries[:10] == [(0x9130, k) for k in range(1, 11)]  # the paper's nine and the gearbox oil
+    assert layout.entries[10] == (0x2100, 0)
+    assert layout.tpdos[2].length == 6
     assert layout.scale((0x9130, 3)) == pytest.approx(0.1)
-    values = np.array([[1, -2, 3, -4, 5, -6, 7, -8, 32767, 250], [-32768, 0, 0, 0, 0, 0, 0, 0, 9, 251]])
+    values = np.array([[1, -2, 3, -4, 5, -6, 7, -8, 32767, 1100, 250], [-32768, 0, 0, 0, 0, 0, 0, 0, 9, -1, 251]])
     img = ProcessImage("thermo", 7, np.array([0.0, 0.1]), layout.entries, values)
     frames = layout.pack(img)
     assert len(frames) == 6
