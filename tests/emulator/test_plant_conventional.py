@@ -124,7 +124,7 @@ def test_the_setup_keeps_what_a_conventional_car_can_feed():
     bench, dropped = setup_for_trace(paper, ABSENT_CONVENTIONAL)
     assert set(paper.ivt) - set(bench.ivt) == {"battery", "hpcu"}
     assert set(bench.ivt) == set(paper.ivt) - {"battery", "hpcu"}
-    assert set(bench.thermo.places) == {"engine_coolant_in_degc", "engine_coolant_out_degc"}
+    assert set(bench.thermo.places) == {"engine_coolant_in_degc", "engine_coolant_out_degc", "gearbox_oil_degc"}
     assert set(bench.vehicle_can.not_sent) == {"k0_closed", "em_speed_rpm", "em_torque_nm", "displayed_soc_pct"}
     assert any(d.startswith("ivt.battery") for d in dropped) and any("em_torque_nm" in d for d in dropped)
     assert setup_for_trace(paper, ()) == (paper, [])
