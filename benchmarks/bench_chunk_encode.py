@@ -1,9 +1,12 @@
-"""Encode -> deliver of a campaign, whole against chunk by chunk: time, peak memory, and the same bytes.
+"""Encode -> deliver of a campaign, whole against chunk by chunk, and the chain it feeds: time, memory, same bytes.
 
 Usage::
 
     python benchmarks/bench_chunk_encode.py [--campaign paper] [--setup paper] [--modes whole,tests,60s]
                                             [--repeat 3] [--seed 0] [--python PYTHON]
+
+    # the chain's stages on the paper campaign, a tree against another (PYTHONPATH selects the tree):
+    python benchmarks/bench_chunk_encode.py --modes tests,acquire,chain
 
 Each run is a fresh process (``--one MODE`` runs one mode in this process and prints one JSON line):
 
@@ -12,7 +15,16 @@ Each run is a fresh process (``--one MODE`` runs one mode in this process and pr
   for a before/after comparison with ``PYTHONPATH``);
 - ``tests``: ``ChunkEncoder`` + ``ChunkDeliverer`` fed one test at a time as ``iter_campaign`` yields it,
   each chunk's frames hashed and dropped;
-- ``60s`` (any ``<N>s``): the same, each test cut further into N-s slices.
+- ``60s`` (any ``<N>s``): the same, each test cut further into N-s slices;
+- ``acquire``: every test encoded and delivered first (untimed), then only the acquisition timed:
+  ``Acquisition(setup)`` fed the delivered chunks as ``run_chunked`` feeds them (cut at the bus's
+  ``log_truncation``) and ``finish()`` (Recording in memory);
+- ``chain``: the campaign simulated test by test first (untimed, held in memory), then
+  ``chain.stream.run_chunked`` over those tests timed (encode, deliver, decode; no files), the Recording kept
+  in memory as ``validate`` keeps it.
+
+The ``acquire`` and ``chain`` modes digest the Recording (every channel's timestamps, values and flags, and
+its meta data) instead of the frames: the same for both modes and any tree that decodes the same.
 
 Reported per mode: the wall and CPU seconds spent in encode + deliver (the plant's time is not counted), the
 peak resident set of the process (``getrusage``; the whole mode also holds the campaign's Trace and all its
@@ -75,6 +87,43 @@ def _one(mode: str, campaign: str, setup_name: str, seed: int) -> dict:
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         take(received)
         n_chunks = 1
+    elif mode in ("acquire", "chain"):
+        from benchtwin.chain.acquisition import Acquisition, AcquisitionInput
+        from benchtwin.chain.delivery import iter_delivered
+        from benchtwin.chain.stream import run_chunked
+        from benchtwin.sensors.imperfections import truncate_log
+        from benchtwin.wire.frames import FrameTable
+
+        tests = list(iter_campaign(load_vehicle(), camp))
+        n_chunks = len(tests)
+        if mode == "chain":
+            w0, c0 = time.perf_counter(), time.process_time()
+            rec = run_chunked(iter(tests), setup, seed, None)
+            wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        else:
+            chunks = []
+            for got in iter_delivered(iter(tests), setup, seed):
+                chunk = AcquisitionInput(events=list(got.events), polls=dict(got.polls), segments=got.segments)
+                for bus in sorted(got.can):
+                    t = got.can[bus]
+                    chunk.can[bus] = FrameTable(bus, truncate_log(t.frames, setup.faults_of(bus)), t.bitrate)
+                chunks.append(chunk)
+            del tests
+            w0, c0 = time.perf_counter(), time.process_time()
+            acq = Acquisition(setup)
+            for chunk in chunks:
+                acq.feed(chunk)
+            rec = acq.finish(meta={"seed": seed})
+            wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        h = hashlib.sha256()
+        for name in sorted(rec.channels):
+            ch = rec[name]
+            for a in (ch.timestamps, ch.values, ch.flags):
+                h.update(np.ascontiguousarray(a).tobytes())
+            counts["frames"] += len(ch)  # decoded samples, for these modes
+        meta = {k: v for k, v in rec.meta.items() if k not in ("trace", "seed")}
+        h.update(json.dumps(meta, sort_keys=True, default=str).encode())
+        hashes["recording"] = h
     else:
         from benchtwin.chain.delivery import ChunkDeliverer
         from benchtwin.sensors import ChunkEncoder
@@ -120,7 +169,7 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--campaign", default="paper")
     ap.add_argument("--setup", default="paper")
-    ap.add_argument("--modes", default="whole,tests,60s", help="comma-separated: whole, tests, <N>s")
+    ap.add_argument("--modes", default="whole,tests,60s", help="comma-separated: whole, tests, <N>s, acquire, chain")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--python", default=sys.executable, help="interpreter of the tree to measure")
@@ -145,7 +194,7 @@ def main() -> None:
                      r["frames"], r["polls"], {x["sha256"] for x in runs}))
     print(f"machine: {platform.node()} {os.cpu_count()} cores, python {platform.python_version()}; "
           f"campaign {args.campaign}, setup {args.setup}, seed {args.seed}, medians of {args.repeat}")
-    print("| mode | chunks | encode+deliver wall s | CPU s | peak RSS MB | frames | polls | sha256 |")
+    print("| mode | chunks | timed wall s | CPU s | peak RSS MB | frames (acquire, chain: samples) | polls | sha256 |")
     print("|---|---|---|---|---|---|---|---|")
     for mode, n, w, c, m, f, p, h in rows:
         print(f"| {mode} | {n} | {w:.2f} | {c:.2f} | {m:.0f} | {f:,} | {p:,} | {','.join(sorted(h))} |")

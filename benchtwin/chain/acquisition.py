@@ -38,7 +38,6 @@ from benchtwin.chain.alignment import clock_offsets, detect_lag
 from benchtwin.chain.channel_store import ChannelStore
 from benchtwin.chain.decoding import (
     BusLoad,
-    data_words,
     declared_uncertainty,
     decoders_of,
     events_for,
@@ -55,6 +54,7 @@ from benchtwin.segments import Segment
 from benchtwin.sensors import devices
 from benchtwin.sensors.base import FrameDecoder
 from benchtwin.wire.frames import FrameTable, PollLog, TransportEvent
+from benchtwin.wire.merge import take_frames
 from benchtwin.wire.quality import DecodeSink, FrameStream
 
 __all__ = ["CONTEXT_FRAMES", "HOLD_FRAMES", "Acquisition", "AcquisitionInput", "acquire", "declared_uncertainty",
@@ -255,12 +255,14 @@ class Acquisition:
         for k, v in unknown.items():
             got[k] = got.get(k, 0) + v
         drops = events_for(self._events, {table.bus})
-        # every stream gathers from views on the records' columns (the data bytes as one 8-byte word): no copy of
-        # the bus's columns beside its frame table
-        ts, dlc, words = frames["timestamp"], frames["dlc"], data_words(frames)
+        # every stream gathers its whole records at once (one pass over the table, not one per column), then
+        # splits them into its columns (the data bytes as one 8-byte word): one stream's copy at a time, no copy
+        # of the bus's columns beside its frame table
         for cid, idx in groups.items():
-            self._decode_stream(table.bus, cid, decoders[cid], owner[cid], ts[idx], dlc[idx], words[idx], drops,
-                                last)
+            mine = take_frames(frames, idx)
+            words = mine["data"].copy().view("<u8")[:, 0]
+            self._decode_stream(table.bus, cid, decoders[cid], owner[cid], np.ascontiguousarray(mine["timestamp"]),
+                                np.ascontiguousarray(mine["dlc"]), words, drops, last)
 
     def _decoders(self, bus: str) -> tuple[dict[int, FrameDecoder], dict[int, str]]:
         """The decoders of ``bus`` and the device of each identifier (built once per bus)."""

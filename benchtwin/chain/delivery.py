@@ -32,7 +32,7 @@ from benchtwin.sensors.encoder import complete_before
 from benchtwin.sensors.imperfections import disconnect, span_frame_faults
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, PollLog, ProcessImage, RegisterSnapshots
-from benchtwin.wire.merge import insert_frames, merge_frames
+from benchtwin.wire.merge import concat_frames, insert_frames, merge_frames
 
 __all__ = ["ChunkDeliverer", "iter_delivered"]
 
@@ -104,7 +104,7 @@ class ChunkDeliverer:
             table = outputs.can.get(bus)
             new = table.frames if table is not None else np.zeros(0, FRAME_DTYPE)
             old = self._frames.get(bus)
-            self._frames[bus] = new if old is None or not len(old) else np.concatenate([old, new])
+            self._frames[bus] = new if old is None or not len(old) else concat_frames([old, new])
             got.can[bus] = FrameTable(bus, self._deliver_bus(bus, outputs, edge, final), self.setup.bitrate(bus)
                                       if bus in self.setup.buses else (table.bitrate if table else 500_000))
         for d in self.devices:
@@ -141,6 +141,7 @@ class ChunkDeliverer:
         faults = self.setup.faults_of(bus)
         out: list[np.ndarray] = []
         carry = self._carry.get(bus, np.zeros(0, FRAME_DTYPE))
+        times = np.ascontiguousarray(frames["timestamp"])  # searched once per block: no strided copy each time
         pos = 0
         while True:
             hi_t = (k + 1) * self.block_s
@@ -149,7 +150,7 @@ class ChunkDeliverer:
             left = len(frames) - pos + sum(len(im.times) for im in images.values() if im is not None)
             if final and left == 0:
                 break
-            cut = pos + int(np.searchsorted(frames["timestamp"][pos:], hi_t, side="left"))
+            cut = pos + int(np.searchsorted(times[pos:], hi_t, side="left"))
             blk = frames[pos:cut]
             pos = cut
             for d in nodes:

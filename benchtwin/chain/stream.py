@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Iterator
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,7 @@ from benchtwin.chain.acquisition import Acquisition, AcquisitionInput
 from benchtwin.chain.buslog import DEFAULT_START, BusLogWriter, read_mf4, write_blf
 from benchtwin.chain.delivery import iter_delivered
 from benchtwin.chain.logfolder import bus_channel, damaged_from_spans, write_side_files
+from benchtwin.chain.prefetch import prefetch
 from benchtwin.config.setup import SetupConfig
 from benchtwin.recording import Recording
 from benchtwin.sensors.imperfections import truncate_log
@@ -125,7 +126,11 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
     try:
         with ExitStack() as stack:
             writers: dict[str, BusLogWriter] = {}
-            for got in iter_delivered(tracked(pieces), setup, seed):
+            # the pieces (and the plant, when they come from it) are encoded and delivered on a second thread
+            # while this one writes and decodes the previous chunk (stopped and joined on an error here)
+            delivered = stack.enter_context(closing(prefetch(iter_delivered(tracked(pieces), setup, seed),
+                                                             name="deliver")))
+            for got in delivered:
                 segments += got.segments
                 events += got.events
                 polls.add(got.polls)

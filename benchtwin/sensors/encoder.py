@@ -30,7 +30,7 @@ from benchtwin.sensors.blocks import BLOCK_S, Block, block_rng, step_of
 from benchtwin.sensors.registry import devices
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import FRAME_DTYPE, DeviceOutputs, FrameTable, ProcessImage, RegisterSnapshots
-from benchtwin.wire.merge import merge_frames, take_frames
+from benchtwin.wire.merge import concat_frames, merge_frames, take_frames
 
 __all__ = ["ChunkEncoder", "complete_before"]
 
@@ -209,7 +209,7 @@ class ChunkEncoder:
             if d.wire != "can":
                 continue
             parts, self._frames[d.name] = self._frames[d.name], []
-            frames = _sorted(np.concatenate(parts) if len(parts) > 1 else parts[0]) if parts else \
+            frames = _sorted(concat_frames(parts) if len(parts) > 1 else parts[0]) if parts else \
                 np.zeros(0, FRAME_DTYPE)
             del parts  # the blocks' arrays go as soon as they are joined
             cut = int(np.searchsorted(frames["timestamp"], edge, side="left"))

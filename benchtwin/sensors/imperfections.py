@@ -209,12 +209,12 @@ def frame_faults(frames: np.ndarray, stream: np.ndarray, link: LinkErrors, rng: 
     """
     if (link.drop_prob == 0 and link.duplicate_prob == 0 and link.reorder_prob == 0) or len(frames) == 0:
         return frames
-    from benchtwin.wire.merge import insert_frames, void_view
+    from benchtwin.wire.merge import copy_frames, insert_frames, void_view
 
     n = len(frames)
     out = frames
     if link.reorder_prob > 0:
-        out = frames.copy()
+        out = copy_frames(frames)
         # frames of one stream in time order (stable sort on a small integer key is a radix sort)
         _, key = np.unique(stream, return_inverse=True)
         order = np.argsort(key.astype(np.uint16 if key.max() < 65536 else np.int64), kind="stable")
@@ -277,9 +277,9 @@ def span_frame_faults(frames: np.ndarray, stream: np.ndarray, faults: Sequence[F
     todo = [f for f in faults if f.kind in kinds]
     if not todo or len(frames) == 0:
         return frames
-    from benchtwin.wire.merge import insert_frames
+    from benchtwin.wire.merge import copy_frames, insert_frames, mask_frames
 
-    out = frames.copy()
+    out = copy_frames(frames)
     t = out["timestamp"] if clock is None else clock.to_plant(out["timestamp"])
     drop = np.zeros(len(out), dtype=bool)
     dups = []
@@ -307,7 +307,7 @@ def span_frame_faults(frames: np.ndarray, stream: np.ndarray, faults: Sequence[F
         else:  # wrong_dlc
             shift = rng.integers(1, 9, size=hit.size)
             out["dlc"][hit] = (out["dlc"][hit].astype(np.int64) + shift) % 9
-    res = out[~drop]
+    res = mask_frames(out, ~drop)
     for d in dups:
         res = insert_frames(res, d)
     return res
@@ -378,11 +378,13 @@ def disconnect(frames: np.ndarray, faults: Sequence[FaultSpec]) -> tuple[np.ndar
     spans = [(f.start_s, f.end_s) for f in faults if f.kind == "transport_disconnect"]
     if not spans or len(frames) == 0:
         return frames, spans
+    from benchtwin.wire.merge import mask_frames
+
     t = frames["timestamp"]
     drop = np.zeros(len(frames), dtype=bool)
     for a, b in spans:
         drop |= (t >= a) & (t < b)
-    return frames[~drop], spans
+    return mask_frames(frames, ~drop), spans
 
 
 def truncate_log(frames: np.ndarray, faults: Sequence[FaultSpec]) -> np.ndarray:
@@ -390,4 +392,6 @@ def truncate_log(frames: np.ndarray, faults: Sequence[FaultSpec]) -> np.ndarray:
     cuts = [f.start_s for f in faults if f.kind == "log_truncation"]
     if not cuts or len(frames) == 0:
         return frames
-    return frames[frames["timestamp"] < min(cuts)]
+    from benchtwin.wire.merge import mask_frames
+
+    return mask_frames(frames, frames["timestamp"] < min(cuts))

@@ -113,14 +113,19 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
     t_cj = cfg.cold_junction_degc
     e_cj_true = float(emf_type_k(np.array([t_cj]))[0])
     e_cj_meas = float(emf_type_k(np.array([t_cj + cfg.cold_junction_error_degc]))[0])
+    # every input's reading first (each draws from the block's generator in input order), then the type K
+    # conversions of all inputs at once: elementwise, the same numbers as input by input, a tenth of the calls
+    temps = np.empty((len(cfg.places), n))
     for k, place in enumerate(cfg.places):
-        temp = measure(trace.time_s, trace[place], t, with_stuck(cfg.errors, faults, place), rng,
-                       latency_s=cfg.link.latency_s, blk=blk, key=place)
-        v_term = emf_type_k(np.clip(temp, _T_MIN, _T_MAX)) - e_cj_true
-        if cfg.emf_resolution_uv > 0:
-            step = cfg.emf_resolution_uv * 1e-3
-            v_term = np.rint(v_term / step) * step
-        t_meas = temperature_type_k(v_term + e_cj_meas)
+        temps[k] = measure(trace.time_s, trace[place], t, with_stuck(cfg.errors, faults, place), rng,
+                           latency_s=cfg.link.latency_s, blk=blk, key=place)
+    v_term = emf_type_k(np.clip(temps, _T_MIN, _T_MAX)) - e_cj_true
+    if cfg.emf_resolution_uv > 0:
+        step = cfg.emf_resolution_uv * 1e-3
+        v_term = np.rint(v_term / step) * step
+    t_all = temperature_type_k(v_term + e_cj_meas)
+    for k, place in enumerate(cfg.places):
+        t_meas = t_all[k]
         col = entries.index((0x9130, k + 1))
         dec = 10.0 ** layout.decimals.get(k + 1, 1)
         raw = np.rint(t_meas * dec)

@@ -1,18 +1,21 @@
 """Fast merging of time-sorted frame arrays (FRAME_DTYPE) without per-field structured copies.
 
-numpy gathers structured arrays with a sub-array field slowly; these helpers move whole records
-through a ``void`` view, merge already-sorted runs in one pass (a small numba k-way merge) instead of
+numpy copies, joins, masks and gathers structured arrays with a sub-array field slowly (a field-by-field
+copy, about five times the time of moving the same bytes); these helpers move whole records through a
+``void`` view, merge already-sorted runs in one pass (a small numba k-way merge) instead of
 sorting everything again, and insert a few frames into a long sorted table with a binary search.
 """
 
 from __future__ import annotations
+
+from itertools import pairwise
 
 import numba
 import numpy as np
 
 from benchtwin.wire.frames import FRAME_DTYPE
 
-__all__ = ["insert_frames", "merge_frames", "take_frames", "void_view"]
+__all__ = ["concat_frames", "copy_frames", "insert_frames", "mask_frames", "merge_frames", "take_frames", "void_view"]
 
 _VOID = np.dtype((np.void, FRAME_DTYPE.itemsize))
 
@@ -25,6 +28,23 @@ def void_view(frames: np.ndarray) -> np.ndarray:
 def take_frames(frames: np.ndarray, index: np.ndarray) -> np.ndarray:
     """``frames[index]`` for a FRAME_DTYPE array, copying whole records."""
     return np.take(np.ascontiguousarray(frames).view(_VOID), index).view(FRAME_DTYPE)
+
+
+def concat_frames(parts: list[np.ndarray]) -> np.ndarray:
+    """``np.concatenate(parts)`` for FRAME_DTYPE arrays, copying whole records (a new array, also for one part)."""
+    if not parts:
+        return np.zeros(0, FRAME_DTYPE)
+    return np.concatenate([void_view(p) for p in parts]).view(FRAME_DTYPE)
+
+
+def copy_frames(frames: np.ndarray) -> np.ndarray:
+    """``frames.copy()`` for a FRAME_DTYPE array, copying whole records."""
+    return void_view(frames).copy().view(FRAME_DTYPE)
+
+
+def mask_frames(frames: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``frames[mask]`` (a boolean mask) for a FRAME_DTYPE array, copying whole records."""
+    return void_view(frames)[mask].view(FRAME_DTYPE)
 
 
 def _is_sorted(t: np.ndarray) -> bool:
@@ -60,18 +80,22 @@ def merge_frames(parts: list[np.ndarray]) -> np.ndarray:
     parts = [np.ascontiguousarray(p) for p in parts if len(p)]
     if not parts:
         return np.zeros(0, FRAME_DTYPE)
-    parts = [p if _is_sorted(p["timestamp"]) else take_frames(p, np.argsort(p["timestamp"], kind="stable"))
-             for p in parts]
+    times = []
+    for i, p in enumerate(parts):
+        t = np.ascontiguousarray(p["timestamp"])
+        if not _is_sorted(t):
+            order = np.argsort(t, kind="stable")
+            parts[i], t = take_frames(p, order), t[order]
+        times.append(t)
     if len(parts) == 1:
         return parts[0]
-    allf = np.concatenate(parts)
+    allf = concat_frames(parts)
+    if all(a[-1] <= b[0] for a, b in pairwise(times)):  # the runs follow each other: sorted already
+        return allf
     lens = np.array([len(p) for p in parts], dtype=np.int64)
     ends = np.cumsum(lens)
     starts = ends - lens
-    ts = np.ascontiguousarray(allf["timestamp"])
-    if _is_sorted(ts):
-        return allf
-    return take_frames(allf, _kway_order(ts, starts, ends))
+    return take_frames(allf, _kway_order(np.concatenate(times), starts, ends))
 
 
 def insert_frames(frames: np.ndarray, extra: np.ndarray) -> np.ndarray:
