@@ -65,6 +65,9 @@ class TransmissionPoints:
         Grid samples excluded because a source sample was flagged.
     windows:
         The steady windows the points are means over (one per point).
+    c_engine:
+        The engine torque counted in ``c_in`` (Nm; 0 where K0 is open), so that the engine's and the
+        motor's shares of the input torque stay known (their CAN estimates carry different errors).
     """
 
     gear: np.ndarray
@@ -79,6 +82,7 @@ class TransmissionPoints:
     reasons: list[str]
     n_flagged: int
     windows: SteadyWindows | None = None
+    c_engine: np.ndarray | None = None
 
 
 def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWindows | None = None,
@@ -132,6 +136,7 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
         k0 = None
         reasons.append("no motor channels: the engine drives the gearbox input alone (conventional layout)")
         c_in = steady.raw_average(rec, "engine_torque_nm")
+        c_engine = c_in
         w_in = steady.raw_average(rec, "engine_speed_rpm") * RPM
     elif k0 is None:
         if "engine_speed_rpm" in g:
@@ -149,6 +154,7 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
         t_em = steady.raw_average(rec, "em_torque_nm")
         t_eng = steady.raw_average(rec, "engine_torque_nm")
         c_in = np.where(k0, t_em + t_eng, t_em)
+        c_engine = np.where(k0, t_eng, 0.0)
         w_in = steady.raw_average(rec, "em_speed_rpm") * RPM
     p_in = c_in * w_in
     t_out = steady.raw_average(rec, "shaft_torque_nm")
@@ -177,7 +183,8 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
         reasons.append(f"{int((still & usable).sum())} windows at standstill")
     usable &= ~still
     return TransmissionPoints(gear, c_in, w_in, t_out, w_out, p_in, p_out, usable,
-                              [w.segment for w in steady.windows], reasons, steady.n_excluded, steady)
+                              [w.segment for w in steady.windows], reasons, steady.n_excluded, steady,
+                              c_engine)
 
 
 def efficiency_design(c: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
@@ -298,7 +305,9 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
     -------
     IdentificationResult
         Fits ``transmission.gear<g>`` (drive) and ``transmission.gear<g>_coast``; gears or
-        directions that could not be fitted are in ``errors`` with the reason.
+        directions that could not be fitted are in ``errors`` with the reason. Besides the points
+        (``c``, ``eta``) each fit's data hold ``gear_ratio``, ``speed_rpm`` and ``c_engine``, the
+        engine torque counted in each point's input torque (0 with K0 open).
 
     Raises
     ------
@@ -327,6 +336,8 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
                 continue
             fit.data["speed_rpm"] = (pts.w_in[m][dom] / RPM)
             fit.data["gear_ratio"] = np.array([ig])
+            if pts.c_engine is not None:  # the engine's share of each point's input torque (drive and coast)
+                fit.data["c_engine"] = pts.c_engine[m][dom]
             for r in pts.reasons:
                 fit.reasons.append(r)
             if n_dom:
