@@ -106,8 +106,10 @@ def declared_torque_bound(fit: Any, param: str, budget: dict[str, float], *, coa
         if a == 0.0:
             continue
         c2, eta2 = _moved(c, eta, c_eng, counted, ratio, coast, what, kind, a)
-        if not (np.all(np.isfinite(c2)) and np.all(c2 > 0) and np.all(np.isfinite(eta2))):
-            return float("inf")
-        eta_m, c0 = _wls(c2, eta2)
+        # a point the error would push out of the model's domain (C <= 0) is one the identification drops
+        keep = np.isfinite(c2) & (c2 > 0) & np.isfinite(eta2)
+        if keep.sum() < 3:
+            return None
+        eta_m, c0 = _wls(c2[keep], eta2[keep])
         total += abs(eta_m / eta_m0 - 1.0) if param == "eta_m" else abs(c0 - c00)
     return total
