@@ -7,7 +7,7 @@ the two-sided 99 % interval of ``s / sigma`` is asserted to lie inside the facto
 correct prediction fails a bound with a probability well below 1 % per parameter, while a plan that leaves out a
 term that carries most of the variance (the poll faults' windows: 61-84 % of the brake gains' variance here) or
 halves a noise variance (a factor 1.41 on every ratio) leaves it. Time: about 11 s (brakes), 25 s (converter)
-and 30 s (transmission).
+and 8 s (transmission).
 """
 
 from __future__ import annotations
@@ -148,7 +148,7 @@ def test_transmission_gears_1_2_agree_with_the_spread_over_seeds(tmp_path: Path)
     about 13 %). The hybrid ramp-ups' steady windows start where the noisy shaft torque first meets the
     steadiness thresholds while the torque still settles: without the drawn windows the gear-1 C0 and eta_m
     ratios are 2.8 and 1.6 and gear 2's C0 1.7 (and with draws that do not lag the truth as the bench's
-    readings do, gear 1 coast falls to 0.57). Time: about 30 s.
+    readings do, gear 1 coast falls to 0.57). Time: about 8 s (45 s at load 5).
     """
     n = 30
     lo, hi = _chi2_interval(n)
