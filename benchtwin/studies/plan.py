@@ -72,7 +72,7 @@ from benchtwin.studies.plan_fits import (
     plan_transmission,
 )
 from benchtwin.studies.plan_noise import noise_budget, poll_fault_model, reading_variance, truth_recording
-from benchtwin.studies.plan_windows import SEARCHED, reading_lag
+from benchtwin.studies.plan_windows import SEARCHED
 from benchtwin.trace import Trace
 from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
 
@@ -199,8 +199,7 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         elif fam.name == "torque_converter":
             planned = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
                 plan_transmission(rec, vehicle, noise, segments, recorded=raw)
-            lags = {n: reading_lag(rec[n], raw[n], noise[n]) for n in raw if n in noise and n in rec}
-            plan.parameters += plan_converter(rec, vehicle, noise, segments, planned, lags=lags,
+            plan.parameters += plan_converter(rec, vehicle, noise, segments, planned,
                                               recorded={n: ch for n, ch in raw.items() if n in CONVERTER_RECORDED})
         elif fam.name == "shifts":
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())

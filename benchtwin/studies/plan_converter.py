@@ -28,10 +28,7 @@ mean of the linear term at each draw's rows plus the variance of the noise-free 
 met on fewer than :data:`RARE_ROWS` of the draws is named in the reason and left out: a sweep of tens of seeds
 seldom meets it, and its jump would dominate the variance. The CAN signals the points are made of are taken as
 recorded (:data:`CONVERTER_RECORDED`: their quantisation is the same every seed) and the shaft torque with its
-declared gain and offset, so the derivatives are taken where a bench's estimates are; a noisy reading also
-lags its truth as the bench's does (``lags``, measured on the plan's bench run by
-:func:`~benchtwin.studies.plan_windows.reading_lag`: about 15 ms for the shaft torque, which in a launch
-moves the turbine torque at a grid point by tens of Nm).
+declared gain and offset, so the derivatives are taken where a bench's estimates are.
 """
 
 from __future__ import annotations
@@ -115,8 +112,8 @@ def _delta(func: Callable[[np.ndarray], float], z: np.ndarray, cov: np.ndarray) 
 
 def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
                    segments: list[Segment], tx: Sequence[PlannedParameter], *, seed: int = 0,
-                   draws: int = CONVERTER_DRAWS, recorded: Mapping[str, Channel] | None = None,
-                   lags: Mapping[str, float] | None = None) -> list[PlannedParameter]:
+                   draws: int = CONVERTER_DRAWS, recorded: Mapping[str, Channel] | None = None
+                   ) -> list[PlannedParameter]:
     """Predicted standard errors of ``a0..a8``, ``J_pump_kgm2``, the coupling point and its derived values.
 
     Parameters
@@ -135,8 +132,6 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     recorded:
         Role -> the channel as the bench recorded it (:data:`CONVERTER_RECORDED`); a role without random error
         on the setup is taken from here instead of its truth.
-    lags:
-        Role -> how far the bench's readings lag the truth (s); the noisy roles' truths are shifted by it.
     seed, draws:
         Seed and number of the draws of the noise that decide the rows the fits keep (module docstring).
 
@@ -151,15 +146,6 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         return [PlannedParameter("torque_converter.*", "", float("nan"), float("nan"), False,
                                  "missing: accelerations or decelerations (lock-up open)", _HINT)]
     opts = _defaults()
-    shifted = {n: lag for n, lag in (lags or {}).items() if lag and n in rec and n in noise}
-    if shifted:  # the noisy readings lag their truth as the bench's do
-        view = Recording(segments=list(rec.segments), meta=rec.meta)
-        for name, ch in rec.channels.items():
-            if name in shifted:
-                ch = Channel(name, ch.unit, ch.timestamps, np.interp(ch.timestamps - shifted[name], ch.timestamps,
-                                                                     ch.values), ch.flags, ch.source)
-            view.add(ch)
-        rec = view
     truth = rec
     swap = {n: ch for n, ch in (recorded or {}).items() if n not in noise and n in rec}
     for n in ("shaft_torque_nm", *CONVERTER_RECORDED):
