@@ -74,6 +74,9 @@ class TransmissionPoints:
     engine_in:
         Whether the engine's (ECU-estimated) torque is part of ``c_in`` at each point (K0 closed); None when
         the input is the engine alone (a conventional car).
+    c_engine:
+        The engine torque counted in ``c_in`` (Nm; 0 where K0 is open), so that the engine's and the
+        motor's shares of the input torque stay known (their CAN estimates carry different errors).
     """
 
     gear: np.ndarray
@@ -90,6 +93,7 @@ class TransmissionPoints:
     windows: SteadyWindows | None = None
     oil_degc: np.ndarray | None = None
     engine_in: np.ndarray | None = None
+    c_engine: np.ndarray | None = None
 
 
 def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWindows | None = None,
@@ -143,6 +147,7 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
         k0 = None
         reasons.append("no motor channels: the engine drives the gearbox input alone (conventional layout)")
         c_in = steady.raw_average(rec, "engine_torque_nm")
+        c_engine = c_in
         w_in = steady.raw_average(rec, "engine_speed_rpm") * RPM
     elif k0 is None:
         if "engine_speed_rpm" in g:
@@ -160,6 +165,7 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
         t_em = steady.raw_average(rec, "em_torque_nm")
         t_eng = steady.raw_average(rec, "engine_torque_nm")
         c_in = np.where(k0, t_em + t_eng, t_em)
+        c_engine = np.where(k0, t_eng, 0.0)
         w_in = steady.raw_average(rec, "em_speed_rpm") * RPM
     p_in = c_in * w_in
     t_out = steady.raw_average(rec, "shaft_torque_nm")
@@ -190,7 +196,7 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
     oil = steady.raw_average(rec, OIL_ROLE) if OIL_ROLE in rec else None
     return TransmissionPoints(gear, c_in, w_in, t_out, w_out, p_in, p_out, usable,
                               [w.segment for w in steady.windows], reasons, steady.n_excluded, steady, oil,
-                              None if engine_only else np.asarray(k0, dtype=bool))
+                              None if engine_only else np.asarray(k0, dtype=bool), c_engine)
 
 
 def efficiency_design(c: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
@@ -334,7 +340,9 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
         Fits ``transmission.gear<g>`` (drive) and ``transmission.gear<g>_coast``; gears or
         directions that could not be fitted are in ``errors`` with the reason. With the oil temperature
         logged (and every gear fitted), also ``transmission.drag``
-        (:mod:`~benchtwin.identification.transmission_drag`).
+        (:mod:`~benchtwin.identification.transmission_drag`). Besides the points (``c``, ``eta``) each fit's data
+        hold ``gear_ratio``, ``speed_rpm`` and ``c_engine``, the engine torque counted in each point's input
+        torque (0 with K0 open).
 
     Raises
     ------
@@ -363,6 +371,8 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
                 continue
             fit.data["speed_rpm"] = (pts.w_in[m][dom] / RPM)
             fit.data["gear_ratio"] = np.array([ig])
+            if pts.c_engine is not None:  # the engine's share of each point's input torque (drive and coast)
+                fit.data["c_engine"] = pts.c_engine[m][dom]
             for r in pts.reasons:
                 fit.reasons.append(r)
             if n_dom:

@@ -72,6 +72,7 @@ from benchtwin.studies.plan_fits import (
     plan_transmission,
 )
 from benchtwin.studies.plan_noise import noise_budget, poll_fault_model, reading_variance, truth_recording
+from benchtwin.studies.plan_windows import SEARCHED
 from benchtwin.trace import Trace
 from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
 
@@ -189,10 +190,12 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         plan.meta["not_planned"] = {n: "a conventional car has no motor or HV pack" for n in unplanned}
     segments = list(trace.segments)
     conv = any(f.name == "torque_converter" for f in fams)
-    rec, raw = planned_recording(setup, campaign, trace, families, recorded=CONVERTER_RECORDED if conv else ())
+    tx = any(f.name in ("transmission", "torque_converter") for f in fams)
+    rec, raw = planned_recording(setup, campaign, trace, families,
+                                 recorded=(CONVERTER_RECORDED if conv else ()) + (SEARCHED if tx else ()))
     for fam in fams:
         if fam.name == "transmission":
-            plan.parameters += plan_transmission(rec, vehicle, noise, segments)
+            plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw)
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
         elif fam.name == "brakes":
@@ -200,9 +203,10 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
         elif fam.name == "torque_converter":
-            tx = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
-                plan_transmission(rec, vehicle, noise, segments)
-            plan.parameters += plan_converter(rec, vehicle, noise, segments, tx, recorded=raw)
+            planned = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
+                plan_transmission(rec, vehicle, noise, segments, recorded=raw)
+            plan.parameters += plan_converter(rec, vehicle, noise, segments, planned,
+                                              recorded={n: ch for n, ch in raw.items() if n in CONVERTER_RECORDED})
         elif fam.name == "shifts":
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
         else:

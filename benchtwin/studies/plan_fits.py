@@ -36,6 +36,7 @@ from benchtwin.studies.plan_noise import (
     sandwich_covariance,
     window_mean_variance,
 )
+from benchtwin.studies.plan_windows import window_draws
 
 __all__ = ["PlannedParameter", "noise_free", "plan_battery", "plan_motor", "plan_presence",
            "plan_shifts", "plan_transmission"]
@@ -87,14 +88,19 @@ class PlannedParameter:
 
 
 def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
-                      segments: list[Segment]) -> list[PlannedParameter]:
+                      segments: list[Segment], *, recorded: Mapping[str, Any] | None = None
+                      ) -> list[PlannedParameter]:
     """``eta_m`` and ``C0`` of every gear, drive and coast (eq. 15-17), on the identification's steady points.
 
     Each point's efficiency is a ratio of window means of the shaft torque, the input torque and the two
     speeds; its residual is linearised in all four (the shaft torque enters both ``eta`` and ``C`` of a
     coast point), and the weighted fit's sandwich covariance gives ``eta_m``; ``C0 = (eta_m C0) / eta_m``
-    by the delta method. A gear or direction with fewer than 3 points, or one torque level only, is not
-    identifiable: the suggestion is a ramp-up in that gear (with brake steps for the coast side).
+    by the delta method. The windows themselves move with the noise where the signals still settle as a
+    hold begins: the variance of the noise-free estimates over draws of the windows is added
+    (:mod:`~benchtwin.studies.plan_windows`; ``recorded``: the searched channels as the plan's bench run
+    recorded them, role -> Channel, for the lag of their readings). A gear or direction with fewer than 3
+    points, or one torque level only, is not identifiable: the suggestion is a ramp-up in that gear (with
+    brake steps for the coast side).
     """
     specs = vehicle.specs
     ratios = np.asarray(specs.gear_ratios, dtype=float)
@@ -104,6 +110,7 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
     except BenchtwinError as exc:  # a campaign without any steady transmission point
         pts, why = None, f"no steady point: {exc}"
     k_w = specs.final_drive_ratio / 3.6 / specs.wheel_radius_m
+    moved = window_draws(rec, specs, noise, recorded=recorded) if pts is not None else {}
     ramp_gears = {int(s.settings.get("gear", 0)) for s in segments if s.kind == "ramp_up"}
     for g in range(1, ratios.size + 1):
         for direction in ("drive", "coast"):
@@ -155,9 +162,16 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
                       + (eta / w_out) ** 2 * v_wout + (eta / w_in) ** 2 * v_win)
             cov = sandwich_covariance(A, w, s2)
             grad_c0 = np.array([-k / eta_m**2, 1.0 / eta_m])
-            se_eta = math.sqrt(max(cov[0, 0], 0.0))
-            se_c0 = math.sqrt(max(float(grad_c0 @ cov @ grad_c0), 0.0))
+            v_eta, v_c0 = max(cov[0, 0], 0.0), max(float(grad_c0 @ cov @ grad_c0), 0.0)
             why = f"{c.size} steady windows, C {c.min():.0f}..{c.max():.0f} Nm"
+            drawn = moved.get(key)
+            if drawn is not None and len(drawn) >= 2:
+                sel = np.var(drawn, axis=0, ddof=1)
+                v_eta, v_c0 = v_eta + float(sel[0]), v_c0 + float(sel[1])
+                if sel[0] > 0.1 * cov[0, 0]:
+                    why += (f"; the windows move with the noise: {sel[0] / v_eta:.0%} of eta_m's variance "
+                            f"over {len(drawn)} draws")
+            se_eta, se_c0 = math.sqrt(v_eta), math.sqrt(v_c0)
             out.append(PlannedParameter(names[0][0], "-", eta_m, se_eta, True, why, "", int(c.size)))
             out.append(PlannedParameter(names[1][0], "Nm", k / eta_m, se_c0, True, why, "", int(c.size)))
     return out

@@ -14,7 +14,8 @@ For every check of a family (identified parameter, curve, shift line, BSFC map) 
   scale (sensor bandwidths, wire quantisation, clock drift, frame drops, a shorter campaign than the
   paper's) keep a share of it: ``NOISE_FLOOR`` (a quarter) of the paper's k sigma at least;
 * ``systematic``: the gain and offset errors the drawn setup declares, propagated as the validation's
-  GUM-like budget does (``_budget``: first-order sensitivities of each parameter).
+  GUM-like budget does (``_budget``: first-order sensitivities of each parameter; a transmission
+  parameter's through its fit's own points, ``validation.transmission_budget``).
 
 Each part is a bound at about three standard deviations. A property judges hundreds of checks a run (and
 thousands in the ``thorough`` profile), where 3-sigma bounds would fail by chance: the sum is taken at
@@ -33,7 +34,7 @@ import math
 from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.identification._fit import IdentificationResult
-from benchtwin.validation.parameters import _budget, compare_with_truth, truth_expectations
+from benchtwin.validation.parameters import _budget, _systematic, compare_with_truth, truth_expectations
 from benchtwin.validation.report import Check
 
 #: the share of the paper setup's noise tolerance kept at zero noise (see the module docstring)
@@ -52,7 +53,7 @@ def property_checks(result: IdentificationResult, vehicle: VehicleConfig, setup:
     bare = {c.name: c for c in compare_with_truth(result, vehicle, profile="realistic", gears=gears, setup=None)}
     real = compare_with_truth(result, vehicle, profile="realistic", gears=gears, setup=setup)
     budget = _budget(setup)
-    declared = {e.key: e.systematic(budget) for e in truth_expectations(vehicle) if e.systematic is not None}
+    declared = {e.key: _systematic(e, result, budget) for e in truth_expectations(vehicle) if e.systematic is not None}
     out = []
     for c in real:
         if c.group not in groups:

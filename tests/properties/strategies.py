@@ -333,3 +333,9 @@ def pinned(name: str) -> tuple[VehicleConfig, DrawnSetup, int]:
     return (VehicleConfig.model_validate(d["vehicle"]),
             DrawnSetup(SetupConfig.model_validate(d["setup"]), float(d["noise"]), bool(d["beyond_sheet"])),
             int(d["seed"]))
+
+
+def pinned_gears(name: str) -> list[int]:
+    """The gears a pinned transmission finding ran (``gears`` of ``examples/<name>.json``)."""
+    d = json.loads((Path(__file__).parent / "examples" / f"{name}.json").read_text(encoding="utf-8"))
+    return [int(g) for g in d["gears"]]

@@ -1,0 +1,144 @@
+"""Steady windows whose edges move with the noise: the transmission plan's selection term.
+
+The identification averages each steady window; where a window is found is decided on the noisy readings
+(the steadiness thresholds on the shaft torque, the speeds and the CAN torques). Where the signals still
+settle when a hold begins (a hybrid ramp-up's engine and motor sharing the torque at a low speed: gears 1-2
+of the paper campaign), the noise moves the first sample that meets the thresholds by a few grid steps from
+seed to seed, and the window's mean moves with it: over 20 seeds on the paper bench the gear-1 point at 54 Nm
+scattered 4.5 times what the noise inside a fixed window gives (its start fell at 151.0, 151.2 or 151.3 s),
+so the planned standard errors of gear 1 were 1.6-2.8 times too small.
+
+The term is computed from the setup alone, as the brakes' poll faults are (:mod:`.plan_brakes`): the readings
+the window search reads are drawn as the bench records them (the truth with the sensor's gain and offset,
+white noise, the step of the converter or the wire), the identification's own window search runs on each
+draw, and the noise-free estimate is taken at the windows found (window means of the truth). The planned
+variance is the law of total variance over the draws: the noise term at the planned windows plus the
+variance of the noise-free estimates over the draws.
+
+Where a hold begins is decided to a grid step (0.1 s) by the edge of the pedal step before it, so the draws
+must see that edge when the bench does: a reading lags the plant's truth (the sensor's filter, discretised
+at the plant step, its latency, the link), by about 15 ms for the paper bench's shaft torque, and without
+that lag every drawn window began one grid step early and the edges moved with other odds (the gear-1
+points' windows at 151.0/151.2 s against the bench's 151.0/151.2/151.3 s). The lag of each drawn channel is
+measured on the plan's one bench run (:func:`reading_lag`: the shift of the truth that best matches the
+recorded readings where the truth changes fast) and the drawn readings are the truth shifted by it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from benchtwin.config.specs import VehicleSpecs
+from benchtwin.errors import BenchtwinError
+from benchtwin.identification.keys import FitKey
+from benchtwin.identification.transmission import direction_points, efficiency_design, transmission_points
+from benchtwin.recording import Channel, Recording
+from benchtwin.studies.plan_noise import ChannelNoise
+
+__all__ = ["SEARCHED", "WINDOW_DRAWS", "noisy_readings", "reading_lag", "window_draws"]
+
+#: draws of the noise deciding the windows: the selection variance over K draws is known to about
+#: sqrt(2 / (K - 1)) (26 % at 30, 13 % on the standard error); one draw is one window search over the steady
+#: tests (~0.1 s per 1,000 s of tests)
+WINDOW_DRAWS = 30
+#: the channels the transmission's window search reads (identification/transmission.py) that may be noisy
+SEARCHED: tuple[str, ...] = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm", "engine_torque_nm",
+                             "shaft_torque_nm", "engine_speed_rpm")
+
+
+#: lags tried by :func:`reading_lag` (s): 0-50 ms in 0.5 ms steps
+_LAGS = np.arange(0.0, 0.0505, 0.0005)
+
+
+def reading_lag(truth: Channel, recorded: Channel, cn: ChannelNoise) -> float:
+    """How far the bench's readings of a channel lag its truth (s), from one recorded run.
+
+    The lag minimising the mean squared difference between the recorded readings and the truth shifted by
+    it (with the declared gain and offset), over the readings where the truth moves faster than 10 steps of
+    the channel (or 10 noise sigmas) a second; 0 when the two do not share timestamps or nothing moves.
+    """
+    t, x = truth.timestamps, truth.values
+    if recorded.timestamps.shape != t.shape or not np.array_equal(recorded.timestamps, t) or t.size < 3:
+        return 0.0
+    fast = np.abs(np.gradient(x, t)) > 10.0 * max(cn.q, cn.sigma, 1e-12)
+    fast &= recorded.good & np.isfinite(recorded.values)
+    if fast.sum() < 10:
+        return 0.0
+    y = recorded.values[fast]
+    err = [np.mean((y - (1.0 + cn.gain) * np.interp(t[fast] - lag, t, x) - cn.offset) ** 2) for lag in _LAGS]
+    return float(_LAGS[int(np.argmin(err))])
+
+
+def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tuple[str, ...],
+                   rng: np.random.Generator, lags: Mapping[str, float] | None = None) -> Recording:
+    """``rec`` with the channels ``names`` drawn as the bench records them (others shared, not copied).
+
+    Each reading is ``q rint(((1 + gain) y + offset + n) / q)`` with ``y`` the noise-free value (the truth
+    ``lags[name]`` seconds earlier) and ``n ~ N(0, sigma^2)`` (no rounding when ``q`` is 0).
+    """
+    out = Recording(segments=list(rec.segments), meta=dict(rec.meta))
+    for name, ch in rec.channels.items():
+        cn = noise.get(name)
+        if name not in names or cn is None:
+            out.add(ch)
+            continue
+        lag = (lags or {}).get(name, 0.0)
+        y = np.interp(ch.timestamps - lag, ch.timestamps, ch.values) if lag else ch.values
+        v = (1.0 + cn.gain) * y + cn.offset + rng.normal(0.0, cn.sigma, ch.values.shape)
+        if cn.q > 0:
+            v = cn.q * np.rint(v / cn.q)
+        out.add(Channel(name, ch.unit, ch.timestamps, v, ch.flags, ch.source))
+    return out
+
+
+def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, ChannelNoise], *,
+                 recorded: Mapping[str, Channel] | None = None, draws: int = WINDOW_DRAWS,
+                 seed: int = 0) -> dict[str, np.ndarray]:
+    """The noise-free ``(eta_m, C0)`` of every transmission fit at the windows each draw of the noise gives.
+
+    Parameters
+    ----------
+    rec:
+        The noise-free Recording of the plan (:func:`~benchtwin.studies.plan_noise.truth_recording`).
+    specs:
+        Public specs (ratios, final drive, wheel radius).
+    noise:
+        Role -> the random error of its readings.
+    recorded:
+        The searched channels as the plan's bench run recorded them (role -> Channel), for their lag
+        (:func:`reading_lag`); without them the draws take the truth unshifted.
+    draws, seed:
+        Number of draws and the seed of their generator (the same plan gives the same numbers).
+
+    Returns
+    -------
+    dict
+        Fit key (``transmission.gear<g>[_coast]``) -> array ``[k, 2]`` of ``(eta_m, C0)``, one row per draw
+        whose windows give the fit at least 3 points; empty when no searched channel is noisy.
+    """
+    names = tuple(n for n in SEARCHED if n in rec and n in noise)
+    if not names or draws < 2:
+        return {}
+    ratios = np.asarray(specs.gear_ratios, dtype=float)
+    lags = {n: reading_lag(rec[n], recorded[n], noise[n]) for n in names if recorded and n in recorded}
+    rng = np.random.default_rng(seed)
+    out: dict[str, list[tuple[float, float]]] = {}
+    for _ in range(draws):
+        try:
+            found = transmission_points(noisy_readings(rec, noise, names, rng, lags), specs)
+            pts = transmission_points(rec, specs, steady=found.windows)
+        except BenchtwinError:
+            continue
+        for g in range(1, ratios.size + 1):
+            for direction in ("drive", "coast"):
+                _m, dom, c, eta = direction_points(pts, g, direction, ratios[g - 1])
+                c, eta = c[dom], eta[dom]
+                if c.size < 3:
+                    continue
+                A, w = efficiency_design(c)
+                sw = np.sqrt(w)
+                x = np.linalg.lstsq(A * sw[:, None], eta * sw, rcond=None)[0]
+                out.setdefault(str(FitKey.transmission(g, direction)), []).append((float(x[0]), float(x[1] / x[0])))
+    return {k: np.asarray(v, dtype=float) for k, v in out.items()}
