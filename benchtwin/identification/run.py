@@ -61,7 +61,7 @@ from benchtwin.identification.reduction_gear import identify_reduction_gear
 from benchtwin.identification.road_load import identify_road_load
 from benchtwin.identification.shifts import identify_shift_thresholds
 from benchtwin.identification.torque_converter import identify_torque_converter
-from benchtwin.identification.transmission import identify_transmission
+from benchtwin.identification.transmission import OIL_ROLE, identify_transmission
 from benchtwin.identification.uncertainty import propagate_type_b
 from benchtwin.recording import Recording
 from benchtwin.roles import unit_of_role
@@ -90,6 +90,9 @@ class Method:
     alternatives:
         Sets of roles of which at least one whole set must be present (the same quantity measured where
         the layout has it, e.g. the motor's DC input at the HPCU or at the pack); empty: no such condition.
+    optional_roles:
+        Roles the method also reads when the Recording has them (e.g. the gearbox oil temperature for the
+        transmission's temperature-dependent drag); their declared errors enter the type B budget.
     run:
         ``run(rec, specs, result_so_far, options) -> FitResult | dict[str, FitResult] | IdentificationResult``.
     """
@@ -101,6 +104,7 @@ class Method:
     any_roles: tuple[str, ...] = ()
     spec_keys: tuple[str, ...] = ()
     alternatives: tuple[tuple[str, ...], ...] = ()
+    optional_roles: tuple[str, ...] = ()
 
 
 def transmission_table(result: IdentificationResult) -> dict[int, tuple[float, float]]:
@@ -184,7 +188,8 @@ _TC_PUMP = (("em_speed_rpm", "em_torque_nm"), ("engine_speed_rpm", "engine_torqu
 
 #: every method in run order (transmission before the torque converter, which uses it)
 METHODS: tuple[Method, ...] = (
-    Method("transmission", _TX, _direct(identify_transmission), spec_keys=_RATIOS, alternatives=_TX_INPUT),
+    Method("transmission", _TX, _direct(identify_transmission), spec_keys=_RATIOS, alternatives=_TX_INPUT,
+           optional_roles=(OIL_ROLE,)),
     Method("motor", ("em_speed_rpm", "em_torque_nm"), _direct(identify_motor),
            spec_keys=("em_rotor_radius_m", "em_rotor_volume_m3"),
            alternatives=(("hpcu_current_a", "hpcu_voltage_v"), ("battery_current_a", "battery_voltage_v"))),
@@ -381,7 +386,7 @@ def _reads(name: str) -> list[str]:
     roles: list[str] = []
     for n in (*_DEPENDS.get(name, ()), name):
         alternative = [r for alt in known[n].alternatives for r in alt]
-        roles += [r for r in (*known[n].roles, *known[n].any_roles, *alternative)
+        roles += [r for r in (*known[n].roles, *known[n].any_roles, *alternative, *known[n].optional_roles)
                   if r not in STATE_ROLES and r not in roles]
     return roles
 

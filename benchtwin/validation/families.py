@@ -81,8 +81,9 @@ class Family:
         return out
 
     def reads(self) -> set[str]:
-        """Every role its methods read: the required ones and the optional ones."""
-        return self.roles() | set(self.optional)
+        """Every role its methods read: the required ones and the optional ones (the family's and the methods')."""
+        methods = {r for m in METHODS if m.name in self.methods for r in m.optional_roles}
+        return self.roles() | set(self.optional) | methods
 
 
 FAMILIES: dict[str, Family] = {f.name: f for f in (
