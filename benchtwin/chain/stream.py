@@ -74,7 +74,8 @@ class _Polls:
 
 def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 0,
                 out_dir: str | Path | None = None, *, blf: bool = False,
-                meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
+                meta: dict[str, Any] | None = None, save_recording: bool = True,
+                keep_chunks: bool = False) -> Recording:
     """The batch chain over a Trace given in pieces, one chunk in memory at a time.
 
     Parameters
@@ -97,6 +98,10 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
         With ``out_dir``: write ``recording.mf4`` as the acquisition goes and return it opened lazily (memory
         bounded by a chunk); False: keep the Recording in memory and leave saving it to the caller (e.g. on a
         thread while identification runs, which then reads no channel twice from the compressed file).
+    keep_chunks:
+        Return the Recording read from the acquisition's raw chunk files (one channel in memory while used, read
+        again at the cost of a plain file read; the files go when the Recording is closed), ``recording.mf4``
+        still written with ``out_dir`` and ``save_recording``; without ``out_dir`` the files are temporary.
 
     Returns
     -------
@@ -115,7 +120,8 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
             trace_meta.update(piece.meta)
             yield piece
 
-    acq = Acquisition(setup, out / "recording.mf4" if out is not None and save_recording else None)
+    acq = Acquisition(setup, out / "recording.mf4" if out is not None and save_recording else None,
+                      keep_chunks=keep_chunks)
     spans: dict[str, list[float]] = {}  # bus -> [first, last, frames] as logged
     bitrates: dict[str, int] = {}
     polls = _Polls()

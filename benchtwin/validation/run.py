@@ -4,25 +4,27 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from benchtwin.chain.batch import run_batch
+from benchtwin.chain.stream import run_chunked
 from benchtwin.config._base import StrictModel
 from benchtwin.config.campaign import CampaignConfig, CycleTest
 from benchtwin.config.setup import ChannelErrors, LinkErrors, SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
-from benchtwin.emulator import simulate_campaign
+from benchtwin.emulator import iter_campaign, simulate_campaign
 from benchtwin.emulator.cache import cached_campaign
 from benchtwin.errors import BenchtwinError, ConfigError
 from benchtwin.identification.run import identify_all
-from benchtwin.recording import Flag
+from benchtwin.recording import Flag, Recording
 from benchtwin.sensors import devices
-from benchtwin.trace import Trace
+from benchtwin.trace import SpooledTrace, Trace
 from benchtwin.validation.chain import chain_checks
 from benchtwin.validation.coverage import interval_coverage
 from benchtwin.validation.families import (
@@ -40,6 +42,8 @@ from benchtwin.validation.predict import MapVehicle
 from benchtwin.validation.report import Check, ValidationReport
 
 __all__ = ["validate"]
+
+_T = TypeVar("_T")
 
 
 def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *, profile: str | None = None,
@@ -88,22 +92,65 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     if fams is not None:
         report.meta["families"] = [f.name for f in fams]
     t0 = time.perf_counter()
+    with ExitStack() as cleanup:
+        return _validate(vehicle, setup, campaign, report, prof, fams, cleanup, t0, out_dir=out_dir, figures=figures,
+                         progress=progress, trace=trace, cache=cache, type_b=type_b)
+
+
+def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
+                            out_dir: str | Path | None, cleanup: ExitStack) -> tuple[SpooledTrace, Recording, float]:
+    """The campaign simulated test by test straight into the chain: the truth spooled to raw files, the Recording
+    read from the acquisition's raw chunk files (``recording.mf4`` written into ``out_dir``); one test in memory.
+
+    Returns the Trace, the Recording (both read from disk when used; closed with ``cleanup``) and the seconds spent
+    in the plant."""
+    truth = cleanup.enter_context(SpooledTrace())
+    plant_s = 0.0
+
+    def pieces() -> Iterator[Trace]:
+        nonlocal plant_s
+        it = iter_campaign(vehicle, campaign)
+        while True:
+            t = time.perf_counter()
+            piece = next(it, None)
+            if piece is None:
+                return
+            truth.append(piece)
+            plant_s += time.perf_counter() - t
+            yield piece
+
+    rec = run_chunked(pieces(), setup, campaign.seed, out_dir, keep_chunks=True)
+    cleanup.callback(rec.close)
+    return truth, rec, plant_s
+
+
+def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, report: ValidationReport,
+              prof: str, fams: Any, cleanup: ExitStack, t0: float, *, out_dir: str | Path | None, figures: bool,
+              progress: bool, trace: Trace | None, cache: bool | str | Path, type_b: bool | None) -> ValidationReport:
+    """:func:`validate` after the scenario is read (``cleanup`` closes the files the run reads from)."""
+    streamed = fams is None and trace is None and cache is False
     if trace is None and cache is not False:
         trace, hit = cached_campaign(vehicle, campaign, directory=None if cache is True else cache,
                                      progress=progress)
         report.meta["trace_cached"] = hit
-    elif trace is None:
+    elif trace is None and not streamed:
         trace = simulate_campaign(vehicle, campaign, progress=progress)
     t1 = time.perf_counter()
     bench = setup
     saver = None
-    if fams is None:
+    if streamed:  # the plant test by test into the chain: neither the Trace nor the Recording held whole
+        trace, rec, plant_s = _simulated_and_measured(vehicle, setup, campaign, out_dir, cleanup)
+        checked = trace
+        t0 = t1 - plant_s
+    elif fams is None:
+        assert trace is not None
         rec = run_batch(trace, setup, seed=campaign.seed, out_dir=out_dir, save_recording=False)
         checked = trace
         if out_dir is not None:  # recording.mf4 is written on another thread while identification runs
             saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="save_recording")
             saved = saver.submit(rec.save, Path(out_dir) / "recording.mf4")
     else:
+        assert trace is not None
         spans = family_spans(trace.segments, {k for f in fams for k in f.kinds})
         if not spans:
             kinds = sorted({k for f in fams for k in f.kinds})
@@ -121,29 +168,31 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
                           type_b=fams is None if type_b is None else type_b)
     t3 = time.perf_counter()
-    report.timings_s = {"simulate": round(t1 - t0, 3), "chain": round(t2 - t1, 3), "identify": round(t3 - t2, 3)}
+    if streamed:
+        report.timings_s = {"simulate": round(plant_s, 3), "chain": round(t2 - t1 - plant_s, 3),
+                            "identify": round(t3 - t2, 3)}
+    else:
+        report.timings_s = {"simulate": round(t1 - t0, 3), "chain": round(t2 - t1, 3),
+                            "identify": round(t3 - t2, 3)}
     report.identification = result
     report.chain = {
         "plant_seconds": round(trace.duration_s, 2),
         "bus_load": rec.meta.get("bus_load", {}),
         "clock_offsets_s": rec.meta.get("clock_offsets_s", {}),
-        "flagged_samples": {k: int(np.count_nonzero(c.flags)) for k, c in rec.channels.items()
-                            if np.count_nonzero(c.flags)},
-        "clipped_samples": {k: int(np.count_nonzero(c.flags & int(Flag.SATURATED))) for k, c in rec.channels.items()
-                            if np.count_nonzero(c.flags & int(Flag.SATURATED))},
+        **_flag_counts(rec),
     }
     gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings})
     roles = None if fams is None else set().union(*(f.roles() for f in fams))
     report.checks = chain_checks(checked, rec, bench, profile=prof, roles=roles)
     want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
-    paper_sets = paper_estimation_fits(rec, vehicle, trace) if want_paper else {}
+    paper_sets = _dropping(rec, paper_estimation_fits, rec, vehicle, trace) if want_paper else {}
     params = compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup,
                                 paper_sets=paper_sets)
     report.checks += params if fams is None else family_checks(params, fams)
     report.coverage = [r.to_dict() for r in interval_coverage(result, vehicle)]
     if fams is None:  # held-out drives need the whole campaign (a family run is a fast inner loop)
         t4 = time.perf_counter()
-        report.checks += _prediction(report, vehicle, setup, campaign, trace, rec, prof)
+        report.checks += _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof)
         report.timings_s["predict"] = round(time.perf_counter() - t4, 3)
     if saver is not None:
         saved.result()
@@ -161,6 +210,29 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
 
         write_html(report, out / "report.html", specs=vehicle.specs)
     return report
+
+
+def _flag_counts(rec: Recording) -> dict[str, dict[str, int]]:
+    """Flagged and clipped samples per channel (a lazy channel read for it goes again)."""
+    flagged, clipped = {}, {}
+    kept = rec.loaded()
+    for k, c in rec.channels.items():
+        if n := int(np.count_nonzero(c.flags)):
+            flagged[k] = n
+        if n := int(np.count_nonzero(c.flags & int(Flag.SATURATED))):
+            clipped[k] = n
+        if k not in kept:
+            rec.drop([k])
+    return {"flagged_samples": flagged, "clipped_samples": clipped}
+
+
+def _dropping(rec: Recording, fn: Callable[..., _T], *args: Any) -> _T:
+    """``fn(*args)``, then the lazy channels of ``rec`` it read go again."""
+    kept = rec.loaded()
+    try:
+        return fn(*args)
+    finally:
+        rec.drop(rec.loaded() - kept)
 
 
 #: the second held-out drive: the WLTC again, from a low displayed SOC, so that the hybrid strategy
