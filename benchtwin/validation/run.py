@@ -226,11 +226,11 @@ def _flag_counts(rec: Recording) -> dict[str, dict[str, int]]:
     return {"flagged_samples": flagged, "clipped_samples": clipped}
 
 
-def _dropping(rec: Recording, fn: Callable[..., _T], *args: Any) -> _T:
-    """``fn(*args)``, then the lazy channels of ``rec`` it read go again."""
+def _dropping(rec: Recording, fn: Callable[..., _T], *args: Any, **kwargs: Any) -> _T:
+    """``fn(*args, **kwargs)``, then the lazy channels of ``rec`` it read go again."""
     kept = rec.loaded()
     try:
-        return fn(*args)
+        return fn(*args, **kwargs)
     finally:
         rec.drop(rec.loaded() - kept)
 
@@ -276,8 +276,8 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
     first = None
     for gear_source in ("recorded", "shift_lines"):
         try:
-            res, p, drive = predict_drive(model, rec, trace, held.start_s, held.end_s, held.name,
-                                          gear_source=gear_source)
+            res, p, drive = _dropping(rec, predict_drive, model, rec, trace, held.start_s, held.end_s, held.name,
+                                      gear_source=gear_source)
         except BenchtwinError as exc:
             pred["notes"].append(f"{held.name} ({gear_source} gears): {exc}")
             continue
@@ -287,7 +287,7 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
             first = (res, p, drive)
             checks += prediction_checks(res, profile, _budget(setup))
     if first is not None:
-        checks += submodel_checks(result, vehicle, trace, model, first[1], first[2], profile, tols)
+        checks += _dropping(rec, submodel_checks, result, vehicle, trace, model, first[1], first[2], profile, tols)
         ser = first[1].series
         pred["series"] = {"t_s": ser["t_s"], "soc_pct": ser["soc_pct"], "battery_voltage_v": ser["battery_voltage_v"],
                           "fuel_g": np.cumsum(ser["fuel_gps"]) * first[2].dt_s}
@@ -298,6 +298,10 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
     # the second drive: the WLTC from a low SOC, simulated and measured on its own (never identified on)
     try:
         trace2, rec2 = second_run.result()
+    except BenchtwinError as exc:
+        pred["notes"].append(f"second drive: {exc}")
+        return checks
+    try:
         seg = trace2.segments[0]
         res2, _p2, _d2 = predict_drive(model, rec2, trace2, seg.start_s, seg.end_s, seg.name)
         _starts(res2, trace2, vehicle)
@@ -305,26 +309,34 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
         checks += prediction_checks(res2, profile, _budget(setup))
     except BenchtwinError as exc:
         pred["notes"].append(f"second drive: {exc}")
+    finally:
+        rec2.close()
+        trace2.close()
     return checks
 
 
-def _second_drive(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig) -> tuple[Trace, Any]:
+def _second_drive(vehicle: VehicleConfig, setup: SetupConfig,
+                  campaign: CampaignConfig) -> tuple[SpooledTrace, Recording]:
     """The second held-out drive, simulated and measured: the WLTC from :data:`SECOND_DRIVE_SOC_PCT`."""
     second = CampaignConfig(name="wltc_low_soc", seed=campaign.seed + 1, plant_rate_hz=campaign.plant_rate_hz,
                             initial_displayed_soc_pct=SECOND_DRIVE_SOC_PCT, ambient_degc=campaign.ambient_degc,
                             dyno=campaign.dyno, driver=campaign.driver,
                             tests=[CycleTest(kind="cycle", name="wltc_low_soc", mode="hybrid",
                                              cycle="wltc_class3b.csv")])
-    trace2 = simulate_campaign(vehicle, second)
-    return trace2, run_batch(trace2, setup, seed=second.seed)
+    with ExitStack() as stack:  # streamed as the campaign (the same result): closed by the caller
+        trace2, rec2, _ = _simulated_and_measured(vehicle, setup, second, None, stack)
+        stack.pop_all()
+    return trace2, rec2
 
 
 def _quietly(future: Any) -> None:
     """Wait for a background job that is no longer needed (its error, if any, is not the caller's)."""
     try:
-        future.result()
+        got = future.result()
     except Exception:  # nothing of it is used
         return
+    for part in got:
+        part.close()
 
 
 def _starts(res: Any, trace: Trace, vehicle: VehicleConfig) -> None:
