@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -20,6 +21,7 @@ from benchtwin.config.setup import ChannelErrors, LinkErrors, SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator import iter_campaign, simulate_campaign
 from benchtwin.emulator.cache import cached_campaign
+from benchtwin.emulator.protocols import lazy_protocol
 from benchtwin.errors import BenchtwinError, ConfigError
 from benchtwin.identification.run import identify_all
 from benchtwin.recording import Flag, Recording
@@ -98,7 +100,8 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
 
 
 def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
-                            out_dir: str | Path | None, cleanup: ExitStack) -> tuple[SpooledTrace, Recording, float]:
+                            out_dir: str | Path | None, cleanup: ExitStack, *,
+                            progress: bool = False) -> tuple[SpooledTrace, Recording, float]:
     """The campaign simulated test by test straight into the chain: the truth spooled to raw files, the Recording
     read from the acquisition's raw chunk files (``recording.mf4`` written into ``out_dir``); one test in memory.
 
@@ -106,17 +109,26 @@ def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign
     in the plant."""
     truth = cleanup.enter_context(SpooledTrace())
     plant_s = 0.0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        steps = lazy_protocol(campaign).steps
+        bar = cleanup.enter_context(tqdm(total=round(sum(steps) / campaign.plant_rate_hz), unit="s sim",
+                                         desc=campaign.name, leave=False))
 
     def pieces() -> Iterator[Trace]:
         nonlocal plant_s
         it = iter_campaign(vehicle, campaign)
-        while True:
+        for k in itertools.count():
             t = time.perf_counter()
             piece = next(it, None)
             if piece is None:
                 return
             truth.append(piece)
             plant_s += time.perf_counter() - t
+            if bar is not None:  # a test's full block, even if it ended early (as benchtwin simulate shows it)
+                bar.update(round(sum(steps[:k + 1]) / campaign.plant_rate_hz) - bar.n)
             yield from time_slices([piece])  # the chain's memory bounded by a slice, not by the longest test
 
     rec = run_chunked(pieces(), setup, campaign.seed, out_dir, keep_chunks=True)
@@ -139,7 +151,7 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     bench = setup
     saver = None
     if streamed:  # the plant test by test into the chain: neither the Trace nor the Recording held whole
-        trace, rec, plant_s = _simulated_and_measured(vehicle, setup, campaign, out_dir, cleanup)
+        trace, rec, plant_s = _simulated_and_measured(vehicle, setup, campaign, out_dir, cleanup, progress=progress)
         checked = trace
         t0 = t1 - plant_s
     elif fams is None:
