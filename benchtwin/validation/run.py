@@ -175,11 +175,13 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
                           out_dir=None if out_dir is None else Path(out_dir) / f"span{k}")
                 for k, sl in enumerate(slices)]
         rec, checked = merge_recordings(recs), stitch_traces(slices)
+    _give_back_freed_memory()
     t2 = time.perf_counter()
     methods = None if fams is None else [m for f in fams for m in f.methods]
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
                           type_b=fams is None if type_b is None else type_b)
     t3 = time.perf_counter()
+    _give_back_freed_memory()
     if streamed:
         report.timings_s = {"simulate": round(plant_s, 3), "chain": round(t2 - t1 - plant_s, 3),
                             "identify": round(t3 - t2, 3)}
@@ -222,6 +224,20 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
 
         write_html(report, out / "report.html", specs=vehicle.specs)
     return report
+
+
+def _give_back_freed_memory() -> None:
+    """Return the C heap's freed pages to the system (glibc's ``malloc_trim``; nothing elsewhere).
+
+    The chain frees many mid-sized arrays that glibc keeps for reuse instead of unmapping: measured on the paper
+    campaign, 250 MB of the resident set after the chain are free heap that the next stage does not reuse.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        return
 
 
 def _flag_counts(rec: Recording) -> dict[str, dict[str, int]]:
