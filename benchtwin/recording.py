@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from enum import IntFlag
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -214,6 +214,12 @@ class LazyChannel(Channel):
         return True
 
 
+class Closable(Protocol):
+    """What a Recording can own and close with itself: the source of its lazy channels."""
+
+    def close(self) -> None: ...
+
+
 #: MDF 4 channel data types that hold numbers (unsigned, signed, float; little or big endian)
 _NUMERIC_DATA_TYPES = frozenset(range(6))
 
@@ -239,7 +245,7 @@ class Recording:
     segments: list[Segment] = field(default_factory=list)
     meta: dict[str, Any] = field(default_factory=dict)
     start_time: datetime | None = None
-    _files: list[ChannelFile] = field(default_factory=list, repr=False, compare=False)
+    _files: list[Closable] = field(default_factory=list, repr=False, compare=False)
 
     def __getitem__(self, name: str) -> Channel:
         try:
@@ -496,8 +502,9 @@ class Recording:
             if isinstance(ch, LazyChannel):
                 ch.drop()
 
-    def own(self, file: ChannelFile) -> None:
-        """Close ``file`` (the source of lazy channels, e.g. an imported log) with this Recording."""
+    def own(self, file: Closable) -> None:
+        """Close ``file`` (the source of lazy channels, e.g. an imported log or the acquisition's chunk files) with
+        this Recording."""
         self._files.append(file)
 
     def close(self) -> None:

@@ -19,7 +19,7 @@ import numpy as np
 from benchtwin.errors import DataError, MissingChannelError
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
-__all__ = ["TRACE_CHANNELS", "Trace", "TraceWriter"]
+__all__ = ["TRACE_CHANNELS", "SpooledTrace", "Trace", "TraceWriter"]
 
 #: The channels every Trace from the emulator carries, with their meaning. Sign conventions:
 #: torques positive when driving the wheels; battery and HV currents positive when discharging;
@@ -297,6 +297,111 @@ class TraceWriter:
         return self.path
 
     def __enter__(self) -> TraceWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class _SpooledChannels(Mapping[str, np.ndarray]):
+    """The channels of a :class:`SpooledTrace`: each read whole from its file when asked for (never kept)."""
+
+    def __init__(self, owner: SpooledTrace) -> None:
+        self._owner = owner
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._owner.read(name)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._owner._dtypes
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._owner._dtypes)
+
+    def __len__(self) -> int:
+        return len(self._owner._dtypes)
+
+
+class SpooledTrace(Trace):
+    """A Trace appended piece by piece to raw files on disk, each channel read when used (whole or a time window).
+
+    Memory holds the time base, the segment table and the meta data; a channel (``trace[name]``) is read from
+    its file on every use and a time window (:meth:`slice_time`) reads only its samples, so the truth of a long
+    campaign is never in memory at once. The files are removed by :meth:`close` (or the ``with`` block's end).
+
+    Parameters
+    ----------
+    directory:
+        Where the folder of files is made (default: the system's temporary folder).
+    """
+
+    def __init__(self, directory: str | Path | None = None) -> None:  # no dataclass __init__: nothing is in memory
+        import tempfile
+
+        self._dir: Path | None = Path(tempfile.mkdtemp(prefix=".trace-", suffix=".spool", dir=directory))
+        self._dtypes: dict[str, np.dtype[Any]] = {}
+        self._times: list[np.ndarray] = []
+        self._time: np.ndarray = np.zeros(0)
+        self.channels = _SpooledChannels(self)  # type: ignore[assignment]
+        self.segments = []
+        self.meta = {}
+
+    @property  # type: ignore[override]
+    def time_s(self) -> np.ndarray:
+        if self._times:
+            self._time = np.concatenate([self._time, *self._times])
+            self._times = []
+        return self._time
+
+    def _path(self, name: str) -> Path:
+        if self._dir is None:
+            raise DataError("the spooled Trace is closed: its files are gone")
+        return self._dir / f"{list(self._dtypes).index(name)}.raw"
+
+    def append(self, piece: Trace) -> None:
+        """Append the next piece (same channels, after the last one in time); its segments and meta data."""
+        names = list(piece.channels)
+        if self._dtypes and names != list(self._dtypes):
+            raise DataError(f"trace piece has channels {sorted(set(names) ^ set(self._dtypes))} unlike the first piece")
+        end = self._times[-1][-1] if self._times else (self._time[-1] if len(self._time) else -np.inf)
+        if len(piece) and not piece.time_s[0] > end:
+            raise DataError(f"trace piece starts at {piece.time_s[0]:.6g} s, not after the last one ({end:.6g} s)")
+        for name in names:
+            v = np.asarray(piece.channels[name])
+            self._dtypes.setdefault(name, v.dtype)
+            with self._path(name).open("ab") as fh:
+                np.ascontiguousarray(v, dtype=self._dtypes[name]).tofile(fh)
+        self._times.append(np.array(piece.time_s, dtype=np.float64))
+        self.segments.extend(piece.segments)
+        self.meta = dict(piece.meta)
+
+    def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Samples ``start:stop`` of channel ``name``, read from its file."""
+        if name not in self._dtypes:
+            raise MissingChannelError(f"trace has no channel {name!r}")
+        n = len(self.time_s)
+        stop = n if stop is None else min(stop, n)
+        dt = self._dtypes[name]
+        with self._path(name).open("rb") as fh:
+            fh.seek(start * dt.itemsize)
+            return np.fromfile(fh, dtype=dt, count=max(stop - start, 0))
+
+    def slice_time(self, start_s: float, end_s: float) -> Trace:
+        """The part with ``start_s <= t < end_s`` (an in-memory Trace): only that window is read."""
+        t = self.time_s
+        a, b = int(np.searchsorted(t, start_s, side="left")), int(np.searchsorted(t, end_s, side="left"))
+        segs = [s for s in self.segments if s.end_s > start_s and s.start_s < end_s]
+        return Trace(t[a:b], {k: self.read(k, a, b) for k in self._dtypes}, segs, dict(self.meta))
+
+    def close(self) -> None:
+        """Remove the files (the channels can no longer be read)."""
+        import shutil
+
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = None
+
+    def __enter__(self) -> SpooledTrace:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -179,15 +180,23 @@ class Acquisition:
         them in memory and return an in-memory Recording.
     align:
         Detect clock offsets between sources.
+    keep_chunks:
+        Return the Recording read from the chunks' files (raw samples, each channel read through a file handle
+        when used and dropped again; the files go when the Recording is closed) instead of from the compressed
+        ``path`` (which is still written when given): the channels are read many times over (identification,
+        validation) at the cost of a plain file read. Without ``path`` the files are in a temporary folder.
     """
 
-    def __init__(self, setup: SetupConfig, path: str | Path | None = None, *, align: bool = True) -> None:
+    def __init__(self, setup: SetupConfig, path: str | Path | None = None, *, align: bool = True,
+                 keep_chunks: bool = False) -> None:
         self.setup = setup
         self.path = Path(path) if path is not None else None
         self.align = align
+        self.keep_chunks = keep_chunks
         self._devs = devices(setup)
         self._polled = {d.poll_device: d for d in self._devs if d.poll_device is not None}
-        self._store = ChannelStore(self.path.parent if self.path is not None else None)
+        where = self.path.parent if self.path is not None else (tempfile.gettempdir() if keep_chunks else None)
+        self._store = ChannelStore(where)
         self._streams: dict[tuple[str, int], _Stream] = {}
         self._buses: dict[str, int] = {}  # bus -> position (first seen)
         self._of_bus: dict[str, set[str]] = {}
@@ -365,7 +374,7 @@ class Acquisition:
         sink.evidence = [ev for _, st in sorted(self._streams.items(), key=lambda kv: kv[1].order)
                          for ev in st.evidence]
         # on disk, each pass maps one channel at a time (flags written in place, then unmapped)
-        release = (lambda name: rec.drop([name])) if self.path is not None else None
+        release = (lambda name: rec.drop([name])) if self._store.on_disk else None
         flag_truncations(rec, self._events, self._of_bus, release)
         for device, parts in self._polls.items():
             plog = parts[0] if len(parts) == 1 else PollLog(
@@ -419,9 +428,19 @@ class Acquisition:
         m["declared_uncertainty"] = declared_uncertainty(devs, set(rec.channels))
         rec.meta = m
         rec.start_time = self._start_time
-        if self.path is None:
+        if not self._store.on_disk:
             return rec
-        saved = rec.save(self.path)  # drops every channel it reads: nothing of the chunks' files stays mapped
+        saved = None
+        if self.path is not None:
+            saved = rec.save(self.path)  # drops every channel it reads: nothing of the chunks' files stays mapped
+        if self.keep_chunks or saved is None:
+            out = Recording(segments=rec.segments, meta=rec.meta, start_time=rec.start_time)
+            rec.drop()
+            stored = set(self._store.names())
+            for name, ch in rec.channels.items():  # the poll logs' channels were decoded in memory: kept so
+                out.add(self._store.reader(name) if name in stored else ch)
+            out.own(self._store)
+            return out
         self._store.cleanup()
         opened = Recording.open(saved)
         opened.meta = rec.meta  # as decoded (the file's copy went through JSON: integer keys became text)

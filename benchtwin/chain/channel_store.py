@@ -3,7 +3,9 @@
 :class:`ChannelStore` takes each chunk's samples of each channel (timestamps, values, flags) and gives the
 whole channels back at the end: concatenated in memory, or, with a directory, as memory maps of files the
 chunks were appended to, mapped when used and unmapped when dropped (the flags mapped read-write, so the
-whole-recording passes flag them in place and drop them again: one channel mapped at a time).
+whole-recording passes flag them in place and drop them again: one channel mapped at a time). Once those passes
+are done, :meth:`ChannelStore.reader` gives each channel read from its files through a file handle (plain
+sequential reads of raw samples: the pages of a memory map would count as resident while the channel is used).
 """
 
 from __future__ import annotations
@@ -98,6 +100,34 @@ class ChannelStore:
 
             return LazyChannel(name, e.unit, e.source, e.n, load, e.texts)
         return Channel(name, e.unit, t, v, f, e.source, e.texts)
+
+    def reader(self, name: str) -> Channel:
+        """The whole channel as a :class:`~benchtwin.recording.LazyChannel` read from its files (raw samples,
+        through a file handle) on first access and dropped again with :meth:`~benchtwin.recording.LazyChannel.drop`;
+        in memory (as :meth:`channel`) when the store has no directory."""
+        e = self._entries[name]
+        if self._dir is None or e.n == 0:
+            return self.channel(name)
+        files = [self._file(name, k) for k in range(3)]
+        n = e.n
+
+        def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            out = []
+            for k in range(3):
+                with files[k].open("rb") as fh:
+                    out.append(np.fromfile(fh, dtype=_DTYPES[k], count=n))
+            return out[0], out[1], out[2]
+
+        return LazyChannel(name, e.unit, e.source, n, load, e.texts)
+
+    @property
+    def on_disk(self) -> bool:
+        """Whether the samples go to files (a directory was given)."""
+        return self._dir is not None
+
+    def close(self) -> None:
+        """The same as :meth:`cleanup` (so a Recording read from the store can own it)."""
+        self.cleanup()
 
     def cleanup(self) -> None:
         """Remove the files (channels mapped from them must no longer be used)."""

@@ -34,7 +34,10 @@ from benchtwin.sensors.imperfections import truncate_log
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import FrameTable, PollLog, TransportEvent
 
-__all__ = ["run_chunked", "trace_pieces"]
+__all__ = ["SLICE_S", "run_chunked", "time_slices", "trace_pieces"]
+
+#: plant seconds per chunk of :func:`time_slices` (two 60-s draw blocks of the encoders)
+SLICE_S = 120.0
 
 
 def trace_pieces(trace: Trace) -> Iterator[Trace]:
@@ -51,6 +54,26 @@ def trace_pieces(trace: Trace) -> Iterator[Trace]:
         hi = np.inf if b == len(t) else float(t[b])
         segs = [s for s in trace.segments if lo <= s.start_s < hi]
         yield Trace(t[a:b], {k: v[a:b] for k, v in trace.channels.items()}, segs, dict(trace.meta))
+
+
+def time_slices(pieces: Iterable[Trace], max_s: float = SLICE_S) -> Iterator[Trace]:
+    """Each piece cut into slices of at most ``max_s`` plant seconds (views on its arrays), for a chain whose memory
+    is bounded by a slice rather than by the longest test; the piece's segments go with its first slice.
+
+    The chain's output is the same for any cut (:func:`run_chunked`), so this changes memory and speed only.
+    """
+    if not max_s > 0:
+        raise ValueError(f"slice length must be positive, got {max_s}")
+    for piece in pieces:
+        t = piece.time_s
+        if not len(t):
+            yield piece
+            continue
+        edges = np.searchsorted(t, t[0] + max_s * np.arange(1, int((t[-1] - t[0]) // max_s) + 1), side="left")
+        bounds = [0, *[int(e) for e in edges if 0 < e < len(t)], len(t)]
+        for k, (a, b) in enumerate(pairwise(bounds)):
+            yield Trace(t[a:b], {n: v[a:b] for n, v in piece.channels.items()}, piece.segments if k == 0 else [],
+                        piece.meta)
 
 
 class _Polls:
@@ -75,7 +98,8 @@ class _Polls:
 
 def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 0,
                 out_dir: str | Path | None = None, *, blf: bool = False,
-                meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
+                meta: dict[str, Any] | None = None, save_recording: bool = True,
+                keep_chunks: bool = False) -> Recording:
     """The batch chain over a Trace given in pieces, one chunk in memory at a time.
 
     Parameters
@@ -98,6 +122,10 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
         With ``out_dir``: write ``recording.mf4`` as the acquisition goes and return it opened lazily (memory
         bounded by a chunk); False: keep the Recording in memory and leave saving it to the caller (e.g. on a
         thread while identification runs, which then reads no channel twice from the compressed file).
+    keep_chunks:
+        Return the Recording read from the acquisition's raw chunk files (one channel in memory while used, read
+        again at the cost of a plain file read; the files go when the Recording is closed), ``recording.mf4``
+        still written with ``out_dir`` and ``save_recording``; without ``out_dir`` the files are temporary.
 
     Returns
     -------
@@ -116,7 +144,8 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
             trace_meta.update(piece.meta)
             yield piece
 
-    acq = Acquisition(setup, out / "recording.mf4" if out is not None and save_recording else None)
+    acq = Acquisition(setup, out / "recording.mf4" if out is not None and save_recording else None,
+                      keep_chunks=keep_chunks)
     spans: dict[str, list[float]] = {}  # bus -> [first, last, frames] as logged
     bitrates: dict[str, int] = {}
     polls = _Polls()

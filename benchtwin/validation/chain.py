@@ -7,7 +7,7 @@ for it are said by each device (:meth:`~benchtwin.sensors.base.Device.truth_chan
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -58,16 +58,27 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
     list of Check
         One check per channel; the worst sample (ideal) or the fraction inside the bound (realistic).
     """
-    budget = _error_budget(setup) if profile != "ideal" else {}
     checks: list[Check] = []
+    kept = recording.loaded()
+    for role, check in _chain_checks(trace, recording, setup, profile, roles):
+        checks.append(check)
+        if role not in kept:  # a lazy Recording: one channel in memory at a time
+            recording.drop([role])
+    return checks
+
+
+def _chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, profile: str,
+                  roles: Iterable[str] | None) -> Iterator[tuple[str, Check]]:
+    """The checks of :func:`chain_checks`, one per role, as they are made."""
+    budget = _error_budget(setup) if profile != "ideal" else {}
     wanted = set(roles) if roles is not None else None
     for role, tc in sorted(_chain_truth(setup).items()):
         if wanted is not None and role not in wanted:
             continue
         name, factor, hold, res = tc.trace, tc.factor, tc.hold, tc.resolution
         if role not in recording or name not in trace:
-            checks.append(Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", "",
-                                False, "channel missing from the recording"))
+            yield role, Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", "",
+                              False, "channel missing from the recording")
             continue
         ch: Channel = recording[role]
         x = trace[name] * factor
@@ -75,8 +86,8 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
         ok = np.isfinite(truth) & np.isfinite(ch.values) & (ch.flags & int(Flag.bad()) == 0)
         n_flag = int(np.count_nonzero(ch.flags))
         if not ok.any():
-            checks.append(Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs",
-                                ch.unit, False, "no usable sample"))
+            yield role, Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs",
+                              ch.unit, False, "no usable sample")
             continue
         err = ch.values[ok] - truth[ok]
         if profile == "ideal":
@@ -85,8 +96,8 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
             k = int(np.argmax(np.abs(err)))
             passed = bool(abs(err[k]) <= tol and n_flag == 0)
             note = f"{n_flag} flagged samples" if n_flag else "half a resolution step"
-            checks.append(Check("chain", f"chain.{role}", float(ch.values[ok][k]), float(truth[ok][k]),
-                                float(err[k]), tol, "abs", ch.unit, passed, note))
+            yield role, Check("chain", f"chain.{role}", float(ch.values[ok][k]), float(truth[ok][k]),
+                              float(err[k]), tol, "abs", ch.unit, passed, note)
             continue
         errs, link, extra = budget.get(role, (None, None, 0.0))
         t = ch.timestamps[ok]
@@ -113,7 +124,6 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
         within = np.abs(err) <= bound
         inside = float(np.mean(within))
 
-        checks.append(Check("chain", f"chain.{role}", inside, 0.99, inside, 0.99, "min", "-", inside >= 0.99,
-                            f"fraction of unflagged samples whose error the setup's declared imperfections explain; "
-                            f"{n_flag} flagged samples"))
-    return checks
+        yield role, Check("chain", f"chain.{role}", inside, 0.99, inside, 0.99, "min", "-", inside >= 0.99,
+                          f"fraction of unflagged samples whose error the setup's declared imperfections explain; "
+                          f"{n_flag} flagged samples")

@@ -12,6 +12,7 @@ of the totals comes from.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,7 +23,7 @@ from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._signals import gather
 from benchtwin.identification.keys import FitKey
-from benchtwin.recording import Channel, Recording
+from benchtwin.recording import Channel, LazyChannel, Recording
 from benchtwin.trace import Trace
 from benchtwin.validation.hifi import hifi_submodel_checks
 from benchtwin.validation.predict import CO2_G_PER_G_DIESEL, DriveInputs, MapVehicle, Prediction
@@ -72,10 +73,35 @@ def without_window(rec: Recording, start_s: float, end_s: float) -> Recording:
     """The Recording with the samples of ``[start_s, end_s)`` and the segments inside it removed."""
     out = Recording(segments=[s for s in rec.segments if not (s.start_s >= start_s and s.end_s <= end_s)],
                     meta=dict(rec.meta))
+    kept = rec.loaded()
     for ch in rec.channels.values():
-        m = (ch.timestamps < start_s) | (ch.timestamps >= end_s)
+        if isinstance(ch, LazyChannel) and ch.name not in kept:  # read from the file again when used
+            n = int(np.count_nonzero(_outside(ch.timestamps, start_s, end_s)))
+            rec.drop([ch.name])
+            out.add(LazyChannel(ch.name, ch.unit, ch.source, n, _cut(rec, ch.name, start_s, end_s)))
+            continue
+        m = _outside(ch.timestamps, start_s, end_s)
         out.add(Channel(ch.name, ch.unit, ch.timestamps[m], ch.values[m], ch.flags[m], ch.source))
     return out
+
+
+def _outside(t: np.ndarray, start_s: float, end_s: float) -> np.ndarray:
+    return (t < start_s) | (t >= end_s)
+
+
+def _cut(rec: Recording, name: str, start_s: float,
+         end_s: float) -> Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """A loader of channel ``name`` of ``rec`` without ``[start_s, end_s)`` (the lazy channel read goes again)."""
+    def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        was = name in rec.loaded()
+        ch = rec.channels[name]
+        m = _outside(ch.timestamps, start_s, end_s)
+        out = ch.timestamps[m], ch.values[m], ch.flags[m]
+        if not was:
+            rec.drop([name])
+        return out
+
+    return load
 
 
 def _initial_soc(rec: Recording, start_s: float, soc_per_ah: float) -> float:

@@ -1,0 +1,131 @@
+"""validate streams the campaign: neither the whole Trace nor the whole Recording is held in memory.
+
+The pieces: the truth spooled to raw files (:class:`~benchtwin.trace.SpooledTrace`), the chain fed in time slices
+(:func:`~benchtwin.chain.stream.time_slices`), the Recording read from the acquisition's raw chunk files
+(``keep_chunks``), the held-out Recording cut lazily (:func:`~benchtwin.validation.holdout.without_window`).
+Each is compared with the in-memory result it replaces; the validate test checks what is in memory when
+identification and the chain checks run. About 10 s in all.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import benchtwin.validation.run as vrun
+from benchtwin.chain.stream import run_chunked, time_slices
+from benchtwin.config import load_campaign, load_setup, load_vehicle
+from benchtwin.recording import LazyChannel, Recording
+from benchtwin.sensors import devices
+from benchtwin.sensors.synthetic import synthetic_trace
+from benchtwin.trace import SpooledTrace, Trace
+from benchtwin.validation.holdout import without_window
+
+PAPER = load_setup("paper")
+
+
+def assert_same_recording(a: Recording, b: Recording, *, meta: bool = True) -> None:
+    """Every channel equal bit for bit (times, values, flags, unit, source), the same segments (and meta)."""
+    assert list(a.channels) == list(b.channels)
+    for name in a.channels:
+        ca, cb = a[name], b[name]
+        for field in ("timestamps", "values", "flags"):
+            x, y = getattr(ca, field), getattr(cb, field)
+            assert x.dtype == y.dtype, (name, field)
+            np.testing.assert_array_equal(x, y, err_msg=f"{name}.{field}")
+        assert (ca.unit, ca.source) == (cb.unit, cb.source), name
+    assert a.segments == b.segments
+    assert a.start_time == b.start_time
+    assert a.meta == b.meta or not meta
+
+
+def test_spooled_trace_reads_what_was_appended() -> None:
+    trace = synthetic_trace(30.0, 100.0, seed=3)
+    with SpooledTrace() as spooled:
+        for piece in time_slices([trace], 7.0):
+            spooled.append(piece)
+        folder = spooled._dir
+        assert folder is not None and folder.is_dir()
+        np.testing.assert_array_equal(spooled.time_s, trace.time_s)
+        assert list(spooled) == list(trace.channels) and "no_such" not in spooled
+        for name, values in trace.channels.items():
+            got = spooled[name]
+            assert got.dtype == values.dtype
+            np.testing.assert_array_equal(got, values)
+        for a, b in ((0.0, 30.0), (3.33, 12.5), (29.99, 40.0), (12.0, 12.0)):
+            want, got = trace.slice_time(a, b), spooled.slice_time(a, b)
+            np.testing.assert_array_equal(got.time_s, want.time_s)
+            for name in trace.channels:
+                np.testing.assert_array_equal(got[name], want[name])
+            assert got.segments == want.segments
+    assert not folder.exists()
+
+
+def test_time_slices_cut_by_duration_and_keep_segments_once() -> None:
+    trace = synthetic_trace(25.0, 100.0, seed=1)
+    slices = list(time_slices([trace], 10.0))
+    assert [len(s) for s in slices] == [1000, 1000, len(trace) - 2000]
+    np.testing.assert_array_equal(np.concatenate([s.time_s for s in slices]), trace.time_s)
+    assert slices[0].segments == trace.segments and all(not s.segments for s in slices[1:])
+    with pytest.raises(ValueError, match="positive"):
+        list(time_slices([trace], 0.0))
+
+
+def test_recording_read_from_the_chunk_files_equals_the_in_memory_one(tmp_path: Path) -> None:
+    trace = synthetic_trace(60.0, 100.0, seed=5)
+    whole = run_chunked([trace], PAPER, seed=2)
+    rec = run_chunked(time_slices([trace], 13.0), PAPER, seed=2, out_dir=tmp_path, keep_chunks=True)
+    try:
+        lazy = [n for n, c in rec.channels.items() if isinstance(c, LazyChannel)]
+        assert len(lazy) > len(rec.channels) // 2 and not rec.loaded() & set(lazy)
+        assert_same_recording(rec, whole)
+        rec.drop()
+        assert not rec.loaded() & set(lazy)
+        # the file's meta went through JSON (integer keys became text)
+        assert_same_recording(Recording.load(tmp_path / "recording.mf4"), whole, meta=False)
+        cut = without_window(rec, 20.0, 35.0)
+        assert not rec.loaded() & set(lazy) and not cut.loaded() & set(lazy)
+        eager = without_window(whole, 20.0, 35.0)
+        assert_same_recording(cut, eager)
+    finally:
+        rec.close()
+    assert not list(tmp_path.glob(".acquisition-*"))  # the chunk files go with the Recording
+
+
+def test_validate_holds_neither_the_trace_nor_the_recording(monkeypatch: pytest.MonkeyPatch) -> None:
+    campaign = load_campaign("quick.toml")
+    campaign = campaign.model_copy(update={"tests": campaign.tests[:2]})
+    setup = load_setup("paper")
+    polled = {d.poll_device for d in devices(setup) if d.poll_device is not None}  # decoded at the end, in memory
+    seen: dict[str, object] = {}
+    real_identify, real_checks = vrun.identify_all, vrun.chain_checks
+
+    def identify(rec: Recording, *args: object, **kwargs: object) -> object:
+        if "rec" not in seen:
+            seen["rec"] = rec
+            seen["in_memory"] = {n for n, c in rec.channels.items() if not isinstance(c, LazyChannel)}
+            seen["loaded_before"] = rec.loaded()
+        return real_identify(rec, *args, **kwargs)
+
+    def checks(trace: Trace, rec: Recording, *args: object, **kwargs: object) -> object:
+        seen["trace"] = trace
+        before = rec.loaded()
+        out = real_checks(trace, rec, *args, **kwargs)
+        seen["loaded_by_checks"] = rec.loaded() - before
+        return out
+
+    monkeypatch.setattr(vrun, "identify_all", identify)
+    monkeypatch.setattr(vrun, "chain_checks", checks)
+    report = vrun.validate(load_vehicle(), setup, campaign, type_b=False)
+    rec = seen["rec"]
+    assert isinstance(rec, Recording)
+    in_memory = seen["in_memory"]
+    assert isinstance(in_memory, set) and in_memory, "the poll channels are decoded in memory"
+    assert {rec.channels[n].source for n in in_memory} <= polled  # every other channel read from its file
+    assert seen["loaded_before"] == in_memory
+    assert seen["loaded_by_checks"] == set()  # each channel checked goes again
+    assert isinstance(seen["trace"], SpooledTrace)
+    assert seen["trace"]._dir is None  # the truth's files are gone after the run
+    assert any(c.group == "chain" and c.passed for c in report.checks)
