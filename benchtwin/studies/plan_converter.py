@@ -10,8 +10,10 @@ are linear in their right-hand sides:
   sandwich with the variance of each row: the motor torque's grid sample for the pump rows, the shaft torque's
   over ``k_out^2`` (``k_out = i_g eta_m``) for the turbine rows (a grid sample interpolated between two readings
   at fraction ``a`` has ``(1-a)^2`` and ``a^2`` of their variances);
-- coupling mode (eq. 39), ``t_p - J dw_p = q a_678``: the pump rows of the coupling points, and the pump inertia
-  ``J`` of the converter fit through ``-(q'q)^-1 q' dw_p``;
+- coupling mode (eq. 39), ``t_p - J dw_p = D x`` with the identification's coupling design ``D``
+  (:func:`~benchtwin.identification.torque_converter.coupling_design`: ``x = (a6, a8)`` and ``a7 = -a6 - a8``
+  with no torque without slip), mapped to ``a_678 = M x``: the pump rows of the coupling points, and the pump
+  inertia ``J`` of the converter fit through ``-M (D'D)^-1 D' dw_p``;
 - the transmission model each turbine torque goes through (``T_out / (i_g eta_m) + C0``) is itself estimated
   from the same seed's shaft torque: its planned ``eta_m`` and ``C0`` standard errors of each gear move all
   the turbine rows that use that gear's model together (``-(t_t - C0) / eta_m`` and ``1``; a gear without a
@@ -46,10 +48,11 @@ from benchtwin.errors import BenchtwinError
 from benchtwin.identification.torque_converter import (
     _zero_torque_sr,
     converter_design,
+    coupling_coefficients,
+    coupling_design,
     coupling_point,
     fit_torque_converter,
     identify_torque_converter,
-    speed_products,
 )
 from benchtwin.identification.torque_converter_points import ConverterPoints, converter_points
 from benchtwin.recording import Channel, Recording
@@ -74,8 +77,9 @@ CONVERTER_RECORDED = ("em_speed_rpm", "em_torque_nm", "vehicle_speed_kmh")
 nan = float("nan")
 _HINT = "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"
 _POINT_OPTS = ("rate_hz", "max_pump_accel_rpm_s", "min_pump_speed_rpm", "min_pump_torque_nm", "shift_hold_s",
-               "derivative_window_s", "calibrate_turbine_speed", "min_calibration_points", "lockup_slip_tol")
-_FIT_OPTS = ("gamma", "min_points", "outlier_sigma")
+               "derivative_window_s", "calibrate_turbine_speed", "min_calibration_points", "lockup_slip_tol",
+               "calibrate_turbine_torque")
+_FIT_OPTS = ("gamma", "min_points", "outlier_sigma", "coupling_zero_slip")
 
 
 def _defaults() -> dict[str, object]:
@@ -173,7 +177,8 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     e_tp = grid_error_sampler(truth, noise, "em_torque_nm", pts.t)
     e_tt = grid_error_sampler(truth, noise, "shaft_torque_nm", pts.t)
     model_gear = _model_gears(pts.gear, table)
-    lin = [_propagate(pts, res, v_tp, v_tt, table)]
+    zero_slip = bool(opts["coupling_zero_slip"])
+    lin = [_propagate(pts, res, v_tp, v_tt, table, zero_slip)]
     n_lost = 0
     if np.any(v_tp > 0) or np.any(v_tt > 0):
         # the rows each fit keeps (outlier rejection, whose bound scales with the residuals' spread) and the mode
@@ -191,7 +196,7 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
             try:
                 rows = fit_torque_converter(pts.w_p, pts.w_t, t_p, t_t,
                                             dw_p=pts.dw_p, **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
-                lin.append(_propagate(pts, rows, v_tp, v_tt, table))
+                lin.append(_propagate(pts, rows, v_tp, v_tt, table, zero_slip))
             except BenchtwinError:
                 n_lost += 1
         if len(lin) < 2:
@@ -275,8 +280,9 @@ def _model_gears(gear: np.ndarray, table: Mapping[int, object]) -> np.ndarray:
 
 
 def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, v_tt: np.ndarray,
-               table: Mapping[int, tuple[float, float, float, float]]) -> _Linear:
-    """The linear map of both fits at the rows ``rows`` (a result of the fit) kept, on the noise-free points."""
+               table: Mapping[int, tuple[float, float, float, float]], zero_slip: bool = True) -> _Linear:
+    """The linear map of both fits at the rows ``rows`` (a result of the fit) kept, on the noise-free points;
+    ``zero_slip`` as the coupling fit's ``coupling_zero_slip``."""
     model_gear = _model_gears(pts.gear, table)
     data = rows["torque_ratio"].data
     g = float(data["gamma"][0])
@@ -303,8 +309,10 @@ def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, 
     k1 = len(names)
     if "coupling" not in rows or int(m2.sum()) < 3:
         return _Linear(names, x1, cov1, k1, n1, int(m2.sum()), g, np.packbits(np.r_[m1, m2]).tobytes())
-    q2 = speed_products(pts.w_p[m2], pts.w_t[m2])
-    L2 = np.linalg.solve(q2.T @ q2, q2.T)
+    d2 = coupling_design(pts.w_p[m2], pts.w_t[m2], zero_slip)
+    # a_678 = M x of the fit's unknowns x (a6, a8 with no torque without slip)
+    m678 = np.column_stack([coupling_coefficients(e, zero_slip) for e in np.eye(d2.shape[1])])
+    L2 = m678 @ np.linalg.solve(d2.T @ d2, d2.T)
     x2 = L2 @ (pts.t_p[m2] - x1[6] * pts.dw_p[m2])
     dj = -L2 @ pts.dw_p[m2]  # d a678 / d J
     cov = np.zeros((k1 + 3, k1 + 3))
