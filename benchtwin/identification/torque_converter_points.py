@@ -19,7 +19,8 @@ from benchtwin.errors import MissingChannelError
 from benchtwin.identification._signals import strict_resample
 from benchtwin.recording import Recording
 
-__all__ = ["RPM_PER_RADS", "ConverterPoints", "converter_points", "unsettled"]
+__all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "converter_points", "turbine_torque_scale",
+           "unsettled"]
 
 #: rpm per rad/s
 RPM_PER_RADS = 60.0 / (2.0 * np.pi)
@@ -100,6 +101,57 @@ def _hold_mask(gear_change: np.ndarray, n_hold: int) -> np.ndarray:
 
 
 @dataclass
+class TorqueCalibration:
+    """The samples the turbine torque of eq. 32 is calibrated on (lock-up closed, K0 open, nearly steady).
+
+    ``t``, ``gear``, the motor torque ``t_p``, the turbine torque ``t_t`` of eq. 32 before the scale,
+    ``k_out = i_g eta_m`` and ``c0`` of the transmission model each went through, and the least samples a gear
+    needs (:func:`turbine_torque_scale`).
+    """
+
+    t: np.ndarray
+    gear: np.ndarray
+    t_p: np.ndarray
+    t_t: np.ndarray
+    k_out: np.ndarray
+    c0: np.ndarray
+    min_points: int
+
+
+def turbine_torque_scale(gear: np.ndarray, t_p: np.ndarray, t_t: np.ndarray, min_points: int
+                         ) -> tuple[float, float, int]:
+    """The scale of eq. 32's turbine torque: the median over the gears of each gear's median ``t_p / t_t``.
+
+    Per gear, because each gear's own eta_m and C0 errors differ and a gear with long steady drives must not
+    outweigh the others; the median over the gears is the part common to all of them. A gear with fewer than
+    ``min_points`` samples is left out.
+
+    Parameters
+    ----------
+    gear, t_p, t_t:
+        Gear, motor torque and turbine torque (eq. 32) of the calibration samples.
+    min_points:
+        Least samples of a gear.
+
+    Returns
+    -------
+    scale, se, n
+        The scale (1 without a gear), its standard error from the spread of the gear medians (NaN with fewer
+        than two gears) and the samples used.
+    """
+    meds, n = [], 0
+    for k in np.unique(gear):
+        r = t_p[gear == k] / t_t[gear == k]
+        if r.size >= min_points:
+            meds.append(float(np.median(r)))
+            n += int(r.size)
+    if not meds:
+        return 1.0, float("nan"), 0
+    se = 1.2533 * float(np.std(meds, ddof=1)) / np.sqrt(len(meds)) if len(meds) > 1 else float("nan")
+    return float(np.median(meds)), se, n
+
+
+@dataclass
 class ConverterPoints:
     """The points the converter is fitted on (:func:`converter_points`), on the grid of the identification.
 
@@ -107,7 +159,8 @@ class ConverterPoints:
     turbine torque ``T_out / k_out + C0`` with ``k_out = i_g eta_m`` per point; ``dw_p`` the pump acceleration
     (rad/s^2); ``gear``; ``n_excluded`` grid points left out; the turbine-speed calibration (``scale``,
     ``scale_se``, ``n_cal``), the turbine-torque calibration (``tscale``, ``tscale_se``, ``n_tcal``: eq. 32's
-    torque against the motor torque where the lock-up is closed and K0 open) and the reasons to flag.
+    torque against the motor torque where the lock-up is closed and K0 open; its samples in
+    ``torque_calibration``) and the reasons to flag.
     """
 
     t: np.ndarray
@@ -127,6 +180,7 @@ class ConverterPoints:
     tscale: float = 1.0
     tscale_se: float = float("nan")
     n_tcal: int = 0
+    torque_calibration: TorqueCalibration | None = None
 
 
 def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mapping[int, tuple[float, float]] | None,
@@ -239,6 +293,7 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     t_t = d["shaft_torque_nm"] / (ig * eta) + c0
     use &= np.isfinite(t_t)
     tscale, tscale_se, n_tcal = 1.0, float("nan"), 0
+    tcal_points = None
     if calibrate_turbine_torque and k0_open is not None:
         # lock-up closed, K0 open, nearly steady: the turbine torque of eq. 32 is the motor torque
         tcal = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz)) & (gear >= 1) \
@@ -247,15 +302,11 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
             & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0) & (t_t > 0)
         # per gear (each gear's own eta_m and C0 errors differ; a gear with long steady drives must not
         # outweigh the others), then the median over the gears: the part common to all gears
-        meds = []
-        for k in np.unique(gear[tcal]):
-            r = t_p[tcal & (gear == k)] / t_t[tcal & (gear == k)]
-            if r.size >= min_calibration_points:
-                meds.append(float(np.median(r)))
-                n_tcal += int(r.size)
-        if meds:
-            tscale = float(np.median(meds))
-            tscale_se = 1.2533 * float(np.std(meds, ddof=1)) / np.sqrt(len(meds)) if len(meds) > 1 else float("nan")
+        tcal_points = TorqueCalibration(t[tcal], gear[tcal], t_p[tcal], t_t[tcal], (ig * eta)[tcal], c0[tcal],
+                                        min_calibration_points)
+        tscale, tscale_se, n_tcal = turbine_torque_scale(tcal_points.gear, tcal_points.t_p, tcal_points.t_t,
+                                                         min_calibration_points)
+        if n_tcal:
             t_t = t_t * tscale
             if abs(tscale - 1.0) > 0.05:
                 reasons.append(f"turbine torque from eq. 32 is off by {100 * (1 / tscale - 1):+.1f} % against the "
@@ -263,4 +314,5 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
                                "transmission model")
     return ConverterPoints(t[use], n_p[use] / RPM_PER_RADS, w_t[use], t_p[use], t_t[use],
                            dn[use] / RPM_PER_RADS, gear[use], ig[use] * eta[use] / tscale, segs,
-                           int(t.size - use.sum()), scale, scale_se, n_cal, reasons, tscale, tscale_se, n_tcal)
+                           int(t.size - use.sum()), scale, scale_se, n_cal, reasons, tscale, tscale_se, n_tcal,
+                           tcal_points)

@@ -22,6 +22,11 @@ are linear in their right-hand sides:
 The derived parameters (``gamma_coupling``, ``k_at_gamma`` with its coupling point, ``sr_zero_torque``) follow
 by the delta method on the joint covariance.
 
+The turbine torque of eq. 32 is scaled by the median over the gears of ``T_motor / T_t`` where the lock-up is
+closed (:func:`~benchtwin.identification.torque_converter_points.turbine_torque_scale`): each draw recomputes it
+from the drawn readings of those samples (with the same transmission-model draws), scales the turbine rows by it,
+and its spread over the draws is the planned standard error of ``turbine_torque_scale``.
+
 The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
 spread, and the split at the refined coupling point moves with it. So the rows are decided by the
 identification's own fit on :data:`CONVERTER_DRAWS` draws of the readings as the bench records them (the
@@ -54,7 +59,11 @@ from benchtwin.identification.torque_converter import (
     fit_torque_converter,
     identify_torque_converter,
 )
-from benchtwin.identification.torque_converter_points import ConverterPoints, converter_points
+from benchtwin.identification.torque_converter_points import (
+    ConverterPoints,
+    converter_points,
+    turbine_torque_scale,
+)
 from benchtwin.recording import Channel, Recording
 from benchtwin.segments import Segment
 from benchtwin.studies.plan_fits import PlannedParameter
@@ -179,6 +188,7 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     model_gear = _model_gears(pts.gear, table)
     zero_slip = bool(opts["coupling_zero_slip"])
     lin = [_propagate(pts, res, v_tp, v_tt, table, zero_slip)]
+    tscales: list[float] = []
     n_lost = 0
     if np.any(v_tp > 0) or np.any(v_tt > 0):
         # the rows each fit keeps (outlier rejection, whose bound scales with the residuals' spread) and the mode
@@ -186,13 +196,32 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         # decides the rows, and the plan adds the variance of the noise-free estimate at those rows
         rng = np.random.default_rng(seed)
         lin = []
+        cal = pts.torque_calibration
+        if cal is not None:
+            e_tt_cal = grid_error_sampler(truth, noise, "shaft_torque_nm", cal.t)
+            e_tp_cal = grid_error_sampler(truth, noise, "em_torque_nm", cal.t)
+            cal_gear = _model_gears(cal.gear, table)
         for _ in range(draws):
             # the readings as the bench quantises them: the rounding's bias decides rows as it does on a bench
             t_t = pts.t_t + (e_tt(rng) / pts.k_out if e_tt is not None else 0.0)
             t_p = pts.t_p + (e_tp(rng) if e_tp is not None else 0.0)
+            if cal is not None:
+                ct = cal.t_t + (e_tt_cal(rng) / cal.k_out if e_tt_cal is not None else 0.0)
+                cp = cal.t_p + (e_tp_cal(rng) if e_tp_cal is not None else 0.0)
             for gear, (eta, c0, se_eta, se_c0) in table.items():
                 sel = model_gear == gear
-                t_t[sel] += -(pts.t_t[sel] - c0) / eta * rng.normal(0.0, se_eta) + rng.normal(0.0, se_c0)
+                d_eta, d_c0 = rng.normal(0.0, se_eta), rng.normal(0.0, se_c0)
+                t_t[sel] += -(pts.t_t[sel] - c0) / eta * d_eta + d_c0
+                if cal is not None:
+                    cs = cal_gear == gear
+                    ct[cs] += -(cal.t_t[cs] - c0) / eta * d_eta + d_c0
+            if cal is not None:
+                # the turbine-torque scale the identification would find on these readings (the points carry
+                # the noise-free one)
+                s_draw, _, n_s = turbine_torque_scale(cal.gear, cp, ct, cal.min_points)
+                if n_s:
+                    t_t *= s_draw / pts.tscale
+                    tscales.append(s_draw)
             try:
                 rows = fit_torque_converter(pts.w_p, pts.w_t, t_p, t_t,
                                             dw_p=pts.dw_p, **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
@@ -247,6 +276,11 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
                                 float("nan") if calib_noisy else 0.0, True,
                                 "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
                                 "the speeds it reads are free of random error on this setup", "", pts.n_cal))
+    out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale,
+                                float(np.std(tscales, ddof=1)) if len(tscales) > 1 else 0.0, True,
+                                f"the median over the gears of T_motor / T_t (eq. 32) on {pts.n_tcal} lock-up "
+                                "samples, over the draws of the noise" if pts.n_tcal else
+                                "no lock-up samples with K0 open: eq. 32 not calibrated", "", pts.n_tcal))
     if "a6" not in names:
         out.append(PlannedParameter("torque_converter.coupling.*", "", float("nan"), float("nan"), False,
                                     f"{n2} coupling-mode points", "add [[tests]] kind = \"acceleration\" "
@@ -346,5 +380,5 @@ def _sr0(z: np.ndarray, k1: int) -> float:
 _DERIVED: tuple[tuple[str, str, Callable[[np.ndarray, int], float]], ...] = (
     ("converter", "gamma_coupling", _gamma), ("coupling", "k_at_gamma", _k_at_gamma),
     ("coupling", "sr_zero_torque", _sr0))
-_ORDER = ("a0", "a1", "a2", "a3", "a4", "a5", "J_pump_kgm2", "gamma_coupling", "turbine_speed_scale", "a6", "a7",
-          "a8", "k_at_gamma", "sr_zero_torque")
+_ORDER = ("a0", "a1", "a2", "a3", "a4", "a5", "J_pump_kgm2", "gamma_coupling", "turbine_speed_scale",
+          "turbine_torque_scale", "a6", "a7", "a8", "k_at_gamma", "sr_zero_torque")
