@@ -146,7 +146,15 @@ def coupling_design(w_p: np.ndarray, w_t: np.ndarray, zero_slip: bool = True) ->
 
 
 def coupling_coefficients(x: np.ndarray, zero_slip: bool = True) -> np.ndarray:
-    """``a6, a7, a8`` from the coupling fit's unknowns (``a6, a8`` with ``zero_slip``, else ``a6, a7, a8``)."""
+    """``a6, a7, a8`` from the coupling fit's unknowns.
+
+    Parameters
+    ----------
+    x:
+        The unknowns of :func:`coupling_design`'s fit: ``a6, a8`` with ``zero_slip``, else ``a6, a7, a8``.
+    zero_slip:
+        As :func:`coupling_design` (``a7 = -a6 - a8``).
+    """
     x = np.asarray(x, dtype=float)
     return np.array([x[0], -x[0] - x[1], x[1]]) if zero_slip else x[:3].copy()
 
@@ -460,7 +468,8 @@ def identify_torque_converter(
         scales every torque ratio alike; the median over the gears of each gear's median
         ``T_motor / T_t(eq. 32)`` over those samples corrects it, reported as ``turbine_torque_scale``
         (flagged beyond 5 %). Needs the K0 or engine state and ``min_calibration_points`` such samples in a
-        gear, else eq. 32 is used as is.
+        gear with a transmission model of its own (a borrowed model's efficiency error is that gear's, not a
+        common gain), else eq. 32 is used as is.
     outlier_sigma, coupling_zero_slip:
         See :func:`fit_torque_converter`.
     lockup_slip_tol:

@@ -287,8 +287,10 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
         eta_tab = np.array([full[k][0] for k in range(1, len(specs.gear_ratios) + 1)])
         c0_tab = np.array([full[k][1] for k in range(1, len(specs.gear_ratios) + 1)])
         eta, c0 = eta_tab[g - 1], c0_tab[g - 1]
+        own_model = np.isin(g, list(table))
     else:
         eta, c0 = np.ones_like(ig), np.zeros_like(ig)
+        own_model = np.zeros(g.shape, dtype=bool)
         reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
     t_t = d["shaft_torque_nm"] / (ig * eta) + c0
     use &= np.isfinite(t_t)
@@ -299,7 +301,9 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
         tcal = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz)) & (gear >= 1) \
             & (gear <= len(specs.gear_ratios)) & (np.nan_to_num(d["lockup_closed"]) >= 0.5) & k0_open \
             & (n_p >= min_pump_speed_rpm) & (np.abs(dn) <= 0.1 * max_pump_accel_rpm_s) & ~unsteady \
-            & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0) & (t_t > 0)
+            & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0) & (t_t > 0) & own_model
+        # only gears with a transmission model of their own: a borrowed model's efficiency error is the gear's,
+        # not a torque gain common to all gears
         # per gear (each gear's own eta_m and C0 errors differ; a gear with long steady drives must not
         # outweigh the others), then the median over the gears: the part common to all gears
         tcal_points = TorqueCalibration(t[tcal], gear[tcal], t_p[tcal], t_t[tcal], (ig * eta)[tcal], c0[tcal],
