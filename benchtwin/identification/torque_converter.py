@@ -41,6 +41,8 @@ __all__ = [
     "ConverterPoints",
     "converter_design",
     "converter_points",
+    "coupling_coefficients",
+    "coupling_design",
     "coupling_point",
     "fit_torque_converter",
     "identify_torque_converter",
@@ -124,6 +126,39 @@ def converter_design(w_p: np.ndarray, w_t: np.ndarray, dw_p: np.ndarray | None =
     return np.vstack([np.hstack(top), np.hstack(bot)])
 
 
+def coupling_design(w_p: np.ndarray, w_t: np.ndarray, zero_slip: bool = True) -> np.ndarray:
+    """The coupling-mode design (eq. 39); shared by :func:`fit_torque_converter` and the planner.
+
+    ``zero_slip``: columns ``w_p (w_p - w_t), -w_t (w_p - w_t)`` for ``a6, a8`` with ``a7 = -a6 - a8`` (no torque
+    without slip); else :func:`speed_products` for ``a6, a7, a8``.
+
+    Parameters
+    ----------
+    w_p, w_t:
+        Pump and turbine speeds of the coupling points, rad/s.
+    zero_slip:
+        Fit with ``a6 + a7 + a8 = 0``.
+    """
+    if not zero_slip:
+        return speed_products(w_p, w_t)
+    slip = w_p - w_t
+    return np.column_stack([w_p * slip, -w_t * slip])
+
+
+def coupling_coefficients(x: np.ndarray, zero_slip: bool = True) -> np.ndarray:
+    """``a6, a7, a8`` from the coupling fit's unknowns.
+
+    Parameters
+    ----------
+    x:
+        The unknowns of :func:`coupling_design`'s fit: ``a6, a8`` with ``zero_slip``, else ``a6, a7, a8``.
+    zero_slip:
+        As :func:`coupling_design` (``a7 = -a6 - a8``).
+    """
+    x = np.asarray(x, dtype=float)
+    return np.array([x[0], -x[0] - x[1], x[1]]) if zero_slip else x[:3].copy()
+
+
 def _zero_torque_sr(x: np.ndarray) -> float:
     """SR in (0.5, 1.5) where the coupling torque ``a6 + a7 SR + a8 SR^2`` vanishes (closest to 1)."""
     roots = np.roots([x[2], x[1], x[0]]) if abs(x[2]) > 1e-30 else np.array([-x[0] / x[1]])
@@ -167,6 +202,7 @@ def fit_torque_converter(
     n_excluded: int = 0,
     dw_p: np.ndarray | None = None,
     outlier_sigma: float | None = 5.0,
+    coupling_zero_slip: bool = True,
 ) -> dict[str, FitResult]:
     """Fit a0..a8 and the coupling point to pump/turbine speed and torque points.
 
@@ -194,6 +230,13 @@ def fit_torque_converter(
         deviations (1.4826 x median absolute deviation) are left out and the fit repeated once
         (transients the quasi-steady filter let through: lock-up engagement, torque steps); the
         count is in ``n_excluded`` and the reasons. ``None``: no rejection.
+    coupling_zero_slip:
+        Fit the coupling mode with ``a6 + a7 + a8 = 0``: a fluid coupling transmits no torque without
+        slip (``SR = 1``). The coupling points span a narrow SR range (from Gamma to where the pump
+        torque falls below the torque threshold, often less than 0.1), over which three free
+        coefficients are nearly collinear and their curve is an extrapolation towards SR 1; the
+        physical end point pins it. ``sr_zero_torque`` is then 1 by construction. ``False``: a6..a8
+        free (eq. 39 as in the paper).
 
     Returns
     -------
@@ -231,8 +274,6 @@ def fit_torque_converter(
     if not np.isfinite(g0):
         g0 = float(sr.max()) + 1e-9
         reasons.append("the torque ratio never reaches 1 in the data: no coupling-mode points")
-    q = speed_products(w_p, w_t)
-
     names6 = [f"a{k}" for k in range(6)] + (["J_pump_kgm2"] if acc is not None else [])
     units6 = ["Nm*s^2/rad^2"] * 6 + (["kg*m^2"] if acc is not None else [])
 
@@ -272,6 +313,16 @@ def fit_torque_converter(
                       np.flatnonzero(mask), True)
 
     conv = conv_fit(sr < g0)
+    if gamma is None and acc is not None:
+        # the first estimate compares the turbine torque with the motor torque, which also accelerates the pump
+        # side (several % of the pump torque in slow take-offs): again with the inertia of that fit taken out
+        t_p_net = t_p - conv.value("J_pump_kgm2") * acc
+        tr_p = t_t / np.where(t_p_net > 0, t_p_net, np.nan)
+        fin = np.isfinite(tr_p)
+        g0b = _gamma_from_data(sr[fin], tr_p[fin], tr_tol) if fin.sum() >= 2 * min_points else float("nan")
+        if np.isfinite(g0b) and g0b != g0 and int((sr < g0b).sum()) >= min_points:
+            g0 = g0b
+            conv = conv_fit(sr < g0)
     g = g0
     if gamma is None:
         g1 = coupling_point(np.array([conv.value(f"a{k}") for k in range(6)]), lo=0.3, hi=1.0)
@@ -291,13 +342,19 @@ def fit_torque_converter(
     if int(cm.sum()) >= min_points:
         # the pump inertia comes from the converter fit (the coupling range alone separates it poorly)
         t_p_c = t_p[cm] - (j_pump * acc[cm] if acc is not None else 0.0)
-        coup = robust(q[cm], t_p_c, int(cm.sum()), ["a6", "a7", "a8"], ["Nm*s^2/rad^2"] * 3,
-                      "torque converter coupling (eq. 39)", min_points, np.flatnonzero(cm), False)
+        unit = "Nm*s^2/rad^2"
+        zs = coupling_zero_slip
+        coup = robust(coupling_design(w_p[cm], w_t[cm], zs), t_p_c, int(cm.sum()),
+                      ["a6", "a8"] if zs else ["a6", "a7", "a8"], [unit] * (2 if zs else 3),
+                      "torque converter coupling (eq. 39" + (", no torque without slip)" if zs else ")"),
+                      min_points, np.flatnonzero(cm), False)
+        if zs:
+            derived(coup, "a7", lambda x: -x[0] - x[1], unit=unit)
         a[6:] = [coup.value(f"a{k}") for k in (6, 7, 8)]
         # over the narrow coupling range a6..a8 are strongly correlated; these two are well determined:
         gg = float(conv.value("gamma_coupling"))
-        derived(coup, "k_at_gamma", lambda x: x[0] + x[1] * gg + x[2] * gg**2, unit="Nm*s^2/rad^2")
-        derived(coup, "sr_zero_torque", lambda x: _zero_torque_sr(x), unit="")
+        derived(coup, "k_at_gamma", lambda x: float(coupling_coefficients(x, zs) @ [1.0, gg, gg**2]), unit=unit)
+        derived(coup, "sr_zero_torque", lambda x: _zero_torque_sr(coupling_coefficients(x, zs)), unit="")
         out["coupling"] = coup
     else:
         reasons.append(f"{int(cm.sum())} coupling-mode points (SR >= {g:.3f}): a6..a8 not identified")
@@ -351,9 +408,11 @@ def identify_torque_converter(
     pump_inertia: bool = True,
     derivative_window_s: float = 0.4,
     calibrate_turbine_speed: bool = True,
+    calibrate_turbine_torque: bool = True,
     min_calibration_points: int = 50,
     outlier_sigma: float | None = 5.0,
     lockup_slip_tol: float = 0.01,
+    coupling_zero_slip: bool = True,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
@@ -388,7 +447,11 @@ def identify_torque_converter(
         the motor torque also accelerates the rotor and the pump, which biases ``a0..a2`` in the
         slow-but-not-static take-offs of a real test unless it is accounted for.
     derivative_window_s:
-        Span of the central difference for the pump acceleration.
+        Span of the central difference for the pump acceleration. With ``max_pump_accel_rpm_s`` it also
+        sets which pump speed changes are steps the difference cannot resolve, and when the pump speed has
+        settled after one: samples from the step until then are left out (see
+        :func:`~benchtwin.identification.torque_converter_points.unsettled`; e.g. the motor spun up from
+        stand-still to idle within one sample).
     calibrate_turbine_speed:
         Eq. 31 needs the effective rolling radius and a true vehicle speed; a vehicle CAN speed that
         reads a few % high, or a catalogue tyre radius, shifts every SR. Where the lock-up is closed
@@ -397,8 +460,18 @@ def identify_torque_converter(
         all turbine speeds and reported as ``turbine_speed_scale`` (flagged when it is more than 10 %
         from 1: check the gear ratios, final drive and wheel radius). Needs at least
         ``min_calibration_points`` such samples, else eq. 31 is used as is.
-    outlier_sigma:
-        Robust rejection of transients, see :func:`fit_torque_converter`.
+    calibrate_turbine_torque:
+        Likewise for eq. 32: where the lock-up is closed and K0 open (gear engaged, no shift, the pump speed
+        within a tenth of ``max_pump_accel_rpm_s``, so that the inertia torque stays below about 1 % of the
+        pump torque), the turbine torque is the motor torque. A torque sensor's gain error that the
+        transmission identification does not absorb (it reads the input torque of the hybrid ramp-ups too)
+        scales every torque ratio alike; the median over the gears of each gear's median
+        ``T_motor / T_t(eq. 32)`` over those samples corrects it, reported as ``turbine_torque_scale``
+        (flagged beyond 5 %). Needs the K0 or engine state and ``min_calibration_points`` such samples in a
+        gear with a transmission model of its own (a borrowed model's efficiency error is that gear's, not a
+        common gain), else eq. 32 is used as is.
+    outlier_sigma, coupling_zero_slip:
+        See :func:`fit_torque_converter`.
     lockup_slip_tol:
         Without a ``lockup_closed`` channel, samples with ``|1 - w_t / w_p|`` below this count as
         lock-up closed (flagged: the converter's own near-1 speed ratios are then cut off).
@@ -416,14 +489,20 @@ def identify_torque_converter(
                            max_pump_accel_rpm_s=max_pump_accel_rpm_s, min_pump_speed_rpm=min_pump_speed_rpm,
                            min_pump_torque_nm=min_pump_torque_nm, shift_hold_s=shift_hold_s,
                            derivative_window_s=derivative_window_s, calibrate_turbine_speed=calibrate_turbine_speed,
-                           min_calibration_points=min_calibration_points, lockup_slip_tol=lockup_slip_tol)
+                           min_calibration_points=min_calibration_points, lockup_slip_tol=lockup_slip_tol,
+                           calibrate_turbine_torque=calibrate_turbine_torque)
     res = fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, pts.t_t, gamma=gamma, min_points=min_points,
                                segments=pts.segments, n_excluded=pts.n_excluded,
-                               dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma)
+                               dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma,
+                               coupling_zero_slip=coupling_zero_slip)
     scale, scale_se, segs = pts.scale, pts.scale_se, pts.segments
     res["converter"].add(ParameterEstimate(
         "turbine_speed_scale", scale, scale_se, (scale - 1.96 * scale_se, scale + 1.96 * scale_se), float("nan"),
         pts.n_cal, "", segs))
+    ts, ts_se = pts.tscale, pts.tscale_se
+    res["converter"].add(ParameterEstimate(
+        "turbine_torque_scale", ts, ts_se, (ts - 1.96 * ts_se, ts + 1.96 * ts_se), float("nan"), pts.n_tcal, "",
+        segs))
     for r in pts.reasons:
         res["converter"].flag(r)
         if "coupling" in res:

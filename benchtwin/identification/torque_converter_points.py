@@ -2,9 +2,9 @@
 
 :func:`converter_points` is the first half of
 :func:`~benchtwin.identification.torque_converter.identify_torque_converter` (resampling, lock-up, shift
-hold, quasi-steady pump speed, turbine speed by eq. 31 with its calibration, turbine torque through the
-transmission model); the planner (:mod:`benchtwin.studies.plan_converter`) runs the same function on the
-noise-free Recording of a campaign.
+hold, quasi-steady and settled pump speed, turbine speed by eq. 31 and turbine torque through the
+transmission model (eq. 32), each with its calibration where the lock-up is closed); the planner
+(:mod:`benchtwin.studies.plan_converter`) runs the same function on the noise-free Recording of a campaign.
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ from benchtwin.errors import MissingChannelError
 from benchtwin.identification._signals import strict_resample
 from benchtwin.recording import Recording
 
-__all__ = ["RPM_PER_RADS", "ConverterPoints", "converter_points"]
+__all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "converter_points", "turbine_torque_scale",
+           "unsettled"]
 
 #: rpm per rad/s
 RPM_PER_RADS = 60.0 / (2.0 * np.pi)
@@ -37,6 +38,60 @@ def _central_derivative(x: np.ndarray, t: np.ndarray, window_s: float) -> np.nda
     return out
 
 
+def _half_window(t: np.ndarray, window_s: float) -> int:
+    """Samples ``h`` either side of the central difference over ``window_s`` (as :func:`_central_derivative`)."""
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    h = max(1, round(0.5 * window_s / dt)) if dt > 0 else 1
+    return min(h, (t.size - 1) // 2) or 1
+
+
+def unsettled(n_p: np.ndarray, t: np.ndarray, max_rate: float, window_s: float) -> np.ndarray:
+    """True where a pump speed step reaches the derivative window or the pump speed has not settled after it.
+
+    A step is a change between two neighbouring samples larger than the quasi-steady limit ``max_rate``
+    allows over the whole derivative window (``|n[j+1] - n[j]| > max_rate * window_s``): the central
+    difference over the window cannot resolve it. The pump speed has settled at the first sample ``k``
+    after the step from which every one-sample change over a whole derivative window (``2h`` changes,
+    ``h`` the half window in samples) stays within the limit (``|n[i+1] - n[i]| <= max_rate * (t[i+1] -
+    t[i])``). Left out: every sample whose derivative window reaches the step or the unsettled stretch
+    after it, i.e. from ``j + 1 - h`` to ``k + h - 1``; the first sample kept after a step has its whole
+    window in settled motion. A step with nothing unsettled after it costs the ``2h`` samples whose
+    window holds it (they fail the quasi-steady limit anyway); no settling within the record leaves out
+    the rest of it.
+
+    Parameters
+    ----------
+    n_p, t:
+        Pump speed (rpm) and its sample times (s).
+    max_rate:
+        The quasi-steady limit on ``|dn_p/dt|`` (rpm/s).
+    window_s:
+        Span of the central difference (s).
+    """
+    m = n_p.size
+    out = np.zeros(m, dtype=bool)
+    if m < 2:
+        return out
+    h = _half_window(t, window_s)
+    d = np.abs(np.diff(n_p))
+    jumps = np.flatnonzero(d > max_rate * window_s)
+    if jumps.size == 0:
+        return out
+    calm = d <= max_rate * np.diff(t)
+    # calm_run[i]: calm[i : i + 2h] all true (a whole derivative window of calm one-sample changes)
+    c = np.r_[0, np.cumsum(~calm)]
+    w = 2 * h
+    calm_run = np.zeros(d.size, dtype=bool)
+    if d.size >= w:
+        calm_run[: d.size - w + 1] = (c[w:] - c[: d.size - w + 1]) == 0
+    settle_at = np.flatnonzero(calm_run)
+    for j in jumps:
+        i = np.searchsorted(settle_at, j + 1)
+        k = int(settle_at[i]) if i < settle_at.size else m
+        out[max(0, j + 1 - h): min(m, k + h)] = True
+    return out
+
+
 def _hold_mask(gear_change: np.ndarray, n_hold: int) -> np.ndarray:
     """True where no gear change happened within ``n_hold`` samples either side."""
     if n_hold <= 0:
@@ -46,13 +101,66 @@ def _hold_mask(gear_change: np.ndarray, n_hold: int) -> np.ndarray:
 
 
 @dataclass
+class TorqueCalibration:
+    """The samples the turbine torque of eq. 32 is calibrated on (lock-up closed, K0 open, nearly steady).
+
+    ``t``, ``gear``, the motor torque ``t_p``, the turbine torque ``t_t`` of eq. 32 before the scale,
+    ``k_out = i_g eta_m`` and ``c0`` of the transmission model each went through, and the least samples a gear
+    needs (:func:`turbine_torque_scale`).
+    """
+
+    t: np.ndarray
+    gear: np.ndarray
+    t_p: np.ndarray
+    t_t: np.ndarray
+    k_out: np.ndarray
+    c0: np.ndarray
+    min_points: int
+
+
+def turbine_torque_scale(gear: np.ndarray, t_p: np.ndarray, t_t: np.ndarray, min_points: int
+                         ) -> tuple[float, float, int]:
+    """The scale of eq. 32's turbine torque: the median over the gears of each gear's median ``t_p / t_t``.
+
+    Per gear, because each gear's own eta_m and C0 errors differ and a gear with long steady drives must not
+    outweigh the others; the median over the gears is the part common to all of them. A gear with fewer than
+    ``min_points`` samples is left out.
+
+    Parameters
+    ----------
+    gear, t_p, t_t:
+        Gear, motor torque and turbine torque (eq. 32) of the calibration samples.
+    min_points:
+        Least samples of a gear.
+
+    Returns
+    -------
+    scale, se, n
+        The scale (1 without a gear), its standard error from the spread of the gear medians (NaN with fewer
+        than two gears) and the samples used.
+    """
+    meds, n = [], 0
+    for k in np.unique(gear):
+        r = t_p[gear == k] / t_t[gear == k]
+        if r.size >= min_points:
+            meds.append(float(np.median(r)))
+            n += int(r.size)
+    if not meds:
+        return 1.0, float("nan"), 0
+    se = 1.2533 * float(np.std(meds, ddof=1)) / np.sqrt(len(meds)) if len(meds) > 1 else float("nan")
+    return float(np.median(meds)), se, n
+
+
+@dataclass
 class ConverterPoints:
     """The points the converter is fitted on (:func:`converter_points`), on the grid of the identification.
 
     ``t`` grid times; ``w_p``, ``w_t`` pump and turbine speed (rad/s); ``t_p`` the motor torque; ``t_t`` the
     turbine torque ``T_out / k_out + C0`` with ``k_out = i_g eta_m`` per point; ``dw_p`` the pump acceleration
     (rad/s^2); ``gear``; ``n_excluded`` grid points left out; the turbine-speed calibration (``scale``,
-    ``scale_se``, ``n_cal``) and the reasons to flag.
+    ``scale_se``, ``n_cal``), the turbine-torque calibration (``tscale``, ``tscale_se``, ``n_tcal``: eq. 32's
+    torque against the motor torque where the lock-up is closed and K0 open; its samples in
+    ``torque_calibration``) and the reasons to flag.
     """
 
     t: np.ndarray
@@ -69,13 +177,17 @@ class ConverterPoints:
     scale_se: float
     n_cal: int
     reasons: list[str] = field(default_factory=list)
+    tscale: float = 1.0
+    tscale_se: float = float("nan")
+    n_tcal: int = 0
+    torque_calibration: TorqueCalibration | None = None
 
 
 def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mapping[int, tuple[float, float]] | None,
                      rate_hz: float, max_pump_accel_rpm_s: float, min_pump_speed_rpm: float,
                      min_pump_torque_nm: float, shift_hold_s: float, derivative_window_s: float,
-                     calibrate_turbine_speed: bool, min_calibration_points: int, lockup_slip_tol: float
-                     ) -> ConverterPoints:
+                     calibrate_turbine_speed: bool, min_calibration_points: int, lockup_slip_tol: float,
+                     calibrate_turbine_torque: bool = True) -> ConverterPoints:
     """The selection and regressors of :func:`identify_torque_converter`, shared with the planner.
 
     Parameters
@@ -85,10 +197,14 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     transmission:
         Gear -> (eta_m, C0) of the identified transmission (None: losses ignored, said in the reasons).
     rate_hz, max_pump_accel_rpm_s, min_pump_speed_rpm, min_pump_torque_nm, shift_hold_s, derivative_window_s:
-        Resampling rate and the quasi-steady selection, as :func:`identify_torque_converter` takes them.
+        Resampling rate and the quasi-steady selection, as :func:`identify_torque_converter` takes them
+        (with the settle rule of :func:`unsettled` after a pump speed step).
     calibrate_turbine_speed, min_calibration_points, lockup_slip_tol:
         The turbine-speed calibration where the lock-up is closed, and the slip taken as closed without a
         lock-up channel.
+    calibrate_turbine_torque:
+        The turbine torque of eq. 32 scaled to the motor torque where the lock-up is closed and K0 open
+        (:func:`identify_torque_converter`); needs the K0 or engine state of a hybrid's log.
 
     Raises
     ------
@@ -127,17 +243,23 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     use = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz))
     use &= (gear >= 1) & (gear <= len(specs.gear_ratios))
     use &= np.nan_to_num(d["lockup_closed"]) < 0.5
+    k0_open = None  # where the motor alone drives the pump (the turbine-torque calibration's samples)
     if engine_only:
         if "engine_on" in d:
             use &= np.nan_to_num(d["engine_on"], nan=0.0) >= 0.5
     elif "k0_closed" in d:
-        use &= np.nan_to_num(d["k0_closed"], nan=1.0) < 0.5
+        k0_open = np.nan_to_num(d["k0_closed"], nan=1.0) < 0.5
     elif "engine_on" in d:
-        use &= np.nan_to_num(d["engine_on"], nan=1.0) < 0.5
+        k0_open = np.nan_to_num(d["engine_on"], nan=1.0) < 0.5
     else:
         reasons.append("no K0 or engine state in the recording: pump torque taken as motor torque everywhere")
+    if k0_open is not None:
+        use &= k0_open
     dn = _central_derivative(n_p, t, derivative_window_s)
     use &= np.abs(dn) <= max_pump_accel_rpm_s
+    # a pump speed step the central difference cannot resolve: left out until the pump speed has settled
+    unsteady = unsettled(n_p, t, max_pump_accel_rpm_s, derivative_window_s)
+    use &= ~unsteady
     use &= (n_p >= min_pump_speed_rpm) & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
     segs = sorted({s.name for s in rec.segments if np.any(s.contains(t[use]))}) if rec.segments else []
     scale, scale_se, n_cal = 1.0, float("nan"), 0
@@ -165,11 +287,36 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
         eta_tab = np.array([full[k][0] for k in range(1, len(specs.gear_ratios) + 1)])
         c0_tab = np.array([full[k][1] for k in range(1, len(specs.gear_ratios) + 1)])
         eta, c0 = eta_tab[g - 1], c0_tab[g - 1]
+        own_model = np.isin(g, list(table))
     else:
         eta, c0 = np.ones_like(ig), np.zeros_like(ig)
+        own_model = np.zeros(g.shape, dtype=bool)
         reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
     t_t = d["shaft_torque_nm"] / (ig * eta) + c0
     use &= np.isfinite(t_t)
+    tscale, tscale_se, n_tcal = 1.0, float("nan"), 0
+    tcal_points = None
+    if calibrate_turbine_torque and k0_open is not None:
+        # lock-up closed, K0 open, nearly steady: the turbine torque of eq. 32 is the motor torque
+        tcal = ~bad & _hold_mask(change, round(shift_hold_s * rate_hz)) & (gear >= 1) \
+            & (gear <= len(specs.gear_ratios)) & (np.nan_to_num(d["lockup_closed"]) >= 0.5) & k0_open \
+            & (n_p >= min_pump_speed_rpm) & (np.abs(dn) <= 0.1 * max_pump_accel_rpm_s) & ~unsteady \
+            & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0) & (t_t > 0) & own_model
+        # only gears with a transmission model of their own: a borrowed model's efficiency error is the gear's,
+        # not a torque gain common to all gears
+        # per gear (each gear's own eta_m and C0 errors differ; a gear with long steady drives must not
+        # outweigh the others), then the median over the gears: the part common to all gears
+        tcal_points = TorqueCalibration(t[tcal], gear[tcal], t_p[tcal], t_t[tcal], (ig * eta)[tcal], c0[tcal],
+                                        min_calibration_points)
+        tscale, tscale_se, n_tcal = turbine_torque_scale(tcal_points.gear, tcal_points.t_p, tcal_points.t_t,
+                                                         min_calibration_points)
+        if n_tcal:
+            t_t = t_t * tscale
+            if abs(tscale - 1.0) > 0.05:
+                reasons.append(f"turbine torque from eq. 32 is off by {100 * (1 / tscale - 1):+.1f} % against the "
+                               "motor torque with the lock-up closed: check the torque channels' gains and the "
+                               "transmission model")
     return ConverterPoints(t[use], n_p[use] / RPM_PER_RADS, w_t[use], t_p[use], t_t[use],
-                           dn[use] / RPM_PER_RADS, gear[use], ig[use] * eta[use], segs, int(t.size - use.sum()),
-                           scale, scale_se, n_cal, reasons)
+                           dn[use] / RPM_PER_RADS, gear[use], ig[use] * eta[use] / tscale, segs,
+                           int(t.size - use.sum()), scale, scale_se, n_cal, reasons, tscale, tscale_se, n_tcal,
+                           tcal_points)

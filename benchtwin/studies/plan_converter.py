@@ -10,8 +10,10 @@ are linear in their right-hand sides:
   sandwich with the variance of each row: the motor torque's grid sample for the pump rows, the shaft torque's
   over ``k_out^2`` (``k_out = i_g eta_m``) for the turbine rows (a grid sample interpolated between two readings
   at fraction ``a`` has ``(1-a)^2`` and ``a^2`` of their variances);
-- coupling mode (eq. 39), ``t_p - J dw_p = q a_678``: the pump rows of the coupling points, and the pump inertia
-  ``J`` of the converter fit through ``-(q'q)^-1 q' dw_p``;
+- coupling mode (eq. 39), ``t_p - J dw_p = D x`` with the identification's coupling design ``D``
+  (:func:`~benchtwin.identification.torque_converter.coupling_design`: ``x = (a6, a8)`` and ``a7 = -a6 - a8``
+  with no torque without slip), mapped to ``a_678 = M x``: the pump rows of the coupling points, and the pump
+  inertia ``J`` of the converter fit through ``-M (D'D)^-1 D' dw_p``;
 - the transmission model each turbine torque goes through (``T_out / (i_g eta_m) + C0``) is itself estimated
   from the same seed's shaft torque: its planned ``eta_m`` and ``C0`` standard errors of each gear move all
   the turbine rows that use that gear's model together (``-(t_t - C0) / eta_m`` and ``1``; a gear without a
@@ -19,6 +21,11 @@ are linear in their right-hand sides:
 
 The derived parameters (``gamma_coupling``, ``k_at_gamma`` with its coupling point, ``sr_zero_torque``) follow
 by the delta method on the joint covariance.
+
+The turbine torque of eq. 32 is scaled by the median over the gears of ``T_motor / T_t`` where the lock-up is
+closed (:func:`~benchtwin.identification.torque_converter_points.turbine_torque_scale`): each draw recomputes it
+from the drawn readings of those samples (with the same transmission-model draws) and scales the turbine rows by it
+(its own standard error is not predicted: the spread over the draws overstates a sweep's).
 
 The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
 spread, and the split at the refined coupling point moves with it. So the rows are decided by the
@@ -46,12 +53,17 @@ from benchtwin.errors import BenchtwinError
 from benchtwin.identification.torque_converter import (
     _zero_torque_sr,
     converter_design,
+    coupling_coefficients,
+    coupling_design,
     coupling_point,
     fit_torque_converter,
     identify_torque_converter,
-    speed_products,
 )
-from benchtwin.identification.torque_converter_points import ConverterPoints, converter_points
+from benchtwin.identification.torque_converter_points import (
+    ConverterPoints,
+    converter_points,
+    turbine_torque_scale,
+)
 from benchtwin.recording import Channel, Recording
 from benchtwin.segments import Segment
 from benchtwin.studies.plan_fits import PlannedParameter
@@ -74,8 +86,9 @@ CONVERTER_RECORDED = ("em_speed_rpm", "em_torque_nm", "vehicle_speed_kmh")
 nan = float("nan")
 _HINT = "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"
 _POINT_OPTS = ("rate_hz", "max_pump_accel_rpm_s", "min_pump_speed_rpm", "min_pump_torque_nm", "shift_hold_s",
-               "derivative_window_s", "calibrate_turbine_speed", "min_calibration_points", "lockup_slip_tol")
-_FIT_OPTS = ("gamma", "min_points", "outlier_sigma")
+               "derivative_window_s", "calibrate_turbine_speed", "min_calibration_points", "lockup_slip_tol",
+               "calibrate_turbine_torque")
+_FIT_OPTS = ("gamma", "min_points", "outlier_sigma", "coupling_zero_slip")
 
 
 def _defaults() -> dict[str, object]:
@@ -173,7 +186,9 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     e_tp = grid_error_sampler(truth, noise, "em_torque_nm", pts.t)
     e_tt = grid_error_sampler(truth, noise, "shaft_torque_nm", pts.t)
     model_gear = _model_gears(pts.gear, table)
-    lin = [_propagate(pts, res, v_tp, v_tt, table)]
+    zero_slip = bool(opts["coupling_zero_slip"])
+    lin = [_propagate(pts, res, v_tp, v_tt, table, zero_slip)]
+    tscales: list[float] = []
     n_lost = 0
     if np.any(v_tp > 0) or np.any(v_tt > 0):
         # the rows each fit keeps (outlier rejection, whose bound scales with the residuals' spread) and the mode
@@ -181,17 +196,36 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         # decides the rows, and the plan adds the variance of the noise-free estimate at those rows
         rng = np.random.default_rng(seed)
         lin = []
+        cal = pts.torque_calibration
+        if cal is not None:
+            e_tt_cal = grid_error_sampler(truth, noise, "shaft_torque_nm", cal.t)
+            e_tp_cal = grid_error_sampler(truth, noise, "em_torque_nm", cal.t)
+            cal_gear = _model_gears(cal.gear, table)
         for _ in range(draws):
             # the readings as the bench quantises them: the rounding's bias decides rows as it does on a bench
             t_t = pts.t_t + (e_tt(rng) / pts.k_out if e_tt is not None else 0.0)
             t_p = pts.t_p + (e_tp(rng) if e_tp is not None else 0.0)
+            if cal is not None:
+                ct = cal.t_t + (e_tt_cal(rng) / cal.k_out if e_tt_cal is not None else 0.0)
+                cp = cal.t_p + (e_tp_cal(rng) if e_tp_cal is not None else 0.0)
             for gear, (eta, c0, se_eta, se_c0) in table.items():
                 sel = model_gear == gear
-                t_t[sel] += -(pts.t_t[sel] - c0) / eta * rng.normal(0.0, se_eta) + rng.normal(0.0, se_c0)
+                d_eta, d_c0 = rng.normal(0.0, se_eta), rng.normal(0.0, se_c0)
+                t_t[sel] += -(pts.t_t[sel] - c0) / eta * d_eta + d_c0
+                if cal is not None:
+                    cs = cal_gear == gear
+                    ct[cs] += -(cal.t_t[cs] - c0) / eta * d_eta + d_c0
+            if cal is not None:
+                # the turbine-torque scale the identification would find on these readings (the points carry
+                # the noise-free one)
+                s_draw, _, n_s = turbine_torque_scale(cal.gear, cp, ct, cal.min_points)
+                if n_s:
+                    t_t *= s_draw / pts.tscale
+                    tscales.append(s_draw)
             try:
                 rows = fit_torque_converter(pts.w_p, pts.w_t, t_p, t_t,
                                             dw_p=pts.dw_p, **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
-                lin.append(_propagate(pts, rows, v_tp, v_tt, table))
+                lin.append(_propagate(pts, rows, v_tp, v_tt, table, zero_slip))
             except BenchtwinError:
                 n_lost += 1
         if len(lin) < 2:
@@ -242,6 +276,14 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
                                 float("nan") if calib_noisy else 0.0, True,
                                 "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
                                 "the speeds it reads are free of random error on this setup", "", pts.n_cal))
+    # its spread over the draws is not its standard error: on the paper bench's quick campaign it is 3.6 times the
+    # spread over 20 seeds (the calibration samples' errors are not independent draws), so it is not predicted
+    ts_noisy = len(tscales) > 1 and float(np.ptp(tscales)) > 0
+    out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale,
+                                float("nan") if ts_noisy else 0.0, True,
+                                "SE not predicted (a median of noisy torque ratios); the draws redraw it"
+                                if ts_noisy else "the torques it reads are free of random error on this "
+                                "setup", "", pts.n_tcal))
     if "a6" not in names:
         out.append(PlannedParameter("torque_converter.coupling.*", "", float("nan"), float("nan"), False,
                                     f"{n2} coupling-mode points", "add [[tests]] kind = \"acceleration\" "
@@ -275,8 +317,9 @@ def _model_gears(gear: np.ndarray, table: Mapping[int, object]) -> np.ndarray:
 
 
 def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, v_tt: np.ndarray,
-               table: Mapping[int, tuple[float, float, float, float]]) -> _Linear:
-    """The linear map of both fits at the rows ``rows`` (a result of the fit) kept, on the noise-free points."""
+               table: Mapping[int, tuple[float, float, float, float]], zero_slip: bool = True) -> _Linear:
+    """The linear map of both fits at the rows ``rows`` (a result of the fit) kept, on the noise-free points;
+    ``zero_slip`` as the coupling fit's ``coupling_zero_slip``."""
     model_gear = _model_gears(pts.gear, table)
     data = rows["torque_ratio"].data
     g = float(data["gamma"][0])
@@ -303,8 +346,10 @@ def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, 
     k1 = len(names)
     if "coupling" not in rows or int(m2.sum()) < 3:
         return _Linear(names, x1, cov1, k1, n1, int(m2.sum()), g, np.packbits(np.r_[m1, m2]).tobytes())
-    q2 = speed_products(pts.w_p[m2], pts.w_t[m2])
-    L2 = np.linalg.solve(q2.T @ q2, q2.T)
+    d2 = coupling_design(pts.w_p[m2], pts.w_t[m2], zero_slip)
+    # a_678 = M x of the fit's unknowns x (a6, a8 with no torque without slip)
+    m678 = np.column_stack([coupling_coefficients(e, zero_slip) for e in np.eye(d2.shape[1])])
+    L2 = m678 @ np.linalg.solve(d2.T @ d2, d2.T)
     x2 = L2 @ (pts.t_p[m2] - x1[6] * pts.dw_p[m2])
     dj = -L2 @ pts.dw_p[m2]  # d a678 / d J
     cov = np.zeros((k1 + 3, k1 + 3))
@@ -338,5 +383,5 @@ def _sr0(z: np.ndarray, k1: int) -> float:
 _DERIVED: tuple[tuple[str, str, Callable[[np.ndarray, int], float]], ...] = (
     ("converter", "gamma_coupling", _gamma), ("coupling", "k_at_gamma", _k_at_gamma),
     ("coupling", "sr_zero_torque", _sr0))
-_ORDER = ("a0", "a1", "a2", "a3", "a4", "a5", "J_pump_kgm2", "gamma_coupling", "turbine_speed_scale", "a6", "a7",
-          "a8", "k_at_gamma", "sr_zero_torque")
+_ORDER = ("a0", "a1", "a2", "a3", "a4", "a5", "J_pump_kgm2", "gamma_coupling", "turbine_speed_scale",
+          "turbine_torque_scale", "a6", "a7", "a8", "k_at_gamma", "sr_zero_torque")

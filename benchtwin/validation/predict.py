@@ -273,7 +273,11 @@ class MapVehicle:
         return t_in
 
     def pump_nm(self, w_t: np.ndarray, t_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pump speed and torque that carry turbine torque ``t_t`` at turbine speed ``w_t`` (converter open)."""
+        """Pump speed and torque that carry turbine torque ``t_t`` at turbine speed ``w_t`` (converter open).
+
+        Drive (``t_t > 0``): the coupling mode where its pump speed gives SR at or above Gamma, else the converter
+        mode. Overrun (``t_t < 0``): the coupling mode with the pump slower than the turbine, as the plant has it.
+        """
         if self.tc_a is None:
             return w_t.copy(), t_t.copy()
         a, gam = self.tc_a, self.tc_gamma
@@ -295,6 +299,16 @@ class MapVehicle:
         wp = np.where(np.isfinite(wp), np.maximum(wp, wt), wt)
         tp = np.where(ok_c, tt, a[0] * wp**2 + a[1] * wp * wt + a[2] * wt**2)
         w_p[pos], t_p[pos] = wp, np.maximum(tp, 0.0)
+        # overrun (the turbine drives the pump): the coupling mode carries it with the pump slower than the turbine
+        # (SR above 1), T_p = T_t = a6 wp^2 + a7 wp wt + a8 wt^2 < 0; rigid only where that has no root
+        neg = t_t < 0
+        wt, tt = w_t[neg], t_t[neg]
+        disc = (a[7] * wt) ** 2 - 4 * a[6] * (a[8] * wt**2 - tt)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x_o = (-a[7] * wt + np.sqrt(np.where(disc >= 0, disc, np.nan))) / (2 * a[6]) if a[6] > 0 \
+                else np.full_like(wt, np.nan)
+        ok_o = np.isfinite(x_o) & (x_o > 0) & (x_o <= wt)
+        w_p[neg] = np.where(ok_o, x_o, wt)
         return w_p, t_p
 
     # ------------------------------------------------------------------ shift lines

@@ -100,12 +100,13 @@ def tc_truth_vector() -> np.ndarray:
 def tc_recording(*, duration_s: float = 600.0, rate_hz: float = 10.0, gear: int = 1, noise_nm: float = 0.0,
                  seed: int = 1, transmission: dict[int, tuple[float, float]] | None = None,
                  pump_inertia_kgm2: float = 0.0, speed_reading_bias: float = 0.0,
-                 lockup_closed_s: float = 0.0) -> tuple[Recording, dict[str, float]]:
+                 lockup_closed_s: float = 0.0, em_torque_gain: float = 1.0) -> tuple[Recording, dict[str, float]]:
     """Slow, quasi-steady electric take-offs with the lock-up open, K0 open, in one gear.
 
     With ``pump_inertia_kgm2`` the motor torque also accelerates the rotor and pump: T_em = T_p + J dw_p/dt.
     ``lockup_closed_s`` appends a cruise with the lock-up closed (turbine = pump); ``speed_reading_bias``
-    makes the vehicle CAN speed read that fraction high (a speedometer-like error).
+    makes the vehicle CAN speed read that fraction high (a speedometer-like error); ``em_torque_gain``
+    multiplies the motor torque reading (a gain error of the motor's torque signal).
     """
     transmission = transmission or TRANSMISSION_TRUTH
     rng = np.random.default_rng(seed)
@@ -134,7 +135,8 @@ def tc_recording(*, duration_s: float = 600.0, rate_hz: float = 10.0, gear: int 
     rec = Recording(segments=[Segment(0.0, float(duration_s), "acceleration", f"tc_takeoff_g{gear}", {})])
     can = "vehicle_can"
     rec.add(Channel("em_speed_rpm", "rpm", t, w_p * 60 / (2 * np.pi), source=can))
-    rec.add(Channel("em_torque_nm", "Nm", t, t_em + noise_nm * rng.standard_normal(t.size), source=can))
+    rec.add(Channel("em_torque_nm", "Nm", t, em_torque_gain * t_em + noise_nm * rng.standard_normal(t.size),
+                    source=can))
     rec.add(Channel("vehicle_speed_kmh", "km/h", t, v_kmh, source=can))
     rec.add(Channel("shaft_torque_nm", "Nm", t, t_out + noise_nm * ig * rng.standard_normal(t.size),
                     source="telemetry"))

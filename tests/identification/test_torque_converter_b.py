@@ -13,6 +13,7 @@ from benchtwin.identification.torque_converter import (
     identify_torque_converter,
     tc_torques,
 )
+from benchtwin.identification.torque_converter_points import unsettled
 from benchtwin.recording import Channel, Flag, Recording
 
 
@@ -170,3 +171,79 @@ def test_lockup_state_inferred_from_slip_when_not_logged():
     np.testing.assert_allclose([conv.value(f"a{k}") for k in range(6)], tc_truth_vector()[:6], rtol=1e-3,
                                atol=1e-6)
     np.testing.assert_allclose(conv.value("gamma_coupling"), truth["gamma"], rtol=1e-3)
+
+
+def test_coupling_curve_pinned_at_zero_slip_over_a_narrow_range():
+    # coupling points only over SR 0.80-0.85 (a loose converter's torque falls below the torque threshold
+    # above): three free a6..a8 extrapolate to SR 0.95 through nearly collinear regressors; with the
+    # physical end point (no torque without slip) the curve up to 0.95 follows from two. Noise of 0.3 % of
+    # the torque; the bound on the constrained fit is 3 sigma of a straight line T / (w_p (w_p - w_t)) =
+    # a6 - a8 SR fitted over a uniform SR spread of width 0.05 (sd 0.05 / sqrt 12) and extrapolated to 0.95:
+    # 3 x 0.003 / sqrt(n) x sqrt(1 + ((0.95 - 0.825) / sd)^2)
+    rng = np.random.default_rng(7)
+    a678 = np.array([0.0131, -0.0131, 0.0])  # T = 0.0131 w_p (w_p - w_t): zero at SR 1
+    n = 400
+    sr = rng.uniform(0.80, 0.85, n)
+    w_p = rng.uniform(140.0, 180.0, n)
+    w_t = sr * w_p
+    q = np.stack([w_p**2, w_p * w_t, w_t**2])
+    t = a678 @ q * (1.0 + 0.003 * rng.standard_normal(n))
+    # converter-mode points below, exact, so that the split is found at 0.80
+    a_conv = np.array([0.0055, 0.0, -0.0045, 0.00935, -0.008, -0.000515625])
+    sr_c = np.linspace(0.1, 0.79, 300)
+    w_pc = np.full(sr_c.size, 150.0)
+    qc = np.stack([w_pc**2, w_pc * sr_c * w_pc, (sr_c * w_pc) ** 2])
+    args = (np.r_[w_pc, w_p], np.r_[sr_c * w_pc, w_t], np.r_[a_conv[:3] @ qc, t], np.r_[a_conv[3:] @ qc, t])
+    s95 = np.array([0.95])
+
+    def rel_error_at_095(res: dict) -> float:
+        c = res["coupling"]
+        x = np.array([c.value(f"a{k}") for k in (6, 7, 8)])
+        return abs(float((x @ [1.0, s95[0], s95[0] ** 2]) / (a678 @ [1.0, s95[0], s95[0] ** 2])) - 1.0)
+
+    pinned = fit_torque_converter(*args, gamma=0.80)
+    free = fit_torque_converter(*args, gamma=0.80, coupling_zero_slip=False)
+    c = pinned["coupling"]
+    assert abs(c.value("a6") + c.value("a7") + c.value("a8")) < 1e-12
+    sd = 0.05 / np.sqrt(12.0)
+    assert rel_error_at_095(pinned) < 3 * 0.003 / np.sqrt(n) * np.sqrt(1 + ((0.95 - 0.825) / sd) ** 2)
+    assert rel_error_at_095(free) > rel_error_at_095(pinned)
+
+
+def test_samples_left_out_until_the_pump_speed_settles_after_a_step():
+    # 10 Hz, derivative window 0.4 s (h = 2 samples either side), limit 400 rpm/s: a step is a one-sample change
+    # above 400 x 0.4 = 160 rpm, a calm one-sample change is within 400 x 0.1 = 40 rpm. The motor jumps from
+    # 1000 to 1500 rpm between samples 19 and 20, falls back 50 rpm (not calm) and 20 rpm (calm), then holds.
+    # Settled from sample 21 (changes 21->22 .. 24->25 calm: a whole window of 2h = 4); left out: the samples
+    # whose window reaches the step (18, 19) up to the last whose window reaches the unsettled change 20->21
+    # (k + h - 1 = 22). A fixed hold of 0.5 s would leave out 14..25.
+    t = np.arange(40) * 0.1
+    n = np.full(40, 1000.0)
+    n[20:] = [1500.0, 1450.0] + [1430.0] * 18
+    out = unsettled(n, t, 400.0, 0.4)
+    assert np.flatnonzero(out).tolist() == [18, 19, 20, 21, 22]
+    # a ramp at the limit itself has no step; ringing that never settles leaves out the rest of the record
+    assert not unsettled(1000.0 + 400.0 * t, t, 400.0, 0.4).any()
+    ring = n.copy()
+    ring[20::2] += 45.0
+    assert np.flatnonzero(unsettled(ring, t, 400.0, 0.4)).tolist() == list(range(18, 40))
+
+
+def test_torque_gain_error_is_calibrated_on_lockup_closed_samples():
+    # the motor torque reads 3 % high: with the lock-up closed (and K0 open) the turbine torque of eq. 32 is the
+    # motor torque, so the scale is 1.03 and the torque ratio curve (a3..a5 against a0..a2) is the true one;
+    # uncalibrated, every torque ratio is 3 % low
+    rec, _ = tc_recording(em_torque_gain=1.03, lockup_closed_s=120.0)
+    a = tc_truth_vector()
+    sr = np.linspace(0.0, 0.8, 9)
+
+    def tr(res: dict) -> np.ndarray:
+        x = [res["converter"].value(f"a{k}") for k in range(6)]
+        return (x[3] + x[4] * sr + x[5] * sr**2) / (x[0] + x[1] * sr + x[2] * sr**2)
+
+    tr_true = (a[3] + a[4] * sr + a[5] * sr**2) / (a[0] + a[1] * sr + a[2] * sr**2)
+    res = identify_torque_converter(rec, SPECS, transmission=TRANSMISSION_TRUTH)
+    np.testing.assert_allclose(res["converter"].value("turbine_torque_scale"), 1.03, rtol=1e-6)
+    np.testing.assert_allclose(tr(res), tr_true, rtol=1e-4)
+    raw = identify_torque_converter(rec, SPECS, transmission=TRANSMISSION_TRUTH, calibrate_turbine_torque=False)
+    np.testing.assert_allclose(tr(raw), tr_true / 1.03, rtol=1e-4)

@@ -321,8 +321,8 @@ FAMILY_PICKS: dict[str, dict[str, Any]] = {
 }
 
 #: the torque converter's example runs every test of the paper campaign but the cycle and the constant drives
-#: (about 7,000 s of plant, 5 s an example): with only its own kinds in a row, the decelerations start from
-#: another state and the converter-mode fit comes back 25 % off on the ideal chain (see test_recovery)
+#: (about 7,000 s of plant, 5 s an example), so the decelerations start from the state the paper campaign
+#: leaves them in; the family's own kinds in a row are checked on the paper vehicle (see test_recovery)
 TC_KINDS: tuple[str, ...] = ("ramp_up", "acceleration", "ramp_down", "deceleration", "neutral_braking",
                              "coastdown")
 

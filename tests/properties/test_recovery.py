@@ -124,18 +124,17 @@ def test_shift_lines_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: 
     _run("shifts", vehicle, drawn, seed)
 
 
-#: the converter property finds two faults of the torque-converter identification not fixed yet, so it is an
-#: expected failure (not strict: many draws pass); each fault is pinned strictly below
-TC_OPEN = ("torque-converter identification: (1) a loose converter (capacity a0 ~5.5e-3, a6 ~1.3e-2) gets its "
-           "coupling-mode curve 13-56 % off on the ideal chain (the issue's coupling points bending a6..a8); "
-           "(2) the family's tests run in a row without the ramp-downs and neutral braking between them give a "
-           "converter-mode fit 25 % off (the paper vehicle, ideal chain)")
+#: the converter property found four faults of the torque-converter identification, three fixed (the loose
+#: converter's coupling curve, the family's tests alone, the loose converter on a 10-bit telemetry below); it is
+#: still an expected failure (not strict: most draws pass) for the fourth
+TC_OPEN = ("torque-converter identification: a drawn 9-speed petrol (Gamma 0.84, a8 -3e-4) on a bench beyond the "
+           "data sheets at noise x0.14, seed 55: its coupling points are 13, over SR 0.847-0.861 only, where a6 and "
+           "a8 of the zero-slip coupling fit are collinear (a8 0.146), so the coupling CF curve is 56 % off at SR "
+           "0.95; the fit needs a second constraint (continuity with the converter mode at Gamma) or to say the "
+           "coupling mode is not identifiable")
 
 
-@pytest.mark.xfail(reason=TC_OPEN, raises=AssertionError, strict=False)
-@profile(max_examples=2)
-@given(vehicles(), setups(), seeds)
-def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
     fam = FAMILIES["torque_converter"]
     campaign = campaign_for(vehicle, TC_KINDS, seed=seed)
     trace = simulate_campaign(vehicle, campaign)
@@ -145,6 +144,21 @@ def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnS
     assert not bad, "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g}" for c in bad)
 
 
+@pytest.mark.xfail(reason=TC_OPEN, raises=AssertionError, strict=False)
+@profile(max_examples=2)
+@given(vehicles(), setups(), seeds)
+def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
+    _converter_checks_pass(vehicle, drawn, seed)
+
+
+def test_loose_converter_on_a_10_bit_telemetry() -> None:
+    # found by test_torque_converter_curves_recovered: Gamma 0.62 for 0.80 (the first estimate compared the
+    # turbine torque with a motor torque that also accelerates the pump) and the TR curve 5-7 % off near Gamma,
+    # where gear 1's C0 from quantised ramp-ups moves the small turbine torques; now Gamma 0.76 and the TR curve
+    # and Gamma judged with the transmission's quantisation bound carried through eq. 32 (about 8 s)
+    _converter_checks_pass(*pinned("converter_loose_10bit"))
+
+
 def _loose_converter() -> VehicleConfig:
     d = PAPER_VEHICLE.model_dump()
     d["torque_converter"].update(a_nm_per_radps2=[0.0055, 0.0, -0.0045, 0.00935, -0.008, -0.000515625, 0.0131,
@@ -152,9 +166,11 @@ def _loose_converter() -> VehicleConfig:
     return VehicleConfig.model_validate(d)
 
 
-@pytest.mark.xfail(reason=TC_OPEN, raises=AssertionError, strict=True)
 def test_loose_converter_coupling_curve_on_the_ideal_chain() -> None:
-    # found by test_torque_converter_curves_recovered (the strategy's lowest capacity and stall ratio)
+    # found by test_torque_converter_curves_recovered (the strategy's lowest capacity and stall ratio): its
+    # coupling points span SR 0.80-0.85 only (above, the pump torque falls below the 20 Nm threshold), and
+    # three free a6..a8 put the coupling curve 10-30 % off at SR 0.95; fitted with no torque without slip
+    # (a6 + a7 + a8 = 0) it is 0.7 % off
     vehicle = _loose_converter()
     campaign = campaign_for(vehicle, TC_KINDS, seed=0)
     report = validate(vehicle, IDEAL_SETUP, campaign, trace=simulate_campaign(vehicle, campaign),
@@ -163,8 +179,10 @@ def test_loose_converter_coupling_curve_on_the_ideal_chain() -> None:
     assert not bad, bad
 
 
-@pytest.mark.xfail(reason=TC_OPEN, raises=AssertionError, strict=True)
 def test_converter_fit_of_the_family_tests_alone_on_the_ideal_chain() -> None:
+    # the family's tests in a row (no neutral braking between them) were 25 % off: the motor's spin-up from
+    # stand-still at the start of each deceleration and coastdown passed the quasi-steady filter, and without
+    # the ramp-downs no quasi-steady point lay below SR 0.32, so the stall end was extrapolated from them
     campaign = campaign_for(PAPER_VEHICLE, FAMILIES["torque_converter"].kinds, seed=0)
     report = validate(PAPER_VEHICLE, IDEAL_SETUP, campaign, trace=simulate_campaign(PAPER_VEHICLE, campaign),
                       families=["torque_converter"])
