@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -222,7 +223,13 @@ class LiveSession:
         scheduler = self.scheduler
         if scheduler is None:
             raise ConfigError("live session did not start")
-        return scheduler.run(progress=progress)
+        pinned = _pin_to_one_cpu() if self.transport is not None and self.transport.name == "socketcan" else None
+        try:
+            return scheduler.run(progress=progress)
+        finally:
+            if pinned is not None:
+                with contextlib.suppress(OSError):
+                    os.sched_setaffinity(0, pinned)
 
     def stop(self) -> None:
         """Stop a running :meth:`run` (from another thread or a signal handler)."""
@@ -262,3 +269,22 @@ class LiveSession:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _pin_to_one_cpu() -> set[int] | None:
+    """Keep the calling (pacing) thread on one CPU while it sends on kernel SocketCAN; return the previous set.
+
+    vcan hands each frame to the receive backlog of the CPU the sender runs on, so a pacing thread that moves
+    between CPUs can have a frame overtake the one sent before it (seen in the vcan guest on a loaded host: two
+    instrument frames swapped); on one CPU the backlog keeps the order the scheduler sent. None: not pinned
+    (one CPU only, or no affinity call on this platform).
+    """
+    try:
+        allowed = os.sched_getaffinity(0)
+        if len(allowed) < 2:
+            return None
+        os.sched_setaffinity(0, {min(allowed)})
+    except (AttributeError, OSError) as exc:
+        log.debug("pacing thread not pinned to one CPU: %s", exc)
+        return None
+    return set(allowed)
