@@ -223,7 +223,7 @@ class LiveSession:
         scheduler = self.scheduler
         if scheduler is None:
             raise ConfigError("live session did not start")
-        pinned = _pin_to_one_cpu() if self.transport is not None and self.transport.name == "socketcan" else None
+        pinned = _pin_to_one_cpu() if self.transport is not None and self.transport.per_cpu_queues else None
         try:
             return scheduler.run(progress=progress)
         finally:

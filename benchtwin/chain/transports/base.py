@@ -96,6 +96,9 @@ class Transport(ABC):
     name: ClassVar[str] = ""
     #: True when acquisitions in other processes can reach the buses
     cross_process: ClassVar[bool] = False
+    #: True when frames sent from different CPUs may overtake each other (the kernel queues each on the sending
+    #: CPU's receive backlog): the live pacing thread then stays on one CPU while it sends
+    per_cpu_queues: ClassVar[bool] = False
 
     def __init__(self, buses: Mapping[str, int] | Iterable[str], *, host: str = "127.0.0.1", port: int = 0,
                  channel_map: Mapping[str, str] | None = None) -> None:

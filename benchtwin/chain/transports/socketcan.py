@@ -36,6 +36,7 @@ class SocketcanTransport(Transport):
 
     name: ClassVar[str] = "socketcan"
     cross_process: ClassVar[bool] = True
+    per_cpu_queues: ClassVar[bool] = True
 
     @classmethod
     def unavailable_reason(cls) -> str | None:
