@@ -115,8 +115,8 @@ from benchtwin.errors import ConfigError, SimulationError
 from benchtwin.segments import Segment
 from benchtwin.trace import TRACE_CHANNELS, Trace
 
-__all__ = ["ABSENT_CONVENTIONAL", "check_campaign", "conventional_tests", "energy_balance", "iter_campaign",
-           "lv_load_profile", "needs_motor", "simulate_campaign"]
+__all__ = ["ABSENT_CONVENTIONAL", "absent_channels", "check_campaign", "conventional_tests", "energy_balance",
+           "iter_campaign", "lv_load_profile", "needs_motor", "simulate_campaign"]
 
 #: Trace channel -> loop output column
 _DIRECT: dict[str, int] = {
@@ -144,6 +144,11 @@ ABSENT_CONVENTIONAL: tuple[str, ...] = (
     "battery_temp_degc", "battery_coolant_in_degc", "battery_coolant_out_degc", "hpcu_coolant_in_degc",
     "hpcu_coolant_out_degc", "motor_coolant_in_degc", "motor_coolant_out_degc",
 )
+
+
+def absent_channels(vehicle: VehicleConfig) -> tuple[str, ...]:
+    """The Trace channels the plant of ``vehicle`` has no signal for (NaN in its Trace; the setup drops them)."""
+    return () if vehicle.has_motor else ABSENT_CONVENTIONAL
 
 #: what a test asks that only the P2 motor and its pack can do: refused on a conventional car
 _MOTOR_ONLY_MODES = {"electric": "drives on the motor alone", "e_save": "holds the pack's charge",
@@ -393,7 +398,7 @@ def _trace_of(run: _Run, vehicle: VehicleConfig, campaign: CampaignConfig, out: 
     missing = set(TRACE_CHANNELS) - set(channels)
     if missing:  # pragma: no cover - guarded by the tests
         raise SimulationError(f"emulator does not produce {sorted(missing)}")
-    absent = () if vehicle.has_motor else ABSENT_CONVENTIONAL
+    absent = absent_channels(vehicle)
     for name in absent:  # the plant has no such signal: NaN, not a placeholder value a sensor could pass on
         channels[name] = np.full(out.shape[1], np.nan)
     ordered = {name: channels[name] for name in TRACE_CHANNELS}

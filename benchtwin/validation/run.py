@@ -19,7 +19,7 @@ from benchtwin.config._base import StrictModel
 from benchtwin.config.campaign import CampaignConfig, CycleTest
 from benchtwin.config.setup import ChannelErrors, LinkErrors, SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
-from benchtwin.emulator import ABSENT_CONVENTIONAL, iter_campaign, simulate_campaign
+from benchtwin.emulator import absent_channels, iter_campaign, simulate_campaign
 from benchtwin.emulator.cache import cached_campaign
 from benchtwin.emulator.protocols import lazy_protocol
 from benchtwin.errors import BenchtwinError, ConfigError
@@ -149,8 +149,7 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
         trace = simulate_campaign(vehicle, campaign, progress=progress)
     t1 = time.perf_counter()
     # a car without some channels (a conventional car) is measured by the part of the setup it can feed
-    absent = (trace.meta.get("absent_channels", ()) if trace is not None
-              else () if vehicle.has_motor else ABSENT_CONVENTIONAL)
+    absent = trace.meta.get("absent_channels", ()) if trace is not None else absent_channels(vehicle)
     setup, dropped = setup_for_trace(setup, absent)
     if dropped:
         report.meta["layout"] = vehicle.layout
