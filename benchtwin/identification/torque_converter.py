@@ -5,7 +5,9 @@ Model (docs/models.md), speeds in rad/s, torques in Nm, ``SR = w_t / w_p``:
 - converter mode, ``SR < Gamma``: ``T_p = a0 w_p^2 + a1 w_p w_t + a2 w_t^2`` and
   ``T_t = a3 w_p^2 + a4 w_p w_t + a5 w_t^2`` (eq. 35), fitted together by one stacked least-squares
   problem (eq. 37-38);
-- coupling mode, ``SR >= Gamma``: ``T_p = T_t = a6 w_p^2 + a7 w_p w_t + a8 w_t^2`` (eq. 36, 39).
+- coupling mode, ``SR >= Gamma``: ``T_p = T_t = a6 w_p^2 + a7 w_p w_t + a8 w_t^2`` (eq. 36, 39), fitted to the
+  turbine torque (which carries no pump-side inertia torque) with no torque without slip, and with ``a8 = 0``
+  when the coupling points span too narrow an SR range to tell ``a6`` from ``a8`` (flagged).
 
 ``Gamma`` is "the first SR where TR reaches 1": a first estimate from the binned median torque ratio
 of the data, refined as the root of ``TR_model(SR) = 1`` of the converter fit, after which the data
@@ -31,8 +33,17 @@ from collections.abc import Mapping
 import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
-from benchtwin.errors import InsufficientDataError
+from benchtwin.errors import ConfigError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
+from benchtwin.identification.torque_converter_model import (
+    _zero_torque_sr,
+    converter_design,
+    coupling_coefficients,
+    coupling_design,
+    coupling_point,
+    speed_products,
+    tc_torques,
+)
 from benchtwin.identification.torque_converter_points import RPM_PER_RADS, ConverterPoints, converter_points
 from benchtwin.recording import Recording
 
@@ -48,122 +59,8 @@ __all__ = [
     "identify_torque_converter",
     "speed_products",
     "tc_torques",
-]
+]  # the model forms and designs live in torque_converter_model; re-exported here
 
-
-
-def tc_torques(a: np.ndarray, gamma: float, w_p: np.ndarray, w_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pump and turbine torque of the model (eq. 35-36) for coefficients ``a = a0..a8``.
-
-    Parameters
-    ----------
-    a:
-        ``a0..a8`` (Nm s^2/rad^2).
-    gamma:
-        Coupling speed ratio: converter mode below, coupling mode at and above.
-    w_p, w_t:
-        Pump and turbine speed, rad/s.
-
-    Returns
-    -------
-    t_p, t_t
-        Pump and turbine torque, Nm.
-    """
-    a = np.asarray(a, dtype=float)
-    w_p = np.asarray(w_p, dtype=float)
-    w_t = np.asarray(w_t, dtype=float)
-    q = np.stack([w_p**2, w_p * w_t, w_t**2])
-    tp = a[0:3] @ q
-    tt = a[3:6] @ q
-    tc = a[6:9] @ q
-    sr = np.divide(w_t, w_p, out=np.zeros_like(w_t), where=w_p != 0)
-    coupling = sr >= gamma
-    return np.where(coupling, tc, tp), np.where(coupling, tc, tt)
-
-
-def coupling_point(a_conv: np.ndarray, *, lo: float = 0.0, hi: float = 1.2) -> float:
-    """Smallest SR in ``(lo, hi]`` where the converter-mode torque ratio equals 1 (NaN if none).
-
-    ``(a3 - a0) + (a4 - a1) SR + (a5 - a2) SR^2 = 0``.
-
-    Parameters
-    ----------
-    a_conv:
-        ``a0..a5``.
-    lo, hi:
-        Search interval of SR.
-    """
-    a = np.asarray(a_conv, dtype=float)
-    c0, c1, c2 = a[3] - a[0], a[4] - a[1], a[5] - a[2]
-    roots = np.roots([c2, c1, c0]) if abs(c2) > 1e-30 else (np.array([-c0 / c1]) if c1 != 0 else np.array([]))
-    real = np.sort([r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and lo < r.real <= hi])
-    return float(real[0]) if real.size else float("nan")
-
-
-def speed_products(w_p: np.ndarray, w_t: np.ndarray) -> np.ndarray:
-    """The regressors of each mode's torque (eq. 35-36): columns ``w_p^2, w_p w_t, w_t^2``."""
-    return np.column_stack([w_p**2, w_p * w_t, w_t**2])
-
-
-def converter_design(w_p: np.ndarray, w_t: np.ndarray, dw_p: np.ndarray | None = None) -> np.ndarray:
-    """The stacked converter-mode design (eq. 37-38): pump rows over turbine rows.
-
-    Columns ``a0..a5`` (and the pump inertia when ``dw_p`` is given); the right-hand side is
-    ``[t_p; t_t]``. Shared by :func:`fit_torque_converter` and the planner.
-
-    Parameters
-    ----------
-    w_p, w_t:
-        Pump and turbine speeds, rad/s.
-    dw_p:
-        Pump acceleration, rad/s^2 (None: no inertia column).
-    """
-    q = speed_products(w_p, w_t)
-    n = q.shape[0]
-    z = np.zeros((n, 3))
-    top = [q, z] + ([np.asarray(dw_p, dtype=float)[:, None]] if dw_p is not None else [])
-    bot = [z, q] + ([np.zeros((n, 1))] if dw_p is not None else [])
-    return np.vstack([np.hstack(top), np.hstack(bot)])
-
-
-def coupling_design(w_p: np.ndarray, w_t: np.ndarray, zero_slip: bool = True) -> np.ndarray:
-    """The coupling-mode design (eq. 39); shared by :func:`fit_torque_converter` and the planner.
-
-    ``zero_slip``: columns ``w_p (w_p - w_t), -w_t (w_p - w_t)`` for ``a6, a8`` with ``a7 = -a6 - a8`` (no torque
-    without slip); else :func:`speed_products` for ``a6, a7, a8``.
-
-    Parameters
-    ----------
-    w_p, w_t:
-        Pump and turbine speeds of the coupling points, rad/s.
-    zero_slip:
-        Fit with ``a6 + a7 + a8 = 0``.
-    """
-    if not zero_slip:
-        return speed_products(w_p, w_t)
-    slip = w_p - w_t
-    return np.column_stack([w_p * slip, -w_t * slip])
-
-
-def coupling_coefficients(x: np.ndarray, zero_slip: bool = True) -> np.ndarray:
-    """``a6, a7, a8`` from the coupling fit's unknowns.
-
-    Parameters
-    ----------
-    x:
-        The unknowns of :func:`coupling_design`'s fit: ``a6, a8`` with ``zero_slip``, else ``a6, a7, a8``.
-    zero_slip:
-        As :func:`coupling_design` (``a7 = -a6 - a8``).
-    """
-    x = np.asarray(x, dtype=float)
-    return np.array([x[0], -x[0] - x[1], x[1]]) if zero_slip else x[:3].copy()
-
-
-def _zero_torque_sr(x: np.ndarray) -> float:
-    """SR in (0.5, 1.5) where the coupling torque ``a6 + a7 SR + a8 SR^2`` vanishes (closest to 1)."""
-    roots = np.roots([x[2], x[1], x[0]]) if abs(x[2]) > 1e-30 else np.array([-x[0] / x[1]])
-    real = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-9 and 0.5 < r.real < 1.5]
-    return float(min(real, key=lambda r: abs(r - 1.0))) if real else float("nan")
 
 
 def _robust_z(r: np.ndarray, floor: float) -> np.ndarray:
@@ -203,6 +100,8 @@ def fit_torque_converter(
     dw_p: np.ndarray | None = None,
     outlier_sigma: float | None = 5.0,
     coupling_zero_slip: bool = True,
+    coupling_torque: str = "turbine",
+    min_coupling_span: float = 0.03,
 ) -> dict[str, FitResult]:
     """Fit a0..a8 and the coupling point to pump/turbine speed and torque points.
 
@@ -237,6 +136,25 @@ def fit_torque_converter(
         coefficients are nearly collinear and their curve is an extrapolation towards SR 1; the
         physical end point pins it. ``sr_zero_torque`` is then 1 by construction. ``False``: a6..a8
         free (eq. 39 as in the paper).
+    coupling_torque:
+        The torque the coupling mode is fitted to, ``"turbine"`` (default) or ``"pump"``: in coupling mode
+        ``T_p = T_t`` (eq. 36), so either reads the coupling torque, but the pump's is the motor torque less the
+        pump-side inertia torque, and along a lock-up-open ramp-up in 1st gear the pump accelerates at up to the
+        quasi-steady limit (about 40 rad/s^2) while the coupling torque falls towards SR 1: an inertia torque of
+        several Nm that ``J_pump_kgm2`` of the converter fit (correlated with ``a0..a2`` there) leaves in part,
+        and that bends the small coupling torques near SR 1 (CF 10 % off at SR 0.95). The turbine torque (eq. 32,
+        the shaft torque through the transmission model, calibrated against the motor torque where the
+        lock-up is closed) carries no pump inertia. The transients left out (``outlier_sigma``) are still
+        decided on the pump rows' residuals: the motor torque is a CAN signal, the same rows whatever the
+        shaft torque's noise, whereas the 5-sigma residuals of a few dozen quantised shaft-torque points change
+        with the noise and, with ``a6`` and ``a8`` nearly collinear, moved ``a6`` by 4 % from seed to seed.
+    min_coupling_span:
+        Coupling points over an SR span narrower than this cannot tell ``a6`` from ``a8`` (with no torque
+        without slip, ``T / (w_p (w_p - w_t)) = a6 - a8 SR``: a straight line over the span, extrapolated to SR
+        0.95 and beyond; over a span of 0.03 its slope already carries the noise of one point times about
+        ``13 / sqrt(n)`` there): the torque is then fitted in proportion to pump speed times slip (``a8 = 0``,
+        ``a7 = -a6``; a real converter's ``a8`` moves the curve by about 1 % between Gamma and 0.95) and the fit
+        is flagged with the reason. Applies with ``coupling_zero_slip``.
 
     Returns
     -------
@@ -339,22 +257,44 @@ def fit_torque_converter(
     a = np.full(9, np.nan)
     a[:6] = [conv.value(f"a{k}") for k in range(6)]
     j_pump = conv.value("J_pump_kgm2") if acc is not None else 0.0
+    if coupling_torque not in ("turbine", "pump"):
+        raise ConfigError(f"coupling_torque must be 'turbine' or 'pump', not {coupling_torque!r}")
     if int(cm.sum()) >= min_points:
         # the pump inertia comes from the converter fit (the coupling range alone separates it poorly)
-        t_p_c = t_p[cm] - (j_pump * acc[cm] if acc is not None else 0.0)
+        t_pump = t_p[cm] - (j_pump * acc[cm] if acc is not None else 0.0)
         unit = "Nm*s^2/rad^2"
         zs = coupling_zero_slip
-        coup = robust(coupling_design(w_p[cm], w_t[cm], zs), t_p_c, int(cm.sum()),
-                      ["a6", "a8"] if zs else ["a6", "a7", "a8"], [unit] * (2 if zs else 3),
-                      "torque converter coupling (eq. 39" + (", no torque without slip)" if zs else ")"),
-                      min_points, np.flatnonzero(cm), False)
-        if zs:
+        span = float(np.ptp(sr[cm]))
+        one = zs and span < min_coupling_span
+        names = ["a6"] if one else ["a6", "a8"] if zs else ["a6", "a7", "a8"]
+        what = "torque converter coupling (eq. 39" + (", torque in proportion to pump speed times slip"
+                                                      if one else ", no torque without slip" if zs else "")
+        A_c = coupling_design(w_p[cm], w_t[cm], zs, one)
+        # the transients are left out on the pump rows' residuals (see ``coupling_torque``)
+        coup = robust(A_c, t_pump, int(cm.sum()), names, [unit] * len(names), what + ")", min_points,
+                      np.flatnonzero(cm), False)
+        if coupling_torque == "turbine":
+            keep = inlier[cm]
+            turb = linear_fit(A_c[keep], t_t[cm][keep], names, units=[unit] * len(names), segments=segments,
+                              min_points=min_points, n_excluded=n_excluded + int((~keep).sum()),
+                              what=what + ", on the turbine torque)")
+            turb.reasons.extend(coup.reasons)
+            coup = turb
+        if one:
+            derived(coup, "a7", lambda x: -x[0], unit=unit)
+            derived(coup, "a8", lambda x: 0.0, unit=unit)
+            coup.flag(f"coupling points over SR {float(sr[cm].min()):.3f}-{float(sr[cm].max()):.3f} only (span "
+                      f"{span:.3f} < {min_coupling_span:g}): a6 and a8 not told apart, a8 = 0 taken (torque in "
+                      "proportion to pump speed times slip)")
+        elif zs:
             derived(coup, "a7", lambda x: -x[0] - x[1], unit=unit)
+        coup.data["torque"] = coupling_torque
+        coup.data["slip_only"] = one
         a[6:] = [coup.value(f"a{k}") for k in (6, 7, 8)]
         # over the narrow coupling range a6..a8 are strongly correlated; these two are well determined:
         gg = float(conv.value("gamma_coupling"))
-        derived(coup, "k_at_gamma", lambda x: float(coupling_coefficients(x, zs) @ [1.0, gg, gg**2]), unit=unit)
-        derived(coup, "sr_zero_torque", lambda x: _zero_torque_sr(coupling_coefficients(x, zs)), unit="")
+        derived(coup, "k_at_gamma", lambda x: float(coupling_coefficients(x, zs, one) @ [1.0, gg, gg**2]), unit=unit)
+        derived(coup, "sr_zero_torque", lambda x: _zero_torque_sr(coupling_coefficients(x, zs, one)), unit="")
         out["coupling"] = coup
     else:
         reasons.append(f"{int(cm.sum())} coupling-mode points (SR >= {g:.3f}): a6..a8 not identified")
@@ -413,6 +353,8 @@ def identify_torque_converter(
     outlier_sigma: float | None = 5.0,
     lockup_slip_tol: float = 0.01,
     coupling_zero_slip: bool = True,
+    coupling_torque: str = "turbine",
+    min_coupling_span: float = 0.03,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
@@ -470,7 +412,7 @@ def identify_torque_converter(
         (flagged beyond 5 %). Needs the K0 or engine state and ``min_calibration_points`` such samples in a
         gear with a transmission model of its own (a borrowed model's efficiency error is that gear's, not a
         common gain), else eq. 32 is used as is.
-    outlier_sigma, coupling_zero_slip:
+    outlier_sigma, coupling_zero_slip, coupling_torque, min_coupling_span:
         See :func:`fit_torque_converter`.
     lockup_slip_tol:
         Without a ``lockup_closed`` channel, samples with ``|1 - w_t / w_p|`` below this count as
@@ -494,7 +436,8 @@ def identify_torque_converter(
     res = fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, pts.t_t, gamma=gamma, min_points=min_points,
                                segments=pts.segments, n_excluded=pts.n_excluded,
                                dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma,
-                               coupling_zero_slip=coupling_zero_slip)
+                               coupling_zero_slip=coupling_zero_slip, coupling_torque=coupling_torque,
+                               min_coupling_span=min_coupling_span)
     scale, scale_se, segs = pts.scale, pts.scale_se, pts.segments
     res["converter"].add(ParameterEstimate(
         "turbine_speed_scale", scale, scale_se, (scale - 1.96 * scale_se, scale + 1.96 * scale_se), float("nan"),

@@ -10,14 +10,15 @@ are linear in their right-hand sides:
   sandwich with the variance of each row: the motor torque's grid sample for the pump rows, the shaft torque's
   over ``k_out^2`` (``k_out = i_g eta_m``) for the turbine rows (a grid sample interpolated between two readings
   at fraction ``a`` has ``(1-a)^2`` and ``a^2`` of their variances);
-- coupling mode (eq. 39), ``t_p - J dw_p = D x`` with the identification's coupling design ``D``
+- coupling mode (eq. 39), ``t_t = D x`` with the identification's coupling design ``D``
   (:func:`~benchtwin.identification.torque_converter.coupling_design`: ``x = (a6, a8)`` and ``a7 = -a6 - a8``
-  with no torque without slip), mapped to ``a_678 = M x``: the pump rows of the coupling points, and the pump
-  inertia ``J`` of the converter fit through ``-M (D'D)^-1 D' dw_p``;
+  with no torque without slip, ``x = a6`` alone over too narrow an SR span), mapped to ``a_678 = M x``: the
+  turbine rows of the coupling points (with ``coupling_torque="pump"``: ``t_p - J dw_p``, the pump rows and
+  the pump inertia ``J`` of the converter fit through ``-M (D'D)^-1 D' dw_p``);
 - the transmission model each turbine torque goes through (``T_out / (i_g eta_m) + C0``) is itself estimated
   from the same seed's shaft torque: its planned ``eta_m`` and ``C0`` standard errors of each gear move all
-  the turbine rows that use that gear's model together (``-(t_t - C0) / eta_m`` and ``1``; a gear without a
-  model of its own uses the nearest one's), taken as independent.
+  the turbine rows that use that gear's model together, in both fits (``-(t_t - C0) / eta_m`` and ``1``; a
+  gear without a model of its own uses the nearest one's), taken as independent.
 
 The derived parameters (``gamma_coupling``, ``k_at_gamma`` with its coupling point, ``sr_zero_torque``) follow
 by the delta method on the joint covariance.
@@ -88,7 +89,7 @@ _HINT = "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"
 _POINT_OPTS = ("rate_hz", "max_pump_accel_rpm_s", "min_pump_speed_rpm", "min_pump_torque_nm", "shift_hold_s",
                "derivative_window_s", "calibrate_turbine_speed", "min_calibration_points", "lockup_slip_tol",
                "calibrate_turbine_torque")
-_FIT_OPTS = ("gamma", "min_points", "outlier_sigma", "coupling_zero_slip")
+_FIT_OPTS = ("gamma", "min_points", "outlier_sigma", "coupling_zero_slip", "coupling_torque", "min_coupling_span")
 
 
 def _defaults() -> dict[str, object]:
@@ -265,9 +266,12 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         if side == "coupling" and "a6" not in names:
             continue
         vals = np.array([func(x.z, x.k1) for x in same])
-        dv = float(np.mean([_delta(lambda zz, x=x, f=func: f(zz, x.k1), x.z, x.cov) for x in same]))
-        if len(same) > 1:
-            dv += float(np.var(vals, ddof=1))
+        if name == "sr_zero_torque" and zero_slip:
+            dv = 0.0  # 1 by construction (no torque without slip); a numerical derivative would give rounding
+        else:
+            dv = float(np.mean([_delta(lambda zz, x=x, f=func: f(zz, x.k1), x.z, x.cov) for x in same]))
+            if len(same) > 1:
+                dv += float(np.var(vals, ddof=1))
         out.append(PlannedParameter(f"torque_converter.{side}.{name}", "Nm*s^2/rad^2" if name == "k_at_gamma" else "",
                                     v0.get(f"{side}.{name}", nan), _se(dv, float(vals[0])), True, why, "",
                                     n1 if side == "converter" else n2))
@@ -319,7 +323,8 @@ def _model_gears(gear: np.ndarray, table: Mapping[int, object]) -> np.ndarray:
 def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, v_tt: np.ndarray,
                table: Mapping[int, tuple[float, float, float, float]], zero_slip: bool = True) -> _Linear:
     """The linear map of both fits at the rows ``rows`` (a result of the fit) kept, on the noise-free points;
-    ``zero_slip`` as the coupling fit's ``coupling_zero_slip``."""
+    ``zero_slip`` as the coupling fit's ``coupling_zero_slip`` (its torque and a slip-only design are read from
+    ``rows['coupling'].data``)."""
     model_gear = _model_gears(pts.gear, table)
     data = rows["torque_ratio"].data
     g = float(data["gamma"][0])
@@ -332,30 +337,49 @@ def _propagate(pts: ConverterPoints, rows: Mapping[str, Any], v_tp: np.ndarray, 
     n1 = int(m1.sum())
     x1 = L1 @ np.r_[pts.t_p[m1], pts.t_t[m1]]
     cov1 = (L1 * np.r_[v_tp[m1], v_tt[m1]]) @ L1.T
-    # the transmission model of each gear moves its turbine rows together
+    names = [f"a{k}" for k in range(6)] + ["J_pump_kgm2"]
+    k1 = len(names)
+    coupled = "coupling" in rows and int(m2.sum()) >= 3
+    if coupled:
+        cdata = rows["coupling"].data
+        turbine = cdata.get("torque", "turbine") == "turbine"
+        one = bool(cdata.get("slip_only", False))
+        d2 = coupling_design(pts.w_p[m2], pts.w_t[m2], zero_slip, one)
+        # a_678 = M x of the fit's unknowns x (a6, a8 with no torque without slip; a6 alone slip-only)
+        m678 = np.column_stack([coupling_coefficients(e, zero_slip, one) for e in np.eye(d2.shape[1])])
+        L2 = m678 @ np.linalg.solve(d2.T @ d2, d2.T)
+        if turbine:  # the coupling torque read on the turbine side: its noise, no pump inertia
+            x2 = L2 @ pts.t_t[m2]
+            cov2 = (L2 * v_tt[m2]) @ L2.T
+            dj = np.zeros(3)
+        else:
+            x2 = L2 @ (pts.t_p[m2] - x1[6] * pts.dw_p[m2])
+            cov2 = (L2 * v_tp[m2]) @ L2.T
+            dj = -L2 @ pts.dw_p[m2]  # d a678 / d J
+    # the transmission model of each gear moves its turbine rows together (in both fits when the coupling fit
+    # reads the turbine torque)
+    tx = []
     for gear, (eta, c0, se_eta, se_c0) in table.items():
         sel = model_gear[m1] == gear
-        if not sel.any():
+        sel2 = model_gear[m2] == gear if coupled and turbine else np.zeros(int(m2.sum()), dtype=bool)
+        if not sel.any() and not sel2.any():
             continue
         d_eta = np.r_[np.zeros(n1), np.where(sel, -(pts.t_t[m1] - c0) / eta, 0.0)]
         d_c0 = np.r_[np.zeros(n1), sel.astype(float)]
-        for d, se in ((d_eta, se_eta), (d_c0, se_c0)):
-            u = L1 @ d
-            cov1 += np.outer(u, u) * se**2
-    names = [f"a{k}" for k in range(6)] + ["J_pump_kgm2"]
-    k1 = len(names)
-    if "coupling" not in rows or int(m2.sum()) < 3:
+        d2_eta = np.where(sel2, -(pts.t_t[m2] - c0) / eta, 0.0)
+        tx += [(L1 @ d_eta, d2_eta, se_eta), (L1 @ d_c0, sel2.astype(float), se_c0)]
+    for u, _, se in tx:
+        cov1 += np.outer(u, u) * se**2
+    if not coupled:
         return _Linear(names, x1, cov1, k1, n1, int(m2.sum()), g, np.packbits(np.r_[m1, m2]).tobytes())
-    d2 = coupling_design(pts.w_p[m2], pts.w_t[m2], zero_slip)
-    # a_678 = M x of the fit's unknowns x (a6, a8 with no torque without slip)
-    m678 = np.column_stack([coupling_coefficients(e, zero_slip) for e in np.eye(d2.shape[1])])
-    L2 = m678 @ np.linalg.solve(d2.T @ d2, d2.T)
-    x2 = L2 @ (pts.t_p[m2] - x1[6] * pts.dw_p[m2])
-    dj = -L2 @ pts.dw_p[m2]  # d a678 / d J
     cov = np.zeros((k1 + 3, k1 + 3))
     cov[:k1, :k1] = cov1
-    cov[k1:, k1:] = (L2 * v_tp[m2]) @ L2.T + np.outer(dj, dj) * cov1[6, 6]
+    cov[k1:, k1:] = cov2 + np.outer(dj, dj) * cov1[6, 6]
     cov[k1:, :k1] = np.outer(dj, cov1[6])
+    for u1, d2, se in tx:
+        u2 = L2 @ d2 if turbine else np.zeros(3)
+        cov[k1:, k1:] += np.outer(u2, u2) * se**2
+        cov[k1:, :k1] += np.outer(u2, u1) * se**2
     cov[:k1, k1:] = cov[k1:, :k1].T
     return _Linear([*names, "a6", "a7", "a8"], np.r_[x1, x2], cov, k1, n1, int(m2.sum()), g,
                    np.packbits(np.r_[m1, m2]).tobytes())
