@@ -145,6 +145,15 @@ def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnS
     _converter_checks_pass(vehicle, drawn, seed)
 
 
+@pytest.mark.xfail(reason="open: converter-mode points only in gear 1 above SR 0.6, gear 1 on gear 2's transmission "
+                   "model (turbine torque ~8.5 Nm high): TR never reaches 1 (examples/converter_gear1_borrowed_model"
+                   ".json)", raises=AssertionError, strict=True)
+def test_converter_with_gear_1_on_a_borrowed_transmission_model() -> None:
+    # found by test_torque_converter_curves_recovered in the thorough profile once the coupling fit was fixed; kept
+    # as a strict expected failure until the converter-mode fit handles it (about 10 s)
+    _converter_checks_pass(*pinned("converter_gear1_borrowed_model"))
+
+
 def test_loose_converter_on_a_10_bit_telemetry() -> None:
     # found by test_torque_converter_curves_recovered: Gamma 0.62 for 0.80 (the first estimate compared the
     # turbine torque with a motor torque that also accelerates the pump) and the TR curve 5-7 % off near Gamma,
