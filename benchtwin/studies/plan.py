@@ -206,7 +206,7 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
             planned = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
                 plan_transmission(rec, vehicle, noise, segments, recorded=raw)
             plan.parameters += plan_converter(rec, vehicle, noise, segments, planned,
-                                              recorded={n: ch for n, ch in raw.items() if n in CONVERTER_RECORDED})
+                                              recorded=raw)
         elif fam.name == "shifts":
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
         else:

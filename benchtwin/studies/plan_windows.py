@@ -37,7 +37,7 @@ from benchtwin.identification.transmission import direction_points, efficiency_d
 from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan_noise import ChannelNoise
 
-__all__ = ["SEARCHED", "WINDOW_DRAWS", "noisy_readings", "reading_lag", "window_draws"]
+__all__ = ["SEARCHED", "WINDOW_DRAWS", "noisy_readings", "reading_lag", "reading_lag_line", "window_draws"]
 
 #: draws of the noise deciding the windows: the selection variance over K draws is known to about
 #: sqrt(2 / (K - 1)) (26 % at 30, 13 % on the standard error); one draw is one window search over the steady
@@ -52,23 +52,56 @@ SEARCHED: tuple[str, ...] = ("vehicle_speed_kmh", "em_speed_rpm", "em_torque_nm"
 _LAGS = np.arange(0.0, 0.0505, 0.0005)
 
 
-def reading_lag(truth: Channel, recorded: Channel, cn: ChannelNoise) -> float:
+def reading_lag(truth: Channel, recorded: Channel, cn: ChannelNoise, lags: np.ndarray | None = None,
+                span: tuple[float, float] | None = None) -> float:
     """How far the bench's readings of a channel lag its truth (s), from one recorded run.
 
     The lag minimising the mean squared difference between the recorded readings and the truth shifted by
     it (with the declared gain and offset), over the readings where the truth moves faster than 10 steps of
     the channel (or 10 noise sigmas) a second; 0 when the two do not share timestamps or nothing moves.
+    ``lags``: the lags tried (default 0-50 ms in 0.5 ms steps); ``span``: only readings in ``[start, end)``.
     """
     t, x = truth.timestamps, truth.values
     if recorded.timestamps.shape != t.shape or not np.array_equal(recorded.timestamps, t) or t.size < 3:
         return 0.0
     fast = np.abs(np.gradient(x, t)) > 10.0 * max(cn.q, cn.sigma, 1e-12)
     fast &= recorded.good & np.isfinite(recorded.values)
+    if span is not None:
+        fast &= (t >= span[0]) & (t < span[1])
     if fast.sum() < 10:
         return 0.0
     y = recorded.values[fast]
-    err = [np.mean((y - (1.0 + cn.gain) * np.interp(t[fast] - lag, t, x) - cn.offset) ** 2) for lag in _LAGS]
-    return float(_LAGS[int(np.argmin(err))])
+    grid = _LAGS if lags is None else lags
+    err = [np.mean((y - (1.0 + cn.gain) * np.interp(t[fast] - lag, t, x) - cn.offset) ** 2) for lag in grid]
+    return float(grid[int(np.argmin(err))])
+
+
+def reading_lag_line(truth: Channel, recorded: Channel, cn: ChannelNoise, chunk_s: float = 1000.0
+                     ) -> tuple[float, float]:
+    """The lag of the bench's readings as a line in time, ``lag(t) = a + b t`` (s, s/s): ``(a, b)``.
+
+    A device clock that drifts against the recorder's (the paper bench's telemetry: 25 ppm, uncorrected) makes
+    the lag grow over a long campaign: 19 ms at the start of the paper campaign, 0.26 s at 10,000 s. The lag of
+    each ``chunk_s`` of the run (:func:`reading_lag` over 0-0.5 s in 1 ms steps, chunks with at least 100 fast
+    readings) is fitted with a line; a single chunk gives a constant lag, none ``(0, 0)``.
+    """
+    t = truth.timestamps
+    if t.size < 3 or recorded.timestamps.shape != t.shape or not np.array_equal(recorded.timestamps, t):
+        return 0.0, 0.0
+    fast = np.abs(np.gradient(truth.values, t)) > 10.0 * max(cn.q, cn.sigma, 1e-12)
+    grid = np.arange(0.0, 0.5005, 0.001)
+    mid, lag = [], []
+    for a in np.arange(float(t[0]), float(t[-1]), chunk_s):
+        sel = fast & (t >= a) & (t < a + chunk_s)
+        if sel.sum() >= 100:
+            mid.append(float(np.mean(t[sel])))
+            lag.append(reading_lag(truth, recorded, cn, grid, (a, a + chunk_s)))
+    if not lag:
+        return 0.0, 0.0
+    if len(lag) == 1:
+        return lag[0], 0.0
+    b, a = np.polyfit(mid, lag, 1)
+    return float(a), float(b)
 
 
 def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tuple[str, ...],

@@ -174,3 +174,24 @@ def test_plan_table_and_bad_files(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     assert len(err) == 1 and "bad.toml" in err[0] and "not valid TOML" in err[0]
     assert main(["plan", "--setup", "missing_setup", "--campaign", "quick"]) == 2
     assert "missing_setup" in capsys.readouterr().err
+
+
+def test_reading_lag_line_follows_a_drifting_clock() -> None:
+    """A 100 Hz channel read through a clock that drifts 125 ppm after a 15 ms lag, over 2,000 s.
+
+    The readings are the truth at ``t - (0.015 + 125e-6 t)``, quantised to 2 Nm: the line must give the lag to
+    a millisecond and a half (the search's step is 1 ms) at both ends; a single lag cannot (0.015 s at the
+    start, 0.265 s at the end), so a fit that ignored the drift fails by 0.1 s or more. Time: about 2 s.
+    """
+    from benchtwin.studies.plan_noise import ChannelNoise
+    from benchtwin.studies.plan_windows import reading_lag_line
+
+    t = np.arange(0.0, 2_000.0, 0.01)
+    x = 500.0 * np.sin(2 * np.pi * t / 7.0) + 300.0 * np.sin(2 * np.pi * t / 3.1)
+    lag = 0.015 + 125e-6 * t
+    y = 2.0 * np.rint(np.interp(t - lag, t, x) / 2.0)
+    truth = Channel("shaft_torque_nm", "Nm", t, x, None, "telemetry")
+    rec = Channel("shaft_torque_nm", "Nm", t, y, None, "telemetry")
+    a, b = reading_lag_line(truth, rec, ChannelNoise(sigma=0.0, q=2.0, gain=0.0, offset=0.0), chunk_s=500.0)
+    for at in (0.0, 2_000.0):
+        assert abs((a + b * at) - (0.015 + 125e-6 * at)) < 1.5e-3, (a, b)
