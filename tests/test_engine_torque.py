@@ -76,7 +76,8 @@ def test_without_motor_only_points_there_is_no_fit() -> None:
     pts.engine_in[:] = True
     res = IdentificationResult()
     add_engine_torque_fit(res, pts, np.asarray(SPECS.gear_ratios))
-    assert ENGINE_TORQUE_KEY not in res.fits and "motor-only" in res.errors[ENGINE_TORQUE_KEY]
+    assert ENGINE_TORQUE_KEY not in res.fits and ENGINE_TORQUE_KEY not in res.errors
+    assert "motor-only" in res.meta[ENGINE_TORQUE_KEY]["not_fitted"]
 
 
 def test_the_split_uses_the_corrected_torque_and_the_fuel_map_the_can_torque() -> None:

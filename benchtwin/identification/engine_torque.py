@@ -31,15 +31,12 @@ two gears, or an engine-torque span under :data:`MIN_SPAN_NM`, carry it, or when
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
 from benchtwin.identification._fit import FitResult, IdentificationResult, linear_fit
 from benchtwin.identification.transmission_drag import drag_c0
-
-if TYPE_CHECKING:
-    from benchtwin.identification.transmission import TransmissionPoints
 
 __all__ = ["ENGINE_TORQUE_KEY", "GAIN_RANGE", "MIN_GEAR_POINTS", "MIN_POINTS", "MIN_SPAN_NM", "add_engine_torque_fit",
            "corrected_engine_torque"]
@@ -68,23 +65,35 @@ def _eq14(c: np.ndarray, eta: np.ndarray) -> tuple[float, float] | None:
     return float(x[0]), float(x[1] / x[0])
 
 
-def add_engine_torque_fit(out: IdentificationResult, pts: TransmissionPoints, ratios: np.ndarray, *,
+def _drive_points(pts: Any, gear: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The drive points of a gear as the transmission's fit takes them (``transmission.direction_points``)."""
+    m = pts.usable & (pts.gear == gear) & (pts.p_out > 0) & (pts.p_in > 0)
+    c = pts.c_in[m]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        eta = pts.p_out[m] / pts.p_in[m]
+    return m, (eta > 0.0) & (eta < 1.2) & (c > 0), c, eta
+
+
+def add_engine_torque_fit(out: IdentificationResult, pts: Any, ratios: np.ndarray, *,
                           drag: FitResult | None = None) -> None:
-    """Fit ``engine.can_torque`` from the transmission's steady points into ``out`` (or say why not in its errors).
+    """Fit ``engine.can_torque`` from the transmission's steady points into ``out``.
+
+    Without points to carry it the fit is left out (an optional refinement, not a failure of the transmission) and
+    ``out.meta["engine.can_torque"]["not_fitted"]`` says why.
 
     Parameters
     ----------
     out:
         The transmission's result; the fit (or the reason it is missing) is added.
     pts:
-        Steady points with ``engine_in`` and ``c_engine`` (a hybrid's; a conventional car's carry no reference).
+        :class:`~benchtwin.identification.transmission.TransmissionPoints` with ``engine_in`` and ``c_engine``
+        (a hybrid's; a conventional car's carry no reference).
     ratios:
         Gear ratios (public specs).
     drag:
         The drag fit ``transmission.drag`` when it was identified on the motor-only points (the gearbox reference at
         each point's oil temperature and input speed); None: each gear's eq. 14 from its motor-only points.
     """
-    from benchtwin.identification.transmission import direction_points
 
     if pts.engine_in is None or pts.c_engine is None:
         return
@@ -93,7 +102,7 @@ def add_engine_torque_fit(out: IdentificationResult, pts: TransmissionPoints, ra
         if not 1 <= g <= ratios.size:
             continue
         i_g = float(ratios[g - 1])
-        m, dom, c, eta = direction_points(pts, g, "drive", i_g)
+        m, dom, c, eta = _drive_points(pts, g)
         eng = pts.engine_in[m]
         use = dom & eng
         if not use.any():
@@ -120,13 +129,12 @@ def add_engine_torque_fit(out: IdentificationResult, pts: TransmissionPoints, ra
         gears.append(np.full(int(use.sum()), g))
         segs += [s for s, k in zip(np.asarray(pts.segments, dtype=object)[m], use) if k and s]
     if not ref:
-        out.errors[ENGINE_TORQUE_KEY] = ("InsufficientDataError: no gear with both motor-only and engine drive points "
-                                         "(lock-up closed)")
+        out.meta[ENGINE_TORQUE_KEY] = {"not_fitted": "no gear with both motor-only and engine drive points "
+                                                     "(lock-up closed)"}
         return
     x, y, gear = np.concatenate(ref), np.concatenate(can), np.concatenate(gears)
     if x.size < 3:
-        out.errors[ENGINE_TORQUE_KEY] = (f"InsufficientDataError: {x.size} engine points with a reference; "
-                                         f"need {MIN_POINTS}")
+        out.meta[ENGINE_TORQUE_KEY] = {"not_fitted": f"{x.size} engine points with a reference; need {MIN_POINTS}"}
         return
     A = np.column_stack([x, np.ones_like(x)])
     fit = linear_fit(A, y, ["gain", "offset"], units=["-", "Nm"], segments=sorted(set(segs)), min_points=3,
