@@ -16,6 +16,7 @@ from test_predict import SPECS, _by_hand, _fit, cruise, synthetic_result
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, add_engine_torque_fit
 from benchtwin.identification.transmission import TransmissionPoints, identify_transmission
+from benchtwin.identification.transmission_drag import DRAG_KEY
 from benchtwin.validation.predict import MapVehicle
 
 GAIN, OFFSET = 1.02, 3.0
@@ -80,15 +81,30 @@ def test_without_motor_only_points_there_is_no_fit() -> None:
     assert "motor-only" in res.meta[ENGINE_TORQUE_KEY]["not_fitted"]
 
 
-def test_the_split_uses_the_corrected_torque_and_the_fuel_map_the_can_torque() -> None:
-    """A hybrid cruise logged with the ECU's torque 2 % + 3 Nm high: the motor takes what the true engine torque
-    leaves (by hand), the fuel is the map's at the CAN torque it was identified on."""
-    res = synthetic_result()
-    res.fits[ENGINE_TORQUE_KEY] = _fit({"gain": GAIN, "offset": OFFSET})
+def _with_drag(res: IdentificationResult) -> IdentificationResult:
+    """The synthetic maps' eq. 14 as a used drag fit without temperature or speed terms (same numbers)."""
+    from test_predict import C0, ETA_M
+
+    params = {"k_T": 0.0, "k_w": 0.0, "T_ref": 80.0}
+    for g in range(1, 10):
+        params |= {f"eta_m_g{g}": ETA_M, f"C0_g{g}": C0}
+    res.fits[DRAG_KEY] = _fit(params, use=np.array([True]))
+    return res
+
+
+@pytest.mark.parametrize("reference_drag", [True, False])
+def test_the_split_uses_the_corrected_torque_and_the_fuel_map_the_can_torque(reference_drag: bool) -> None:
+    """A hybrid cruise logged with the ECU's torque 2 % + 3 Nm high. With the gearbox model the correction was
+    identified against (the drag fit), the motor takes what the true engine torque leaves (by hand); the fuel is
+    the map's at the CAN torque it was identified on. A correction found against another reference is not used."""
+    res = _with_drag(synthetic_result())
+    res.fits[ENGINE_TORQUE_KEY] = _fit({"gain": GAIN, "offset": OFFSET}, reference_drag=np.array([reference_drag]))
     true_nm = 150.0
     can_nm = GAIN * true_nm + OFFSET
-    pred = MapVehicle(res, SPECS).run(cruise(engine_torque_nm=can_nm, gear=5, speed_kmh=80.0))
-    _fuel, e_wh, dsoc = _by_hand(80.0, 5, true_nm, 400.0, 60.0)
+    drive = cruise(engine_torque_nm=can_nm, gear=5, speed_kmh=80.0)
+    drive.oil_degc = np.full(drive.t_s.size, 80.0)
+    pred = MapVehicle(res, SPECS).run(drive)
+    _fuel, e_wh, dsoc = _by_hand(80.0, 5, true_nm if reference_drag else can_nm, 400.0, 60.0)
     fuel_can, _e, _d = _by_hand(80.0, 5, can_nm, 400.0, 60.0)
     assert pred.electric_wh == pytest.approx(e_wh, rel=1e-9)
     assert pred.final_soc_pct - 50.0 == pytest.approx(dsoc, rel=1e-3)

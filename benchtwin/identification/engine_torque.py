@@ -13,11 +13,13 @@ share is a line,
 
 ``C_eng,CAN = g C_eng + o``,
 
-fitted by least squares with its intervals (fit ``engine.can_torque``: ``gain`` and ``offset``, Nm). The
-map-based vehicle model uses it to split a drive's pump torque between engine and motor
-(:mod:`benchtwin.validation.predict`): the replayed CAN torque corrected, ``(C_eng,CAN - o) / g``, so the motor
-takes the rest of the torque the gearbox asks, not the rest of the ECU's estimate. The BSFC map stays at the
-CAN torque (it was identified on it).
+fitted by least squares with its intervals (fit ``engine.can_torque``: ``gain`` and ``offset``, Nm;
+``data["reference_drag"]`` says whether the drag fit was the reference). The map-based vehicle model uses it to
+split a drive's pump torque between engine and motor (:mod:`benchtwin.validation.predict`) when its gearbox
+model is that same drag fit: the replayed CAN torque corrected, ``(C_eng,CAN - o) / g``, so the motor takes the
+rest of the torque the gearbox asks, not the rest of the ECU's estimate. The BSFC map stays at the CAN torque
+(it was identified on it). With eq. 14 per gear as the gearbox model the CAN torque stays: those fits took it
+into their input at their engine points, and its error is in their ``eta_m`` and ``C0``.
 
 Only drive points are used (the shaft torque positive, lock-up closed); without the drag fit a gear's eq. 14
 needs at least :data:`MIN_GEAR_POINTS` motor-only points with a spread of ``1/C``, and gears without are skipped. The
@@ -139,8 +141,8 @@ def add_engine_torque_fit(out: IdentificationResult, pts: Any, ratios: np.ndarra
     A = np.column_stack([x, np.ones_like(x)])
     fit = linear_fit(A, y, ["gain", "offset"], units=["-", "Nm"], segments=sorted(set(segs)), min_points=3,
                      what=ENGINE_TORQUE_KEY)
-    fit.data.update(c_engine_ref=x, c_engine_can=y, gear=gear.astype(float))
     by_drag = drag is not None and pts.oil_degc is not None
+    fit.data.update(c_engine_ref=x, c_engine_can=y, gear=gear.astype(float), reference_drag=np.array([by_drag]))
     ref_what = ("the drag fit transmission.drag (motor-only points) at each point's oil temperature and input speed"
                 if by_drag else "each gear's eq. 14 from its motor-only drive points")
     fit.reasons.append(f"reference: {ref_what}; the shaft torque referred back to the input, the motor's torque "

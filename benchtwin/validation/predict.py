@@ -18,8 +18,10 @@ trace of a drive the model computes, per time step and backwards from the wheels
 5. the split between engine and motor: a replay of the measured strategy (engine on/off, K0 and the
    engine's CAN torque), the motor taking the rest, so that what is tested are the maps; when the ECU's torque
    was identified against the shaft torque (``engine.can_torque``,
-   :mod:`benchtwin.identification.engine_torque`) the split takes the CAN torque corrected by that gain and
-   offset (the fuel map is still read at the CAN torque it was identified on);
+   :mod:`benchtwin.identification.engine_torque`) against the same gearbox model the prediction uses (the drag
+   fit on the motor-only points), the split takes the CAN torque corrected by that gain and offset (the fuel map
+   is still read at the CAN torque it was identified on; with eq. 14 per gear, fitted with the CAN torque in
+   its input, the CAN torque stays);
 6. the motor's DC power from the identified loss model ``motor.loss`` (copper, speed and switching terms,
    :mod:`benchtwin.identification.motor_loss`) when it was identified, else from the Willans lines, plus the
    measured 12 V load through the identified DC/DC efficiency;
@@ -162,7 +164,14 @@ class MapVehicle:
         self._engine_map(result)
         et = _fit(result, ENGINE_TORQUE_KEY, "gain", "offset")
         self.engine_torque_corr: tuple[float, float] | None = None
-        if et is not None and et.status == "ok":
+        same_gearbox = self.drag is not None and bool(np.all(np.asarray(et.data.get("reference_drag", [False]))))\
+            if et is not None else False
+        if et is not None and et.status == "ok" and not same_gearbox:
+            # the gearbox model is eq. 14 per gear, fitted with the ECU's torque in the input at its engine points:
+            # that torque's error is in eta_m and C0, and the CAN torque is the input those fits expect
+            self.notes.append(f"{ENGINE_TORQUE_KEY} not used in the split: the gearbox model (eq. 14 per gear) was "
+                              "fitted with the engine's CAN torque in its input")
+        elif et is not None and et.status == "ok":
             self.engine_torque_corr = (et.value("gain"), et.value("offset"))
             self.notes.append(f"engine torque of the split: the CAN torque corrected by {ENGINE_TORQUE_KEY} (gain "
                               f"{et.value('gain'):.4f}, offset {et.value('offset'):+.2f} Nm, identified against the "
