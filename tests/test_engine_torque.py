@@ -110,3 +110,13 @@ def test_the_split_uses_the_corrected_torque_and_the_fuel_map_the_can_torque(ref
     assert pred.final_soc_pct - 50.0 == pytest.approx(dsoc, rel=1e-3)
     assert pred.fuel_g == pytest.approx(fuel_can, rel=1e-9)
     assert pred.series["engine_torque_nm"][0] == pytest.approx(can_nm)
+
+
+def test_engine_points_at_one_torque_leave_the_fit_out_with_the_reason() -> None:
+    pts = _points(drag=False)
+    pts.c_engine[pts.engine_in] = 100.0  # no lever: the line is not determined (collinear design)
+    pts.c_in[pts.engine_in] = 150.0
+    res = IdentificationResult()
+    add_engine_torque_fit(res, pts, np.asarray(SPECS.gear_ratios))
+    f = res.fits.get(ENGINE_TORQUE_KEY)
+    assert (f is None and res.meta[ENGINE_TORQUE_KEY]["not_fitted"]) or (f is not None and f.status == "flagged")

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult, linear_fit
 from benchtwin.identification.transmission_drag import drag_c0
 
@@ -96,7 +97,6 @@ def add_engine_torque_fit(out: IdentificationResult, pts: Any, ratios: np.ndarra
         The drag fit ``transmission.drag`` when it was identified on the motor-only points (the gearbox reference at
         each point's oil temperature and input speed); None: each gear's eq. 14 from its motor-only points.
     """
-
     if pts.engine_in is None or pts.c_engine is None:
         return
     ref, can, gears, segs = [], [], [], []
@@ -139,8 +139,12 @@ def add_engine_torque_fit(out: IdentificationResult, pts: Any, ratios: np.ndarra
         out.meta[ENGINE_TORQUE_KEY] = {"not_fitted": f"{x.size} engine points with a reference; need {MIN_POINTS}"}
         return
     A = np.column_stack([x, np.ones_like(x)])
-    fit = linear_fit(A, y, ["gain", "offset"], units=["-", "Nm"], segments=sorted(set(segs)), min_points=3,
-                     what=ENGINE_TORQUE_KEY)
+    try:
+        fit = linear_fit(A, y, ["gain", "offset"], units=["-", "Nm"], segments=sorted(set(segs)), min_points=3,
+                         what=ENGINE_TORQUE_KEY)
+    except IdentificationError as exc:  # e.g. every point at one torque: no line
+        out.meta[ENGINE_TORQUE_KEY] = {"not_fitted": f"{type(exc).__name__}: {exc}"}
+        return
     by_drag = drag is not None and pts.oil_degc is not None
     fit.data.update(c_engine_ref=x, c_engine_can=y, gear=gear.astype(float), reference_drag=np.array([by_drag]))
     ref_what = ("the drag fit transmission.drag (motor-only points) at each point's oil temperature and input speed"
