@@ -26,10 +26,11 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, IdentificationResult, derived, linear_fit
 from benchtwin.identification._signals import check_spread, raise_all_failed
+from benchtwin.identification.engine_torque import add_engine_torque_fit
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
+from benchtwin.identification.transmission_drag import DRAG_KEY, add_drag_fit
 from benchtwin.identification.transmission_drag import MIN_SPAN_K as DRAG_MIN_SPAN_K
-from benchtwin.identification.transmission_drag import add_drag_fit
 from benchtwin.recording import Recording
 
 __all__ = ["TransmissionPoints", "direction_points", "efficiency_design", "fit_transmission_efficiency",
@@ -390,6 +391,11 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
             groups = _drag_groups(pts, ratios, max(min_points, 3))
             note = "all points (too few with the engine decoupled span the oil temperature)"
         add_drag_fit(out, groups, list(pts.segments), note=note)
+        drag = out.fits.get(DRAG_KEY)
+        motor_only = drag is not None and note.startswith("points with the engine decoupled")
+        add_engine_torque_fit(out, pts, ratios, drag=drag if motor_only else None)
+    elif out.fits and gears is None:
+        add_engine_torque_fit(out, pts, ratios)
     if not out.fits:
         if not failures:
             raise InsufficientDataError("transmission: no steady point in any gear with the lock-up closed")

@@ -16,7 +16,12 @@ trace of a drive the model computes, per time step and backwards from the wheels
 4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
    pump speed that carries the turbine torque), rigid when it is closed;
 5. the split between engine and motor: a replay of the measured strategy (engine on/off, K0 and the
-   engine's CAN torque), the motor taking the rest, so that what is tested are the maps;
+   engine's CAN torque), the motor taking the rest, so that what is tested are the maps; when the ECU's torque
+   was identified against the shaft torque (``engine.can_torque``,
+   :mod:`benchtwin.identification.engine_torque`) against the same gearbox model the prediction uses (the drag
+   fit on the motor-only points), the split takes the CAN torque corrected by that gain and offset (the fuel map
+   is still read at the CAN torque it was identified on; with eq. 14 per gear, fitted with the CAN torque in
+   its input, the CAN torque stays);
 6. the motor's DC power from the identified loss model ``motor.loss`` (copper, speed and switching terms,
    :mod:`benchtwin.identification.motor_loss`) when it was identified, else from the Willans lines, plus the
    measured 12 V load through the identified DC/DC efficiency;
@@ -42,6 +47,7 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
+from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, corrected_engine_torque
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
@@ -156,6 +162,20 @@ class MapVehicle:
         if missing:
             raise IdentificationError("prediction needs " + ", ".join(missing))
         self._engine_map(result)
+        et = _fit(result, ENGINE_TORQUE_KEY, "gain", "offset")
+        self.engine_torque_corr: tuple[float, float] | None = None
+        same_gearbox = self.drag is not None and bool(np.all(np.asarray(et.data.get("reference_drag", [False]))))\
+            if et is not None else False
+        if et is not None and et.status == "ok" and not same_gearbox:
+            # the gearbox model is eq. 14 per gear, fitted with the ECU's torque in the input at its engine points:
+            # that torque's error is in eta_m and C0, and the CAN torque is the input those fits expect
+            self.notes.append(f"{ENGINE_TORQUE_KEY} not used in the split: the gearbox model (eq. 14 per gear) was "
+                              "fitted with the engine's CAN torque in its input")
+        elif et is not None and et.status == "ok":
+            self.engine_torque_corr = (et.value("gain"), et.value("offset"))
+            self.notes.append(f"engine torque of the split: the CAN torque corrected by {ENGINE_TORQUE_KEY} (gain "
+                              f"{et.value('gain'):.4f}, offset {et.value('offset'):+.2f} Nm, identified against the "
+                              "shaft torque); the fuel map read at the CAN torque")
         conv = _fit(result, "torque_converter.converter", *(f"a{i}" for i in range(6)))
         coup = _fit(result, "torque_converter.coupling", "a6", "a7", "a8")
         self.tc_a = None
@@ -412,8 +432,11 @@ class MapVehicle:
         on = drive.engine_on > 0.5
         k0 = drive.k0_closed > 0.5
         t_e = np.where(on, drive.engine_torque_nm, 0.0)
+        t_e_split = t_e
+        if self.engine_torque_corr is not None:
+            t_e_split = np.where(on, corrected_engine_torque(*self.engine_torque_corr, drive.engine_torque_nm), 0.0)
         w_e = np.where(on & k0, w_p, drive.engine_speed_rpm * _RPM)
-        t_m = np.where(k0, t_p - t_e, t_p)
+        t_m = np.where(k0, t_p - t_e_split, t_p)
         w_m = w_p
         p_el = self.motor_power_w(t_m, w_m)
         p_el = np.where((w_m < 1.0) & (np.abs(t_m) < 0.5), 0.0, p_el)
@@ -425,7 +448,8 @@ class MapVehicle:
         notes.append("not modelled (not in the public specs): rotating inertia of motor, converter and engine; "
                      "fuel of engine starts")
         series = {"t_s": drive.t_s, "gear": gear.astype(float), "motor_torque_nm": t_m, "motor_speed_rpm": w_m / _RPM,
-                  "engine_torque_nm": t_e, "engine_speed_rpm": w_e / _RPM, "fuel_gps": fuel,
+                  "engine_torque_nm": t_e, "engine_torque_split_nm": t_e_split, "engine_speed_rpm": w_e / _RPM,
+                  "fuel_gps": fuel,
                   "battery_current_a": i_b, "battery_voltage_v": v_b, "soc_pct": soc, "motor_elec_power_w": p_el,
                   "wheel_force_n": f_pt}
         return Prediction(fuel_g=fuel_g, co2_g=fuel_g * CO2_G_PER_G_DIESEL,
