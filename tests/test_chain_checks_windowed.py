@@ -156,3 +156,30 @@ def test_selected_order_statistics_and_median_equal_numpy(n: int, kind: str, mon
 
     ch.add(Channel("c", "", t, np.zeros_like(t)))
     assert _median_step(ch["c"]) == float(np.median(np.diff(t)))
+
+
+def test_the_paper_estimation_window_is_cut_without_reading_a_channel_whole(bench, monkeypatch) -> None:
+    """The transmission fit on one ramp-up (paper_r2) takes its window of every channel a block at a time."""
+    from benchtwin.validation.paper_r2 import _slice_recording
+
+    _trace, _spooled, recs = bench
+    rec = recs["paper"]
+    want = {}
+    for name, ch in rec.channels.items():
+        m = (ch.timestamps >= 21.5) & (ch.timestamps < 33.25)
+        want[name] = (ch.timestamps[m], ch.values[m], ch.flags[m])
+    rec.drop()
+
+    def whole(self: LazyChannel) -> list[np.ndarray]:
+        if self._arrays is None:
+            raise AssertionError(f"{self.name} read whole")
+        return self._arrays
+
+    monkeypatch.setattr(LazyChannel, "_load", whole)
+    monkeypatch.setattr("benchtwin.validation.paper_r2._BLOCK", 777)
+    cut = _slice_recording(rec, 21.5, 33.25)
+    assert list(cut.channels) == list(want)
+    for name, (t, v, f) in want.items():
+        assert len(t) > 0, name
+        for got, exp in zip((cut[name].timestamps, cut[name].values, cut[name].flags), (t, v, f), strict=True):
+            assert got.dtype == exp.dtype and got.tobytes() == exp.tobytes(), name
