@@ -183,3 +183,28 @@ def test_the_paper_estimation_window_is_cut_without_reading_a_channel_whole(benc
         assert len(t) > 0, name
         for got, exp in zip((cut[name].timestamps, cut[name].values, cut[name].flags), (t, v, f), strict=True):
             assert got.dtype == exp.dtype and got.tobytes() == exp.tobytes(), name
+
+
+def test_flag_counts_are_counted_by_blocks(bench, monkeypatch) -> None:
+    """validate's flagged and clipped sample counts: the same as on whole channels, no channel read whole."""
+    from benchtwin.validation.run import _flag_counts
+
+    _trace, _spooled, recs = bench
+    rec = recs["paper"]
+    want = {"flagged_samples": {}, "clipped_samples": {}}
+    for name, ch in rec.channels.items():
+        for key, n in (("flagged_samples", np.count_nonzero(ch.flags)),
+                       ("clipped_samples", np.count_nonzero(ch.flags & int(Flag.SATURATED)))):
+            if n:
+                want[key][name] = int(n)
+    rec.drop()
+    assert want["flagged_samples"]  # the paper bench flags some samples (lost frames, saturation)
+
+    def whole(self: LazyChannel) -> list[np.ndarray]:
+        if self._arrays is None:
+            raise AssertionError(f"{self.name} read whole")
+        return self._arrays
+
+    monkeypatch.setattr(LazyChannel, "_load", whole)
+    monkeypatch.setattr("benchtwin.validation.run._FLAG_BLOCK", 333)
+    assert _flag_counts(rec) == want

@@ -248,15 +248,25 @@ def _give_back_freed_memory() -> None:
         return
 
 
+#: samples of a channel whose flags are counted at a time
+_FLAG_BLOCK = 1 << 20
+
+
 def _flag_counts(rec: Recording) -> dict[str, dict[str, int]]:
-    """Flagged and clipped samples per channel (a lazy channel read for it goes again)."""
+    """Flagged and clipped samples per channel, a block of each at a time (a lazy channel without a block reader is
+    read whole, and goes again)."""
     flagged, clipped = {}, {}
     kept = rec.loaded()
     for k, c in rec.channels.items():
-        if n := int(np.count_nonzero(c.flags)):
-            flagged[k] = n
-        if n := int(np.count_nonzero(c.flags & int(Flag.SATURATED))):
-            clipped[k] = n
+        n_flag = n_clip = 0
+        for a in range(0, len(c), _FLAG_BLOCK):
+            f = c.block(a, a + _FLAG_BLOCK)[2]
+            n_flag += int(np.count_nonzero(f))
+            n_clip += int(np.count_nonzero(f & int(Flag.SATURATED)))
+        if n_flag:
+            flagged[k] = n_flag
+        if n_clip:
+            clipped[k] = n_clip
         if k not in kept:
             rec.drop([k])
     return {"flagged_samples": flagged, "clipped_samples": clipped}
