@@ -79,6 +79,7 @@ def _chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, profil
     """The checks of :func:`chain_checks`, one per role, as they are made (each a block of the channel at a time)."""
     budget = _error_budget(setup) if profile != "ideal" else {}
     wanted = set(roles) if roles is not None else None
+    dt_s = trace.dt_s  # the median plant step: once (a median over the whole time base)
     for role, tc in sorted(_chain_truth(setup).items()):
         if wanted is not None and role not in wanted:
             continue
@@ -87,7 +88,7 @@ def _chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, profil
             yield role, Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", "",
                               False, "channel missing from the recording")
             continue
-        yield role, _check(trace, recording[role], tc, profile, budget.get(role, (None, None, 0.0)))
+        yield role, _check(trace, dt_s, recording[role], tc, profile, budget.get(role, (None, None, 0.0)))
 
 
 def _blocks(ch: Channel, span_s: float = np.inf) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -124,8 +125,10 @@ class _TruthWindow:
         self.x = raw * factor
 
 
-def _check(trace: Trace, ch: Channel, tc: TruthChannel, profile: str, budget: tuple[Any, Any, float]) -> Check:
-    """One channel against the truth, block by block (the statistics accumulated: the same as on the whole)."""
+def _check(trace: Trace, dt_s: float, ch: Channel, tc: TruthChannel, profile: str,
+           budget: tuple[Any, Any, float]) -> Check:
+    """One channel against the truth, block by block (the statistics accumulated: the same as on the whole);
+    ``dt_s`` is the Trace's plant step."""
     role, hold, res = ch.name, tc.hold, tc.resolution
     degc = 0.0065 * (ch.unit == "degC")
 
@@ -135,7 +138,7 @@ def _check(trace: Trace, ch: Channel, tc: TruthChannel, profile: str, budget: tu
     def usable(t: np.ndarray, v: np.ndarray, f: np.ndarray, truth: np.ndarray) -> np.ndarray:
         return np.isfinite(truth) & np.isfinite(v) & (f & int(Flag.bad()) == 0)
 
-    span_s = CHECK_BLOCK_SAMPLES * trace.dt_s if len(trace) > 1 else np.inf
+    span_s = CHECK_BLOCK_SAMPLES * dt_s if len(trace) > 1 else np.inf
     n_flag, n_ok, t_max = 0, 0, 0.0
     worst: tuple[float, float, float, float] | None = None  # |err|, value, truth, err: the first largest
     for t, v, f in _blocks(ch, span_s):
@@ -172,7 +175,7 @@ def _check(trace: Trace, ch: Channel, tc: TruthChannel, profile: str, budget: tu
         lag += link.latency_s + abs(link.clock_offset_s)
         drift = abs(link.clock_drift_ppm) * 1e-6
     lag_max = lag + drift * t_max if link is not None else lag
-    w = max(int(np.ceil(float(max(lag_max, lag)) / max(trace.dt_s, 1e-9))) + 1, 1)
+    w = max(int(np.ceil(float(max(lag_max, lag)) / max(dt_s, 1e-9))) + 1, 1)
     n_in = 0
     for t, v, f in _blocks(ch, span_s):
         win = _TruthWindow(trace, tc.trace, tc.factor, t, w + 3)
