@@ -171,3 +171,18 @@ def test_the_second_drive_runs_after_the_held_out_identification_not_beside_it(m
                               Recording(), "realistic")
     assert checks == []
     assert events == ["identify beside ", "second drive", "second closed", "second closed"]
+
+
+def test_recording_mf4_written_from_the_chunk_files_in_small_blocks_reads_back_equal(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """recording.mf4 is written from the acquisition's chunk files block by block (here 1000 samples, so every
+    group of this minute is several blocks): read back with Recording.load it is the in-memory Recording."""
+    import benchtwin.mdf
+
+    trace = synthetic_trace(30.0, 100.0, seed=8)
+    whole = run_chunked([trace], PAPER, seed=3)
+    monkeypatch.setattr(benchtwin.mdf, "WRITE_BLOCK_SAMPLES", 1000)
+    rec = run_chunked(time_slices([trace], 11.0), PAPER, seed=3, out_dir=tmp_path, keep_chunks=True)
+    rec.close()
+    assert max(len(c) for c in whole.channels.values()) > 5 * 1000
+    assert_same_recording(Recording.load(tmp_path / "recording.mf4"), whole, meta=False)
