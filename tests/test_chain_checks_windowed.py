@@ -208,3 +208,32 @@ def test_flag_counts_are_counted_by_blocks(bench, monkeypatch) -> None:
     monkeypatch.setattr(LazyChannel, "_load", whole)
     monkeypatch.setattr("benchtwin.validation.run._FLAG_BLOCK", 333)
     assert _flag_counts(rec) == want
+
+
+def test_the_held_out_cut_reads_the_channels_by_blocks(bench, monkeypatch) -> None:
+    """without_window (the Recording the held-out identification sees) cuts each channel a block at a time: the
+    source channel is never read whole, and the cut equals the whole channel's samples outside the window."""
+    from benchtwin.validation import holdout
+
+    _trace, _spooled, recs = bench
+    rec = recs["paper"]
+    want = {}
+    for name, ch in rec.channels.items():
+        m = (ch.timestamps < 12.0) | (ch.timestamps >= 41.0)
+        want[name] = (ch.timestamps[m], ch.values[m], ch.flags[m])
+    rec.drop()
+    real_load = LazyChannel._load
+
+    def whole(self: LazyChannel) -> list[np.ndarray]:
+        if self._arrays is None and self._block_loader is not None:  # a channel of the chunk files
+            raise AssertionError(f"{self.name} read whole")
+        return real_load(self)
+
+    monkeypatch.setattr(LazyChannel, "_load", whole)
+    monkeypatch.setattr(holdout, "_BLOCK", 501)
+    cut = holdout.without_window(rec, 12.0, 41.0)
+    for name, (t, v, f) in want.items():
+        got = cut[name]
+        assert len(got) == len(t), name
+        for x, y in zip((got.timestamps, got.values, got.flags), (t, v, f), strict=True):
+            assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), name
