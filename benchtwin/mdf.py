@@ -10,7 +10,7 @@ import gc
 import sys
 import threading
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +18,8 @@ import numpy as np
 
 from benchtwin.errors import DataError
 
-__all__ = ["DEFAULT_COMPRESSION", "ChannelFile", "check_compression", "open_mdf", "texts_of", "value_text_conversion"]
+__all__ = ["DEFAULT_COMPRESSION", "WRITE_BLOCK_SAMPLES", "ChannelFile", "append_in_blocks", "check_compression",
+           "open_mdf", "texts_of", "value_text_conversion", "write_channel_groups"]
 
 
 def _is_mdf_del(unraisable: Any) -> bool:
@@ -122,6 +123,98 @@ def check_compression(compression: int) -> int:
         raise DataError(f"MF4 compression must be one of {', '.join(f'{k} ({v})' for k, v in _COMPRESSIONS.items())}, "
                         f"got {compression!r}")
     return int(compression)
+
+
+#: samples per block when a channel group is written in blocks (:func:`append_in_blocks`): 1 Mi samples of a
+#: group of a few float64 channels and their flags is some tens of MB with asammdf's record copies
+WRITE_BLOCK_SAMPLES = 1 << 20
+
+
+def append_in_blocks(mdf: Any, blocks: Iterable[tuple[np.ndarray, list[np.ndarray]]],
+                     signals: Callable[[np.ndarray, list[np.ndarray]], list[Any]], *, comment: str,
+                     acq_name: str) -> None:
+    """Write one channel group block by block: the first block ``mdf.append(signals(t, columns))``, the next ones
+    ``mdf.extend`` (asammdf keeps each block as its own data fragment, compressed one at a time when saved), so
+    what is in memory is one block of the group, not the group whole.
+
+    Parameters
+    ----------
+    mdf:
+        An ``asammdf.MDF`` being written.
+    blocks:
+        ``(timestamps, [column, ...])`` per block, in time order, the columns in the order of ``signals``'s list.
+    signals:
+        ``(timestamps, columns) -> [asammdf.Signal, ...]``: the group's signals made from the first block.
+    comment, acq_name:
+        The channel group's comment and acquisition name.
+    """
+    index = None
+    for t, columns in blocks:
+        if index is None:
+            mdf.append(signals(t, columns), comment=comment, acq_name=acq_name)
+            index = len(mdf.groups) - 1
+        elif len(t):
+            mdf.extend(index, [(t, None)] + [(c, None) for c in columns])
+
+
+def write_channel_groups(mdf: Any, channels: Iterable[Any], flag_conversion: dict[str, Any],
+                         release: Callable[[list[str]], None], *, size: int | None = None) -> None:
+    """Write a Recording's channels into ``mdf``: one channel group per source and time base, each channel followed
+    by its ``<name>.flags`` channel (with ``flag_conversion``), block by block (:func:`append_in_blocks`).
+
+    ``channels`` are :class:`~benchtwin.recording.Channel` objects (read through ``block(start, stop)``, so a lazy
+    one with a block reader is never read whole), ``size`` samples at a time (default :data:`WRITE_BLOCK_SAMPLES`);
+    ``release(names)`` is called after each group is written.
+    Channels of one source may have different time bases (two streams of one device lose different frames: same
+    length and start, other times): they are compared block by block.
+    """
+    from asammdf import Signal
+
+    size = WRITE_BLOCK_SAMPLES if size is None else int(size)
+    by_source: dict[str, list[Any]] = {}
+    for ch in channels:
+        by_source.setdefault(ch.source or "default", []).append(ch)
+    for source, chans in sorted(by_source.items()):
+        groups: list[list[Any]] = []
+        for ch in chans:
+            for group in groups:
+                if _same_times(group[0], ch, size):
+                    group.append(ch)
+                    break
+            else:
+                groups.append([ch])
+        for group in groups:
+            def signals(t: np.ndarray, cols: list[np.ndarray], group: list[Any] = group, source: str = source) -> list:
+                out = []
+                for k, ch in enumerate(group):
+                    out.append(Signal(cols[2 * k], t, name=ch.name, unit=ch.unit, comment=f"source={source}",
+                                      conversion=value_text_conversion(ch.value_texts)))
+                    out.append(Signal(cols[2 * k + 1], t, name=f"{ch.name}.flags", unit="",
+                                      comment="benchtwin quality flags (see benchtwin.recording.Flag)",
+                                      conversion=flag_conversion))
+                return out
+
+            append_in_blocks(mdf, _group_blocks(group, size), signals, comment=source, acq_name=source)
+            release([ch.name for ch in group])
+
+
+def _same_times(a: Any, b: Any, size: int) -> bool:
+    """Whether two channels have the same timestamps, compared block by block."""
+    if len(a) != len(b):
+        return False
+    return all(np.array_equal(a.block(k, k + size)[0], b.block(k, k + size)[0]) for k in range(0, len(a), size))
+
+
+def _group_blocks(group: list[Any], size: int) -> Iterator[tuple[np.ndarray, list[np.ndarray]]]:
+    """``(timestamps, [values, flags, values, flags, ...])`` of channels on one time base, a block at a time."""
+    for start in range(0, max(len(group[0]), 1), size):
+        cols: list[np.ndarray] = []
+        t = np.zeros(0)
+        for k, ch in enumerate(group):
+            tk, v, f = ch.block(start, start + size)
+            t = tk if k == 0 else t
+            cols += [v, f]
+        yield t, cols
 
 
 #: bytes of records asammdf reads at a time for one channel of a :class:`ChannelFile`

@@ -19,7 +19,14 @@ from typing import Any, Protocol, cast
 import numpy as np
 
 from benchtwin.errors import DataError, MissingChannelError
-from benchtwin.mdf import DEFAULT_COMPRESSION, ChannelFile, check_compression, open_mdf, texts_of, value_text_conversion
+from benchtwin.mdf import (
+    DEFAULT_COMPRESSION,
+    ChannelFile,
+    check_compression,
+    open_mdf,
+    texts_of,
+    write_channel_groups,
+)
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
 __all__ = [
@@ -150,6 +157,11 @@ class Channel:
         idx = np.clip(np.searchsorted(self.timestamps, t_s, side="right") - 1, 0, len(self) - 1)
         return self.flags[idx]
 
+    def block(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Timestamps, values and flags of samples ``start:stop`` (a lazy channel with a block reader reads only
+        those; otherwise slices of the whole arrays)."""
+        return self.timestamps[start:stop], self.values[start:stop], self.flags[start:stop]
+
 
 class LazyChannel(Channel):
     """A :class:`Channel` whose arrays are read on first access (from an MF4 file) and can be dropped again.
@@ -162,13 +174,15 @@ class LazyChannel(Channel):
 
     def __init__(self, name: str, unit: str, source: str, n: int,
                  loader: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
-                 value_texts: dict[int, str] | None = None) -> None:
+                 value_texts: dict[int, str] | None = None, *,
+                 block_loader: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> None:
         self.name = name
         self.unit = unit
         self.source = source
         self.value_texts = value_texts
         self._n = int(n)
         self._loader = loader
+        self._block_loader = block_loader  # (start, stop) -> those samples, read without the whole channel
         self._arrays: list[np.ndarray] | None = None
         self._assigned = False
 
@@ -200,6 +214,12 @@ class LazyChannel(Channel):
     def __repr__(self) -> str:
         state = "loaded" if self._arrays is not None else "not loaded"
         return f"LazyChannel({self.name!r}, {self.unit!r}, source={self.source!r}, {self._n} samples, {state})"
+
+    def block(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if self._arrays is None and self._block_loader is not None:
+            start, stop = (min(max(k, 0), self._n) for k in (start, stop))
+            return self._block_loader(start, max(start, stop))
+        return super().block(start, stop)
 
     @property
     def loaded(self) -> bool:
@@ -339,37 +359,16 @@ class Recording:
         The segment table and the metadata travel in the file comment (JSON), the segments also in a sidecar
         ``<stem>.segments.json``. Lazy channels read only to be written are dropped again (one group at a time).
         """
-        from asammdf import MDF, Signal
+        from asammdf import MDF
 
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         mdf = MDF(version="4.10")
         kept = self.loaded()
-        by_source: dict[str, list[Channel]] = {}
-        for ch in self.channels.values():
-            by_source.setdefault(ch.source or "default", []).append(ch)
-        for source, chans in sorted(by_source.items()):
-            # channels of one source may still have different time bases: one group per time base, compared whole
-            # (two streams of one device lose different frames: same length and start, other times)
-            groups: list[tuple[np.ndarray, list[Channel]]] = []
-            for ch in chans:
-                ts = ch.timestamps
-                for ref, members in groups:
-                    if ref is ts or (ref.shape == ts.shape and np.array_equal(ref, ts)):
-                        members.append(ch)
-                        break
-                else:
-                    groups.append((ts, [ch]))
-            for _ref, group in groups:
-                sigs = []
-                for ch in group:
-                    sigs.append(Signal(ch.values, ch.timestamps, name=ch.name, unit=ch.unit,
-                                       comment=f"source={source}", conversion=value_text_conversion(ch.value_texts)))
-                    sigs.append(Signal(ch.flags, ch.timestamps, name=f"{ch.name}.flags", unit="",
-                                       comment="benchtwin quality flags (see benchtwin.recording.Flag)",
-                                       conversion=FLAG_CONVERSION))
-                mdf.append(sigs, comment=source, acq_name=source)
-                self.drop([ch.name for ch in group if ch.name not in kept])
+        # one group per source and time base, written block by block (a lazy channel with a block reader is never
+        # read whole); lazy channels read only to be written are dropped again, a group at a time
+        write_channel_groups(mdf, self.channels.values(), FLAG_CONVERSION,
+                             lambda names: self.drop([n for n in names if n not in kept]))
         if self.start_time is not None:
             mdf.header.start_time = self.start_time
         mdf.header.comment = json.dumps({"benchtwin": {"meta": self.meta, "segments": json.loads(
@@ -517,3 +516,4 @@ class Recording:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+

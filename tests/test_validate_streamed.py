@@ -129,3 +129,60 @@ def test_validate_holds_neither_the_trace_nor_the_recording(monkeypatch: pytest.
     assert isinstance(seen["trace"], SpooledTrace)
     assert seen["trace"]._dir is None  # the truth's files are gone after the run
     assert any(c.group == "chain" and c.passed for c in report.checks)
+
+
+def test_the_second_drive_runs_after_the_held_out_identification_not_beside_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Both at once were the run's peak: the held-out identification sees no other thread simulating the second
+    drive, which runs (and is closed) once it is done."""
+    import threading
+
+    from benchtwin.errors import DataError
+    from benchtwin.segments import Segment
+    from benchtwin.validation.report import ValidationReport
+
+    events: list[str] = []
+
+    class Closable:
+        segments = (Segment(0.0, 10.0, "cycle", "wltc_low_soc"),)
+
+        def close(self) -> None:
+            events.append("second closed")
+
+    def identify(rec: object, *args: object, **kwargs: object) -> object:
+        others = [t.name for t in threading.enumerate() if t is not threading.current_thread()]
+        events.append("identify beside " + ",".join(sorted(n for n in others if "second" in n)))
+        return object()
+
+    def second(*args: object) -> tuple[Closable, Closable]:
+        events.append("second drive")
+        return Closable(), Closable()
+
+    def predict(*args: object, **kwargs: object) -> object:
+        raise DataError("not predicted here")
+
+    monkeypatch.setattr(vrun, "identify_all", identify)
+    monkeypatch.setattr(vrun, "_second_drive", second)
+    monkeypatch.setattr(vrun, "MapVehicle", lambda result, specs: type("M", (), {"notes": []})())
+    monkeypatch.setattr(vrun, "predict_drive", predict)
+    monkeypatch.setattr(vrun, "without_window", lambda rec, a, b: rec)
+    trace = Trace(np.arange(0.0, 30.0, 0.5), {"x": np.zeros(60)},
+                  [Segment(0.0, 10.0, "ramp_up", "r"), Segment(10.0, 30.0, "cycle", "wltc")], {})
+    checks = vrun._prediction(ValidationReport(), load_vehicle(), PAPER, load_campaign("quick.toml"), trace,
+                              Recording(), "realistic")
+    assert checks == []
+    assert events == ["identify beside ", "second drive", "second closed", "second closed"]
+
+
+def test_recording_mf4_written_from_the_chunk_files_in_small_blocks_reads_back_equal(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """recording.mf4 is written from the acquisition's chunk files block by block (here 1000 samples, so every
+    group of this minute is several blocks): read back with Recording.load it is the in-memory Recording."""
+    import benchtwin.mdf
+
+    trace = synthetic_trace(30.0, 100.0, seed=8)
+    whole = run_chunked([trace], PAPER, seed=3)
+    monkeypatch.setattr(benchtwin.mdf, "WRITE_BLOCK_SAMPLES", 1000)
+    rec = run_chunked(time_slices([trace], 11.0), PAPER, seed=3, out_dir=tmp_path, keep_chunks=True)
+    rec.close()
+    assert max(len(c) for c in whole.channels.values()) > 5 * 1000
+    assert_same_recording(Recording.load(tmp_path / "recording.mf4"), whole, meta=False)

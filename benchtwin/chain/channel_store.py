@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -98,7 +99,7 @@ class ChannelStore:
                            for k in range(3))
                 return np.asarray(t), np.asarray(v), np.asarray(f)
 
-            return LazyChannel(name, e.unit, e.source, e.n, load, e.texts)
+            return LazyChannel(name, e.unit, e.source, e.n, load, e.texts, block_loader=self._block_reader(name))
         return Channel(name, e.unit, t, v, f, e.source, e.texts)
 
     def reader(self, name: str) -> Channel:
@@ -118,7 +119,21 @@ class ChannelStore:
                     out.append(np.fromfile(fh, dtype=_DTYPES[k], count=n))
             return out[0], out[1], out[2]
 
-        return LazyChannel(name, e.unit, e.source, n, load, e.texts)
+        return LazyChannel(name, e.unit, e.source, n, load, e.texts, block_loader=self._block_reader(name))
+
+    def _block_reader(self, name: str) -> Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """``(start, stop) -> (timestamps, values, flags)`` of those samples of ``name``, read from its files."""
+        files = [self._file(name, k) for k in range(3)]
+
+        def read(start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            out = []
+            for k in range(3):
+                with files[k].open("rb") as fh:
+                    out.append(np.fromfile(fh, dtype=_DTYPES[k], count=stop - start,
+                                           offset=start * _DTYPES[k].itemsize))
+            return out[0], out[1], out[2]
+
+        return read
 
     @property
     def on_disk(self) -> bool:

@@ -18,7 +18,7 @@ from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.sensors import devices
 from benchtwin.sensors.base import TruthChannel
 from benchtwin.sensors.imperfections import hold_sample
-from benchtwin.trace import Trace
+from benchtwin.trace import SpooledTrace, Trace
 from benchtwin.validation.report import Check
 
 __all__ = ["chain_checks"]
@@ -67,63 +67,185 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
     return checks
 
 
+#: Recording samples compared at a time (with the Trace window around them): the checks hold a block of a channel,
+#: never the whole channel of the campaign
+CHECK_BLOCK_SAMPLES = 1 << 20
+#: diffs of a channel's timestamps gathered whole for their median; more are selected in passes (:func:`_kth`)
+MEDIAN_CAP = 1 << 21
+
+
 def _chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, profile: str,
                   roles: Iterable[str] | None) -> Iterator[tuple[str, Check]]:
-    """The checks of :func:`chain_checks`, one per role, as they are made."""
+    """The checks of :func:`chain_checks`, one per role, as they are made (each a block of the channel at a time)."""
     budget = _error_budget(setup) if profile != "ideal" else {}
     wanted = set(roles) if roles is not None else None
+    dt_s = trace.dt_s  # the median plant step: once (a median over the whole time base)
     for role, tc in sorted(_chain_truth(setup).items()):
         if wanted is not None and role not in wanted:
             continue
-        name, factor, hold, res = tc.trace, tc.factor, tc.hold, tc.resolution
+        name, res = tc.trace, tc.resolution
         if role not in recording or name not in trace:
             yield role, Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", "",
                               False, "channel missing from the recording")
             continue
-        ch: Channel = recording[role]
-        x = trace[name] * factor
-        truth = hold_sample(trace.time_s, x, ch.timestamps) if hold else np.interp(ch.timestamps, trace.time_s, x)
-        ok = np.isfinite(truth) & np.isfinite(ch.values) & (ch.flags & int(Flag.bad()) == 0)
-        n_flag = int(np.count_nonzero(ch.flags))
+        yield role, _check(trace, dt_s, recording[role], tc, profile, budget.get(role, (None, None, 0.0)))
+
+
+def _blocks(ch: Channel, span_s: float = np.inf) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The channel's (timestamps, values, flags) a block at a time (a lazy channel reads only the block): at most
+    :data:`CHECK_BLOCK_SAMPLES` samples, cut where the times pass ``span_s`` after the block's first (so the Trace
+    window beside a slow channel's block is bounded too)."""
+    size, a, n = CHECK_BLOCK_SAMPLES, 0, len(ch)
+    while a < n:
+        t, v, f = ch.block(a, a + size)
+        over = np.flatnonzero(t > t[0] + span_s)
+        if over.size:
+            k = int(over[0])
+            t, v, f = t[:k], v[:k], f[:k]
+        a += len(t)
+        yield t, v, f
+
+
+class _TruthWindow:
+    """The Trace channel (times the unit factor) around a block of Recording times: ``margin`` plant samples more on
+    each side than the block's span needs, so what is computed from neighbouring samples (gradient, maximum
+    filter, interpolation, hold) equals the same computed on the whole channel."""
+
+    def __init__(self, trace: Trace, name: str, factor: float, t: np.ndarray, margin: int) -> None:
+        tt = trace.time_s
+        n = len(tt)
+        if np.isfinite(t).all():
+            lo = int(np.searchsorted(tt, np.min(t), side="right")) - 1 - margin
+            hi = int(np.searchsorted(tt, np.max(t), side="left")) + 1 + margin
+        else:  # a time that is not a number (bad input): the whole channel, as interpolation would see it
+            lo, hi = 0, n
+        self.a, self.b = max(lo, 0), min(max(hi, 0), n)
+        self.time = tt[self.a:self.b]
+        raw = trace.read(name, self.a, self.b) if isinstance(trace, SpooledTrace) else trace[name][self.a:self.b]
+        self.x = raw * factor
+
+
+def _check(trace: Trace, dt_s: float, ch: Channel, tc: TruthChannel, profile: str,
+           budget: tuple[Any, Any, float]) -> Check:
+    """One channel against the truth, block by block (the statistics accumulated: the same as on the whole);
+    ``dt_s`` is the Trace's plant step."""
+    role, hold, res = ch.name, tc.hold, tc.resolution
+    degc = 0.0065 * (ch.unit == "degC")
+
+    def truth_of(win: _TruthWindow, t: np.ndarray) -> np.ndarray:
+        return hold_sample(win.time, win.x, t) if hold else np.interp(t, win.time, win.x)
+
+    def usable(t: np.ndarray, v: np.ndarray, f: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        return np.isfinite(truth) & np.isfinite(v) & (f & int(Flag.bad()) == 0)
+
+    span_s = CHECK_BLOCK_SAMPLES * dt_s if len(trace) > 1 else np.inf
+    n_flag, n_ok, t_max = 0, 0, 0.0
+    worst: tuple[float, float, float, float] | None = None  # |err|, value, truth, err: the first largest
+    for t, v, f in _blocks(ch, span_s):
+        n_flag += int(np.count_nonzero(f))
+        truth = truth_of(_TruthWindow(trace, tc.trace, tc.factor, t, 2), t)
+        ok = usable(t, v, f, truth)
         if not ok.any():
-            yield role, Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs",
-                              ch.unit, False, "no usable sample")
             continue
-        err = ch.values[ok] - truth[ok]
+        n_ok += int(np.count_nonzero(ok))
+        t_max = max(t_max, float(np.max(np.abs(t[ok]))))
         if profile == "ideal":
-            # half a step; thermocouples add the 0.5 uV input converter (~0.013 degC at 39 uV/degC)
-            tol = 0.5 * res + 0.0065 * (ch.unit == "degC") + 1e-9
+            err = v[ok] - truth[ok]
             k = int(np.argmax(np.abs(err)))
-            passed = bool(abs(err[k]) <= tol and n_flag == 0)
-            note = f"{n_flag} flagged samples" if n_flag else "half a resolution step"
-            yield role, Check("chain", f"chain.{role}", float(ch.values[ok][k]), float(truth[ok][k]),
-                              float(err[k]), tol, "abs", ch.unit, passed, note)
+            if worst is None or abs(err[k]) > worst[0]:
+                worst = (abs(float(err[k])), float(v[ok][k]), float(truth[ok][k]), float(err[k]))
+    if n_ok == 0:
+        return Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", ch.unit, False,
+                     "no usable sample")
+    if profile == "ideal":
+        assert worst is not None
+        # half a step; thermocouples add the 0.5 uV input converter (~0.013 degC at 39 uV/degC)
+        tol = 0.5 * res + degc + 1e-9
+        passed = bool(worst[0] <= tol and n_flag == 0)
+        note = f"{n_flag} flagged samples" if n_flag else "half a resolution step"
+        return Check("chain", f"chain.{role}", worst[1], worst[2], worst[3], tol, "abs", ch.unit, passed, note)
+    errs, link, extra = budget
+    # the local slope over a window covering the lags (max of the slope around each sample)
+    lag = 0.0
+    if errs is not None and errs.bandwidth_hz > 0:
+        lag += 3.0 / (2 * np.pi * errs.bandwidth_hz)
+    lag += _median_step(ch) if len(ch) > 1 else 0.0
+    drift = 0.0
+    if link is not None:
+        lag += link.latency_s + abs(link.clock_offset_s)
+        drift = abs(link.clock_drift_ppm) * 1e-6
+    lag_max = lag + drift * t_max if link is not None else lag
+    w = max(int(np.ceil(float(max(lag_max, lag)) / max(dt_s, 1e-9))) + 1, 1)
+    n_in = 0
+    for t, v, f in _blocks(ch, span_s):
+        win = _TruthWindow(trace, tc.trace, tc.factor, t, w + 3)
+        truth = truth_of(win, t)
+        ok = usable(t, v, f, truth)
+        if not ok.any():
             continue
-        errs, link, extra = budget.get(role, (None, None, 0.0))
-        t = ch.timestamps[ok]
-        xv = truth[ok]
-        dxdt = np.abs(np.gradient(x, trace.time_s)) if len(trace) > 1 else np.zeros_like(x)
-        # the local slope over a window covering the lags (max of the slope around each sample)
-        lag = 0.0
-        bound = np.full(xv.shape, 0.5 * res * (1 + 1e-6) + 1e-9 + extra + 0.0065 * (ch.unit == "degC"))
+        err, tk, xv = v[ok] - truth[ok], t[ok], truth[ok]
+        bound = np.full(xv.shape, 0.5 * res * (1 + 1e-6) + 1e-9 + extra + degc)
         if errs is not None:
             bound += abs(errs.offset) + abs(errs.gain_error_frac) * np.abs(xv) + 4.0 * errs.noise_std
             bound += errs.quantisation_step
-            if errs.bandwidth_hz > 0:
-                lag += 3.0 / (2 * np.pi * errs.bandwidth_hz)
-        dt_ch = float(np.median(np.diff(ch.timestamps))) if len(ch) > 1 else 0.0
-        lag += dt_ch
-        if link is not None:
-            lag += link.latency_s + abs(link.clock_offset_s)
-            lag_t = lag + abs(link.clock_drift_ppm) * 1e-6 * np.abs(t)
-        else:
-            lag_t = np.full(t.shape, lag)
-        w = max(int(np.ceil(float(np.max(lag_t, initial=lag)) / max(trace.dt_s, 1e-9))) + 1, 1)
+        lag_t = lag + drift * np.abs(tk) if link is not None else np.full(tk.shape, lag)
+        dxdt = np.abs(np.gradient(win.x, win.time)) if len(trace) > 1 else np.zeros_like(win.x)
         slope = maximum_filter1d(dxdt, size=2 * w + 1, mode="nearest")
-        bound += np.interp(t, trace.time_s, slope) * lag_t
-        within = np.abs(err) <= bound
-        inside = float(np.mean(within))
+        bound += np.interp(tk, win.time, slope) * lag_t
+        n_in += int(np.count_nonzero(np.abs(err) <= bound))
+    inside = n_in / n_ok
+    return Check("chain", f"chain.{role}", inside, 0.99, inside, 0.99, "min", "-", inside >= 0.99,
+                 f"fraction of unflagged samples whose error the setup's declared imperfections explain; "
+                 f"{n_flag} flagged samples")
 
-        yield role, Check("chain", f"chain.{role}", inside, 0.99, inside, 0.99, "min", "-", inside >= 0.99,
-                          f"fraction of unflagged samples whose error the setup's declared imperfections explain; "
-                          f"{n_flag} flagged samples")
+
+def _median_step(ch: Channel) -> float:
+    """``np.median(np.diff(ch.timestamps))``, read a block at a time (exact: an order statistic selected in
+    passes over the blocks when the diffs are too many to gather)."""
+    def diffs() -> Iterator[np.ndarray]:
+        last = None
+        for t, _v, _f in _blocks(ch):
+            yield np.diff(t) if last is None else np.diff(t, prepend=last)
+            last = t[-1:]
+
+    n = len(ch) - 1
+    if n <= MEDIAN_CAP:
+        return float(np.median(np.concatenate(list(diffs()))))
+    if n % 2:
+        return float(_kth(diffs, n // 2))
+    return float(np.mean([_kth(diffs, n // 2 - 1), _kth(diffs, n // 2)]))
+
+
+def _kth(arrays: Any, k: int, bins: int = 4096) -> float:
+    """The ``k``-th smallest (0-based) of the values ``arrays()`` yields (called once per pass): each pass narrows an
+    interval holding it by a histogram, until the values in it are few enough to gather (:data:`MEDIAN_CAP`) or all
+    equal. NaN sorts last (as in :func:`numpy.partition`)."""
+    lo, hi, below = -np.inf, np.inf, 0  # the k-th lies in [lo, hi]; ``below`` values are < lo
+    while True:
+        n_in, mn, mx, kept = 0, np.inf, -np.inf, []
+        for a in arrays():
+            sel = a[(a >= lo) & (a <= hi)]
+            n_in += sel.size
+            if sel.size:
+                mn, mx = min(mn, float(sel.min())), max(mx, float(sel.max()))
+            if kept is not None:
+                kept = [*kept, sel] if n_in <= MEDIAN_CAP else None
+        if n_in == 0:  # only NaN left
+            return float("nan")
+        if kept is not None:
+            return float(np.partition(np.concatenate(kept), k - below)[k - below])
+        if mn == mx:
+            return mn
+        if np.nextafter(mn, np.inf) == mx:  # two neighbouring numbers: no bin between them
+            n_mn = sum(int(np.count_nonzero(a == mn)) for a in arrays())
+            return mn if k - below < n_mn else mx
+        edges = np.linspace(mn, mx, bins + 1)
+        counts = np.zeros(bins, np.int64)
+        for a in arrays():
+            counts += np.histogram(a[(a >= mn) & (a <= mx)], edges)[0]
+        cum = np.cumsum(counts)
+        j = int(np.searchsorted(cum, k - below, side="right"))
+        below += int(cum[j - 1]) if j else 0
+        # bin j is [edges[j], edges[j+1]) (the last one closed): the next interval stops just below its upper edge
+        lo = float(edges[j])
+        hi = float(edges[j + 1]) if j == bins - 1 else float(np.nextafter(edges[j + 1], -np.inf))

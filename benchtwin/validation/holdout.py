@@ -12,7 +12,7 @@ of the totals comes from.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -76,7 +76,7 @@ def without_window(rec: Recording, start_s: float, end_s: float) -> Recording:
     kept = rec.loaded()
     for ch in rec.channels.values():
         if isinstance(ch, LazyChannel) and ch.name not in kept:  # read from the file again when used
-            n = int(np.count_nonzero(_outside(ch.timestamps, start_s, end_s)))
+            n = sum(int(np.count_nonzero(_outside(t, start_s, end_s))) for t, _v, _f in _blocks(ch))
             rec.drop([ch.name])
             out.add(LazyChannel(ch.name, ch.unit, ch.source, n, _cut(rec, ch.name, start_s, end_s)))
             continue
@@ -94,14 +94,28 @@ def _cut(rec: Recording, name: str, start_s: float,
     """A loader of channel ``name`` of ``rec`` without ``[start_s, end_s)`` (the lazy channel read goes again)."""
     def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         was = name in rec.loaded()
-        ch = rec.channels[name]
-        m = _outside(ch.timestamps, start_s, end_s)
-        out = ch.timestamps[m], ch.values[m], ch.flags[m]
+        parts = []
+        for t, v, f in _blocks(rec.channels[name]):  # a block at a time: the whole channel is never read beside the cut
+            m = _outside(t, start_s, end_s)
+            parts.append((t[m], v[m], f[m]))
         if not was:
             rec.drop([name])
-        return out
+        dtypes = (np.float64, np.float64, np.uint16)
+        t, v, f = (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0, dtypes[k]) for k in range(3))
+        return t, v, f
 
     return load
+
+
+#: samples of a channel read at a time when a window is cut out of it
+_BLOCK = 1 << 20
+
+
+def _blocks(ch: Channel) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The channel's (timestamps, values, flags) a block at a time (a lazy channel with a block reader reads only the
+    block)."""
+    for a in range(0, len(ch), _BLOCK):
+        yield ch.block(a, a + _BLOCK)
 
 
 def _initial_soc(rec: Recording, start_s: float, soc_per_ah: float) -> float:

@@ -30,12 +30,26 @@ PAPER_R2: dict[str, tuple[str, float, str]] = {
 }
 
 
+#: samples of a channel read at a time to cut a window out of it
+_BLOCK = 1 << 20
+
+
 def _slice_recording(rec: Recording, start_s: float, end_s: float) -> Recording:
+    """The samples of every channel with ``start_s <= t < end_s``, in memory; each channel is read a block at a time
+    (a lazy channel with a block reader is never read whole, nor kept)."""
     out = Recording(segments=[s for s in rec.segments if s.end_s > start_s and s.start_s < end_s],
                     meta=dict(rec.meta))
+    kept = rec.loaded()
     for ch in rec.channels.values():
-        m = (ch.timestamps >= start_s) & (ch.timestamps < end_s)
-        out.add(Channel(ch.name, ch.unit, ch.timestamps[m], ch.values[m], ch.flags[m], ch.source))
+        parts = []
+        for a in range(0, len(ch), _BLOCK):
+            t, v, f = ch.block(a, a + _BLOCK)
+            m = (t >= start_s) & (t < end_s)
+            parts.append((t[m], v[m], f[m]))
+        t, v, f = (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in range(3))
+        out.add(Channel(ch.name, ch.unit, t, v, f, ch.source))
+        if ch.name not in kept:  # a lazy channel without a block reader was read whole: it goes again
+            rec.drop([ch.name])
     return out
 
 
