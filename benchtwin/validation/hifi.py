@@ -20,6 +20,7 @@ from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey
+from benchtwin.identification.torque_converter_table import table_torques
 from benchtwin.trace import Trace
 from benchtwin.validation.predict import MapVehicle
 from benchtwin.validation.report import Check
@@ -93,6 +94,21 @@ def converter_curve_checks(result: IdentificationResult, vehicle: VehicleConfig)
                          f"RMS relative error of the identified eq. 35 curve against the true tabulated (JDMA-shaped) "
                          f"curve at the {sr.size} converter-mode speed ratios the campaign visited; 10 % is the "
                          f"spread the paper's R^2 (0.81 / 0.89) leaves"))
+    tab = result.fits.get("torque_converter.table")
+    sr_all = _visited_sr(result)
+    sr_all = sr_all[sr_all < 1.0]
+    if tab is not None and "sr_nodes" in tab.data and sr_all.size >= 3:
+        tp, tt = table_torques(tab, np.ones_like(sr_all), sr_all)
+        tr_t, cf_t = true_converter_curves(vehicle, sr_all)
+        for nm, ident, truth in (("torque_ratio", tt / tp, tr_t),
+                                 ("capacity_factor", 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan)), cf_t)):
+            rel = ident / truth - 1.0
+            err = float(np.sqrt(np.nanmean(rel**2))) if np.any(np.isfinite(rel)) else float("inf")
+            out.append(Check("torque_converter", f"torque_converter.table_{nm}_vs_table", float(np.nanmean(ident)),
+                             float(np.nanmean(truth)), err, 0.1, "abs", "-", bool(err <= 0.1),
+                             f"RMS relative error of the identified table (torque_converter.table, binned monotone "
+                             f"curves) against the true tabulated curve at the {sr_all.size} speed ratios the campaign "
+                             f"visited (both modes); 10 % as for eq. 35"))
     return out
 
 
