@@ -20,7 +20,8 @@ runs the converter. This module fits the curves themselves on the same converter
 
 The paper's eq. 35-36 stay the identified result (``torque_converter.converter``, ``.coupling``); the table is
 reported beside them with its own torque-ratio R^2 and RMS torque residual, and ``better_than_eq35`` says whether
-it is closer to the points than eq. 35-36 (the map-based model's rule for using it).
+it is closer to the points than eq. 35-36 over the SR range (each SR bin weighing alike, residuals per degree of
+freedom; the map-based model's rule for using it).
 """
 
 from __future__ import annotations
@@ -117,7 +118,9 @@ def fit_converter_table(w_p: np.ndarray, w_t: np.ndarray, t_p: np.ndarray, t_t: 
     FitResult
         No parameters; ``r2`` the torque ratio's R^2 against the points, ``rmse`` the RMS of the stacked pump and
         turbine torque residuals (Nm); data ``sr_nodes``, ``tr_nodes``, ``cap_nodes``, ``k_nodes`` (rpm/sqrt(Nm)),
-        ``n_nodes`` (points per node), ``rms_eq35`` and ``better_than_eq35``.
+        ``n_nodes`` (points per node), ``rms_eq35``, and ``better_than_eq35``: ``score_table < score_eq35``, the RMS
+        residuals with each SR bin weighted alike and per degree of freedom (``2 n / (2 n - p)``, ``p`` two per node
+        for the table, 8 for eq. 35-36).
 
     Raises
     ------
@@ -158,7 +161,18 @@ def fit_converter_table(w_p: np.ndarray, w_t: np.ndarray, t_p: np.ndarray, t_t: 
                     segments=list(segments or []), data=data)
     if eq35_t_p is not None and eq35_t_t is not None:
         r35 = np.r_[np.asarray(eq35_t_p, float)[ok] - t_p[ok], np.asarray(eq35_t_t, float)[ok] - t_t[ok]]
-        rms35 = float(np.sqrt(np.mean(r35**2)))
-        data["rms_eq35"] = np.array([rms35])
-        data["better_than_eq35"] = np.array([rms < rms35])
+        # judged over the SR range, not where the campaign dwelt: each SR bin weighs alike (a held-out drive
+        # visits the range differently), and each model's residual variance per degree of freedom (the table has
+        # two values per node, eq. 35-36 eight coefficients)
+        wb = 1.0 / np.bincount(idx)[idx]
+        wb = np.r_[wb, wb]
+        dof = 2 * sr.size
+
+        def score(r: np.ndarray, n_par: int) -> float:
+            return float(np.sqrt(np.sum(wb * r**2) / np.sum(wb) * dof / max(dof - n_par, 1)))
+
+        s_tab, s_35 = score(res, 2 * len(rows)), score(r35, 8)
+        data["rms_eq35"] = np.array([float(np.sqrt(np.mean(r35**2)))])
+        data["score_table"], data["score_eq35"] = np.array([s_tab]), np.array([s_35])
+        data["better_than_eq35"] = np.array([s_tab < s_35])
     return out
