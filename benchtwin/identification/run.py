@@ -62,6 +62,7 @@ from benchtwin.identification.road_load import identify_road_load
 from benchtwin.identification.shifts import identify_shift_thresholds
 from benchtwin.identification.torque_converter import identify_torque_converter
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission
+from benchtwin.identification.transmission_drag import DRAG_KEY
 from benchtwin.identification.uncertainty import propagate_type_b
 from benchtwin.recording import Recording
 from benchtwin.roles import unit_of_role
@@ -169,6 +170,9 @@ def _torque_converter(rec: Recording, specs: VehicleSpecs | None, res: Identific
                       opts: Mapping[str, Any]) -> Any:
     o = dict(opts)
     table = o.pop("transmission", None) or transmission_table(res) or None
+    drag = res.fits.get(DRAG_KEY)  # the drag at the oil temperature where the transmission method uses it
+    use = drag is not None and drag.status == "ok" and bool(np.all(np.asarray(drag.data.get("use", [False]))))
+    o["drag"] = drag if use else None
     return identify_torque_converter(rec, specs, transmission=table, **o)  # type: ignore[arg-type]
 
 
@@ -252,7 +256,7 @@ def method_options(name: str) -> set[str] | None:
     if name == "battery_map_free":
         names |= {"min_rest_s"}  # also passed to identify_battery_ocv_rest by the orchestrator
     if name == "torque_converter":
-        names.discard("transmission")  # filled from the transmission result (a gear-keyed table: code only)
+        names -= {"transmission", "drag"}  # filled from the transmission result (code only)
     return names
 
 

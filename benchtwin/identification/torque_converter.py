@@ -45,6 +45,7 @@ from benchtwin.identification.torque_converter_model import (
     tc_torques,
 )
 from benchtwin.identification.torque_converter_points import RPM_PER_RADS, ConverterPoints, converter_points
+from benchtwin.identification.torque_converter_table import fit_converter_table
 from benchtwin.recording import Recording
 
 __all__ = [
@@ -165,7 +166,8 @@ def fit_torque_converter(
         ``converter.reasons``), ``torque_ratio`` (R^2 of TR over the points kept by the fits; data
         ``sr``, ``tr``, ``tr_model``, ``inlier``), ``capacity_factor`` (R^2 of CF in converter mode;
         data ``cf``, ``cf_model``, ``coupling``) and ``capacity_factor_coupling`` (R^2 of CF in
-        coupling mode) when it exists.
+        coupling mode) when it exists, and ``table`` (the binned monotone curves on the same inlier points,
+        :mod:`benchtwin.identification.torque_converter_table`).
 
     Raises
     ------
@@ -324,6 +326,12 @@ def fit_torque_converter(
     out["capacity_factor"] = FitResult({}, cf_r2, float("nan"),
                                        float(np.sqrt(np.mean((cf[cv] - cf_model[cv]) ** 2))),
                                        int(cv.sum()), segments=segments, data=curve_data)
+    iw = inlier.astype(bool)
+    try:  # the empirical curves beside eq. 35-36
+        out["table"] = fit_converter_table(w_p[iw], w_t[iw], t_p[iw], t_t[iw], *tc_torques(a, g, w_p[iw], w_t[iw]),
+                                           segments=segments, n_excluded=n_excluded + int((~iw).sum()))
+    except InsufficientDataError as exc:
+        conv.reasons.append(f"no converter table: {exc}")
     if "coupling" in out:
         fin = cm & inlier & np.isfinite(cf_model) & np.isfinite(cf)
         cf_r2c, _ = r_squared(cf[fin], cf_model[fin])
@@ -355,6 +363,7 @@ def identify_torque_converter(
     coupling_zero_slip: bool = True,
     coupling_torque: str = "turbine",
     min_coupling_span: float = 0.03,
+    drag: FitResult | None = None,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
@@ -417,6 +426,8 @@ def identify_torque_converter(
     lockup_slip_tol:
         Without a ``lockup_closed`` channel, samples with ``|1 - w_t / w_p|`` below this count as
         lock-up closed (flagged: the converter's own near-1 speed ratios are then cut off).
+    drag:
+        ``transmission.drag`` when used: eq. 32's eta_m and C0 per point at the logged oil temperature.
 
     Returns
     -------
@@ -432,7 +443,7 @@ def identify_torque_converter(
                            min_pump_torque_nm=min_pump_torque_nm, shift_hold_s=shift_hold_s,
                            derivative_window_s=derivative_window_s, calibrate_turbine_speed=calibrate_turbine_speed,
                            min_calibration_points=min_calibration_points, lockup_slip_tol=lockup_slip_tol,
-                           calibrate_turbine_torque=calibrate_turbine_torque)
+                           calibrate_turbine_torque=calibrate_turbine_torque, drag=drag)
     res = fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, pts.t_t, gamma=gamma, min_points=min_points,
                                segments=pts.segments, n_excluded=pts.n_excluded,
                                dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma,

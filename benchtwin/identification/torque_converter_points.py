@@ -16,7 +16,9 @@ import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import MissingChannelError
+from benchtwin.identification._fit import FitResult
 from benchtwin.identification._signals import strict_resample
+from benchtwin.identification.transmission_drag import drag_c0
 from benchtwin.recording import Recording
 
 __all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "converter_points", "turbine_torque_scale",
@@ -187,7 +189,7 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
                      rate_hz: float, max_pump_accel_rpm_s: float, min_pump_speed_rpm: float,
                      min_pump_torque_nm: float, shift_hold_s: float, derivative_window_s: float,
                      calibrate_turbine_speed: bool, min_calibration_points: int, lockup_slip_tol: float,
-                     calibrate_turbine_torque: bool = True) -> ConverterPoints:
+                     calibrate_turbine_torque: bool = True, drag: FitResult | None = None) -> ConverterPoints:
     """The selection and regressors of :func:`identify_torque_converter`, shared with the planner.
 
     Parameters
@@ -205,6 +207,11 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     calibrate_turbine_torque:
         The turbine torque of eq. 32 scaled to the motor torque where the lock-up is closed and K0 open
         (:func:`identify_torque_converter`); needs the K0 or engine state of a hybrid's log.
+    drag:
+        The gearbox drag at the oil temperature (``transmission.drag``, to be used: the caller decides). With it and
+        a ``gearbox_oil_degc`` channel, each point's ``eta_m`` and ``C0`` are the drag model's at that point's oil
+        temperature and turbine speed (a gear without its own drag group: the nearest gear's, said in the
+        reasons), instead of eq. 14's constant ``C0`` (identified at other oil temperatures).
 
     Raises
     ------
@@ -217,6 +224,10 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     if missing:
         raise MissingChannelError(f"torque converter identification needs channel(s) {', '.join(missing)}")
     opt = [n for n in ("lockup_closed", "gear_target", "k0_closed", "engine_on") if n in rec]
+    drag_gears = sorted(int(k[4:]) for k in (drag.params if drag is not None else ()) if k[:4] == "C0_g"
+                        and k[4:].isdigit())
+    if drag_gears and "gearbox_oil_degc" in rec:
+        opt.append("gearbox_oil_degc")
     states = {"gear_actual", "lockup_closed", "gear_target", "k0_closed", "engine_on"}
     t, d, bad = strict_resample(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)))
     gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
@@ -292,6 +303,18 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
         eta, c0 = np.ones_like(ig), np.zeros_like(ig)
         own_model = np.zeros(g.shape, dtype=bool)
         reasons.append("no transmission result: turbine torque with eta = 1, C0 = 0 (losses ignored)")
+    if "gearbox_oil_degc" in d and drag is not None:
+        eta, c0 = np.array(eta, dtype=float), np.array(c0, dtype=float)
+        oil = d["gearbox_oil_degc"]
+        for k in np.unique(g):
+            near = min(drag_gears, key=lambda j: (abs(j - k), j))
+            m = g == k
+            if near != k and np.any(m & use):
+                reasons.append(f"gear {k} has no drag model: eta_m and C0(T_oil) of gear {near} used")
+            eta[m] = drag.value(f"eta_m_g{near}")
+            c0[m] = drag_c0(drag, f"g{near}", oil[m], w_t[m])
+        use &= np.isfinite(oil)
+        own_model = np.isin(g, drag_gears)
     t_t = d["shaft_torque_nm"] / (ig * eta) + c0
     use &= np.isfinite(t_t)
     tscale, tscale_se, n_tcal = 1.0, float("nan"), 0

@@ -20,6 +20,7 @@ from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey
+from benchtwin.identification.torque_converter_table import table_torques
 from benchtwin.trace import Trace
 from benchtwin.validation.predict import MapVehicle
 from benchtwin.validation.report import Check
@@ -93,6 +94,21 @@ def converter_curve_checks(result: IdentificationResult, vehicle: VehicleConfig)
                          f"RMS relative error of the identified eq. 35 curve against the true tabulated (JDMA-shaped) "
                          f"curve at the {sr.size} converter-mode speed ratios the campaign visited; 10 % is the "
                          f"spread the paper's R^2 (0.81 / 0.89) leaves"))
+    tab = result.fits.get("torque_converter.table")
+    sr_all = _visited_sr(result)
+    sr_all = sr_all[sr_all < 1.0]
+    if tab is not None and "sr_nodes" in tab.data and sr_all.size >= 3:
+        tp, tt = table_torques(tab, np.ones_like(sr_all), sr_all)
+        tr_t, cf_t = true_converter_curves(vehicle, sr_all)
+        for nm, ident, truth in (("torque_ratio", tt / tp, tr_t),
+                                 ("capacity_factor", 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan)), cf_t)):
+            rel = ident / truth - 1.0
+            err = float(np.sqrt(np.nanmean(rel**2))) if np.any(np.isfinite(rel)) else float("inf")
+            out.append(Check("torque_converter", f"torque_converter.table_{nm}_vs_table", float(np.nanmean(ident)),
+                             float(np.nanmean(truth)), err, 0.1, "abs", "-", bool(err <= 0.1),
+                             f"RMS relative error of the identified table (torque_converter.table, binned monotone "
+                             f"curves) against the true tabulated curve at the {sr_all.size} speed ratios the campaign "
+                             f"visited (both modes); 10 % as for eq. 35"))
     return out
 
 
@@ -172,6 +188,31 @@ def _transmission_checks(result: IdentificationResult, vehicle: VehicleConfig, t
     return out
 
 
+def _converter_check(trace: Trace, sel: np.ndarray, model: MapVehicle | None) -> list[Check]:
+    """The converter's slip loss over the held-out drive: the model at the true turbine speed and torque."""
+    if model is None or model.tc_a is None:
+        return []
+    w_p, t_p = trace["em_speed_radps"][sel], trace["tc_pump_torque_nm"][sel]
+    w_t, t_t = trace["tc_turbine_speed_radps"][sel], trace["tc_turbine_torque_nm"][sel]
+    dt = np.diff(trace.time_s[sel], append=trace.time_s[sel][-1]) if sel.any() else np.zeros(0)
+    k = (trace["lockup_closed"][sel] < 0.5) & (t_t > 0) & (w_p > 1.0)
+    if k.sum() < 10:
+        return []
+    true_wh = float(np.sum(((t_p * w_p - t_t * w_t) * dt)[k]) / 3600.0)
+    wpm, tpm = model.pump_nm(w_t[k], t_t[k])
+    model_wh = float(np.sum((tpm * wpm - t_t[k] * w_t[k]) * dt[k]) / 3600.0)
+    e_wh = float(np.sum(trace["battery_voltage_v"][sel] * trace["battery_current_a"][sel] * dt) / 3600.0)
+    scale = max(abs(e_wh), 100.0)
+    err = (model_wh - true_wh) / scale
+    form = "the table torque_converter.table" if model.tc_table is not None else "eq. 35-36"
+    return [Check("prediction", "submodel.converter_slip_loss", model_wh, true_wh, err, ENERGY_GOAL / 2, "abs", "-",
+                  bool(abs(err) <= ENERGY_GOAL / 2),
+                  f"slip loss of the converter (drive side, lock-up open, {int(k.sum())} samples) over the held-out "
+                  f"drive: {form} solved for the pump at the true turbine speed and torque against the true "
+                  f"converter ({model_wh:.1f} Wh against {true_wh:.1f} Wh), error over the drive's battery energy "
+                  f"({e_wh:.0f} Wh); 1 %: half the 2 % energy goal")]
+
+
 def hifi_submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, trace: Trace, start_s: float,
                          end_s: float, model: MapVehicle | None = None) -> list[Check]:
     """Motor and gearbox sub-models against what the true sub-systems did over a held-out drive.
@@ -193,10 +234,12 @@ def hifi_submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, t
     Returns
     -------
     list of Check
-        ``submodel.motor_power_rms`` and ``submodel.transmission_loss.gear<g>`` (group ``prediction``).
+        ``submodel.motor_power_rms``, ``submodel.transmission_loss.gear<g>`` and, with a model,
+        ``submodel.converter_slip_loss`` (group ``prediction``).
     """
     sel = _window(trace, start_s, end_s)
-    checks = _motor_check(result, trace, sel, model) + _transmission_checks(result, vehicle, trace, sel, model)
+    checks = (_motor_check(result, trace, sel, model) + _transmission_checks(result, vehicle, trace, sel, model)
+              + _converter_check(trace, sel, model))
     for c in checks:
         if not math.isfinite(c.error):
             c.passed = False

@@ -175,7 +175,12 @@ def measured(trace: Trace, start_s: float, end_s: float) -> dict[str, float]:
     tr = trace.slice_time(start_s, end_s)
     dt = np.diff(tr.time_s, append=tr.time_s[-1])
     fuel_g = float(np.sum(tr["fuel_mass_flow_kgps"] * dt) * 1e3)
-    return {"fuel_g": fuel_g, "co2_g": fuel_g * CO2_G_PER_G_DIESEL,
+    slip = {}  # the converter's slip loss with the lock-up open (beside the map-based model's)
+    if all(c in tr for c in ("tc_pump_torque_nm", "em_speed_radps", "tc_turbine_speed_radps", "lockup_closed")):
+        p_slip = (tr["tc_pump_torque_nm"] * tr["em_speed_radps"]
+                  - tr["tc_turbine_torque_nm"] * tr["tc_turbine_speed_radps"])
+        slip["tc_slip_loss_wh"] = float(np.sum((p_slip * dt)[tr["lockup_closed"] < 0.5]) / 3600.0)
+    return {**slip, "fuel_g": fuel_g, "co2_g": fuel_g * CO2_G_PER_G_DIESEL,
             "electric_wh": float(np.sum(tr["battery_voltage_v"] * tr["battery_current_a"] * dt) / 3600.0),
             "final_soc_pct": float(tr["displayed_soc_pct"][-1]), "initial_soc_pct": float(tr["displayed_soc_pct"][0]),
             # the roller's distance (the driven wheels slip on the rollers: their speed reads a little high)
@@ -195,7 +200,8 @@ def predict_drive(model: MapVehicle, rec: Recording, trace: Trace, start_s: floa
          "distance_km": pred.distance_km,
          "engine_work_wh": float(np.sum(np.abs(ser["engine_torque_nm"] * w_e)[coupled]) * drive.dt_s / 3600.0),
          "engine_angle_rad": float(np.sum(w_e[coupled]) * drive.dt_s),
-         "soc_per_ah": model.soc_per_ah, "mean_voltage_v": float(np.mean(ser["battery_voltage_v"]))}
+         "soc_per_ah": model.soc_per_ah, "mean_voltage_v": float(np.mean(ser["battery_voltage_v"])),
+         "tc_slip_loss_wh": float(np.sum(ser["tc_slip_loss_w"]) * drive.dt_s / 3600.0)}
     return (DriveResult(name, start_s, end_s, p, measured(trace, start_s, end_s), gear_source, pred.notes),
             pred, drive)
 

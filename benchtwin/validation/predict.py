@@ -50,6 +50,7 @@ from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, corrected_engine_torque
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
+from benchtwin.identification.torque_converter_table import table_pump
 from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
@@ -81,6 +82,10 @@ class MapVehicle:
         ``"auto"`` (the loss model ``motor.loss`` when identified and closer to the steady points than the Willans
         lines, :func:`~benchtwin.identification.motor_loss.add_loss_fit`; else the Willans lines), ``"loss"`` (the
         loss model; an error when it was not identified) or ``"willans"`` (the paper's lines).
+    converter_model:
+        ``"auto"`` (the table ``torque_converter.table`` when identified and closer to the converter points than eq.
+        35-36, :mod:`~benchtwin.identification.torque_converter_table`; else eq. 35-36), ``"table"`` (an error when
+        it was not identified) or ``"eq35"`` (the paper's quadratics).
 
     Raises
     ------
@@ -88,11 +93,14 @@ class MapVehicle:
         When a map the model cannot do without (road load, transmission, motor, battery) is missing.
     """
 
-    def __init__(self, result: IdentificationResult, specs: VehicleSpecs, *, motor_model: str = "auto") -> None:
+    def __init__(self, result: IdentificationResult, specs: VehicleSpecs, *, motor_model: str = "auto",
+                 converter_model: str = "auto") -> None:
         self.specs = specs
         self.notes: list[str] = []
         if motor_model not in ("auto", "loss", "willans"):
             raise ValueError(f"motor_model {motor_model!r}: allowed are 'auto', 'loss' and 'willans'")
+        if converter_model not in ("auto", "table", "eq35"):
+            raise ValueError(f"converter_model {converter_model!r}: allowed are 'auto', 'table' and 'eq35'")
         self.loss_model: tuple[np.ndarray, tuple[float, float]] | None = None
         lf = _fit(result, "motor.loss", *LOSS_TERMS)
         usable = lf is not None and lf.status == "ok"
@@ -186,6 +194,16 @@ class MapVehicle:
             self.tc_gamma = conv.value("gamma_coupling") if "gamma_coupling" in conv.params else 0.85
         else:
             self.notes.append("torque converter not identified: treated as rigid when open")
+        self.tc_table: FitResult | None = None
+        tab = result.fits.get("torque_converter.table")
+        usable = tab is not None and tab.status == "ok" and "sr_nodes" in tab.data
+        better = usable and bool(np.all(np.asarray(tab.data.get("better_than_eq35", [False]))))
+        if (usable and converter_model == "table") or (better and converter_model == "auto"):
+            self.tc_table = tab
+            self.notes.append("torque converter (drive) from the identified table torque_converter.table (binned, "
+                              "monotone TR and T_p / w_p^2 over SR); eq. 35-36 only for overrun")
+        elif converter_model == "table":
+            raise IdentificationError("prediction: torque_converter.table (the converter's curves) not identified")
         ff = _fit(result, "brakes.front", "m_f")
         fr = _fit(result, "brakes.rear", "m_r")
         self.brake = ((ff.value("m_f"), ff.value("c_f") if "c_f" in ff.params else 0.0),
@@ -296,7 +314,8 @@ class MapVehicle:
         """Pump speed and torque that carry turbine torque ``t_t`` at turbine speed ``w_t`` (converter open).
 
         Drive (``t_t > 0``): the coupling mode where its pump speed gives SR at or above Gamma, else the converter
-        mode. Overrun (``t_t < 0``): the coupling mode with the pump slower than the turbine, as the plant has it.
+        mode; with the table (``converter_model``) its curves instead. Overrun (``t_t < 0``): the coupling mode
+        with the pump slower than the turbine, as the plant has it.
         """
         if self.tc_a is None:
             return w_t.copy(), t_t.copy()
@@ -310,6 +329,10 @@ class MapVehicle:
             return (-qb + np.sqrt(disc)) / (2 * qa) if qa > 0 else np.full_like(qb, np.nan)
 
         wt, tt = w_t[pos], t_t[pos]
+        if self.tc_table is not None:
+            w_p[pos], t_p[pos] = table_pump(self.tc_table, wt, tt)
+            pos = np.zeros_like(pos)  # the drive side is done
+            wt, tt = w_t[pos], t_t[pos]
         # coupling mode: T_t = T_p = a6 wp^2 + a7 wp wt + a8 wt^2
         x_c = root(a[6], a[7] * wt, a[8] * wt**2 - tt)
         ok_c = np.isfinite(x_c) & (x_c > 0) & (wt >= gam * np.where(x_c > 0, x_c, np.inf))
@@ -452,6 +475,7 @@ class MapVehicle:
                   "fuel_gps": fuel,
                   "battery_current_a": i_b, "battery_voltage_v": v_b, "soc_pct": soc, "motor_elec_power_w": p_el,
                   "wheel_force_n": f_pt}
+        series["tc_slip_loss_w"] = np.where(open_, t_p * w_p - t_t * w_t, 0.0)  # the converter's slip loss
         return Prediction(fuel_g=fuel_g, co2_g=fuel_g * CO2_G_PER_G_DIESEL,
                           electric_wh=float(np.sum(v_b * i_b) * dt / 3600.0), final_soc_pct=float(soc[-1]),
                           distance_km=float(np.sum(v) * dt / 1000.0), series=series, notes=notes)
