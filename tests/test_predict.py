@@ -176,3 +176,59 @@ def test_the_loss_model_replaces_the_willans_lines_only_where_it_was_closer() ->
         MapVehicle(synthetic_result(), SPECS, motor_model="loss")
     with pytest.raises(ValueError, match="motor_model"):
         MapVehicle(synthetic_result(), SPECS, motor_model="map")
+
+
+J_PUMP = 0.25  # kg m^2, the converter fit's pump-side inertia in the synthetic result
+
+
+def _with_converter(j_pump: float, ci_low: float | None = None) -> IdentificationResult:
+    res = synthetic_result()
+    conv = _fit({**{f"a{i}": 1e-3 for i in range(6)}, "J_pump_kgm2": j_pump})
+    if ci_low is not None:
+        conv.params["J_pump_kgm2"].ci95 = (ci_low, 2 * j_pump - ci_low)
+    res.fits["torque_converter.converter"] = conv
+    return res
+
+
+def _ramp(v0_kmh: float = 20.0, v1_kmh: float = 60.0, ramp_s: float = 20.0, gear: int = 3) -> DriveInputs:
+    """10 s at v0, a constant-acceleration ramp to v1, 10 s at v1; electric, lock-up closed, one gear."""
+    t = np.arange(0.0, ramp_s + 20.0, 0.1)
+    v = np.interp(t, [10.0, 10.0 + ramp_s], [v0_kmh, v1_kmh])
+    d = cruise(n=t.size, gear=gear)
+    d.t_s, d.speed_kmh = t, v
+    return d
+
+
+def test_pump_inertia_takes_j_dw_dt_from_the_motor() -> None:
+    """Known acceleration: the motor gives J_pump k a more torque and 0.5 J (w1^2 - w0^2) more work."""
+    drive = _ramp()
+    with_j = MapVehicle(_with_converter(J_PUMP), SPECS).run(drive)
+    without = MapVehicle(_with_converter(J_PUMP), SPECS, pump_inertia=False).run(drive)
+    k = SPECS.final_drive_ratio * SPECS.gear_ratios[2] / SPECS.wheel_radius_m  # pump rad/s per m/s, lock-up closed
+    a = (60.0 - 20.0) / 3.6 / 20.0
+    mid = (drive.t_s > 12.0) & (drive.t_s < 28.0)  # away from the ramp's ends (the 1 s smoothing)
+    dt_m = with_j.series["motor_torque_nm"] - without.series["motor_torque_nm"]
+    assert dt_m[mid] == pytest.approx(J_PUMP * k * a, rel=1e-6)
+    w = with_j.series["motor_speed_rpm"] * np.pi / 30.0
+    work_j = float(np.sum(dt_m * w) * 0.1)
+    w0, w1 = k * 20.0 / 3.6, k * 60.0 / 3.6
+    expected = 0.5 * J_PUMP * (w1**2 - w0**2)
+    # sum of w_i J dw_i over 0.1 s samples against the integral of J w dw: within a sample w moves by dw = k a dt,
+    # so the sum is off by at most J (w1 - w0) k a dt; and the 1 s smoothing rounds each of the two corners of the
+    # speed trace (|w_s - w| <= k a / 8 s for 1 s): at most J (k a)^2 (1/8 s)(1 s) each (0.56 % here in all)
+    bound = J_PUMP * (w1 - w0) * k * a * 0.1 + 2 * J_PUMP * (k * a) ** 2 * 0.125
+    assert abs(work_j - expected) <= bound
+    assert np.sum(with_j.series["pump_inertia_power_w"]) * 0.1 == pytest.approx(work_j, rel=1e-9)
+    assert with_j.electric_wh > without.electric_wh  # the battery pays for the spin-up
+    assert any("J_pump" in n for n in with_j.notes)
+
+
+@pytest.mark.parametrize("ci_low", [-0.05, None])
+def test_pump_inertia_left_out_when_not_told_from_zero(ci_low: float | None) -> None:
+    """An interval reaching zero, or no converter fit, leaves the inertia out (and the notes say so)."""
+    res = _with_converter(J_PUMP, ci_low) if ci_low is not None else synthetic_result()
+    model = MapVehicle(res, SPECS)
+    assert model.j_pump == 0.0
+    assert any("inertia torque left out" in n for n in model.notes)
+    drive = _ramp()
+    assert model.run(drive).electric_wh == MapVehicle(res, SPECS, pump_inertia=False).run(drive).electric_wh

@@ -180,6 +180,12 @@ def measured(trace: Trace, start_s: float, end_s: float) -> dict[str, float]:
         p_slip = (tr["tc_pump_torque_nm"] * tr["em_speed_radps"]
                   - tr["tc_turbine_torque_nm"] * tr["tc_turbine_speed_radps"])
         slip["tc_slip_loss_wh"] = float(np.sum((p_slip * dt)[tr["lockup_closed"] < 0.5]) / 3600.0)
+        if "trans_input_torque_nm" in tr:
+            # the lock-up clutch's slip while it engages (its torque is the gearbox input less the turbine's): work
+            # of the motor and engine that reaches neither the converter nor the gearbox, not in the map-based model
+            p_lu = ((tr["trans_input_torque_nm"] - tr["tc_turbine_torque_nm"])
+                    * (tr["em_speed_radps"] - tr["tc_turbine_speed_radps"]))
+            slip["lockup_slip_loss_wh"] = float(np.sum((p_lu * dt)[tr["lockup_closed"] < 0.5]) / 3600.0)
     return {**slip, "fuel_g": fuel_g, "co2_g": fuel_g * CO2_G_PER_G_DIESEL,
             "electric_wh": float(np.sum(tr["battery_voltage_v"] * tr["battery_current_a"] * dt) / 3600.0),
             "final_soc_pct": float(tr["displayed_soc_pct"][-1]), "initial_soc_pct": float(tr["displayed_soc_pct"][0]),
@@ -201,7 +207,9 @@ def predict_drive(model: MapVehicle, rec: Recording, trace: Trace, start_s: floa
          "engine_work_wh": float(np.sum(np.abs(ser["engine_torque_nm"] * w_e)[coupled]) * drive.dt_s / 3600.0),
          "engine_angle_rad": float(np.sum(w_e[coupled]) * drive.dt_s),
          "soc_per_ah": model.soc_per_ah, "mean_voltage_v": float(np.mean(ser["battery_voltage_v"])),
-         "tc_slip_loss_wh": float(np.sum(ser["tc_slip_loss_w"]) * drive.dt_s / 3600.0)}
+         "tc_slip_loss_wh": float(np.sum(ser["tc_slip_loss_w"]) * drive.dt_s / 3600.0),
+         # the pump side's inertia work (J_pump dw_p/dt w_p): about 0 over a drive from rest to rest
+         "pump_inertia_wh": float(np.sum(ser["pump_inertia_power_w"]) * drive.dt_s / 3600.0)}
     return (DriveResult(name, start_s, end_s, p, measured(trace, start_s, end_s), gear_source, pred.notes),
             pred, drive)
 

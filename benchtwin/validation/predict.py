@@ -14,7 +14,9 @@ trace of a drive the model computes, per time step and backwards from the wheels
    (:mod:`benchtwin.identification.transmission_drag`), its ``eta_m`` and ``C0(T_oil)`` at the drive's measured
    oil temperature (a measured boundary input, as the ambient temperature);
 4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
-   pump speed that carries the turbine torque), rigid when it is closed;
+   pump speed that carries the turbine torque), rigid when it is closed; plus the pump side's inertia torque
+   ``J_pump dw_p/dt`` (``J_pump_kgm2`` of ``torque_converter.converter``, identified beside a0..a5 from the
+   take-offs' pump acceleration: motor rotor and pump) on the pump speed, lock-up closed or open;
 5. the split between engine and motor: a replay of the measured strategy (engine on/off, K0 and the
    engine's CAN torque), the motor taking the rest, so that what is tested are the maps; when the ECU's torque
    was identified against the shaft torque (``engine.can_torque``,
@@ -33,8 +35,10 @@ trace of a drive the model computes, per time step and backwards from the wheels
 It reads nothing but an :class:`~benchtwin.identification._fit.IdentificationResult`, the public
 :class:`~benchtwin.config.specs.VehicleSpecs` and the measured inputs of the drive
 (:class:`DriveInputs`); the vehicle file's parameters never enter. What the maps cannot know is left
-out and said so in :attr:`Prediction.notes`: the rotating inertia of motor, converter and engine (not in
-the public specs), the fuel of an engine start, the converter's idle-speed holding at crawling speed.
+out and said so in :attr:`Prediction.notes`: the engine's rotating inertia when K0 closes it onto the pump
+side and the energy of an engine start (neither identified), the motor's and pump's when the converter fit
+did not identify ``J_pump_kgm2``, the fuel of an engine start, the converter's idle-speed holding at crawling
+speed.
 """
 
 from __future__ import annotations
@@ -86,6 +90,9 @@ class MapVehicle:
         ``"auto"`` (the table ``torque_converter.table`` when identified and closer to the converter points than eq.
         35-36, :mod:`~benchtwin.identification.torque_converter_table`; else eq. 35-36), ``"table"`` (an error when
         it was not identified) or ``"eq35"`` (the paper's quadratics).
+    pump_inertia:
+        Add the pump side's inertia torque ``J_pump dw_p/dt`` to the torque the motor gives (``J_pump_kgm2`` of
+        the converter fit, when identified, positive and its 95 % interval above zero); ``False``: left out.
 
     Raises
     ------
@@ -94,7 +101,7 @@ class MapVehicle:
     """
 
     def __init__(self, result: IdentificationResult, specs: VehicleSpecs, *, motor_model: str = "auto",
-                 converter_model: str = "auto") -> None:
+                 converter_model: str = "auto", pump_inertia: bool = True) -> None:
         self.specs = specs
         self.notes: list[str] = []
         if motor_model not in ("auto", "loss", "willans"):
@@ -194,6 +201,7 @@ class MapVehicle:
             self.tc_gamma = conv.value("gamma_coupling") if "gamma_coupling" in conv.params else 0.85
         else:
             self.notes.append("torque converter not identified: treated as rigid when open")
+        self.j_pump = self._pump_inertia(conv) if pump_inertia else 0.0
         self.tc_table: FitResult | None = None
         tab = result.fits.get("torque_converter.table")
         usable = tab is not None and tab.status == "ok" and "sr_nodes" in tab.data
@@ -218,6 +226,18 @@ class MapVehicle:
                 continue
             key = FitKey.parse(name)
             self.shift_lines[(int(key.gear), str(key.direction))] = (f.value("c0_kmh"), f.value("c1_kmh_per_pct"))
+
+    def _pump_inertia(self, conv: FitResult | None) -> float:
+        """The identified pump-side inertia (kg m^2), 0 when not identified or not told from zero (with a note)."""
+        est = conv.params.get("J_pump_kgm2") if conv is not None else None
+        j = est.value if est is not None else float("nan")
+        if est is None or not (math.isfinite(j) and j > 0 and est.ci95[0] > 0):
+            self.notes.append("pump-side inertia (J_pump_kgm2 of torque_converter.converter) not identified or not "
+                              "above zero: the motor's and pump's inertia torque left out")
+            return 0.0
+        self.notes.append(f"pump-side inertia torque J_pump dw_p/dt on the motor (J_pump {j:.3f} kg m^2 from "
+                          "torque_converter.converter; the engine's inertia behind K0 not identified, left out)")
+        return float(j)
 
     # ------------------------------------------------------------------ engine
     def _engine_map(self, result: IdentificationResult) -> None:
@@ -452,6 +472,10 @@ class MapVehicle:
         open_ = ~lock & (gear > 0) & moving
         if open_.any():
             w_p[open_], t_p[open_] = self.pump_nm(w_t[open_], t_t[open_])
+        # the pump side's inertia torque (motor rotor and pump), on the pump speed smoothed as the vehicle speed
+        w_ps = np.convolve(np.pad(w_p, (k // 2, k - 1 - k // 2), mode="edge"), np.ones(k) / k, mode="valid") \
+            if k > 1 else w_p
+        t_j = np.where(moving & (gear > 0), self.j_pump * np.gradient(w_ps, dt), 0.0)  # neutral: the pump runs free
         on = drive.engine_on > 0.5
         k0 = drive.k0_closed > 0.5
         t_e = np.where(on, drive.engine_torque_nm, 0.0)
@@ -459,7 +483,7 @@ class MapVehicle:
         if self.engine_torque_corr is not None:
             t_e_split = np.where(on, corrected_engine_torque(*self.engine_torque_corr, drive.engine_torque_nm), 0.0)
         w_e = np.where(on & k0, w_p, drive.engine_speed_rpm * _RPM)
-        t_m = np.where(k0, t_p - t_e_split, t_p)
+        t_m = np.where(k0, t_p + t_j - t_e_split, t_p + t_j)
         w_m = w_p
         p_el = self.motor_power_w(t_m, w_m)
         p_el = np.where((w_m < 1.0) & (np.abs(t_m) < 0.5), 0.0, p_el)
@@ -468,14 +492,15 @@ class MapVehicle:
         fuel = np.where(on, self.fuel_gps(w_e / _RPM, t_e), 0.0)
         fuel_g = float(np.sum(fuel) * dt)
         notes.append("engine on/off, K0 and engine torque replayed from the recording (the strategy's split)")
-        notes.append("not modelled (not in the public specs): rotating inertia of motor, converter and engine; "
-                     "fuel of engine starts")
+        notes.append("not modelled (not in the public specs): the engine's rotating inertia and start energy; "
+                     "fuel of engine starts" + ("" if self.j_pump > 0 else "; the motor's and pump's inertia"))
         series = {"t_s": drive.t_s, "gear": gear.astype(float), "motor_torque_nm": t_m, "motor_speed_rpm": w_m / _RPM,
                   "engine_torque_nm": t_e, "engine_torque_split_nm": t_e_split, "engine_speed_rpm": w_e / _RPM,
                   "fuel_gps": fuel,
                   "battery_current_a": i_b, "battery_voltage_v": v_b, "soc_pct": soc, "motor_elec_power_w": p_el,
                   "wheel_force_n": f_pt}
         series["tc_slip_loss_w"] = np.where(open_, t_p * w_p - t_t * w_t, 0.0)  # the converter's slip loss
+        series.update(turbine_torque_nm=t_t, turbine_speed_radps=w_t, pump_inertia_power_w=t_j * w_p)
         return Prediction(fuel_g=fuel_g, co2_g=fuel_g * CO2_G_PER_G_DIESEL,
                           electric_wh=float(np.sum(v_b * i_b) * dt / 3600.0), final_soc_pct=float(soc[-1]),
                           distance_km=float(np.sum(v) * dt / 1000.0), series=series, notes=notes)
