@@ -232,3 +232,15 @@ def test_pump_inertia_left_out_when_not_told_from_zero(ci_low: float | None) -> 
     assert any("inertia torque left out" in n for n in model.notes)
     drive = _ramp()
     assert model.run(drive).electric_wh == MapVehicle(res, SPECS, pump_inertia=False).run(drive).electric_wh
+
+
+def test_coupling_mode_takes_the_pump_side_fit_when_identified() -> None:
+    """The model's a6..a8 are the pump rows' fit (``data["pump_side_a678"]``) when present, else the reported ones."""
+    res = _with_converter(J_PUMP)
+    res.fits["torque_converter.coupling"] = _fit({"a6": 0.04, "a7": -0.035, "a8": -0.005},
+                                                 pump_side_a678=np.array([0.03, -0.028, -0.002]))
+    model = MapVehicle(res, SPECS)
+    np.testing.assert_array_equal(model.tc_a[6:], [0.03, -0.028, -0.002])
+    assert any("pump rows" in n for n in model.notes)
+    del res.fits["torque_converter.coupling"].data["pump_side_a678"]
+    np.testing.assert_array_equal(MapVehicle(res, SPECS).tc_a[6:], [0.04, -0.035, -0.005])

@@ -275,6 +275,7 @@ def fit_torque_converter(
         # the transients are left out on the pump rows' residuals (see ``coupling_torque``)
         coup = robust(A_c, t_pump, int(cm.sum()), names, [unit] * len(names), what + ")", min_points,
                       np.flatnonzero(cm), False)
+        pump_side = coupling_coefficients(np.array([coup.value(n) for n in names]), zs, one)
         if coupling_torque == "turbine":
             keep = inlier[cm]
             turb = linear_fit(A_c[keep], t_t[cm][keep], names, units=[unit] * len(names), segments=segments,
@@ -291,6 +292,8 @@ def fit_torque_converter(
         elif zs:
             derived(coup, "a7", lambda x: -x[0] - x[1], unit=unit)
         coup.data["torque"] = coupling_torque
+        # the same fit on the pump rows (a6..a8): what the motor pays in coupling mode, for the map-based model
+        coup.data["pump_side_a678"] = np.asarray(pump_side, dtype=float)
         coup.data["slip_only"] = one
         a[6:] = [coup.value(f"a{k}") for k in (6, 7, 8)]
         # over the narrow coupling range a6..a8 are strongly correlated; these two are well determined:

@@ -196,7 +196,7 @@ class MapVehicle:
         self.tc_a = None
         if conv is not None:
             a = [conv.value(f"a{i}") for i in range(6)]
-            a += [coup.value(f"a{i}") for i in (6, 7, 8)] if coup is not None else [a[0], a[1], a[2]]
+            a += self._coupling_a678(coup) if coup is not None else [a[0], a[1], a[2]]
             self.tc_a = np.asarray(a, float)
             self.tc_gamma = conv.value("gamma_coupling") if "gamma_coupling" in conv.params else 0.85
         else:
@@ -226,6 +226,19 @@ class MapVehicle:
                 continue
             key = FitKey.parse(name)
             self.shift_lines[(int(key.gear), str(key.direction))] = (f.value("c0_kmh"), f.value("c1_kmh_per_pct"))
+
+    def _coupling_a678(self, coup: FitResult) -> list[float]:
+        """a6..a8 as the pump side pays them (``data["pump_side_a678"]``, the fit on the pump rows) when identified.
+
+        The reported curve is fitted to the turbine torque (free of pump inertia); the model needs what the motor
+        delivers in coupling mode (docs/models.md: on the second vehicle's WLTC 35.7 / 59.5 Wh against 51.5 Wh).
+        """
+        ps = np.asarray(coup.data.get("pump_side_a678", []), dtype=float)
+        if ps.size == 3 and np.all(np.isfinite(ps)):
+            self.notes.append("torque converter coupling mode (eq. 36) from the fit on the pump rows (what the motor "
+                              "delivers); the identification reports the fit on the turbine torque")
+            return [float(x) for x in ps]
+        return [coup.value(f"a{i}") for i in (6, 7, 8)]
 
     def _pump_inertia(self, conv: FitResult | None) -> float:
         """The identified pump-side inertia (kg m^2), 0 when not identified or not told from zero (with a note)."""

@@ -287,6 +287,9 @@ def test_coupling_mode_fitted_on_the_turbine_torque_not_the_pump_inertia():
                                atol=1e-9)
     assert rel_error_at_095(turbine) < 1e-6
     assert rel_error_at_095(pump) > 0.05
+    # the pump rows' fit rides along for the map-based model (what the motor pays in coupling mode)
+    np.testing.assert_array_equal(turbine["coupling"].data["pump_side_a678"],
+                                  [pump["coupling"].value(f"a{k}") for k in (6, 7, 8)])
     with pytest.raises(ConfigError, match="coupling_torque"):
         fit_torque_converter(*args, gamma=g, coupling_torque="both")
 
