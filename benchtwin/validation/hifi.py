@@ -87,8 +87,7 @@ def converter_curve_checks(result: IdentificationResult, vehicle: VehicleConfig)
     tr_t, cf_t = true_converter_curves(vehicle, sr)
     out: list[Check] = []
     for nm, ident, truth in (("torque_ratio", tr_i, tr_t), ("capacity_factor", cf_i, cf_t)):
-        rel = ident / truth - 1.0
-        err = float(np.sqrt(np.nanmean(rel**2))) if np.any(np.isfinite(rel)) else float("inf")
+        err = _rms_rel(ident, truth)
         out.append(Check("torque_converter", f"torque_converter.{nm}_vs_table", float(np.nanmean(ident)),
                          float(np.nanmean(truth)), err, 0.1, "abs", "-", bool(err <= 0.1),
                          f"RMS relative error of the identified eq. 35 curve against the true tabulated (JDMA-shaped) "
@@ -102,14 +101,19 @@ def converter_curve_checks(result: IdentificationResult, vehicle: VehicleConfig)
         tr_t, cf_t = true_converter_curves(vehicle, sr_all)
         for nm, ident, truth in (("torque_ratio", tt / tp, tr_t),
                                  ("capacity_factor", 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan)), cf_t)):
-            rel = ident / truth - 1.0
-            err = float(np.sqrt(np.nanmean(rel**2))) if np.any(np.isfinite(rel)) else float("inf")
+            err = _rms_rel(ident, truth)
             out.append(Check("torque_converter", f"torque_converter.table_{nm}_vs_table", float(np.nanmean(ident)),
                              float(np.nanmean(truth)), err, 0.1, "abs", "-", bool(err <= 0.1),
                              f"RMS relative error of the identified table (torque_converter.table, binned monotone "
                              f"curves) against the true tabulated curve at the {sr_all.size} speed ratios the campaign "
                              f"visited (both modes); 10 % as for eq. 35"))
     return out
+
+
+def _rms_rel(ident: np.ndarray, truth: np.ndarray) -> float:
+    """RMS of ``ident / truth - 1`` over the finite points (infinite when there is none)."""
+    rel = ident / truth - 1.0
+    return float(np.sqrt(np.nanmean(rel**2))) if np.any(np.isfinite(rel)) else float("inf")
 
 
 def _window(trace: Trace, t0: float, t1: float) -> np.ndarray:
