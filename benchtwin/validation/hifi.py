@@ -83,37 +83,33 @@ def converter_curve_checks(result: IdentificationResult, vehicle: VehicleConfig)
     sr = sr[sr < gamma]
     a9 = np.concatenate([[conv.value(f"a{i}") for i in range(6)], np.full(3, np.nan)])
     tp, tt = torque_converter_curves_nm(a9, np.inf, np.ones_like(sr), sr)
-    tr_i, cf_i = tt / tp, 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan))
-    tr_t, cf_t = true_converter_curves(vehicle, sr)
-    out: list[Check] = []
-    for nm, ident, truth in (("torque_ratio", tr_i, tr_t), ("capacity_factor", cf_i, cf_t)):
-        err = _rms_rel(ident, truth)
-        out.append(Check("torque_converter", f"torque_converter.{nm}_vs_table", float(np.nanmean(ident)),
-                         float(np.nanmean(truth)), err, 0.1, "abs", "-", bool(err <= 0.1),
-                         f"RMS relative error of the identified eq. 35 curve against the true tabulated (JDMA-shaped) "
-                         f"curve at the {sr.size} converter-mode speed ratios the campaign visited; 10 % is the "
-                         f"spread the paper's R^2 (0.81 / 0.89) leaves"))
+    out = _curve_checks("", tp, tt, *true_converter_curves(vehicle, sr),
+                        f"RMS relative error of the identified eq. 35 curve against the true tabulated (JDMA-shaped) "
+                        f"curve at the {sr.size} converter-mode speed ratios the campaign visited; 10 % is the "
+                        f"spread the paper's R^2 (0.81 / 0.89) leaves")
     tab = result.fits.get("torque_converter.table")
     sr_all = _visited_sr(result)
     sr_all = sr_all[sr_all < 1.0]
     if tab is not None and "sr_nodes" in tab.data and sr_all.size >= 3:
         tp, tt = table_torques(tab, np.ones_like(sr_all), sr_all)
-        tr_t, cf_t = true_converter_curves(vehicle, sr_all)
-        for nm, ident, truth in (("torque_ratio", tt / tp, tr_t),
-                                 ("capacity_factor", 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan)), cf_t)):
-            err = _rms_rel(ident, truth)
-            out.append(Check("torque_converter", f"torque_converter.table_{nm}_vs_table", float(np.nanmean(ident)),
-                             float(np.nanmean(truth)), err, 0.1, "abs", "-", bool(err <= 0.1),
+        out += _curve_checks("table_", tp, tt, *true_converter_curves(vehicle, sr_all),
                              f"RMS relative error of the identified table (torque_converter.table, binned monotone "
                              f"curves) against the true tabulated curve at the {sr_all.size} speed ratios the campaign "
-                             f"visited (both modes); 10 % as for eq. 35"))
+                             f"visited (both modes); 10 % as for eq. 35")
     return out
 
 
-def _rms_rel(ident: np.ndarray, truth: np.ndarray) -> float:
-    """RMS of ``ident / truth - 1`` over the finite points (infinite when there is none)."""
-    rel = ident / truth - 1.0
-    return float(np.sqrt(np.nanmean(rel**2))) if np.any(np.isfinite(rel)) else float("inf")
+def _curve_checks(prefix: str, tp: np.ndarray, tt: np.ndarray, tr_t: np.ndarray, cf_t: np.ndarray,
+                  why: str) -> list[Check]:
+    """Torque ratio and capacity factor of identified unit-pump-speed torques against the true curves (RMS, 10 %)."""
+    out = []
+    cf_i = 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan))
+    for nm, ident, truth in (("torque_ratio", tt / tp, tr_t), ("capacity_factor", cf_i, cf_t)):
+        rel = ident / truth - 1.0
+        err = float(np.sqrt(np.nanmean(rel**2))) if np.any(np.isfinite(rel)) else float("inf")
+        out.append(Check("torque_converter", f"torque_converter.{prefix}{nm}_vs_table", float(np.nanmean(ident)),
+                         float(np.nanmean(truth)), err, 0.1, "abs", "-", bool(err <= 0.1), why))
+    return out
 
 
 def _window(trace: Trace, t0: float, t1: float) -> np.ndarray:
