@@ -40,6 +40,7 @@ import numpy as np
 from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult, linear_fit
 from benchtwin.identification.transmission_drag import drag_c0
+from benchtwin.identification.transmission_eq14 import direction_points, efficiency_design
 
 __all__ = ["ENGINE_TORQUE_KEY", "GAIN_RANGE", "MIN_GEAR_POINTS", "MIN_POINTS", "MIN_SPAN_NM", "add_engine_torque_fit",
            "corrected_engine_torque"]
@@ -60,21 +61,12 @@ def _eq14(c: np.ndarray, eta: np.ndarray) -> tuple[float, float] | None:
     inv = 1.0 / c
     if c.size < MIN_GEAR_POINTS or not np.ptp(inv) > 0.1 * float(np.mean(inv)):
         return None
-    A = np.column_stack([np.ones_like(c), -inv])  # eq. 15-17's design, weights C^2
-    sw = np.abs(c) / math.sqrt(float(np.mean(c**2)))
+    A, w = efficiency_design(c)
+    sw = np.sqrt(w)
     x, *_ = np.linalg.lstsq(A * sw[:, None], eta * sw, rcond=None)
     if not (0.5 < x[0] <= 1.05 and math.isfinite(x[1])):
         return None
     return float(x[0]), float(x[1] / x[0])
-
-
-def _drive_points(pts: Any, gear: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The drive points of a gear as the transmission's fit takes them (``transmission.direction_points``)."""
-    m = pts.usable & (pts.gear == gear) & (pts.p_out > 0) & (pts.p_in > 0)
-    c = pts.c_in[m]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        eta = pts.p_out[m] / pts.p_in[m]
-    return m, (eta > 0.0) & (eta < 1.2) & (c > 0), c, eta
 
 
 def add_engine_torque_fit(out: IdentificationResult, pts: Any, ratios: np.ndarray, *,
@@ -104,7 +96,7 @@ def add_engine_torque_fit(out: IdentificationResult, pts: Any, ratios: np.ndarra
         if not 1 <= g <= ratios.size:
             continue
         i_g = float(ratios[g - 1])
-        m, dom, c, eta = _drive_points(pts, g)
+        m, dom, c, eta = direction_points(pts, g, "drive", i_g)
         eng = pts.engine_in[m]
         use = dom & eng
         if not use.any():

@@ -31,6 +31,7 @@ from benchtwin.identification.keys import FitKey
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.identification.transmission_drag import DRAG_KEY, add_drag_fit
 from benchtwin.identification.transmission_drag import MIN_SPAN_K as DRAG_MIN_SPAN_K
+from benchtwin.identification.transmission_eq14 import direction_points, efficiency_design
 from benchtwin.recording import Recording
 
 __all__ = ["TransmissionPoints", "direction_points", "efficiency_design", "fit_transmission_efficiency",
@@ -198,51 +199,6 @@ def transmission_points(rec: Recording, specs: VehicleSpecs, *, steady: SteadyWi
     return TransmissionPoints(gear, c_in, w_in, t_out, w_out, p_in, p_out, usable,
                               [w.segment for w in steady.windows], reasons, steady.n_excluded, steady, oil,
                               None if engine_only else np.asarray(k0, dtype=bool), c_engine)
-
-
-def efficiency_design(c: np.ndarray, *, weighted: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-    """Design matrix and row weights of eq. 15-17 for torques ``c`` (Nm, positive).
-
-    Columns ``[1, -1/C]`` for the unknowns ``[eta_m, eta_m C0]``; weights ``C^2`` normalised to mean 1
-    (None when ``weighted`` is false). Shared by :func:`fit_transmission_efficiency` and the planner.
-    """
-    c = np.asarray(c, dtype=float)
-    A = np.column_stack([np.ones_like(c), -1.0 / c])
-    return A, (c**2 / np.mean(c**2) if weighted else None)
-
-
-def direction_points(pts: TransmissionPoints, gear: int, direction: str, ratio: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The points of one gear and direction that the fit uses.
-
-    Parameters
-    ----------
-    pts:
-        Steady points from :func:`transmission_points`.
-    gear, direction:
-        Gear and ``"drive"`` (``P_out > 0``) or ``"coast"`` (``P_out < 0``).
-    ratio:
-        The gear's ratio ``i_g``.
-
-    Returns
-    -------
-    m, dom, c, eta
-        Mask over all points of the gear and direction; mask over those inside the model's domain
-        (``0 < eta < 1.2``, ``C > 0``); the torque referred to the input and the efficiency of the
-        masked points (drive ``C_in``, ``P_out/P_in``; coast ``|T_out| / i_g``, ``P_in/P_out``).
-    """
-    sel = pts.usable & (pts.gear == gear)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        if direction == "drive":
-            m = sel & (pts.p_out > 0) & (pts.p_in > 0)
-            c = pts.c_in[m]
-            eta = pts.p_out[m] / pts.p_in[m]
-        else:
-            m = sel & (pts.p_out < 0) & (pts.p_in < 0)
-            c = np.abs(pts.t_out[m]) / ratio
-            eta = pts.p_in[m] / pts.p_out[m]
-    dom = (eta > 0.0) & (eta < 1.2) & (c > 0)
-    return m, dom, c, eta
 
 
 def fit_transmission_efficiency(c: np.ndarray, eta: np.ndarray, *, what: str = "transmission",
