@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.chain.alignment import clock_offsets, detect_lag
+from benchtwin.chain.blocks import BLOCK_SAMPLES, ChannelBlocks
 from benchtwin.chain.channel_store import ChannelStore
 from benchtwin.chain.decoding import (
     BusLoad,
@@ -185,10 +186,16 @@ class Acquisition:
         when used and dropped again; the files go when the Recording is closed) instead of from the compressed
         ``path`` (which is still written when given): the channels are read many times over (identification,
         validation) at the cost of a plain file read. Without ``path`` the files are in a temporary folder.
+    block_samples:
+        Samples per block of :meth:`finish`'s whole-recording passes (:mod:`benchtwin.chain.blocks`): what they
+        hold of a channel at a time, whatever the length of the recording. The result does not depend on it.
     """
 
     def __init__(self, setup: SetupConfig, path: str | Path | None = None, *, align: bool = True,
-                 keep_chunks: bool = False) -> None:
+                 keep_chunks: bool = False, block_samples: int = BLOCK_SAMPLES) -> None:
+        if int(block_samples) < 1:
+            raise DataError(f"Acquisition: block_samples must be at least 1, got {block_samples}")
+        self.block_samples = int(block_samples)
         self.setup = setup
         self.path = Path(path) if path is not None else None
         self.align = align
@@ -373,9 +380,10 @@ class Acquisition:
         sink = DecodeSink(rec=rec, counts=counts)
         sink.evidence = [ev for _, st in sorted(self._streams.items(), key=lambda kv: kv[1].order)
                          for ev in st.evidence]
-        # on disk, each pass maps one channel at a time (flags written in place, then unmapped)
-        release = (lambda name: rec.drop([name])) if self._store.on_disk else None
-        flag_truncations(rec, self._events, self._of_bus, release)
+        # each pass reads one block of one channel at a time (on disk: the flags written back block by block)
+        view = ChannelBlocks(rec, self._store, self.block_samples)
+        flag_truncations(view, self._events, self._of_bus)
+        decoded = set(rec.channels)
         for device, parts in self._polls.items():
             plog = parts[0] if len(parts) == 1 else PollLog(
                 device, parts[0].unit_id, parts[0].function_code, parts[0].first_register,
@@ -392,8 +400,14 @@ class Acquisition:
             except Exception as exc:
                 log.error("poll log %s could not be decoded: %s", device, exc)
                 sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
-        flag_saturation(rec, devs, release)
-        faults_found = detect_faults(rec, devs, sink.evidence, self._events, release)
+        if self._store.on_disk:  # the poll logs' channels go to the store's files too: none stays in memory
+            for k, name in enumerate(n for n in list(rec.channels) if n not in decoded):
+                ch = rec.channels[name]
+                self._store.append(name, ch.unit, ch.source, ch.value_texts, (math.inf, k), ch.timestamps,
+                                   ch.values, ch.flags)
+                rec.channels[name] = self._store.channel(name)  # in its place among the channels
+        flag_saturation(view, devs)
+        faults_found = detect_faults(view, devs, sink.evidence, self._events)
         rec.segments = list(segments if segments is not None else self._segments)
         m = dict(self._meta)
         m.update(meta or {})
@@ -404,22 +418,11 @@ class Acquisition:
         if self.align:
             found, drifts = clock_offsets(rec)
             offsets.update(found)
-            if release is not None:
+            if self._store.on_disk:
                 rec.drop()
         m["clock_offsets_s"] = offsets
         m["clock_drift_ppm"] = drifts
-        flagged = {}
-        for name, ch in rec.channels.items():
-            for fl in (Flag.LOST_FRAME, Flag.DUPLICATE, Flag.OUT_OF_ORDER):
-                k = int(np.count_nonzero(ch.flags & int(fl)))
-                if k:
-                    flagged.setdefault(name, {})[fl.name.lower()] = k
-            bad = int(np.count_nonzero(ch.flags & int(Flag.bad())))
-            if bad:
-                flagged.setdefault(name, {})["bad"] = bad
-            if release is not None:
-                release(name)
-        sink.counts["flagged_samples"] = flagged
+        sink.counts["flagged_samples"] = _flag_counts(view)
         m.update(sink.counts)
         m["faults_detected"] = faults_found
         m["transport_events"] = [{"time_s": e.time_s, "source": e.source, "kind": e.kind, "end_s": e.end_s,
@@ -436,15 +439,30 @@ class Acquisition:
         if self.keep_chunks or saved is None:
             out = Recording(segments=rec.segments, meta=rec.meta, start_time=rec.start_time)
             rec.drop()
-            stored = set(self._store.names())
-            for name, ch in rec.channels.items():  # the poll logs' channels were decoded in memory: kept so
-                out.add(self._store.reader(name) if name in stored else ch)
+            for name in rec.channels:
+                out.add(self._store.reader(name))
             out.own(self._store)
             return out
         self._store.cleanup()
         opened = Recording.open(saved)
         opened.meta = rec.meta  # as decoded (the file's copy went through JSON: integer keys became text)
         return opened
+
+
+def _flag_counts(view: ChannelBlocks) -> dict[str, dict[str, int]]:
+    """Per channel, the samples flagged LOST_FRAME, DUPLICATE, OUT_OF_ORDER and bad (only the non-zero counts)."""
+    kinds = [(fl.name.lower(), int(fl)) for fl in (Flag.LOST_FRAME, Flag.DUPLICATE, Flag.OUT_OF_ORDER)]
+    kinds.append(("bad", int(Flag.bad())))
+    flagged: dict[str, dict[str, int]] = {}
+    for name in view.rec.channels:
+        got = dict.fromkeys((k for k, _ in kinds), 0)
+        for _a, _t, _v, f in view.blocks(name):
+            for key, bit in kinds:
+                got[key] += int(np.count_nonzero(f & bit))
+        for key, _ in kinds:
+            if got[key]:
+                flagged.setdefault(name, {})[key] = got[key]
+    return flagged
 
 
 def _decode_frames(dec: FrameDecoder, owner: str, bus: str, cid: int, t: np.ndarray, dlc: np.ndarray,

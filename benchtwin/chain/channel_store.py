@@ -135,6 +135,29 @@ class ChannelStore:
 
         return read
 
+    def holds(self, name: str) -> bool:
+        """Whether channel ``name`` has been appended to this store."""
+        return name in self._entries
+
+    def length(self, name: str) -> int:
+        """Samples of channel ``name`` so far."""
+        return self._entries[name].n
+
+    def read_block(self, name: str, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Timestamps, values and flags of samples ``start:stop`` of ``name`` read from its files (a store on disk;
+        the arrays are the caller's)."""
+        if self._dir is None:
+            raise ValueError("ChannelStore.read_block: the store keeps its samples in memory, not in files")
+        return self._block_reader(name)(start, stop)
+
+    def write_flags(self, name: str, start: int, flags: np.ndarray) -> None:
+        """Write ``flags`` over the flags of samples ``start:start + len(flags)`` of ``name`` in its file."""
+        if self._dir is None:
+            raise ValueError("ChannelStore.write_flags: the store keeps its samples in memory, not in files")
+        with self._file(name, 2).open("r+b") as fh:
+            fh.seek(start * _DTYPES[2].itemsize)
+            np.ascontiguousarray(flags, dtype=_DTYPES[2]).tofile(fh)
+
     @property
     def on_disk(self) -> bool:
         """Whether the samples go to files (a directory was given)."""

@@ -6,11 +6,11 @@ Shared by the one-shot :func:`~benchtwin.chain.acquisition.acquire` and the chun
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from benchtwin.chain.blocks import ChannelBlocks
 from benchtwin.sensors.base import Device, FrameDecoder
 from benchtwin.wire.frames import FrameTable, TransportEvent
 from benchtwin.wire.quality import FLAG
@@ -68,48 +68,40 @@ def decoders_of(devs: list[Device], bus: str) -> dict[int, FrameDecoder]:
     return out
 
 
-def flag_saturation(rec: Any, devs: list[Device], release: Callable[[str], None] | None = None) -> None:
-    """SATURATED where a channel sits at the output saturation its device's errors configure.
-
-    ``release(name)`` is called after each channel is flagged (a chunked acquisition unmaps it)."""
+def flag_saturation(view: ChannelBlocks, devs: list[Device]) -> None:
+    """SATURATED where a channel sits at the output saturation its device's errors configure (block by block)."""
     for d in devs:
         for role, err in d.saturation().items():
             lo, hi = err.saturation_min, err.saturation_max
-            if (lo is None and hi is None) or role not in rec:
+            if (lo is None and hi is None) or role not in view.rec:
                 continue
-            ch = rec[role]
             span = (hi - lo) if lo is not None and hi is not None else max(abs(lo or 0.0), abs(hi or 0.0), 1.0)
             tol = 1e-3 * span
-            at = np.zeros(len(ch), dtype=bool)
-            if hi is not None:
-                at |= ch.values >= hi - tol
-            if lo is not None:
-                at |= ch.values <= lo + tol
-            ch.flags[at] |= FLAG["SATURATED"]
-            if release is not None:
-                release(role)
+            for _a, _t, v, f in view.blocks(role, write=True):
+                at = np.zeros(v.shape[0], dtype=bool)
+                if hi is not None:
+                    at |= v >= hi - tol
+                if lo is not None:
+                    at |= v <= lo + tol
+                f[at] |= FLAG["SATURATED"]
 
 
-def flag_truncations(rec: Any, events: list[TransportEvent], of_bus: dict[str, set[str]],
-                     release: Callable[[str], None] | None = None) -> None:
+def flag_truncations(view: ChannelBlocks, events: list[TransportEvent], of_bus: dict[str, set[str]]) -> None:
     """A bus log cut short (a ``truncated`` event): its channels' last sample before the cut and any sample in
-    the missing span are flagged TRANSPORT_DROP | LOST_FRAME (nothing after the cut is complete)."""
+    the missing span are flagged TRANSPORT_DROP | LOST_FRAME (nothing after the cut is complete); block by block."""
     bit = FLAG["TRANSPORT_DROP"] | FLAG["LOST_FRAME"]
     for e in events:
         if e.kind != "truncated":
             continue
         for name in of_bus.get(e.source, ()):
-            ch = rec[name]
-            if not len(ch):
+            if not view.length(name):
                 continue
-            t = ch.timestamps
-            at = (t >= e.time_s) & (t <= e.end_s)
-            k = int(np.searchsorted(t, e.time_s, side="right")) - 1
-            if 0 <= k < len(t):
-                at[k] = True
-            ch.flags[at] |= bit
-            if release is not None:
-                release(name)
+            k = view.count_at_or_before(name, e.time_s) - 1  # the last sample before the cut
+            for a, t, _v, f in view.blocks(name, write=True):
+                at = (t >= e.time_s) & (t <= e.end_s)
+                if a <= k < a + t.shape[0]:
+                    at[k - a] = True
+                f[at] |= bit
 
 
 class BusLoad:

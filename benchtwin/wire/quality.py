@@ -17,8 +17,8 @@ import numpy as np
 
 from benchtwin.recording import Channel, Flag, Recording
 
-__all__ = ["FLAG", "DecodeSink", "FrameStream", "counter_flags", "mark_after", "split_bad", "stale_runs",
-           "timing_flags"]
+__all__ = ["FLAG", "DecodeSink", "FrameStream", "counter_flags", "mark_after", "split_bad", "stale_length",
+           "stale_runs", "timing_flags"]
 
 #: flag name -> bit (plain ints for numpy in-place ors)
 FLAG: dict[str, int] = {f.name: int(f) for f in Flag}
@@ -102,17 +102,24 @@ def stale_runs(values: np.ndarray, usable: np.ndarray, noise_std: float, step: f
     far below the step: a frozen output cannot be told from a steady one).
     """
     n = int(values.shape[0])
-    if n < 3 or noise_std <= 0:
+    length = stale_length(n, noise_std, step, p_false)
+    if length is None:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    p = math.erf(step / (2.0 * noise_std)) if step > 0 else 0.0
-    if p >= 0.99:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    length = max(5, math.ceil(math.log(p_false / n) / math.log(max(p, 1e-12))) + 1)
     same = (values[1:] == values[:-1]) & usable[1:] & usable[:-1]
     e = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
     a, b = e[::2], e[1::2] + 1  # pairs i..j-1 equal -> readings i..j
     long_ = b - a >= length
     return a[long_], b[long_]
+
+
+def stale_length(n: int, noise_std: float, step: float, p_false: float = 1e-6) -> int | None:
+    """The shortest run of identical readings :func:`stale_runs` calls frozen among ``n`` readings (None: none is)."""
+    if n < 3 or noise_std <= 0:
+        return None
+    p = math.erf(step / (2.0 * noise_std)) if step > 0 else 0.0
+    if p >= 0.99:
+        return None
+    return max(5, math.ceil(math.log(p_false / n) / math.log(max(p, 1e-12))) + 1)
 
 
 def mark_after(flags: np.ndarray, t: np.ndarray, bad_times: np.ndarray, bit: int) -> None:
