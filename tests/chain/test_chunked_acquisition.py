@@ -152,3 +152,88 @@ def test_an_acquisition_given_up_leaves_no_file(quick_inputs, tmp_path: Path) ->
         assert list(tmp_path.iterdir())  # the chunk's samples are on disk
         acq.feed(first)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("block", [997, 65_536])
+def test_the_whole_recording_passes_do_not_depend_on_the_block(quick_inputs, one_shot, tmp_path: Path,
+                                                               block: int) -> None:
+    """finish()'s passes (truncation, saturation, gaps, stuck runs, flag counts) read a block of a channel at a
+    time: blocks of 997 samples (every fault span and stuck run crosses block edges) and of 64 Ki give the one-shot
+    Recording, on disk (the validate path: chunk files kept, the poll channels stored too) and in memory."""
+    data = quick_inputs["faults"]
+    acq = Acquisition(load_setup("faults"), tmp_path / "r.mf4", keep_chunks=True, block_samples=block)
+    for chunk in data.split_by_time(THROUGH_FAULTS):
+        acq.feed(chunk)
+    rec = acq.finish()
+    assert not rec.loaded()  # every channel, the poll logs' too, read from the chunk files
+    assert differences(one_shot["faults"], rec) == []
+    rec.close()
+    mem = Acquisition(load_setup("faults"), block_samples=block).feed(data, last=True).finish()
+    assert differences(one_shot["faults"], mem) == []
+
+
+def _repeated(data: AcquisitionInput, k: int) -> list[AcquisitionInput]:
+    """``data`` k times in a row (each copy's times shifted by the span of the one before, plus 10 s)."""
+    import dataclasses
+
+    span = 10.0 + max(float(t.frames["timestamp"][-1]) for t in data.can.values() if len(t))
+    out = []
+    for j in range(k):
+        part = AcquisitionInput(segments=list(data.segments) if j == 0 else [], meta=dict(data.meta))
+        for bus, table in data.can.items():
+            frames = table.frames.copy()
+            frames["timestamp"] += j * span
+            part.can[bus] = type(table)(bus, frames, table.bitrate)
+        for dev, p in data.polls.items():
+            part.polls[dev] = dataclasses.replace(p, times=p.times + j * span)
+        part.events = [dataclasses.replace(e, time_s=e.time_s + j * span, end_s=e.end_s + j * span)
+                       for e in data.events]
+        out.append(part)
+    return out
+
+
+def _pass_peaks(parts: list[AcquisitionInput], block: int, monkeypatch) -> dict[str, int]:
+    """Traced peak (bytes above what was held at the call) of each whole-recording pass of finish()."""
+    import tracemalloc
+
+    peaks: dict[str, int] = {}
+
+    def traced(name: str, fn):
+        def run(*args, **kwargs):
+            base = tracemalloc.get_traced_memory()[0]
+            tracemalloc.reset_peak()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                peaks[name] = max(peaks.get(name, 0), tracemalloc.get_traced_memory()[1] - base)
+        return run
+
+    for name in ("flag_truncations", "flag_saturation", "detect_faults", "_flag_counts"):
+        monkeypatch.setattr(acquisition, name, traced(name, getattr(acquisition, name)))
+    acq = Acquisition(load_setup("paper"), keep_chunks=True, align=False, block_samples=block)
+    for part in parts:
+        acq.feed(part)
+    tracemalloc.start()
+    try:
+        acq.finish().close()
+    finally:
+        tracemalloc.stop()
+    monkeypatch.undo()
+    return peaks
+
+
+def test_the_whole_recording_passes_hold_one_block(quick_inputs, monkeypatch) -> None:
+    """Memory of finish()'s passes does not grow with the recording: the quick campaign three times over (the
+    500 Hz shaft torque 1.4 M samples instead of 0.46 M) raises no pass's traced peak by more than one block
+    (18 bytes a sample) plus the sample of steps the median period is taken from (at most 200,000 steps of
+    8 bytes, whatever the length). The same recording read a channel at a time (one block as long as the
+    longest channel: the old whole-channel passes) grows by far more: the bound tells the two apart."""
+    block = 20_000
+    bound = 18 * block + 8 * 200_001
+    one, three = _repeated(quick_inputs["paper"], 1), _repeated(quick_inputs["paper"], 3)
+    small = {k: _pass_peaks(parts, block, monkeypatch) for k, parts in ((1, one), (3, three))}
+    assert set(small[1]) == {"flag_truncations", "flag_saturation", "detect_faults", "_flag_counts"}
+    growth = {name: small[3][name] - small[1][name] for name in small[1]}
+    assert max(growth.values()) < bound, growth
+    whole = {k: _pass_peaks(parts, 1 << 40, monkeypatch) for k, parts in ((1, one), (3, three))}
+    assert whole[3]["detect_faults"] - whole[1]["detect_faults"] > 4 * bound
