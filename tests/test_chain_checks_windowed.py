@@ -223,15 +223,27 @@ def test_the_held_out_cut_reads_the_channels_by_blocks(bench, monkeypatch) -> No
         want[name] = (ch.timestamps[m], ch.values[m], ch.flags[m])
     rec.drop()
     real_load = LazyChannel._load
+    sources = {id(ch) for ch in rec.channels.values()}
+    cut_loaded = []
 
     def whole(self: LazyChannel) -> list[np.ndarray]:
-        if self._arrays is None and self._block_loader is not None:  # a channel of the chunk files
+        if self._arrays is None and id(self) in sources:  # a channel of the chunk files
             raise AssertionError(f"{self.name} read whole")
+        if self._arrays is None:
+            cut_loaded.append(self.name)
         return real_load(self)
 
     monkeypatch.setattr(LazyChannel, "_load", whole)
     monkeypatch.setattr(holdout, "_BLOCK", 501)
     cut = holdout.without_window(rec, 12.0, 41.0)
+    # the cut's blocks are read without reading the cut (or its source) whole, across the window's edges
+    for name, (t, v, f) in want.items():
+        got = cut[name]
+        for a, b in ((0, 7), (len(t) // 3, len(t) // 3 + 900), (len(t) - 5, len(t) + 3), (0, len(t))):
+            block = got.block(a, b)
+            for x, y in zip(block, (t[a:b], v[a:b], f[a:b]), strict=True):
+                assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), (name, a, b)
+    assert cut_loaded == []
     for name, (t, v, f) in want.items():
         got = cut[name]
         assert len(got) == len(t), name

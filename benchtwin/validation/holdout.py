@@ -76,9 +76,19 @@ def without_window(rec: Recording, start_s: float, end_s: float) -> Recording:
     kept = rec.loaded()
     for ch in rec.channels.values():
         if isinstance(ch, LazyChannel) and ch.name not in kept:  # read from the file again when used
-            n = sum(int(np.count_nonzero(_outside(t, start_s, end_s))) for t, _v, _f in _blocks(ch))
+            n, inside = 0, []
+            for a, (t, _v, _f) in zip(range(0, len(ch), _BLOCK), _blocks(ch)):
+                m = _outside(t, start_s, end_s)
+                n += int(np.count_nonzero(m))
+                k = np.flatnonzero(~m)
+                if k.size:
+                    inside.append((a + int(k[0]), a + int(k[-1]) + 1, int(k.size)))
             rec.drop([ch.name])
-            out.add(LazyChannel(ch.name, ch.unit, ch.source, n, _cut(rec, ch.name, start_s, end_s)))
+            i0, i1 = (inside[0][0], inside[-1][1]) if inside else (len(ch), len(ch))
+            # the window one run of samples (time-ordered channel): the cut's blocks are read as the source's
+            run = i1 - i0 == sum(c for _a, _b, c in inside)
+            out.add(LazyChannel(ch.name, ch.unit, ch.source, n, _cut(rec, ch.name, start_s, end_s),
+                                block_loader=_cut_blocks(rec, ch.name, i0, i1) if run else None))
             continue
         m = _outside(ch.timestamps, start_s, end_s)
         out.add(Channel(ch.name, ch.unit, ch.timestamps[m], ch.values[m], ch.flags[m], ch.source))
@@ -105,6 +115,26 @@ def _cut(rec: Recording, name: str, start_s: float,
         return t, v, f
 
     return load
+
+
+def _cut_blocks(rec: Recording, name: str, i0: int, i1: int
+                ) -> Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """A block reader of channel ``name`` of ``rec`` without its samples ``i0:i1`` (the held-out window): samples
+    ``a:b`` of the cut are the source's ``a:b`` before ``i0`` and shifted by ``i1 - i0`` from there, read as blocks
+    of the source (never the whole channel)."""
+    def read(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        src = rec.channels[name]
+        parts = []
+        if a < i0:
+            parts.append(src.block(a, min(b, i0)))
+        if b > i0:
+            parts.append(src.block(max(a, i0) + i1 - i0, b + i1 - i0))
+        if len(parts) == 1:
+            return parts[0]
+        t, v, f = (np.concatenate([p[k] for p in parts]) for k in range(3))
+        return t, v, f
+
+    return read
 
 
 #: samples of a channel read at a time when a window is cut out of it
