@@ -384,11 +384,13 @@ class Acquisition:
         view = ChannelBlocks(rec, self._store, self.block_samples)
         flag_truncations(view, self._events, self._of_bus)
         decoded = set(rec.channels)
-        for device, parts in self._polls.items():
+        for device in list(self._polls):
+            parts = self._polls.pop(device)  # the chunks' pieces go once joined: one copy of the log at a time
             plog = parts[0] if len(parts) == 1 else PollLog(
                 device, parts[0].unit_id, parts[0].function_code, parts[0].first_register,
                 np.concatenate([p.times for p in parts]), np.concatenate([p.values for p in parts]),
                 np.concatenate([p.status for p in parts]))
+            del parts
             drops = events_for(self._events, {device})
             dev = self._polled.get(device)
             if dev is None:
@@ -400,6 +402,7 @@ class Acquisition:
             except Exception as exc:
                 log.error("poll log %s could not be decoded: %s", device, exc)
                 sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
+        plog = None  # the joined log is not kept through the passes below
         if self._store.on_disk:  # the poll logs' channels go to the store's files too: none stays in memory
             for k, name in enumerate(n for n in list(rec.channels) if n not in decoded):
                 ch = rec.channels[name]
