@@ -21,7 +21,8 @@ from benchtwin.identification._signals import strict_resample
 from benchtwin.identification.transmission_drag import drag_c0
 from benchtwin.recording import Recording
 
-__all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "converter_points", "turbine_torque_scale",
+__all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "borrowed_gear_offsets", "converter_points",
+           "turbine_torque_scale",
            "unsettled"]
 
 #: rpm per rad/s
@@ -162,7 +163,8 @@ class ConverterPoints:
     (rad/s^2); ``gear``; ``n_excluded`` grid points left out; the turbine-speed calibration (``scale``,
     ``scale_se``, ``n_cal``), the turbine-torque calibration (``tscale``, ``tscale_se``, ``n_tcal``: eq. 32's
     torque against the motor torque where the lock-up is closed and K0 open; its samples in
-    ``torque_calibration``) and the reasons to flag.
+    ``torque_calibration``), the reasons to flag and ``borrowed``: gear -> the gear whose transmission model (or
+    drag model) it used for lack of its own, for the gears among the points.
     """
 
     t: np.ndarray
@@ -183,6 +185,7 @@ class ConverterPoints:
     tscale_se: float = float("nan")
     n_tcal: int = 0
     torque_calibration: TorqueCalibration | None = None
+    borrowed: dict[int, int] = field(default_factory=dict)
 
 
 def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mapping[int, tuple[float, float]] | None,
@@ -287,11 +290,13 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
             if abs(scale - 1.0) > 0.1:
                 reasons.append(f"turbine speed from eq. 31 is off by {100 * (scale - 1):+.1f} % against the motor "
                                "speed with the lock-up closed: check gear ratios, final drive and wheel radius")
+    borrowed: dict[int, int] = {}
     if transmission:
         table = {int(k): (float(e), float(c)) for k, (e, c) in transmission.items()}
         lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in table})
         for k in lacking:  # nearest identified gear (ties: the lower one)
             near = min(table, key=lambda j: (abs(j - k), j))
+            borrowed[k] = near
             reasons.append(f"gear {k} has no transmission model: eta_m and C0 of gear {near} used")
         full = {k: table[k] if k in table else table[min(table, key=lambda j: (abs(j - k), j))]
                 for k in range(1, len(specs.gear_ratios) + 1)}
@@ -306,10 +311,12 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     if "gearbox_oil_degc" in d and drag is not None:
         eta, c0 = np.array(eta, dtype=float), np.array(c0, dtype=float)
         oil = d["gearbox_oil_degc"]
+        borrowed = {}
         for k in np.unique(g):
             near = min(drag_gears, key=lambda j: (abs(j - k), j))
             m = g == k
             if near != k and np.any(m & use):
+                borrowed[int(k)] = near
                 reasons.append(f"gear {k} has no drag model: eta_m and C0(T_oil) of gear {near} used")
             eta[m] = drag.value(f"eta_m_g{near}")
             c0[m] = drag_c0(drag, f"g{near}", oil[m], w_t[m])
@@ -342,4 +349,88 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     return ConverterPoints(t[use], n_p[use] / RPM_PER_RADS, w_t[use], t_p[use], t_t[use],
                            dn[use] / RPM_PER_RADS, gear[use], ig[use] * eta[use] / tscale, segs,
                            int(t.size - use.sum()), scale, scale_se, n_cal, reasons, tscale, tscale_se, n_tcal,
-                           tcal_points)
+                           tcal_points, borrowed)
+
+
+def _plateau_start(sr: np.ndarray, d: np.ndarray, t_p: np.ndarray, min_points: int) -> float:
+    """The SR from which ``d`` is flat: a broken stick ``d = c + s T_p max(G - SR, 0)`` fitted over ``G``.
+
+    Below the coupling point the turbine torque exceeds the pump torque by ``(TR - 1) T_p``, falling to 0 at
+    Gamma; above it the difference of eq. 32's turbine torque and the pump torque is the gear's offset alone.
+    The least-squares ``G`` (at least ``min_points`` points above it) starts the coupling point of a gear whose
+    offset moved the converter fit's (NaN: too few points).
+    """
+    best, g_best = np.inf, float("nan")
+    for g in np.unique(np.round(sr, 3)):
+        if int((sr >= g).sum()) < min_points:
+            break
+        a = np.column_stack([np.ones_like(sr), t_p * np.clip(g - sr, 0.0, None)])
+        coef, *_ = np.linalg.lstsq(a, d, rcond=None)
+        sse = float(np.sum((d - a @ coef) ** 2))
+        if coef[1] > 0 and sse < best:
+            best, g_best = sse, float(g)
+    return g_best
+
+
+def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max_pump_accel_rads2: float,
+                          min_points: int, *, start: bool = False
+                          ) -> tuple[dict[int, tuple[float, float, int]], dict[int, str]]:
+    """Per gear on a borrowed transmission model, the offset of its eq. 32 turbine torque on its coupling points.
+
+    A gear without a transmission model of its own (gear 1 never runs with the lock-up closed on most cars, so
+    the steady lock-up-closed points of eq. 13-17 and the turbine-torque calibration have none) takes the
+    nearest gear's ``eta_m`` and ``C0``, and its turbine torque is off by the difference of the two gears'
+    drag, ``C0`` mostly (several Nm, against turbine torques of 20-60 Nm in a take-off). In coupling mode the
+    turbine torque is the pump torque (eq. 36), i.e. the motor torque less the pump-side inertia torque: the
+    median of ``T_t(eq. 32) - (T_motor - J dw_p/dt)`` over the gear's own coupling points (SR at or above
+    ``gamma``, the pump nearly steady) is that gear's offset.
+
+    Parameters
+    ----------
+    pts:
+        The converter points (:func:`converter_points`), with ``borrowed``.
+    gamma:
+        The coupling point of the current converter fit.
+    j_pump:
+        The pump-side inertia of that fit (kg m^2; 0 without).
+    max_pump_accel_rads2:
+        Points with a larger ``|dw_p/dt|`` are left out (a tenth of the quasi-steady limit: the inertia torque
+        stays about 1 % of the pump torque).
+    min_points:
+        Least coupling points of a gear.
+    start:
+        The first round: each gear's coupling point taken no higher than where the difference of its turbine
+        and pump torques turns flat (:func:`_plateau_start`), since an offset moves the converter fit's.
+
+    Returns
+    -------
+    offsets, reasons
+        Gear -> (offset in Nm, its standard error, points used) for the gears with enough coupling points; gear
+        -> the reason for the gears without (their turbine torque left as it is).
+    """
+    out: dict[int, tuple[float, float, int]] = {}
+    reasons: dict[int, str] = {}
+    if not np.isfinite(gamma):
+        gamma = 1.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sr = pts.w_t / pts.w_p
+    calm = np.abs(pts.dw_p) <= max_pump_accel_rads2
+    for k, near in sorted(pts.borrowed.items()):
+        g = gamma
+        own = (pts.gear == k) & calm & np.isfinite(pts.t_t)
+        if start and own.any():
+            g0 = _plateau_start(sr[own], pts.t_t[own] - (pts.t_p[own] - j_pump * pts.dw_p[own]), pts.t_p[own],
+                                min_points)
+            g = min(g, g0) if np.isfinite(g0) else g
+        m = own & (sr >= g)
+        n = int(m.sum())
+        if n < min_points:
+            reasons[k] = (f"gear {k} on gear {near}'s transmission model: {n} coupling-mode points (SR >= "
+                           f"{g:.3f}), need {min_points} to calibrate its turbine torque against the pump "
+                           "torque: left uncalibrated (too little excitation, its turbine torque may be off by the "
+                           "two gears' C0 difference)")
+            continue
+        d = pts.t_t[m] - (pts.t_p[m] - j_pump * pts.dw_p[m])
+        se = 1.2533 * float(np.std(d, ddof=1)) / np.sqrt(n)
+        out[k] = (float(np.median(d)), se, n)
+    return out, reasons
