@@ -27,6 +27,10 @@ __all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "borrowed_gea
 
 #: rpm per rad/s
 RPM_PER_RADS = 60.0 / (2.0 * np.pi)
+#: a torque ratio this close to 1 counts as the coupling mode seen (:func:`borrowed_gear_offsets`): a few times the
+#: torque ratio's scatter from the telemetry step (about 0.5 Nm at 20-80 Nm), well below a converter's TR - 1 short of
+#: its coupling point (the TR curve falls by about 1 per unit SR there)
+COUPLED_TR_TOL = 0.03
 
 
 def _central_derivative(x: np.ndarray, t: np.ndarray, window_s: float) -> np.ndarray:
@@ -383,7 +387,8 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
     drag, ``C0`` mostly (several Nm, against turbine torques of 20-60 Nm in a take-off). In coupling mode the
     turbine torque is the pump torque (eq. 36), i.e. the motor torque less the pump-side inertia torque: the
     median of ``T_t(eq. 32) - (T_motor - J dw_p/dt)`` over the gear's own coupling points (SR at or above
-    ``gamma``, the pump nearly steady) is that gear's offset.
+    ``gamma``, the pump nearly steady) is that gear's offset. Only when the gears with a model of their own show
+    the coupling mode (``COUPLED_TR_TOL``): else every borrowed gear is left as it is, with the reason.
 
     Parameters
     ----------
@@ -415,6 +420,22 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
     with np.errstate(invalid="ignore", divide="ignore"):
         sr = pts.w_t / pts.w_p
     calm = np.abs(pts.dw_p) <= max_pump_accel_rads2
+    # the anchor: the coupling mode seen in the gears with a model of their own (TR within ``COUPLED_TR_TOL`` of 1
+    # on ``min_points`` points or more, the pump's inertia torque within that share of its torque). Without it, the
+    # top of a borrowed gear's SR range may still be converter mode, where the turbine torque exceeds the pump
+    # torque by (TR - 1) T_p: an "offset" taken there would pull the coupling point down with it
+    own = ~np.isin(pts.gear, list(pts.borrowed))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tr = pts.t_t / (pts.t_p - j_pump * pts.dw_p)
+    # and where the pump's inertia torque (J of a fit it is correlated with) is within that share of its torque
+    coupled = own & (np.abs(tr - 1.0) <= COUPLED_TR_TOL) & (np.abs(j_pump * pts.dw_p) <= COUPLED_TR_TOL * pts.t_p)
+    if int(coupled.sum()) < min_points:
+        for k, near in sorted(pts.borrowed.items()):
+            reasons[k] = (f"gear {k} on gear {near}'s transmission model: left uncalibrated, no coupling mode seen in "
+                          f"the gears with a model of their own ({int(coupled.sum())} points with TR within "
+                          f"{COUPLED_TR_TOL:g} of 1) to anchor it (too little excitation: its turbine torque may be "
+                          "off by the two gears' C0 difference)")
+        return out, reasons
     for k, near in sorted(pts.borrowed.items()):
         g = gamma
         own = (pts.gear == k) & calm & np.isfinite(pts.t_t)
