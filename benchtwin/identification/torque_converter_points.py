@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import MissingChannelError
@@ -22,8 +23,7 @@ from benchtwin.identification.transmission_drag import drag_c0
 from benchtwin.recording import Recording
 
 __all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "borrowed_gear_offsets", "converter_points",
-           "turbine_torque_scale",
-           "unsettled"]
+           "offset_significance", "turbine_torque_scale", "unsettled"]
 
 #: rpm per rad/s
 RPM_PER_RADS = 60.0 / (2.0 * np.pi)
@@ -31,6 +31,13 @@ RPM_PER_RADS = 60.0 / (2.0 * np.pi)
 #: torque ratio's scatter from the telemetry step (about 0.5 Nm at 20-80 Nm), well below a converter's TR - 1 short of
 #: its coupling point (the TR curve falls by about 1 per unit SR there)
 COUPLED_TR_TOL = 0.03
+#: a borrowed gear's offset is applied only beyond this two-sided confidence of zero (the 3-sigma level of the
+#: Student t of its passes, :func:`offset_significance`): the borrowed model's C0 is kept unless the gear's own
+#: coupling points refute it
+OFFSET_CONFIDENCE = 0.9973
+#: coupling points further apart than this (s) are separate passes: 2.5 times the 0.4 s pump-acceleration window,
+#: so no two passes share a sample of dw_p/dt, while the points of one pass share its operating point and errors
+PASS_GAP_S = 1.0
 
 
 def _central_derivative(x: np.ndarray, t: np.ndarray, window_s: float) -> np.ndarray:
@@ -388,7 +395,10 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
     turbine torque is the pump torque (eq. 36), i.e. the motor torque less the pump-side inertia torque: the
     median of ``T_t(eq. 32) - (T_motor - J dw_p/dt)`` over the gear's own coupling points (SR at or above
     ``gamma``, the pump nearly steady) is that gear's offset. Only when the gears with a model of their own show
-    the coupling mode (``COUPLED_TR_TOL``): else every borrowed gear is left as it is, with the reason.
+    the coupling mode (``COUPLED_TR_TOL``): else every borrowed gear is left as it is, with the reason. And only
+    when the offset is significant (:func:`offset_significance`: beyond the ``OFFSET_CONFIDENCE`` Student-t bound
+    of zero over the gear's passes through the coupling mode): else the borrowed C0 is consistent with the gear's
+    own points and is kept, with the reason.
 
     Parameters
     ----------
@@ -410,8 +420,8 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
     Returns
     -------
     offsets, reasons
-        Gear -> (offset in Nm, its standard error, points used) for the gears with enough coupling points; gear
-        -> the reason for the gears without (their turbine torque left as it is).
+        Gear -> (offset in Nm, its standard error over the passes, points used) for the gears with enough
+        coupling points and a significant offset; gear -> the reason for the others (turbine torque left as it is).
     """
     out: dict[int, tuple[float, float, int]] = {}
     reasons: dict[int, str] = {}
@@ -452,6 +462,50 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
                            "two gears' C0 difference)")
             continue
         d = pts.t_t[m] - (pts.t_p[m] - j_pump * pts.dw_p[m])
-        se = 1.2533 * float(np.std(d, ddof=1)) / np.sqrt(n)
-        out[k] = (float(np.median(d)), se, n)
+        off, se, n_pass, bound = offset_significance(pts.t[m], d)
+        if not abs(off) > bound:
+            passes = f"{n_pass} pass" + ("es" if n_pass != 1 else "")
+            reasons[k] = (f"gear {k} on gear {near}'s transmission model: left uncalibrated, its turbine torque on its "
+                          f"{n} coupling-mode points ({passes}) is {off:+.2f} +- {se:.2f} Nm off the pump torque, "
+                          f"within the {100 * OFFSET_CONFIDENCE:g} % bound {bound:.2f} Nm of zero (the borrowed C0 "
+                          "not refuted)")
+            continue
+        out[k] = (off, se, n)
     return out, reasons
+
+
+def offset_significance(t: np.ndarray, d: np.ndarray, *, gap_s: float = PASS_GAP_S,
+                        confidence: float = OFFSET_CONFIDENCE) -> tuple[float, float, int, float]:
+    """A borrowed gear's turbine-torque offset, its standard error over its passes, and the bound it must exceed.
+
+    The points of one pass through the coupling mode (``t`` closer than ``gap_s``) share their operating point,
+    the sensors' slow errors and the dw_p/dt window, so they are not independent samples: the standard error
+    is that of a median over the passes, ``1.2533 s / sqrt(n_pass)`` with ``s`` the spread of the passes'
+    medians, and the offset differs from zero when ``|offset|`` exceeds Student's t at ``confidence``
+    (two-sided, ``n_pass - 1`` degrees of freedom) times it. A single pass gives no spread: the bound is
+    infinite, the offset never significant.
+
+    Parameters
+    ----------
+    t, d:
+        Times (s) and ``T_t(eq. 32) - (T_p - J dw_p/dt)`` (Nm) of the gear's coupling points.
+    gap_s:
+        Least time between two passes.
+    confidence:
+        Two-sided confidence of the bound (0.9973: 3 sigma).
+
+    Returns
+    -------
+    offset, se, n_pass, bound
+        The median of ``d``, its standard error over the passes (NaN for one pass), the number of passes and
+        the bound on ``|offset|`` (Nm; inf for one pass).
+    """
+    order = np.argsort(t)
+    t, d = np.asarray(t, dtype=float)[order], np.asarray(d, dtype=float)[order]
+    cuts = np.flatnonzero(np.diff(t) > gap_s) + 1
+    meds = np.array([np.median(p) for p in np.split(d, cuts)])
+    off, n_pass = float(np.median(d)), int(meds.size)
+    if n_pass < 2:
+        return off, float("nan"), n_pass, float("inf")
+    se = 1.2533 * float(np.std(meds, ddof=1)) / np.sqrt(n_pass)
+    return off, se, n_pass, float(stats.t.ppf(0.5 + confidence / 2.0, n_pass - 1)) * se
