@@ -44,12 +44,18 @@ from benchtwin.identification.torque_converter_model import (
     speed_products,
     tc_torques,
 )
-from benchtwin.identification.torque_converter_points import RPM_PER_RADS, ConverterPoints, converter_points
+from benchtwin.identification.torque_converter_points import (
+    RPM_PER_RADS,
+    ConverterPoints,
+    borrowed_gear_offsets,
+    converter_points,
+)
 from benchtwin.identification.torque_converter_table import fit_converter_table
 from benchtwin.recording import Recording
 
 __all__ = [
     "RPM_PER_RADS",
+    "STALL_END_SR",
     "ConverterPoints",
     "converter_design",
     "converter_points",
@@ -62,6 +68,10 @@ __all__ = [
     "tc_torques",
 ]  # the model forms and designs live in torque_converter_model; re-exported here
 
+
+
+#: converter-mode points must reach below this SR for the stall end of the curves to be measured, not extrapolated
+STALL_END_SR = 0.3
 
 
 def _robust_z(r: np.ndarray, floor: float) -> np.ndarray:
@@ -160,7 +170,8 @@ def fit_torque_converter(
     Returns
     -------
     dict
-        ``converter`` (a0..a5, ``J_pump_kgm2`` with ``dw_p``, and ``gamma_coupling``), ``coupling``
+        ``converter`` (a0..a5, ``J_pump_kgm2`` with ``dw_p``, and ``gamma_coupling``; data ``sr_covered``: the
+        SR range of its inlier points, flagged when it starts above ``STALL_END_SR``), ``coupling``
         (a6..a8 plus the well-determined ``k_at_gamma`` = T/w_p^2 at Gamma and ``sr_zero_torque``;
         missing when the data have fewer than ``min_points`` coupling points, see
         ``converter.reasons``), ``torque_ratio`` (R^2 of TR over the points kept by the fits; data
@@ -303,6 +314,13 @@ def fit_torque_converter(
         out["coupling"] = coup
     else:
         reasons.append(f"{int(cm.sum())} coupling-mode points (SR >= {g:.3f}): a6..a8 not identified")
+    # the stall end: without converter-mode points near SR 0 the curves there are an extrapolation
+    conv_pts = (sr < g) & inlier
+    lo = float(sr[conv_pts].min()) if conv_pts.any() else float("nan")
+    conv.data["sr_covered"] = np.array([lo, float(sr[conv_pts].max()) if conv_pts.any() else float("nan")])
+    if np.isfinite(lo) and lo > STALL_END_SR:
+        reasons.append(f"converter-mode points only from SR {lo:.2f} (none below {STALL_END_SR:g}, too little "
+                       f"excitation near stall): the curves below SR {lo:.2f} are an extrapolation")
     for r in reasons:
         conv.flag(r)
     # curves (with the pump torque corrected for the pump-side inertia when it was identified)
@@ -383,7 +401,10 @@ def identify_torque_converter(
         Common time base of the channels.
     transmission:
         Gear -> ``(eta_m, C0)`` from the transmission identification. A gear without a model uses
-        the nearest gear's (flagged with the reason). Without any, eta = 1 and C0 = 0 and the result
+        the nearest gear's (flagged with the reason), its turbine torque then offset to meet the pump torque on
+        its own coupling-mode points (``turbine_torque_offset_g<k>``, iterated with the coupling point;
+        :func:`~benchtwin.identification.torque_converter_points.borrowed_gear_offsets`), or left as it is and
+        flagged when it has too few of them. Without any, eta = 1 and C0 = 0 and the result
         is flagged (turbine torque underestimated by the gearbox losses).
     max_pump_accel_rpm_s:
         Quasi-steady limit on ``|d n_p / dt|``: inertia torques stay small (and are identified, see
@@ -447,11 +468,34 @@ def identify_torque_converter(
                            derivative_window_s=derivative_window_s, calibrate_turbine_speed=calibrate_turbine_speed,
                            min_calibration_points=min_calibration_points, lockup_slip_tol=lockup_slip_tol,
                            calibrate_turbine_torque=calibrate_turbine_torque, drag=drag)
-    res = fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, pts.t_t, gamma=gamma, min_points=min_points,
-                               segments=pts.segments, n_excluded=pts.n_excluded,
-                               dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma,
-                               coupling_zero_slip=coupling_zero_slip, coupling_torque=coupling_torque,
-                               min_coupling_span=min_coupling_span)
+
+    def fit(t_t: np.ndarray) -> dict[str, FitResult]:
+        return fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, t_t, gamma=gamma, min_points=min_points,
+                                    segments=pts.segments, n_excluded=pts.n_excluded,
+                                    dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma,
+                                    coupling_zero_slip=coupling_zero_slip, coupling_torque=coupling_torque,
+                                    min_coupling_span=min_coupling_span)
+
+    res = fit(pts.t_t)
+    offsets: dict[int, tuple[float, float, int]] = {}
+    off_reasons: dict[int, str] = {}
+    # a gear on a borrowed transmission model: its turbine torque offset to meet the pump torque on its own
+    # coupling points; the coupling point moves with the offset, so both are iterated to a fixed point
+    for it in range(8 if pts.borrowed else 0):
+        conv = res["converter"]
+        j = conv.value("J_pump_kgm2") if "J_pump_kgm2" in conv.params else 0.0
+        new, off_reasons = borrowed_gear_offsets(pts, conv.value("gamma_coupling"), j,
+                                                 0.1 * max_pump_accel_rpm_s / RPM_PER_RADS, min_points, start=it == 0)
+        # a gear calibrated in an earlier round keeps its offset if the moved coupling point leaves it too few points
+        off_reasons = {k: r for k, r in off_reasons.items() if k not in offsets}
+        new = {**{k: v for k, v in offsets.items() if k not in new}, **new}
+        moved = max((abs(new[k][0] - offsets.get(k, (0.0,))[0]) for k in new), default=0.0)
+        if moved < 1e-12:
+            break
+        offsets = new
+        res = fit(pts.t_t - sum(o * (pts.gear == k) for k, (o, _se, _n) in offsets.items()))
+        if moved < 0.02:
+            break
     scale, scale_se, segs = pts.scale, pts.scale_se, pts.segments
     res["converter"].add(ParameterEstimate(
         "turbine_speed_scale", scale, scale_se, (scale - 1.96 * scale_se, scale + 1.96 * scale_se), float("nan"),
@@ -460,6 +504,14 @@ def identify_torque_converter(
     res["converter"].add(ParameterEstimate(
         "turbine_torque_scale", ts, ts_se, (ts - 1.96 * ts_se, ts + 1.96 * ts_se), float("nan"), pts.n_tcal, "",
         segs))
+    g_fit = res["converter"].value("gamma_coupling")
+    for k, (o, o_se, n_o) in offsets.items():
+        res["converter"].add(ParameterEstimate(f"turbine_torque_offset_g{k}", o, o_se,
+                                               (o - 1.96 * o_se, o + 1.96 * o_se), float("nan"), n_o, "Nm", segs))
+        pts.reasons.append(f"gear {k} on gear {pts.borrowed[k]}'s transmission model: its turbine torque taken "
+                           f"{o:+.2f} Nm off, calibrated against the pump torque on its {n_o} coupling-mode points "
+                           f"(the coupling point now {g_fit:.3f})")
+    pts.reasons.extend(off_reasons.values())
     for r in pts.reasons:
         res["converter"].flag(r)
         if "coupling" in res:

@@ -26,6 +26,7 @@ from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.errors import ConfigError
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey, param_key, split_param
+from benchtwin.identification.torque_converter import STALL_END_SR
 from benchtwin.sensors.telemetry import torque_step_nm
 from benchtwin.validation.hifi import converter_curve_checks, no_truth
 from benchtwin.validation.paper_r2 import PAPER_R2, paper_estimation_fits
@@ -465,7 +466,14 @@ def _tc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: st
                             float("nan"), tol_tr, "rel", "-", False, why))
     else:
         a_id = [conv.value(f"a{i}") for i in range(6)]
-        sr = np.linspace(0.0, gamma * 0.98, 50)
+        # judged from SR 0, or from the lowest converter-mode point where the identification flagged the stall
+        # end as not excited (an extrapolation it says it cannot vouch for)
+        cov = np.asarray(conv.data.get("sr_covered", [0.0]), dtype=float)
+        lo = float(cov[0]) if cov.size and np.isfinite(cov[0]) and cov[0] > STALL_END_SR else 0.0
+        lo = min(lo, gamma * 0.98)
+        if lo > 0.0:
+            note += f"; from SR {lo:.2f}, the lowest converter-mode point (the stall end flagged as not excited)"
+        sr = np.linspace(lo, gamma * 0.98, 50)
         tr_t, cf_t = _tc_curves(a_true, sr)
         tr_i, cf_i = _tc_curves(a_id, sr)
         for nm, ident, truth, tol in (("torque_ratio_curve", tr_i, tr_t, tol_tr),

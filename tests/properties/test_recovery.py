@@ -145,13 +145,29 @@ def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnS
     _converter_checks_pass(vehicle, drawn, seed)
 
 
-@pytest.mark.xfail(reason="open: converter-mode points only in gear 1 above SR 0.6, gear 1 on gear 2's transmission "
-                   "model (turbine torque ~8.5 Nm high): TR never reaches 1 (examples/converter_gear1_borrowed_model"
-                   ".json)", raises=AssertionError, strict=True)
 def test_converter_with_gear_1_on_a_borrowed_transmission_model() -> None:
-    # found by test_torque_converter_curves_recovered in the thorough profile once the coupling fit was fixed; kept
-    # as a strict expected failure until the converter-mode fit handles it (about 10 s)
-    _converter_checks_pass(*pinned("converter_gear1_borrowed_model"))
+    # found by test_torque_converter_curves_recovered in the thorough profile once the coupling fit was fixed: an
+    # 8-speed draw whose converter-mode points are all in gear 1 (no lock-up there, so no transmission model of its
+    # own: gear 2's C0 11.9 Nm for 2.0) above SR 0.6: the turbine torque read ~8.5 Nm high, TR never reached 1
+    # (TR curve 35x off, Gamma 0.931 for 0.883). Now gear 1's turbine torque is calibrated on its own coupling
+    # points (offset reported; significant: 8.6 Nm, some 75 standard errors over its passes, far beyond the
+    # 3-sigma gate), and the stall end, which no point excites, is flagged and not judged (about 15 s)
+    vehicle, drawn, seed = pinned("converter_gear1_borrowed_model")
+    campaign = campaign_for(vehicle, TC_KINDS, seed=seed)
+    report = validate(vehicle, drawn.setup, campaign, trace=simulate_campaign(vehicle, campaign),
+                      families=["torque_converter"], profile="realistic")
+    conv = report.identification.fits["torque_converter.converter"]
+    # the calibration is the gear's and said as such: the offset is what borrowing gear 2's C0 adds, the true
+    # C0(gear 2) - C0(gear 1) = 8.7 Nm (less gear 2's own C0 error and the turbine torque scale, a few %); bound:
+    # a quarter of the error the uncalibrated borrow carried
+    offset = conv.value("turbine_torque_offset_g1")
+    truth = vehicle.transmission.c0_nm[1] - vehicle.transmission.c0_nm[0]
+    assert abs(offset - truth) < 0.25 * truth, (offset, truth)
+    assert any("coupling-mode points" in r and "gear 1" in r for r in conv.reasons), conv.reasons
+    assert any("none below" in r and "extrapolation" in r for r in conv.reasons), conv.reasons
+    checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, None, {"torque_converter"})
+    bad = [c for c in checks if not c.passed]
+    assert checks and not bad, "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g}" for c in bad)
 
 
 def test_loose_converter_on_a_10_bit_telemetry() -> None:

@@ -1,0 +1,99 @@
+"""A gear on a borrowed transmission model: its turbine-torque offset from its own coupling points (milliseconds)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from benchtwin.identification.torque_converter_points import (
+    ConverterPoints,
+    borrowed_gear_offsets,
+    offset_significance,
+)
+
+GAMMA = 0.88
+#: Student's t at 99.865 % (two-sided 99.73 %, 3 sigma), from the printed tables: 3 and 9 degrees of freedom
+T_3DOF, T_9DOF = 9.219, 4.094
+
+
+def _points(own_tr: float, offset: float, scatter: np.ndarray | float = 0.0) -> ConverterPoints:
+    """Gear 2 (own model) at SR 0.90-0.95 with torque ratio ``own_tr``; gear 1 (gear 2's model) over SR 0.60-0.95:
+    TR = 1 + 2 (GAMMA - SR) below GAMMA, 1 above, its turbine torque ``offset`` (+ ``scatter``) high; every point
+    its own pass (2 s apart)."""
+    sr2 = np.linspace(0.90, 0.95, 20)
+    sr1 = np.linspace(0.60, 0.95, 71)
+    t_p2, t_p1 = np.full(sr2.size, 80.0), np.full(sr1.size, 35.0)
+    tr1 = 1.0 + 2.0 * np.clip(GAMMA - sr1, 0.0, None)
+    sr, t_p = np.r_[sr2, sr1], np.r_[t_p2, t_p1]
+    t_t = np.r_[own_tr * t_p2, tr1 * t_p1 + offset + scatter]
+    w_p = np.full(sr.size, 100.0)
+    gear = np.r_[np.full(sr2.size, 2), np.ones(sr1.size, dtype=int)]
+    z = np.zeros(sr.size)
+    t = 2.0 * np.arange(sr.size)
+    return ConverterPoints(t, w_p, sr * w_p, t_p, t_t, z, gear, z, [], 0, 1.0, float("nan"), 0, borrowed={1: 2})
+
+
+def test_offset_of_a_borrowed_gear_from_its_coupling_points() -> None:
+    # gear 1's coupling points (SR >= 0.88) read its turbine torque exactly 8 Nm high: that is the offset, also when
+    # the start is taken where the difference turns flat; the converter-mode points (8 + up to 19 Nm) are not used
+    pts = _points(1.0, 8.0)
+    for start in (False, True):
+        off, why = borrowed_gear_offsets(pts, GAMMA, 0.0, 1.0, 10, start=start)
+        assert not why and set(off) == {1}
+        assert abs(off[1][0] - 8.0) < 1e-9 and off[1][2] == 15
+
+
+def test_no_offset_without_the_coupling_mode_in_the_gears_with_their_own_model() -> None:
+    # gear 2's torque ratio 1.10: no coupling mode seen to anchor gear 1's, which is left as it is, said why
+    off, why = borrowed_gear_offsets(_points(1.10, 8.0), GAMMA, 0.0, 1.0, 10, start=True)
+    assert off == {} and set(why) == {1} and "too little excitation" in why[1]
+
+
+def test_too_few_coupling_points_of_the_borrowed_gear_are_said() -> None:
+    # above SR 0.94 gear 1 has 3 points, fewer than the 10 needed
+    off, why = borrowed_gear_offsets(_points(1.0, 8.0), 0.94, 0.0, 1.0, 10)
+    assert off == {} and "coupling-mode points" in why[1]
+
+
+def test_the_offset_bound_is_students_t_over_the_passes() -> None:
+    # 4 passes of 5 points 0.1 s apart, 10 s between passes, medians 1, 2, 3, 6 Nm (each pass's other points
+    # scattered round it): offset = median of the 20 points, se = 1.2533 s(medians) / 2, bound = t(3 dof) se
+    meds = np.array([1.0, 2.0, 3.0, 6.0])
+    t = (10.0 * np.arange(4)[:, None] + 0.1 * np.arange(5)[None, :]).ravel()
+    d = (meds[:, None] + np.array([-0.2, -0.1, 0.0, 0.1, 0.2])[None, :]).ravel()
+    off, se, n_pass, bound = offset_significance(t, d)
+    se_hand = 1.2533 * np.std(meds, ddof=1) / 2.0
+    assert n_pass == 4 and abs(off - 2.5) < 1e-12
+    assert abs(se - se_hand) < 1e-12 and abs(bound - T_3DOF * se_hand) < 1e-3 * se_hand
+    # one pass: no spread to judge by, never significant
+    assert offset_significance(0.1 * np.arange(20), np.full(20, 5.0))[3] == np.inf
+
+
+def _passes(pass_offsets: np.ndarray, per_pass: int = 3) -> ConverterPoints:
+    """Gear 2 (own model): 20 coupling points, TR 1; gear 1 (gear 2's model): ``per_pass`` coupling points at SR
+    0.90-0.92 in each pass (0.1 s apart, passes 10 s apart), its turbine torque the pass's offset high."""
+    n1 = pass_offsets.size * per_pass
+    t1 = (10.0 * np.arange(pass_offsets.size)[:, None] + 0.1 * np.arange(per_pass)[None, :]).ravel()
+    sr = np.r_[np.linspace(0.90, 0.95, 20), np.tile(np.linspace(0.90, 0.92, per_pass), pass_offsets.size)]
+    t_p = np.r_[np.full(20, 80.0), np.full(n1, 35.0)]
+    t_t = t_p + np.r_[np.zeros(20), np.repeat(pass_offsets, per_pass)]
+    w_p, z = np.full(sr.size, 100.0), np.zeros(sr.size)
+    gear = np.r_[np.full(20, 2), np.ones(n1, dtype=int)]
+    return ConverterPoints(np.r_[1000.0 + 0.1 * np.arange(20), t1], w_p, sr * w_p, t_p, t_t, z, gear, z, [], 0,
+                           1.0, float("nan"), 0, borrowed={1: 2})
+
+
+def test_a_significant_offset_is_applied() -> None:
+    # 5 passes at 3.0 +- 0.3 Nm: se = 1.2533 x 0.255 / sqrt(5) = 0.14 Nm, bound t(4 dof) = 6.62 x se = 0.95 Nm
+    # < 3: the borrowed C0 is refuted, the offset applied
+    off, why = borrowed_gear_offsets(_passes(np.array([2.7, 3.3, 3.0, 2.8, 3.2])), GAMMA, 0.0, 1.0, 10)
+    assert not why and set(off) == {1} and abs(off[1][0] - 3.0) < 1e-9 and off[1][2] == 15
+
+
+def test_an_offset_within_its_scatter_is_not_applied() -> None:
+    # the passes spread wider (-1.3 ... +5.3): median 3.0 as before, but se = 1.2533 x 2.86 / sqrt(5) = 1.60 Nm,
+    # bound 6.62 x se = 10.6 Nm > 3: the borrowed C0 is not refuted, gear 1 left as it is
+    off, why = borrowed_gear_offsets(_passes(np.array([-1.3, 5.3, 3.0, 0.8, 5.2])), GAMMA, 0.0, 1.0, 10)
+    assert off == {} and set(why) == {1} and "not refuted" in why[1] and "5 passes" in why[1]
+    # and a single pass, however far off, gives no spread to judge it by (15 points 0.1 s apart, 3 Nm high)
+    off, why = borrowed_gear_offsets(_passes(np.array([3.0]), per_pass=15), GAMMA, 0.0, 1.0, 10)
+    assert off == {} and "1 pass)" in why[1]
