@@ -177,9 +177,16 @@ def torque_split(p: np.ndarray, hybrid_mode: int, displayed_soc_pct: float, esav
 @njit(cache=True, _nrt=False)
 def brake_blending(tab: PlantTables, brake_pct: float, gear: int, lockup_closed: bool, lockup_request: bool,
                    speed_mps: float, engine_torque_nm: float, motor_torque_nm: float,
-                   motor_gen_max_nm: float) -> tuple:
+                   motor_gen_max_nm: float, pump_speed_radps: float, turbine_speed_radps: float,
+                   k0_closed: bool, engine_on: bool) -> tuple:
     """Brakes: pedal to demanded wheel torque; regeneration first (fading out over the last 8 km/h above the
     cut-off), through the gearbox (eq. 13-14 in coast), the hydraulic brakes for the rest.
+
+    With the lock-up open (a shift's inertia phase, or the clutch still engaging) the regenerative torque is
+    limited to what the open converter carries: the source torque may not fall below the pump torque
+    ``T_p(w_p, w_t)`` plus ``k_idle (w_floor - w_p)``, ``w_floor`` the turbine speed (and at least the engine's
+    idle speed when K0 is closed and the engine fires), so the free pump side follows the turbine instead
+    of being dragged down by the motor; the hydraulic brakes take what regeneration cannot.
 
     Returns
     -------
@@ -203,6 +210,20 @@ def brake_blending(tab: PlantTables, brake_pct: float, gear: int, lockup_closed:
         tm_r = max(t_in_need - te, -tm_gen)
         tm = min(tm, tm_r)
         tm = max(tm, -tm_gen)
+        if not lockup_closed:
+            # open converter: in overrun it carries only |T_p(w_p, w_t)|, which is ~0 near zero slip, so a
+            # generating torque beyond it decelerates the free pump side (0.16-0.36 kg m^2) at hundreds of
+            # rad/s^2 and stalls a firing engine within a few tenths of a second. A P2 controller limits
+            # regeneration to what the converter carries and holds the pump near the turbine (at least at
+            # the engine's idle); the intervention of the inertia phase (pump_torque_control) comes on top.
+            # Never more generating torque than the torque split asked for before braking, never less.
+            wp = pump_speed_radps
+            wt = turbine_speed_radps
+            tp_now, _tt, _dtp = converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], tab.tc_sr, tab.tc_cap,
+                                                     tab.tc_tr, wp, wt)
+            w_floor = max(wt, p[P_ENGINE_IDLE_RADPS]) if (k0_closed and engine_on) else wt
+            t_floor = tp_now + p[P_IDLE_GAIN_NM_PER_RADPS] * (w_floor - wp) - te
+            tm = max(tm, min(motor_torque_nm, t_floor))
         t_in_real = tm + te
         breg = -kgr * (t_in_real / eta - c0) if t_in_real <= eta * c0 else 0.0
         bhyd = max(bdem - breg, 0.0)
