@@ -334,7 +334,8 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
         motor_max_nm, motor_gen_max_nm, engine_max_nm, limit_speed_radps)
     brake_demand_nm, hydraulic_brake_nm, motor_torque_nm = brake_blending(
         tab, brake_pct, gear, lockup_closed, lockup_request, speed_mps, engine_torque_nm, motor_torque_nm,
-        motor_gen_max_nm)
+        motor_gen_max_nm, pump_speed_radps, turbine_speed_radps, k0_closed, engine_on, lockup_engage_time_s,
+        shift_timer_s if gear != gear_target else 0.0)
     engine_torque_nm, motor_torque_nm, idle_gain_nm_per_radps = pump_torque_control(
         p, gear, lockup_closed, k0_closed, engine_on, speed_mps, pump_speed_radps, pedal_pct, pump_inertia_kgm2,
         gain_rad_per_m * kin, old_gain_rad_per_m * kin, inertia_phase_left_s, engine_torque_nm, motor_torque_nm,

@@ -39,6 +39,7 @@ from benchtwin.emulator.params import (
     P_MOTOR_IDLE_RADPS,
     P_MOTOR_INERTIA_KGM2,
     P_REGEN_CUTOFF_MPS,
+    P_SHIFT_DELAY_S,
     P_SHIFT_INERTIA_PHASE_S,
     P_TC_COUPLING_SPEED_RATIO,
     P_WHEEL_RADIUS_M,
@@ -177,9 +178,19 @@ def torque_split(p: np.ndarray, hybrid_mode: int, displayed_soc_pct: float, esav
 @njit(cache=True, _nrt=False)
 def brake_blending(tab: PlantTables, brake_pct: float, gear: int, lockup_closed: bool, lockup_request: bool,
                    speed_mps: float, engine_torque_nm: float, motor_torque_nm: float,
-                   motor_gen_max_nm: float) -> tuple:
+                   motor_gen_max_nm: float, pump_speed_radps: float, turbine_speed_radps: float,
+                   k0_closed: bool, engine_on: bool, lockup_time_s: float, shift_pending_s: float) -> tuple:
     """Brakes: pedal to demanded wheel torque; regeneration first (fading out over the last 8 km/h above the
     cut-off), through the gearbox (eq. 13-14 in coast), the hydraulic brakes for the rest.
+
+    With the lock-up open (a shift's inertia phase, or the clutch still engaging) the regenerative torque is
+    limited to what the open converter carries: the source torque may not fall below the pump torque
+    ``T_p(w_p, w_t)`` plus ``k_idle (w_floor - w_p)``, ``w_floor`` the turbine speed (and at least the engine's
+    idle speed when K0 is closed and the engine fires), so the free pump side follows the turbine instead
+    of being dragged down by the motor; the hydraulic brakes take what regeneration cannot. Around a shift the
+    regenerative torque beyond that floor is ramped, not stepped: out over the shift's actuation delay
+    (``shift_pending_s`` of it elapsed, the lock-up still closed) and back in over ``P_LOCKUP_ENGAGE_S``
+    after the lock-up closes (``lockup_time_s`` since the engagement began).
 
     Returns
     -------
@@ -203,6 +214,28 @@ def brake_blending(tab: PlantTables, brake_pct: float, gear: int, lockup_closed:
         tm_r = max(t_in_need - te, -tm_gen)
         tm = min(tm, tm_r)
         tm = max(tm, -tm_gen)
+        tm_brake = tm
+        base = motor_torque_nm  # what the torque split asked for before braking
+        share = 1.0  # share of the regenerative torque beyond ``base`` that the controller allows
+        if lockup_closed:
+            share = (min(lockup_time_s / p[P_LOCKUP_ENGAGE_S], 1.0)
+                     * min(max(1.0 - shift_pending_s / p[P_SHIFT_DELAY_S], 0.0), 1.0))
+        else:
+            # open converter: in overrun it carries only |T_p(w_p, w_t)|, which is ~0 near zero slip, so a
+            # generating torque beyond it decelerates the free pump side (0.16-0.36 kg m^2) at hundreds of
+            # rad/s^2 and stalls a firing engine within a few tenths of a second. A P2 controller limits
+            # regeneration to what the converter carries and holds the pump near the turbine (at least at
+            # the engine's idle); the intervention of the inertia phase (pump_torque_control) comes on top.
+            # The floor never takes the motor above what the torque split asked for before braking.
+            wp = pump_speed_radps
+            wt = turbine_speed_radps
+            tp_now, _tt, _dtp = converter_torques_nm(tab.tc_a, p[P_TC_COUPLING_SPEED_RATIO], tab.tc_sr, tab.tc_cap,
+                                                     tab.tc_tr, wp, wt)
+            w_floor = max(wt, p[P_ENGINE_IDLE_RADPS]) if (k0_closed and engine_on) else wt
+            t_floor = tp_now + p[P_IDLE_GAIN_NM_PER_RADPS] * (w_floor - wp) - te
+            base = max(tm_brake, min(motor_torque_nm, t_floor))
+            share = 0.0
+        tm = base + share * (tm_brake - base)
         t_in_real = tm + te
         breg = -kgr * (t_in_real / eta - c0) if t_in_real <= eta * c0 else 0.0
         bhyd = max(bdem - breg, 0.0)
@@ -293,7 +326,8 @@ def lockup_engagement(tab: PlantTables, led: np.ndarray, lockup_request: bool, l
     """Lock-up engagement: the capacity ramps up over ``P_LOCKUP_ENGAGE_S``; the clutch sticks once the torque
     needed to hold pump and turbine together (T_src - T_p(eq. 35) - J_p (omega_t - omega_p) / dt) is within
     capacity. Sticking keeps the momentum of pump side and vehicle (through the gear), slip energy to
-    ``led[L_LOCKUP]``.
+    ``led[L_LOCKUP]``. Once closed, ``lockup_engage_time_s`` keeps counting (the regenerative torque ramps
+    back in over ``P_LOCKUP_ENGAGE_S``, :func:`brake_blending`); it is reset when the lock-up opens.
 
     Returns
     -------
@@ -327,6 +361,8 @@ def lockup_engagement(tab: PlantTables, led: np.ndarray, lockup_request: bool, l
             if k0_closed:
                 we = wp
             lockup_closed = True
+    elif lockup_closed:
+        lut += dt  # time since the engagement began (the regenerative torque ramps back in over it)
     return lockup_closed, lut, cap_now, v, wp, wt, we
 
 

@@ -173,9 +173,13 @@ def test_regenerative_braking_comes_first_up_to_the_motor_limit(quick_trace, veh
     seg = next(s for s in tr.segments if s.kind == "deceleration" and s.settings["protocol"] == "deceleration")
     part = tr.slice_time(seg.settings["decel_start_s"], seg.end_s)
     settled = _settled(part, vehicle)
-    # above the fade-out zone (cut-off + 8 km/h) the motor takes all it can
+    # above the fade-out zone (cut-off + 8 km/h) the motor takes all it can, except where the controller ramps
+    # regeneration around a shift: out while a shift is pending, back in over the lock-up's engagement time
     braking = (part["brake_pedal_pct"] > 0) & (3.6 * part["vehicle_speed_mps"] > 18.5) & settled
-    braking &= part["lockup_closed"] == 1
+    lu = part["lockup_closed"] == 1
+    n_ramp = int(np.ceil(vehicle.torque_converter.lockup_engage_time_s / part.dt_s)) + 1
+    closed_at = np.maximum.accumulate(np.where(np.concatenate([[True], lu[1:] & ~lu[:-1]]), np.arange(lu.size), 0))
+    braking &= lu & (np.arange(lu.size) - closed_at >= n_ramp) & (part["gear_target"] == part["gear_actual"])
     assert braking.sum() > 100
     w = part["em_speed_radps"][braking]
     limit = np.interp(w * 30 / np.pi, vehicle.motor.full_load_speed_rpm, vehicle.motor.full_load_torque_nm)
