@@ -162,7 +162,7 @@ class LazyChannel(Channel):
 
     def __init__(self, name: str, unit: str, source: str, n: int,
                  loader: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
-                 value_texts: dict[int, str] | None = None) -> None:
+                 value_texts: dict[int, str] | None = None, windows: Any = None) -> None:
         self.name = name
         self.unit = unit
         self.source = source
@@ -171,6 +171,7 @@ class LazyChannel(Channel):
         self._loader = loader
         self._arrays: list[np.ndarray] | None = None
         self._assigned = False
+        self.window_reader = windows  #: reads spans without loading (``.window(start_s, end_s)``), or None
 
     def _load(self) -> list[np.ndarray]:
         if self._arrays is None:

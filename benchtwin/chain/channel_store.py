@@ -118,7 +118,7 @@ class ChannelStore:
                     out.append(np.fromfile(fh, dtype=_DTYPES[k], count=n))
             return out[0], out[1], out[2]
 
-        return LazyChannel(name, e.unit, e.source, n, load, e.texts)
+        return LazyChannel(name, e.unit, e.source, n, load, e.texts, windows=_FileWindows(files, n))
 
     @property
     def on_disk(self) -> bool:
@@ -133,3 +133,48 @@ class ChannelStore:
         """Remove the files (channels mapped from them must no longer be used)."""
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)
+
+
+#: samples checked for time order at a time (bounds the check's memory on a long channel)
+_ORDER_BLOCK = 1 << 20
+
+
+class _FileWindows:
+    """Reads the samples of a span of one channel from its files (a binary search on the mapped timestamps, then
+    plain reads of the rows found): a method that uses a few spans never holds the whole channel."""
+
+    def __init__(self, files: list[Path], n: int) -> None:
+        self._files = files
+        self._n = n
+        self._ordered: bool | None = None
+
+    def _is_ordered(self) -> bool:
+        if self._ordered is None:
+            ok, last = True, -np.inf
+            with self._files[0].open("rb") as fh:
+                for k in range(0, self._n, _ORDER_BLOCK):
+                    ts = np.fromfile(fh, dtype=_DTYPES[0], count=min(_ORDER_BLOCK, self._n - k))
+                    if ts.size and (ts[0] < last or bool(np.any(ts[1:] < ts[:-1]))):
+                        ok = False
+                        break
+                    last = ts[-1] if ts.size else last
+            self._ordered = ok
+        return self._ordered
+
+    def window(self, start_s: float, end_s: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray] | None:
+        """As :func:`benchtwin.identification._windows.window_of`, read from the files (None: not in time order)."""
+        if self._n == 0 or not self._is_ordered():
+            return None
+        mapped = np.memmap(self._files[0], dtype=_DTYPES[0], mode="r", shape=(self._n,))
+        try:
+            k0 = max(int(np.searchsorted(mapped, start_s, side="right")) - 1, 0)
+            k1 = min(int(np.searchsorted(mapped, end_s, side="left")) + 1, self._n)
+        finally:
+            del mapped
+        k1 = max(k1, k0 + 1)
+        out = []
+        for k in range(3):
+            with self._files[k].open("rb") as fh:
+                fh.seek(k0 * _DTYPES[k].itemsize)
+                out.append(np.fromfile(fh, dtype=_DTYPES[k], count=k1 - k0))
+        return k0, out[0], out[1], out[2]

@@ -1,0 +1,120 @@
+"""Steady windows found segment piece by segment piece: memory bounded by one piece, not by the campaign.
+
+:func:`~benchtwin.identification.steady.find_steady_windows` with segment kinds searches only the grid points inside
+those segments. :func:`find_steady_windows_by_piece` gathers those points one piece of segments at a time (the
+pieces of :func:`~benchtwin.identification._windows.segment_pieces`), on the very grid the whole search uses, finds
+the windows in it and keeps only their means and standard deviations before the next piece. The windows are the
+same; their statistics differ from the whole-grid ones at rounding level only (the sums start at the piece).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from benchtwin.identification._derivative import runs
+from benchtwin.identification._signals import Grid
+from benchtwin.identification._windows import gather_at, grid_bounds, segment_pieces
+from benchtwin.identification.steady import (
+    SteadyWindow,
+    SteadyWindows,
+    Tolerance,
+    default_tolerance,
+    detect_steady,
+)
+from benchtwin.recording import Recording
+
+__all__ = ["find_steady_windows_by_piece"]
+
+
+def _window_stats(grid: Grid, spans: list[tuple[int, int]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per gathered channel, the means and standard deviations over each span (as the whole search computes them)."""
+    a_idx = np.array([a for a, _ in spans], dtype=int)
+    b_idx = np.array([b for _, b in spans], dtype=int)
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name, x in grid.values.items():
+        fin = np.isfinite(x)
+        xc = np.where(fin, x, 0.0)
+        ref = float(np.nanmedian(x)) if fin.any() else 0.0  # shift for numerical accuracy of the variance
+        xc = np.where(fin, xc - ref, 0.0)
+        c1 = np.concatenate(([0.0], np.cumsum(xc)))
+        c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
+        cn = np.concatenate(([0], np.cumsum(fin)))
+        cnt = cn[b_idx] - cn[a_idx]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = (c1[b_idx] - c1[a_idx]) / cnt
+            var = np.clip((c2[b_idx] - c2[a_idx]) / cnt - m * m, 0.0, None)
+        out[name] = (np.where(cnt > 0, m + ref, np.nan), np.where(cnt > 0, np.sqrt(var), np.nan))
+    return out
+
+
+def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_names: Sequence[str],
+                                 extra: Sequence[str], optional: Sequence[str], kinds: Sequence[str],
+                                 rate_hz: float, window_s: float, min_duration_s: float,
+                                 max_duration_s: float | None, trim_s: float,
+                                 tolerances: Mapping[str, Tolerance] | None) -> SteadyWindows | None:
+    """:func:`~benchtwin.identification.steady.find_steady_windows` over the segments of ``kinds``, piece by piece.
+
+    Returns
+    -------
+    SteadyWindows or None
+        None when the Recording has no segment of these kinds (search the whole recording instead). The windows'
+        ``i0, i1`` index the whole grid; ``grid`` holds no samples (only which channels were gathered, the rate
+        and the clock shifts): average derived quantities with
+        :meth:`~benchtwin.identification.steady.SteadyWindows.raw_average`.
+    """
+    pieces = segment_pieces(rec, kinds)
+    if pieces is None:
+        return None
+    kinds_set = set(kinds)
+    segs = [s for s in rec.segments if s.kind in kinds_set]
+    required = [*channels, *extra]
+    lo, n, shifts = grid_bounds(rec, required, rate_hz, what="steady-state detection",
+                                span=(min(p[0] for p in pieces), max(p[1] for p in pieces)))
+    tol = dict(tolerances or {})
+    tols = {c: tol.get(c, default_tolerance(c, rec[c].unit or None)) for c in channels}
+    kept = rec.loaded()
+    windows: list[SteadyWindow] = []
+    n_excl = 0
+    searched = 0
+    names: dict[str, None] = {}
+    present: set[str] = set()
+    dt = 1.0 / rate_hz
+    for start, end in pieces:
+        ka = max(int(np.floor((start - lo) * rate_hz)) - 1, 0)
+        kb = min(int(np.ceil((end - lo) * rate_hz)) + 2, n)
+        if kb <= ka:
+            continue
+        t_all = lo + np.arange(ka, kb) / rate_hz  # the whole grid's points, the same numbers
+        inside = np.zeros(t_all.shape, dtype=bool)
+        for s in segs:
+            inside |= s.contains(t_all)
+        for j0, j1 in runs(inside):
+            t = t_all[j0:j1]
+            g = gather_at(rec, required, t, rate_hz, shifts, optional=[*state_names, *optional])
+            names.update(dict.fromkeys(g.values))
+            present |= g.present
+            usable = ~g.bad
+            st = {s: g[s] for s in state_names if s in g}
+            spans = detect_steady(dt, {c: g[c] for c in channels}, tols, valid=usable, states=st, window_s=window_s,
+                                  min_duration_s=min_duration_s, max_duration_s=max_duration_s, trim_s=trim_s)
+            n_excl += int(g.flagged.sum())
+            searched += t.size
+            if spans:
+                stats = _window_stats(g, spans)
+                for k, (a, b) in enumerate(spans):
+                    tm = t[(a + b - 1) // 2]
+                    means = {nm: float(v[0][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
+                    stds = {nm: float(v[1][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
+                    states_v = {s: float(g[s][a]) for s in st}
+                    segname = next((s.name for s in rec.segments if s.start_s <= tm < s.end_s), "")
+                    off = ka + j0
+                    windows.append(SteadyWindow(float(t[a]), float(t[b - 1] + dt), off + a, off + b, means, stds,
+                                                states_v, segname))
+            del g
+    rec.drop(rec.loaded() - kept)  # a lazy Recording read whole here (no windowed reads): it goes again
+    empty = np.zeros(0)
+    grid = Grid(empty, {nm: empty for nm in names}, np.zeros(0, dtype=bool), np.zeros(0, dtype=bool), rate_hz,
+                present, shifts)
+    return SteadyWindows(windows, grid, n_excl, float(searched * dt), [], windowed=True)
