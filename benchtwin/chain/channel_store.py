@@ -136,7 +136,7 @@ class ChannelStore:
 
 
 #: samples checked for time order at a time (bounds the check's memory on a long channel)
-_ORDER_BLOCK = 1 << 20
+_ORDER_BLOCK = 1 << 16
 
 
 class _FileWindows:

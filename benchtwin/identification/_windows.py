@@ -35,6 +35,20 @@ __all__ = ["channel_bounds", "gather_at", "grid_bounds", "segment_pieces", "wind
 MARGIN_S = 1.0
 
 
+#: samples compared at a time by the time-order check (bounds its temporaries on a long channel)
+ORDER_BLOCK = 1 << 16
+
+
+def _ordered(ts: np.ndarray) -> bool:
+    """Whether ``ts`` never decreases (checked block by block: no temporary as long as the channel)."""
+    last = ts.size - 1  # pairs (k, k + 1) for k < last
+    for k in range(0, max(last, 0), ORDER_BLOCK):
+        b = min(k + ORDER_BLOCK, last)
+        if bool(np.any(ts[k + 1:b + 1] < ts[k:b])):
+            return False
+    return True
+
+
 def _window(ch: Channel, start_s: float, end_s: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray] | None:
     """The samples from the last at or before ``start_s`` (else the first) to the first at or after ``end_s`` (else
     the last) of a time-ordered channel, with the index ``k0`` of the first: interpolating or holding any time of
@@ -45,7 +59,7 @@ def _window(ch: Channel, start_s: float, end_s: float) -> tuple[int, np.ndarray,
         return reader.window(start_s, end_s)  # type: ignore[no-any-return]
     ts = ch.timestamps
     n = int(ts.shape[0])
-    if n == 0 or (n > 1 and bool(np.any(ts[1:] < ts[:-1]))):
+    if n == 0 or not _ordered(ts):
         return None
     k0 = max(int(np.searchsorted(ts, start_s, side="right")) - 1, 0)
     k1 = max(min(int(np.searchsorted(ts, end_s, side="left")) + 1, n), k0 + 1)

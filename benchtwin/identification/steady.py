@@ -30,6 +30,8 @@ from benchtwin.identification._signals import (
     segments_span,
     time_ordered,
 )
+from benchtwin.identification._windows import MARGIN_S, window_of
+from benchtwin.identification.steady_windowed import find_steady_windows_by_piece
 from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
 
@@ -204,8 +206,6 @@ class SteadyWindows:
 
     def _window_mean(self, ch: Channel, ch2: Channel | None, start: float, end: float) -> float:
         """Mean of a channel's good samples (or of the product with ``ch2``'s) in ``[start, end)`` (grid clock)."""
-        from benchtwin.identification._windows import MARGIN_S, window_of
-
         shift = self.grid.shifts.get(ch.source, 0.0)
         k0, ts, vals, fl = window_of(ch, start - shift - MARGIN_S, end - shift + MARGIN_S)
         a, b = _edges(ts, shift, np.array([start, end]))
@@ -430,10 +430,11 @@ def find_steady_windows(rec: Recording, channels: Sequence[str], *, states: Iter
     extra = [e for e in extra if e not in channels]
     if grid is None and valid is None and kinds is not None:
         # the segments' points only, one piece at a time: memory bounded by a piece, not by the Recording
-        from benchtwin.identification.steady_windowed import find_steady_windows_by_piece
-
+        tol = dict(tolerances or {})
+        tols = {c: tol.get(c, default_tolerance(c, rec[c].unit or None)) for c in channels}
         found = find_steady_windows_by_piece(rec, channels, state_names, extra, list(optional), list(kinds),
-                                             rate_hz, window_s, min_duration_s, max_duration_s, trim_s, tolerances)
+                                             rate_hz, window_s, min_duration_s, max_duration_s, trim_s, tols,
+                                             detect_steady, SteadyWindow, SteadyWindows)
         if found is not None:
             return found
     if grid is None:

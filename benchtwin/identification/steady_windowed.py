@@ -9,20 +9,14 @@ same; their statistics differ from the whole-grid ones at rounding level only (t
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from benchtwin.identification._derivative import runs
 from benchtwin.identification._signals import Grid
 from benchtwin.identification._windows import gather_at, grid_bounds, segment_pieces
-from benchtwin.identification.steady import (
-    SteadyWindow,
-    SteadyWindows,
-    Tolerance,
-    default_tolerance,
-    detect_steady,
-)
 from benchtwin.recording import Recording
 
 __all__ = ["find_steady_windows_by_piece"]
@@ -52,9 +46,14 @@ def _window_stats(grid: Grid, spans: list[tuple[int, int]]) -> dict[str, tuple[n
 def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_names: Sequence[str],
                                  extra: Sequence[str], optional: Sequence[str], kinds: Sequence[str],
                                  rate_hz: float, window_s: float, min_duration_s: float,
-                                 max_duration_s: float | None, trim_s: float,
-                                 tolerances: Mapping[str, Tolerance] | None) -> SteadyWindows | None:
+                                 max_duration_s: float | None, trim_s: float, tols: Mapping[str, Any],
+                                 detect: Callable[..., list[tuple[int, int]]], window: Callable[..., Any],
+                                 windows: Callable[..., Any]) -> Any:
     """:func:`~benchtwin.identification.steady.find_steady_windows` over the segments of ``kinds``, piece by piece.
+
+    ``tols`` are the channels' tolerances; ``detect``, ``window`` and ``windows`` are
+    :func:`~benchtwin.identification.steady.detect_steady` and the classes ``SteadyWindow`` and ``SteadyWindows``
+    (passed in: that module calls this one).
 
     Returns
     -------
@@ -72,10 +71,8 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
     required = [*channels, *extra]
     lo, n, shifts = grid_bounds(rec, required, rate_hz, what="steady-state detection",
                                 span=(min(p[0] for p in pieces), max(p[1] for p in pieces)))
-    tol = dict(tolerances or {})
-    tols = {c: tol.get(c, default_tolerance(c, rec[c].unit or None)) for c in channels}
     kept = rec.loaded()
-    windows: list[SteadyWindow] = []
+    found: list[Any] = []
     n_excl = 0
     searched = 0
     names: dict[str, None] = {}
@@ -97,7 +94,7 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
             present |= g.present
             usable = ~g.bad
             st = {s: g[s] for s in state_names if s in g}
-            spans = detect_steady(dt, {c: g[c] for c in channels}, tols, valid=usable, states=st, window_s=window_s,
+            spans = detect(dt, {c: g[c] for c in channels}, tols, valid=usable, states=st, window_s=window_s,
                                   min_duration_s=min_duration_s, max_duration_s=max_duration_s, trim_s=trim_s)
             n_excl += int(g.flagged.sum())
             searched += t.size
@@ -110,11 +107,11 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
                     states_v = {s: float(g[s][a]) for s in st}
                     segname = next((s.name for s in rec.segments if s.start_s <= tm < s.end_s), "")
                     off = ka + j0
-                    windows.append(SteadyWindow(float(t[a]), float(t[b - 1] + dt), off + a, off + b, means, stds,
+                    found.append(window(float(t[a]), float(t[b - 1] + dt), off + a, off + b, means, stds,
                                                 states_v, segname))
             del g
     rec.drop(rec.loaded() - kept)  # a lazy Recording read whole here (no windowed reads): it goes again
     empty = np.zeros(0)
     grid = Grid(empty, {nm: empty for nm in names}, np.zeros(0, dtype=bool), np.zeros(0, dtype=bool), rate_hz,
                 present, shifts)
-    return SteadyWindows(windows, grid, n_excl, float(searched * dt), [], windowed=True)
+    return windows(found, grid, n_excl, float(searched * dt), [], windowed=True)
