@@ -74,6 +74,8 @@ class Grid:
         Names of optional channels that were present.
     shifts:
         Source -> seconds added to its timestamps (clock alignment, see :func:`source_shifts`).
+    first_index:
+        Index of ``t[0]`` in the whole grid (a piece of it), else 0.
     """
 
     t: np.ndarray
@@ -83,6 +85,8 @@ class Grid:
     rate_hz: float
     present: set[str] = field(default_factory=set)
     shifts: dict[str, float] = field(default_factory=dict)
+    #: index of ``t[0]`` in the whole grid when this is a piece of it (``_windows.piece_grids``)
+    first_index: int = 0
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:

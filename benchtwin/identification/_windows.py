@@ -11,11 +11,12 @@ channel's sample indices (see ``_sample_block``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 
 from benchtwin.errors import DataError, MissingChannelError
+from benchtwin.identification._derivative import runs
 from benchtwin.identification._reuse import reused
 from benchtwin.identification._signals import (
     SAMPLE_BLOCK,
@@ -28,7 +29,7 @@ from benchtwin.identification._signals import (
 )
 from benchtwin.recording import Channel, Recording
 
-__all__ = ["channel_bounds", "gather_at", "grid_bounds", "segment_pieces", "window_of"]
+__all__ = ["channel_bounds", "gather_at", "grid_bounds", "piece_grids", "segment_pieces", "window_of"]
 
 #: seconds read beyond each end of a window (clock shifts are applied after the read: the margin absorbs the
 #: rounding of ``t - shift``; more samples than needed change nothing, the interpolation looks at its neighbours)
@@ -197,3 +198,38 @@ def segment_pieces(rec: Recording, kinds: Iterable[str] | None) -> list[tuple[fl
         else:
             out.append((a, b))
     return out
+
+
+def piece_grids(rec: Recording, names: Sequence[str], rate_hz: float, kinds: Iterable[str] | None, *,
+                optional: Iterable[str] = (), what: str = "identification") -> Iterator[Grid] | None:
+    """The grid ``gather(rec, names, rate_hz, optional=..., span=segments_span(rec, kinds))`` would build, restricted
+    to the points inside segments of ``kinds``, one run of such points at a time (a :class:`Grid` each, to be let
+    go before the next); None when the Recording has no segment of these kinds (gather the whole span instead).
+
+    The bounds are checked at once (the same errors as ``gather``); the grids come as the iterator is consumed.
+    """
+    pieces = segment_pieces(rec, kinds)
+    if pieces is None:
+        return None
+    kinds_set = set(kinds or ())
+    segs = [s for s in rec.segments if s.kind in kinds_set]
+    lo, n, shifts = grid_bounds(rec, names, rate_hz, what=what,
+                                span=(min(p[0] for p in pieces), max(p[1] for p in pieces)))
+    optional = list(optional)
+
+    def grids() -> Iterator[Grid]:
+        for start, end in pieces:
+            ka = max(int(np.floor((start - lo) * rate_hz)) - 1, 0)
+            kb = min(int(np.ceil((end - lo) * rate_hz)) + 2, n)
+            if kb <= ka:
+                continue
+            t_all = lo + np.arange(ka, kb) / rate_hz  # the whole grid's points, the same numbers
+            inside = np.zeros(t_all.shape, dtype=bool)
+            for s in segs:
+                inside |= s.contains(t_all)
+            for j0, j1 in runs(inside):
+                g = gather_at(rec, names, t_all[j0:j1], rate_hz, shifts, optional=optional)
+                g.first_index = ka + j0
+                yield g
+
+    return grids()

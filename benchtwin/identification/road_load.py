@@ -33,7 +33,7 @@ from benchtwin.identification._signals import (
     segments_span,
     smooth_derivative,
 )
-from benchtwin.identification._windows import gather_at, grid_bounds, segment_pieces
+from benchtwin.identification._windows import piece_grids
 from benchtwin.recording import Recording
 
 __all__ = ["coastdown_runs", "fit_road_load", "identify_road_load"]
@@ -64,31 +64,16 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
     no_gear = "gear_actual" not in rec
     extra = ("em_torque_nm", *_PRESSURES) if no_gear else ()
     optional = ("gear_actual", "pedal_pct", "brake_pedal_pct", *extra)
-    pieces = segment_pieces(rec, kinds)
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int]] = []
-    if pieces is None:
+    grids = piece_grids(rec, [ch], rate_hz, kinds, optional=optional, what="road load")
+    if grids is None:
         g = gather(rec, [ch], rate_hz, optional=optional, what="road load", span=segments_span(rec, kinds))
         parts.append(_coast_piece(g, None, ch, no_gear, extra, v_min, v_max, smooth_s, min_run_s, min_drop_kmh,
                                   max_motor_torque_nm))
     else:
-        kinds_set = set(kinds or ())
-        segs = [s for s in rec.segments if s.kind in kinds_set]
-        lo, n, shifts = grid_bounds(rec, [ch], rate_hz, what="road load",
-                                    span=(min(p[0] for p in pieces), max(p[1] for p in pieces)))
-        for start, end in pieces:
-            ka = max(int(np.floor((start - lo) * rate_hz)) - 1, 0)
-            kb = min(int(np.ceil((end - lo) * rate_hz)) + 2, n)
-            if kb <= ka:
-                continue
-            t_all = lo + np.arange(ka, kb) / rate_hz  # the whole grid's points, the same numbers
-            inside = np.zeros(t_all.shape, dtype=bool)
-            for sg in segs:
-                inside |= sg.contains(t_all)
-            for j0, j1 in runs(inside):
-                g = gather_at(rec, [ch], t_all[j0:j1], rate_hz, shifts, optional=optional)
-                parts.append(_coast_piece(g, np.ones(j1 - j0, dtype=bool), ch, no_gear, extra, v_min, v_max,
-                                          smooth_s, min_run_s, min_drop_kmh, max_motor_torque_nm))
-                del g
+        for g in grids:  # every point of a piece is inside the searched segments
+            parts.append(_coast_piece(g, None, ch, no_gear, extra, v_min, v_max, smooth_s, min_run_s, min_drop_kmh,
+                                      max_motor_torque_nm))
     out: list[tuple[int, int]] = []
     k = 0
     for _, pv, _, rr, _ in parts:

@@ -14,9 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from benchtwin.identification._derivative import runs
-from benchtwin.identification._signals import Grid
-from benchtwin.identification._windows import gather_at, grid_bounds, segment_pieces
+from benchtwin.identification._signals import Grid, source_shifts
+from benchtwin.identification._windows import piece_grids
 from benchtwin.recording import Recording
 
 __all__ = ["find_steady_windows_by_piece"]
@@ -63,53 +62,38 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
         and the clock shifts): average derived quantities with
         :meth:`~benchtwin.identification.steady.SteadyWindows.raw_average`.
     """
-    pieces = segment_pieces(rec, kinds)
-    if pieces is None:
-        return None
-    kinds_set = set(kinds)
-    segs = [s for s in rec.segments if s.kind in kinds_set]
-    required = [*channels, *extra]
-    lo, n, shifts = grid_bounds(rec, required, rate_hz, what="steady-state detection",
-                                span=(min(p[0] for p in pieces), max(p[1] for p in pieces)))
     kept = rec.loaded()
+    grids = piece_grids(rec, [*channels, *extra], rate_hz, kinds, optional=[*state_names, *optional],
+                        what="steady-state detection")
+    if grids is None:
+        return None
     found: list[Any] = []
     n_excl = 0
     searched = 0
-    names: dict[str, None] = {}
-    present: set[str] = set()
+    required = [*channels, *extra]
+    present = {n for n in [*state_names, *optional] if n in rec and len(rec[n]) and n not in required}
+    names = dict.fromkeys([*required, *present])  # the channels the whole grid would hold
+    shifts = source_shifts(rec)  # what the grids carry (none may come)
     dt = 1.0 / rate_hz
-    for start, end in pieces:
-        ka = max(int(np.floor((start - lo) * rate_hz)) - 1, 0)
-        kb = min(int(np.ceil((end - lo) * rate_hz)) + 2, n)
-        if kb <= ka:
-            continue
-        t_all = lo + np.arange(ka, kb) / rate_hz  # the whole grid's points, the same numbers
-        inside = np.zeros(t_all.shape, dtype=bool)
-        for s in segs:
-            inside |= s.contains(t_all)
-        for j0, j1 in runs(inside):
-            t = t_all[j0:j1]
-            g = gather_at(rec, required, t, rate_hz, shifts, optional=[*state_names, *optional])
-            names.update(dict.fromkeys(g.values))
-            present |= g.present
-            usable = ~g.bad
-            st = {s: g[s] for s in state_names if s in g}
-            spans = detect(dt, {c: g[c] for c in channels}, tols, valid=usable, states=st, window_s=window_s,
-                                  min_duration_s=min_duration_s, max_duration_s=max_duration_s, trim_s=trim_s)
-            n_excl += int(g.flagged.sum())
-            searched += t.size
-            if spans:
-                stats = _window_stats(g, spans)
-                for k, (a, b) in enumerate(spans):
-                    tm = t[(a + b - 1) // 2]
-                    means = {nm: float(v[0][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
-                    stds = {nm: float(v[1][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
-                    states_v = {s: float(g[s][a]) for s in st}
-                    segname = next((s.name for s in rec.segments if s.start_s <= tm < s.end_s), "")
-                    off = ka + j0
-                    found.append(window(float(t[a]), float(t[b - 1] + dt), off + a, off + b, means, stds,
-                                                states_v, segname))
-            del g
+    for g in grids:
+        t = g.t
+        st = {s: g[s] for s in state_names if s in g}
+        spans = detect(dt, {c: g[c] for c in channels}, tols, valid=~g.bad, states=st, window_s=window_s,
+                       min_duration_s=min_duration_s, max_duration_s=max_duration_s, trim_s=trim_s)
+        n_excl += int(g.flagged.sum())
+        searched += t.size
+        if spans:
+            stats = _window_stats(g, spans)
+            for k, (a, b) in enumerate(spans):
+                tm = t[(a + b - 1) // 2]
+                means = {nm: float(v[0][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
+                stds = {nm: float(v[1][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
+                states_v = {s: float(g[s][a]) for s in st}
+                segname = next((s.name for s in rec.segments if s.start_s <= tm < s.end_s), "")
+                off = g.first_index
+                found.append(window(float(t[a]), float(t[b - 1] + dt), off + a, off + b, means, stds, states_v,
+                                    segname))
+        del g
     rec.drop(rec.loaded() - kept)  # a lazy Recording read whole here (no windowed reads): it goes again
     empty = np.zeros(0)
     grid = Grid(empty, {nm: empty for nm in names}, np.zeros(0, dtype=bool), np.zeros(0, dtype=bool), rate_hz,
