@@ -30,7 +30,9 @@ from benchtwin.identification._signals import (
     segments_span,
     time_ordered,
 )
-from benchtwin.recording import Recording
+from benchtwin.identification._windows import MARGIN_S, window_of
+from benchtwin.identification.steady_windowed import find_steady_windows_by_piece
+from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
 
 __all__ = [
@@ -133,6 +135,8 @@ class SteadyWindows:
     n_excluded: int = 0
     searched_s: float = 0.0
     reasons: list[str] = field(default_factory=list)
+    #: found piece by piece (:mod:`~benchtwin.identification.steady_windowed`): ``grid`` holds no samples
+    windowed: bool = False
 
     def __len__(self) -> int:
         return len(self.windows)
@@ -147,6 +151,8 @@ class SteadyWindows:
 
     def average(self, x: np.ndarray) -> np.ndarray:
         """Mean of a grid-aligned array (e.g. a product such as power) over each window."""
+        if self.windowed:
+            raise DataError("steady windows found piece by piece keep no grid: average over them with raw_average")
         x = np.asarray(x, dtype=float)
         fin = np.isfinite(x)
         c1 = np.concatenate(([0.0], np.cumsum(np.where(fin, x, 0.0))))
@@ -167,6 +173,8 @@ class SteadyWindows:
         """
         kept = rec.loaded()
         try:
+            if self.windowed:
+                return self._raw_average_windowed(rec, name, other)
             return self._raw_average(rec, name, other)
         finally:
             rec.drop([n for n in (name, other) if n is not None and n not in kept])
@@ -182,6 +190,37 @@ class SteadyWindows:
         key = (edges.tobytes(), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
         # the type B re-runs average the channels they do not move over the same windows again (see _reuse)
         return reused("raw_average", arrays, key, lambda: self._raw_average_of(rec, name, other))
+
+    def _raw_average_windowed(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
+        """:meth:`raw_average` reading each window's samples alone (the windows of a piece-by-piece search)."""
+        if not self.windows:
+            return np.array([])
+        ch = rec[name]
+        ch2 = rec[other] if other is not None else None
+        edges = np.array([(w.start_s, w.end_s) for w in self.windows])
+        shifts = self.grid.shifts
+        key = (edges.tobytes(), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
+        objs = (ch,) if ch2 is None else (ch, ch2)
+        return reused("raw_average_windowed", objs, key,  # type: ignore[arg-type]
+                      lambda: np.array([self._window_mean(ch, ch2, w.start_s, w.end_s) for w in self.windows]))
+
+    def _window_mean(self, ch: Channel, ch2: Channel | None, start: float, end: float) -> float:
+        """Mean of a channel's good samples (or of the product with ``ch2``'s) in ``[start, end)`` (grid clock)."""
+        shift = self.grid.shifts.get(ch.source, 0.0)
+        k0, ts, vals, fl = window_of(ch, start - shift - MARGIN_S, end - shift + MARGIN_S)
+        a, b = _edges(ts, shift, np.array([start, end]))
+        v = vals[a:b]
+        good = ((fl[a:b] & BAD_FLAGS) == 0) & np.isfinite(v)
+        if ch2 is not None:
+            shift2 = self.grid.shifts.get(ch2.source, 0.0)
+            k2, ts2, vals2, fl2 = window_of(ch2, start - shift2 - MARGIN_S, end - shift2 + MARGIN_S)
+            if not (shift2 == shift and k2 == k0 and ts2.shape == ts.shape and np.array_equal(ts2, ts)):
+                return self._window_mean(ch, None, start, end) * self._window_mean(ch2, None, start, end)
+            v2 = vals2[a:b]
+            good &= ((fl2[a:b] & BAD_FLAGS) == 0) & np.isfinite(v2)
+            v = v * v2
+        cnt = int(good.sum())
+        return float(np.sum(np.where(good, v, 0.0)) / cnt) if cnt else np.nan
 
     def _raw_average_of(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
         shifts = self.grid.shifts
@@ -228,7 +267,7 @@ class SteadyWindows:
     def select(self, keep: np.ndarray) -> SteadyWindows:
         """A copy holding only the windows where ``keep`` is true."""
         return SteadyWindows([w for w, k in zip(self.windows, keep) if k], self.grid, self.n_excluded,
-                             self.searched_s, list(self.reasons))
+                             self.searched_s, list(self.reasons), self.windowed)
 
 
 def _edges(ts: np.ndarray, shift: float, times: np.ndarray) -> np.ndarray:
@@ -389,6 +428,15 @@ def find_steady_windows(rec: Recording, channels: Sequence[str], *, states: Iter
     channels = list(channels)
     state_names = [s for s in states if s in rec]
     extra = [e for e in extra if e not in channels]
+    if grid is None and valid is None and kinds is not None:
+        # the segments' points only, one piece at a time: memory bounded by a piece, not by the Recording
+        tol = dict(tolerances or {})
+        tols = {c: tol.get(c, default_tolerance(c, rec[c].unit or None)) for c in channels}
+        found = find_steady_windows_by_piece(rec, channels, state_names, extra, list(optional), list(kinds),
+                                             rate_hz, window_s, min_duration_s, max_duration_s, trim_s, tols,
+                                             detect_steady, SteadyWindow, SteadyWindows)
+        if found is not None:
+            return found
     if grid is None:
         grid = gather(rec, channels + extra, rate_hz, optional=[*state_names, *optional],
                       what="steady-state detection", span=segments_span(rec, kinds))
