@@ -32,7 +32,8 @@ from benchtwin.identification._signals import (
 )
 from benchtwin.recording import Channel, LazyChannel, Recording
 
-__all__ = ["channel_bounds", "gather_at", "grid_bounds", "piece_grids", "segment_pieces", "window_of"]
+__all__ = ["channel_bounds", "gather_at", "grid_bounds", "piece_grids", "reads_by_block", "segment_pieces",
+           "window_of"]
 
 #: seconds read beyond each end of a window (clock shifts are applied after the read: the margin absorbs the
 #: rounding of ``t - shift``; more samples than needed change nothing, the interpolation looks at its neighbours)
@@ -100,21 +101,24 @@ def _time_index(ch: Channel) -> _TimeIndex:
     return index
 
 
-def _reads_by_block(ch: Channel) -> bool:
+def reads_by_block(ch: Channel) -> bool:
     """Whether ``ch`` is a lazy channel not in memory that reads blocks from its store without loading it whole."""
     # LazyChannel.block reads from the store only with a block loader (else it loads the channel whole)
     return isinstance(ch, LazyChannel) and not ch.loaded and getattr(ch, "_block_loader", None) is not None
 
 
-def _window(ch: Channel, start_s: float, end_s: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray] | None:
+def _window(ch: Channel, start_s: float, end_s: float, ordered: dict[int, bool] | None = None
+            ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray] | None:
     """The samples from the last at or before ``start_s`` (else the first) to the first at or after ``end_s`` (else
     the last) of a time-ordered channel, with the index ``k0`` of the first: interpolating or holding any time of
     the span gives the same numbers as on the whole channel. A lazy channel not in memory that reads blocks is read
-    around the span only (found on its time index). None when empty or not in time order."""
+    around the span only (found on its time index). None when empty or not in time order. ``ordered`` keeps
+    whether a channel in memory is in time order (by ``id``) for the calls of one search: checked once, not once a
+    window."""
     n = len(ch)
     if n == 0:
         return None
-    if _reads_by_block(ch):
+    if reads_by_block(ch):
         index = _time_index(ch)
         if not index.ordered:
             return None
@@ -127,17 +131,22 @@ def _window(ch: Channel, start_s: float, end_s: float) -> tuple[int, np.ndarray,
         k1 = max(min(a + int(np.searchsorted(ts, end_s, side="left")) + 1, n), k0 + 1)
         return k0, ts[k0 - a:k1 - a], vs[k0 - a:k1 - a], fl[k0 - a:k1 - a]
     ts = ch.timestamps
-    if not _ordered(ts):
+    if ordered is None:
+        ordered = {}
+    if id(ch) not in ordered:
+        ordered[id(ch)] = _ordered(ts)
+    if not ordered[id(ch)]:
         return None
     k0 = max(int(np.searchsorted(ts, start_s, side="right")) - 1, 0)
     k1 = max(min(int(np.searchsorted(ts, end_s, side="left")) + 1, n), k0 + 1)
     return k0, ts[k0:k1], ch.values[k0:k1], ch.flags[k0:k1]  # type: ignore[index]
 
 
-def window_of(ch: Channel, start_s: float, end_s: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+def window_of(ch: Channel, start_s: float, end_s: float, ordered: dict[int, bool] | None = None
+              ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """``(k0, timestamps, values, flags)`` around ``[start_s, end_s]`` (the channel's own clock), in time order:
     the channel's window when it is time-ordered, else the whole channel sorted (``k0`` 0)."""
-    w = _window(ch, start_s, end_s)
+    w = _window(ch, start_s, end_s, ordered)
     if w is not None:
         return w
     ts, vs, fl = time_ordered(ch)
@@ -185,11 +194,11 @@ def grid_bounds(rec: Recording, names: Sequence[str], rate_hz: float, *, what: s
     return lo, int(np.floor((hi - lo) * rate_hz)) + 1, shifts
 
 
-def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift_s: float
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift_s: float,
+               ordered: dict[int, bool] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``_sample`` of the channel's samples around ``t`` only."""
     def compute() -> tuple[np.ndarray, np.ndarray]:
-        k0, ts, vs, fl = window_of(ch, float(t[0]) - shift_s - MARGIN_S, float(t[-1]) - shift_s + MARGIN_S)
+        k0, ts, vs, fl = window_of(ch, float(t[0]) - shift_s - MARGIN_S, float(t[-1]) - shift_s + MARGIN_S, ordered)
         fidx = cache.fidx(ts, shift_s, k0)
         v = np.empty(t.shape, dtype=float)
         flagged = np.empty(t.shape, dtype=bool)
@@ -203,7 +212,7 @@ def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift
 
 
 def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: float, shifts: dict[str, float], *,
-              optional: Iterable[str] = (), hold: Iterable[str] = ()) -> Grid:
+              optional: Iterable[str] = (), hold: Iterable[str] = (), ordered: dict[int, bool] | None = None) -> Grid:
     """The channels at grid points ``t`` (a part of the grid of :func:`grid_bounds`), as ``gather`` gives them there.
 
     Parameters
@@ -220,6 +229,8 @@ def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: floa
         Source -> clock shift (from :func:`grid_bounds`).
     optional, hold:
         As for ``gather``.
+    ordered:
+        Whether each channel in memory is in time order, kept over the calls of one search (see ``_window``).
 
     Returns
     -------
@@ -233,7 +244,7 @@ def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: floa
     cache = _IndexCache(t)
     for n in names:
         c = rec[n]
-        v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0))
+        v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0), ordered)
         values[n] = v
         flagged |= fl
         bad |= fl | ~np.isfinite(v)
@@ -241,7 +252,7 @@ def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: floa
     for n in optional:
         if n in rec and len(rec[n]) and n not in values:
             c = rec[n]
-            v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0))
+            v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0), ordered)
             v = v.copy()
             v[fl] = np.nan
             values[n] = v
@@ -285,6 +296,7 @@ def piece_grids(rec: Recording, names: Sequence[str], rate_hz: float, kinds: Ite
     optional = list(optional)
 
     def grids() -> Iterator[Grid]:
+        ordered: dict[int, bool] = {}  # channels in memory checked for time order once in this search
         for start, end in pieces:
             ka = max(int(np.floor((start - lo) * rate_hz)) - 1, 0)
             kb = min(int(np.ceil((end - lo) * rate_hz)) + 2, n)
@@ -295,7 +307,7 @@ def piece_grids(rec: Recording, names: Sequence[str], rate_hz: float, kinds: Ite
             for s in segs:
                 inside |= s.contains(t_all)
             for j0, j1 in runs(inside):
-                g = gather_at(rec, names, t_all[j0:j1], rate_hz, shifts, optional=optional)
+                g = gather_at(rec, names, t_all[j0:j1], rate_hz, shifts, optional=optional, ordered=ordered)
                 g.first_index = ka + j0
                 yield g
 

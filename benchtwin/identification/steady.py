@@ -22,7 +22,6 @@ import numpy as np
 from benchtwin.errors import DataError
 from benchtwin.identification._reuse import reused
 from benchtwin.identification._signals import (
-    BAD_FLAGS,
     Grid,
     gather,
     runs,
@@ -30,7 +29,8 @@ from benchtwin.identification._signals import (
     segments_span,
     time_ordered,
 )
-from benchtwin.identification._windows import MARGIN_S, window_of
+from benchtwin.identification._window_sums import running_sums, window_groups
+from benchtwin.identification._windows import MARGIN_S, reads_by_block, window_of
 from benchtwin.identification.steady_windowed import find_steady_windows_by_piece
 from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
@@ -192,35 +192,47 @@ class SteadyWindows:
         return reused("raw_average", arrays, key, lambda: self._raw_average_of(rec, name, other))
 
     def _raw_average_windowed(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
-        """:meth:`raw_average` reading each window's samples alone (the windows of a piece-by-piece search)."""
+        """:meth:`raw_average` of windows found piece by piece: a channel in memory (or one its store reads only
+        whole) is averaged as by the whole search; one read by blocks is read once per group of nearby windows
+        (:func:`window_groups`), with the very sums of the whole pass (its running sums carried from group to
+        group)."""
         if not self.windows:
             return np.array([])
         ch = rec[name]
         ch2 = rec[other] if other is not None else None
+        if not (reads_by_block(ch) and (ch2 is None or reads_by_block(ch2))):
+            return self._raw_average(rec, name, other)
         edges = np.array([(w.start_s, w.end_s) for w in self.windows])
         shifts = self.grid.shifts
         key = (edges.tobytes(), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
         objs = (ch,) if ch2 is None else (ch, ch2)
+        # keyed by the channel objects: the type B re-runs keep every channel they do not move (see _reuse)
         return reused("raw_average_windowed", objs, key,  # type: ignore[arg-type]
-                      lambda: np.array([self._window_mean(ch, ch2, w.start_s, w.end_s) for w in self.windows]))
+                      lambda: self._grouped_average(rec, ch, ch2))
 
-    def _window_mean(self, ch: Channel, ch2: Channel | None, start: float, end: float) -> float:
-        """Mean of a channel's good samples (or of the product with ``ch2``'s) in ``[start, end)`` (grid clock)."""
+    def _grouped_average(self, rec: Recording, ch: Channel, ch2: Channel | None) -> np.ndarray:
         shift = self.grid.shifts.get(ch.source, 0.0)
-        k0, ts, vals, fl = window_of(ch, start - shift - MARGIN_S, end - shift + MARGIN_S)
-        a, b = _edges(ts, shift, np.array([start, end]))
-        v = vals[a:b]
-        good = ((fl[a:b] & BAD_FLAGS) == 0) & np.isfinite(v)
-        if ch2 is not None:
-            shift2 = self.grid.shifts.get(ch2.source, 0.0)
-            k2, ts2, vals2, fl2 = window_of(ch2, start - shift2 - MARGIN_S, end - shift2 + MARGIN_S)
-            if not (shift2 == shift and k2 == k0 and ts2.shape == ts.shape and np.array_equal(ts2, ts)):
-                return self._window_mean(ch, None, start, end) * self._window_mean(ch2, None, start, end)
-            v2 = vals2[a:b]
-            good &= ((fl2[a:b] & BAD_FLAGS) == 0) & np.isfinite(v2)
-            v = v * v2
-        cnt = int(good.sum())
-        return float(np.sum(np.where(good, v, 0.0)) / cnt) if cnt else np.nan
+        shift2 = shift if ch2 is None else self.grid.shifts.get(ch2.source, 0.0)
+        starts = np.array([w.start_s for w in self.windows])
+        ends = np.array([w.end_s for w in self.windows])
+        cs = np.zeros(len(self.windows) + 1)
+        cn = np.zeros(len(self.windows) + 1, dtype=np.int64)
+        for i, j in window_groups(starts, ends):
+            lo_s, hi_s = float(starts[i:j].min()), float(ends[i:j].max())
+            k0, ts, vals, fl = window_of(ch, lo_s - shift - MARGIN_S, hi_s - shift + MARGIN_S)
+            pair = None
+            if ch2 is not None:
+                k2, ts2, vals2, fl2 = window_of(ch2, lo_s - shift2 - MARGIN_S, hi_s - shift2 + MARGIN_S)
+                if not (shift2 == shift and k2 == k0 and ts2.shape == ts.shape and np.array_equal(ts2, ts)):
+                    # on different timestamps: the product of the two means (as the whole search)
+                    return (self._raw_average_windowed(rec, ch.name, None)
+                            * self._raw_average_windowed(rec, ch2.name, None))
+                pair = (vals2, fl2)
+            cs[i:j + 1], cn[i:j + 1] = running_sums(ts, vals, fl, pair, shift, starts[i:j], ends[i:j],
+                                                     float(cs[i]), int(cn[i]))
+        cnt = cn[1:] - cn[:-1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(cnt > 0, (cs[1:] - cs[:-1]) / np.maximum(cnt, 1), np.nan)
 
     def _raw_average_of(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
         shifts = self.grid.shifts
@@ -237,27 +249,12 @@ class SteadyWindows:
             pair = (vals2, fl2)
         if not self.windows:
             return np.array([])
-        # source samples inside each window [start, end) on the grid's clock, found on the shifted timestamps
-        # near the window edges only (shifting the whole channel would cost a pass over every sample)
         starts = np.array([w.start_s for w in self.windows])
         ends = np.array([w.end_s for w in self.windows])
-        lo = _edges(ts, shift, starts)
-        hi = _edges(ts, shift, ends)
-        # the samples of all windows, one after the other (windows may overlap: their samples then repeat)
-        cnt_all = np.maximum(hi - lo, 0)
-        off = np.concatenate(([0], np.cumsum(cnt_all)))
-        sel = np.repeat(lo - off[:-1], cnt_all) + np.arange(off[-1])
-        v = vals[sel]
-        good = ((fl[sel] & BAD_FLAGS) == 0) & np.isfinite(v)
-        if pair is not None:
-            v2 = pair[0][sel]
-            good &= ((pair[1][sel] & BAD_FLAGS) == 0) & np.isfinite(v2)
-            v = v * v2
-        cs = np.concatenate(([0.0], np.cumsum(np.where(good, v, 0.0))))
-        cn = np.concatenate(([0], np.cumsum(good)))
-        cnt = cn[off[1:]] - cn[off[:-1]]
+        cs, cn = running_sums(ts, vals, fl, pair, shift, starts, ends, 0.0, 0)
+        cnt = cn[1:] - cn[:-1]
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(cnt > 0, (cs[off[1:]] - cs[off[:-1]]) / np.maximum(cnt, 1), np.nan)
+            return np.where(cnt > 0, (cs[1:] - cs[:-1]) / np.maximum(cnt, 1), np.nan)
 
     def segments(self, keep: np.ndarray | None = None) -> list[str]:
         """Names of the segments the (kept) windows came from."""
@@ -268,27 +265,6 @@ class SteadyWindows:
         """A copy holding only the windows where ``keep`` is true."""
         return SteadyWindows([w for w, k in zip(self.windows, keep) if k], self.grid, self.n_excluded,
                              self.searched_s, list(self.reasons), self.windowed)
-
-
-def _edges(ts: np.ndarray, shift: float, times: np.ndarray) -> np.ndarray:
-    """``np.searchsorted(ts + shift, times, side="left")`` without shifting every sample of ``ts``: the search runs
-    on ``ts`` and is corrected near each hit, where ``ts + shift`` may round across ``times``."""
-    if not shift:
-        return np.searchsorted(ts, times, side="left")
-    i = np.searchsorted(ts, times - shift, side="left")
-    n = ts.size
-    # a step back while the sample before still lies at or after the time, a step on while the sample lies before it
-    while True:
-        back = (i > 0) & (ts[np.maximum(i - 1, 0)] + shift >= times)
-        if not back.any():
-            break
-        i = np.where(back, i - 1, i)
-    while True:
-        on = (i < n) & (ts[np.minimum(i, n - 1)] + shift < times)
-        if not on.any():
-            break
-        i = np.where(on, i + 1, i)
-    return i
 
 
 def detect_steady(dt: float, signals: Mapping[str, np.ndarray], tolerances: Mapping[str, Tolerance], *,
