@@ -15,8 +15,8 @@ from benchtwin.identification._signals import BAD_FLAGS
 __all__ = ["GROUP_S", "running_sums", "window_groups"]
 
 
-#: longest span of a group of steady windows averaged from one read of a channel (a channel at 1 kHz: 1.2 M samples)
-GROUP_S = 1200.0
+#: longest span of a group of steady windows averaged from one read of a channel (a channel at 500 Hz: 150 k samples)
+GROUP_S = 300.0
 
 
 def window_groups(starts: np.ndarray, ends: np.ndarray, span_s: float = GROUP_S) -> list[tuple[int, int]]:

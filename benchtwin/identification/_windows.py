@@ -32,8 +32,8 @@ from benchtwin.identification._signals import (
 )
 from benchtwin.recording import Channel, LazyChannel, Recording
 
-__all__ = ["channel_bounds", "gather_at", "grid_bounds", "piece_grids", "reads_by_block", "segment_pieces",
-           "window_of"]
+__all__ = ["channel_bounds", "gather_at", "grid_bounds", "ordered_by_blocks", "piece_grids", "reads_by_block",
+           "segment_pieces", "window_of"]
 
 #: seconds read beyond each end of a window (clock shifts are applied after the read: the margin absorbs the
 #: rounding of ``t - shift``; more samples than needed change nothing, the interpolation looks at its neighbours)
@@ -105,6 +105,11 @@ def reads_by_block(ch: Channel) -> bool:
     """Whether ``ch`` is a lazy channel not in memory that reads blocks from its store without loading it whole."""
     # LazyChannel.block reads from the store only with a block loader (else it loads the channel whole)
     return isinstance(ch, LazyChannel) and not ch.loaded and getattr(ch, "_block_loader", None) is not None
+
+
+def ordered_by_blocks(ch: Channel) -> bool:
+    """Whether a channel read by blocks (:func:`reads_by_block`) is in time order (from its time index)."""
+    return _time_index(ch).ordered
 
 
 def _window(ch: Channel, start_s: float, end_s: float, ordered: dict[int, bool] | None = None

@@ -4,7 +4,8 @@ from the acquisition's chunk files): the same numbers as on the Recording in mem
 The ramp-up test laid end to end three times, each channel wrapped in a lazy channel whose whole read fails. The
 steady windows' raw averages are grouped (one read per group of windows): with groups of 30 s here (a dozen groups)
 they equal the in-memory averages bit for bit, which holds only if the running sums carry from group to group; a type
-B re-run's moved channel stays lazy and reads moved blocks. About 2 s.
+B re-run's moved channel stays lazy and reads moved blocks; the strict resample of the converter and battery fits,
+by blocks of 37 grid points, equals the whole one. About 3 s.
 """
 
 from __future__ import annotations
@@ -84,3 +85,30 @@ def test_a_moved_channel_stays_lazy_and_moves_what_it_reads(recs) -> None:
     # the piece-by-piece search on the moved Recording reads blocks only (a whole read fails)
     sw = find_steady_windows(perturbed(blocked, comp), NAMES, kinds=["ramp_up"], rate_hz=10.0)
     assert len(sw) > 0
+
+
+def test_the_strict_resample_by_blocks_equals_the_whole_one(ramp_plant, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Flagged and non-finite samples, a pause in one channel and a held state: the same grid, values and bad
+    points with blocks of 37 grid points as ``strict_resample`` on the channels in memory."""
+    import benchtwin.identification._resample_blocks as rb
+    from benchtwin.identification._signals import strict_resample
+    from benchtwin.recording import Flag
+
+    rec = _repeated(ramp_plant, 2)
+    torque = rec["em_torque_nm"]
+    torque.flags[100:200:7] = int(Flag.SATURATED)  # single samples: some only next to a grid point
+    torque.values[300] = np.nan
+    speed = rec["em_speed_rpm"]
+    keep = np.ones(len(speed), dtype=bool)
+    keep[500:560] = False  # a pause in the log
+    rec.add(Channel(speed.name, speed.unit, speed.timestamps[keep], speed.values[keep], None, speed.source))
+    names = [*NAMES, "gear_actual"] if "gear_actual" in rec else NAMES
+    hold = ("gear_actual",) if "gear_actual" in rec else ()
+    monkeypatch.setattr(rb, "GRID_BLOCK", 37)
+    t0, v0, bad0 = strict_resample(rec, names, 10.0, hold=hold)
+    t1, v1, bad1 = rb.resample_strict(_blocked(rec), names, 10.0, hold=hold)
+    np.testing.assert_array_equal(t1, t0)
+    np.testing.assert_array_equal(bad1, bad0)
+    assert bad0.sum() > 0
+    for n in names:
+        np.testing.assert_array_equal(v1[n], v0[n])
