@@ -32,8 +32,8 @@ from benchtwin.identification._signals import (
 )
 from benchtwin.recording import Channel, LazyChannel, Recording
 
-__all__ = ["channel_bounds", "gather_at", "grid_bounds", "ordered_by_blocks", "piece_grids", "reads_by_block",
-           "segment_pieces", "window_of"]
+__all__ = ["at_times", "channel_bounds", "gather_at", "grid_bounds", "ordered_by_blocks", "piece_grids",
+           "reads_by_block", "segment_pieces", "window_of"]
 
 #: seconds read beyond each end of a window (clock shifts are applied after the read: the margin absorbs the
 #: rounding of ``t - shift``; more samples than needed change nothing, the interpolation looks at its neighbours)
@@ -156,6 +156,32 @@ def window_of(ch: Channel, start_s: float, end_s: float, ordered: dict[int, bool
         return w
     ts, vs, fl = time_ordered(ch)
     return 0, ts, vs, fl
+
+
+#: longest span of times sampled from one read by :func:`at_times`
+AT_SPAN_S = 300.0
+
+
+def at_times(ch: Channel, t: np.ndarray, *, hold: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """``ch.at(t, hold=hold)`` and ``ch.flags_at(t)``; a channel read by blocks is read around runs of nearby times
+    only (at most :data:`AT_SPAN_S` each): the same bracketing samples, so the same numbers."""
+    t = np.asarray(t, dtype=np.float64)
+    if t.size == 0 or not reads_by_block(ch) or not ordered_by_blocks(ch) or not np.all(np.isfinite(t)):
+        return ch.at(t, hold=hold), ch.flags_at(t)
+    order = np.argsort(t, kind="stable")
+    ts_sorted = t[order]
+    v = np.empty(t.shape)
+    f = np.empty(t.shape, dtype=np.uint16)
+    i = 0
+    while i < t.size:
+        j = max(int(np.searchsorted(ts_sorted, ts_sorted[i] + AT_SPAN_S, side="right")), i + 1)
+        tb = ts_sorted[i:j]
+        _, tw, vw, fw = window_of(ch, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
+        part = Channel(ch.name, ch.unit, tw, vw, fw, ch.source)  # its ends are the channel's where tb passes them
+        v[order[i:j]] = part.at(tb, hold=hold)
+        f[order[i:j]] = part.flags_at(tb)
+        i = j
+    return v, f
 
 
 def channel_bounds(ch: Channel) -> tuple[float, float]:

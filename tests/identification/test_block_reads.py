@@ -112,3 +112,19 @@ def test_the_strict_resample_by_blocks_equals_the_whole_one(ramp_plant, monkeypa
     assert bad0.sum() > 0
     for n in names:
         np.testing.assert_array_equal(v1[n], v0[n])
+
+
+def test_values_at_times_read_by_runs_equal_the_whole_channel(recs, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Shift events' speed and pedal: unsorted times (outside the span too), read in runs of 20 s."""
+    import benchtwin.identification._windows as win
+
+    mem, blocked = recs
+    monkeypatch.setattr(win, "AT_SPAN_S", 20.0)
+    lo, hi = mem["em_torque_nm"].timestamps[[0, -1]]
+    t = np.random.default_rng(5).uniform(lo - 3.0, hi + 3.0, 400)
+    t[:5] = mem["em_torque_nm"].timestamps[[0, 1, 17, -2, -1]]  # on samples, at both ends
+    for hold in (False, True):
+        v, f = win.at_times(blocked["em_torque_nm"], t, hold=hold)
+        np.testing.assert_array_equal(v, mem["em_torque_nm"].at(t, hold=hold))
+        np.testing.assert_array_equal(f, mem["em_torque_nm"].flags_at(t))
+    assert not blocked["em_torque_nm"].loaded
