@@ -23,11 +23,11 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, linear_fit
+from benchtwin.identification._resample_blocks import rate_of
 from benchtwin.identification._signals import (
     Grid,
     check_spread,
     gather,
-    native_rate,
     runs,
     segment_names,
     segments_span,
@@ -60,7 +60,7 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
     """
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
     if rate_hz is None:
-        rate_hz = native_rate(rec[ch])
+        rate_hz = rate_of(rec[ch])
     no_gear = "gear_actual" not in rec
     extra = ("em_torque_nm", *_PRESSURES) if no_gear else ()
     optional = ("gear_actual", "pedal_pct", "brake_pedal_pct", *extra)
@@ -191,7 +191,7 @@ def identify_road_load(rec: Recording, specs: VehicleSpecs, *, method: str = "re
         raise DataError(f"road load: method must be 'regression' or 'intervals', got {method!r}")
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
     if rate_hz is None:
-        rate_hz = native_rate(rec[ch]) if ch in rec else 10.0
+        rate_hz = rate_of(rec[ch]) if ch in rec else 10.0
     t, v, dvdt, rr, n_flagged, ch = coastdown_runs(rec, speed_channel=speed_channel, kinds=kinds, rate_hz=rate_hz,
                                                    v_min=v_min, v_max=v_max, smooth_s=smooth_s)
     if not rr:

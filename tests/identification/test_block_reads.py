@@ -128,3 +128,22 @@ def test_values_at_times_read_by_runs_equal_the_whole_channel(recs, monkeypatch:
         np.testing.assert_array_equal(v, mem["em_torque_nm"].at(t, hold=hold))
         np.testing.assert_array_equal(f, mem["em_torque_nm"].flags_at(t))
     assert not blocked["em_torque_nm"].loaded
+
+
+@pytest.mark.parametrize("ties", [True, False])
+@pytest.mark.parametrize("n", [1001, 1000])
+def test_the_native_rate_by_blocks_is_the_whole_median(n: int, ties: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Jittered steps with and without ties, an even and an odd count of steps (the two middle ones averaged),
+    blocks of 64 steps."""
+    import benchtwin.identification._resample_blocks as rb
+    from benchtwin.identification._signals import native_rate
+
+    monkeypatch.setattr(rb, "_STEP_BLOCK", 64)
+    rng = np.random.default_rng(n)
+    steps = (rng.choice([0.0099, 0.01, 0.0101, 0.0102, 0.02], n - 1, p=[.2, .3, .15, .3, .05]) if ties
+             else rng.uniform(0.009, 0.011, n - 1))
+    ts = np.concatenate(([3.0], 3.0 + np.cumsum(steps)))
+    ch = Channel("vehicle_speed_kmh", "km/h", ts, np.zeros(n), None, "vehicle_can")
+    blocked = _blocked(Recording(channels={ch.name: ch}))[ch.name]
+    assert rb.rate_of(blocked, max_hz=1e6) == native_rate(ch, max_hz=1e6)
+    assert not blocked.loaded
