@@ -24,7 +24,7 @@ __all__ = ["GRID_BLOCK", "rate_of", "resample_strict"]
 GRID_BLOCK = 8192
 
 #: timestamps read at a time for the typical step of the gap mask
-_STEP_BLOCK = 1 << 18
+_STEP_BLOCK = 1 << 16
 
 
 def _typical_step(ch: Channel) -> float:

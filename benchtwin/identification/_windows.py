@@ -59,7 +59,7 @@ def _ordered(ts: np.ndarray) -> bool:
 INDEX_STRIDE = 4096
 
 #: samples read at a time while building a time index
-INDEX_BLOCK = 1 << 18
+INDEX_BLOCK = 1 << 16
 
 
 class _TimeIndex:
