@@ -15,7 +15,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from benchtwin.identification._signals import native_rate, strict_resample
-from benchtwin.identification._windows import MARGIN_S, channel_bounds, ordered_by_blocks, reads_by_block, window_of
+from benchtwin.identification._windows import (
+    MARGIN_S,
+    channel_bounds,
+    ordered_by_blocks,
+    reads_by_block,
+    time_index,
+    window_of,
+)
 from benchtwin.recording import Channel, Flag, Recording
 
 __all__ = ["GRID_BLOCK", "rate_of", "resample_strict"]
@@ -140,9 +147,12 @@ def rate_of(ch: Channel, *, max_hz: float = 200.0) -> float:
     n = len(ch)
     if n < 3 or not reads_by_block(ch) or not ordered_by_blocks(ch):
         return native_rate(ch, max_hz=max_hz)
-    m = n - 1
-    steps = _ranked_steps(ch, (m // 2,) if m % 2 else (m // 2 - 1, m // 2))
-    if steps is None:
-        return native_rate(ch, max_hz=max_hz)
-    d = float(np.median(np.array(steps)))  # one value, or the mean of the two middle ones as np.median takes it
+    index = time_index(ch)  # the median step is kept with it: the type B re-runs share it
+    if index.median_step is None:
+        m = n - 1
+        steps = _ranked_steps(ch, (m // 2,) if m % 2 else (m // 2 - 1, m // 2))
+        if steps is None:
+            return native_rate(ch, max_hz=max_hz)
+        index.median_step = float(np.median(np.array(steps)))  # one, or the mean of the two middle ones
+    d = index.median_step
     return min(1.0 / d, max_hz) if d > 0 else 10.0

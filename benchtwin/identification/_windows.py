@@ -81,6 +81,7 @@ class _TimeIndex:
                 last = ts[-1]
                 marks.append(ts[::INDEX_STRIDE].copy())  # INDEX_BLOCK is a multiple of the stride
         self.marks = np.concatenate(marks) if marks and self.ordered else np.zeros(0)
+        self.median_step: float | None = None  #: kept by ``_resample_blocks.rate_of`` (a property of the times)
 
 
 _indexes: dict[int, tuple[weakref.ref[Channel], _TimeIndex]] = {}
@@ -99,6 +100,18 @@ def _time_index(ch: Channel) -> _TimeIndex:
             del _indexes[k]
         _indexes[id(ch)] = (weakref.ref(ch), index)
     return index
+
+
+def share_time_index(new: Channel, orig: Channel) -> None:
+    """Give ``new`` the time index of ``orig`` (the same timestamps: a type B re-run's moved copy)."""
+    index = _time_index(orig)
+    with _indexes_lock:
+        _indexes[id(new)] = (weakref.ref(new), index)
+
+
+def time_index(ch: Channel) -> _TimeIndex:
+    """The time index of a channel read by blocks (built once per channel object)."""
+    return _time_index(ch)
 
 
 def reads_by_block(ch: Channel) -> bool:

@@ -44,7 +44,7 @@ import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._reuse import reusing
-from benchtwin.identification._windows import reads_by_block
+from benchtwin.identification._windows import reads_by_block, share_time_index
 from benchtwin.recording import Channel, LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
@@ -232,7 +232,9 @@ def _moved(ch: Channel, comp: Component) -> Channel:
         ts, v, f = ch.block(a, b)
         return ts, move(v), f
 
-    return LazyChannel(ch.name, ch.unit, ch.source, len(ch), load, ch.value_texts, block_loader=read)
+    out = LazyChannel(ch.name, ch.unit, ch.source, len(ch), load, ch.value_texts, block_loader=read)
+    share_time_index(out, ch)  # the same timestamps: the re-run finds spans without indexing them again
+    return out
 
 
 def perturbed(recording: Recording, comp: Component) -> Recording:

@@ -18,6 +18,7 @@ from _synth_a import to_recording
 
 import benchtwin.identification.steady as steady
 from benchtwin.identification._window_sums import window_groups
+from benchtwin.identification._windows import time_index
 from benchtwin.identification.steady import find_steady_windows
 from benchtwin.identification.uncertainty import Component, perturbed
 from benchtwin.recording import Channel, LazyChannel, Recording
@@ -77,6 +78,7 @@ def test_a_moved_channel_stays_lazy_and_moves_what_it_reads(recs) -> None:
     comp = Component("em_torque_nm.gain", ("em_torque_nm",), "gain", 0.01)
     moved_mem, moved_blk = perturbed(mem, comp)["em_torque_nm"], perturbed(blocked, comp)["em_torque_nm"]
     assert isinstance(moved_blk, LazyChannel) and not moved_blk.loaded
+    assert time_index(moved_blk) is time_index(blocked["em_torque_nm"])  # the same times: indexed once
     n = len(moved_mem)
     for a, b in ((0, 7), (n // 3, n // 3 + 1000), (n - 5, n)):
         got = moved_blk.block(a, b)
