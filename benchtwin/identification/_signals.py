@@ -74,6 +74,8 @@ class Grid:
         Names of optional channels that were present.
     shifts:
         Source -> seconds added to its timestamps (clock alignment, see :func:`source_shifts`).
+    first_index:
+        Index of ``t[0]`` in the whole grid (a piece of it), else 0.
     """
 
     t: np.ndarray
@@ -83,6 +85,8 @@ class Grid:
     rate_hz: float
     present: set[str] = field(default_factory=set)
     shifts: dict[str, float] = field(default_factory=dict)
+    #: index of ``t[0]`` in the whole grid when this is a piece of it (``_windows.piece_grids``)
+    first_index: int = 0
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -161,21 +165,22 @@ class _IndexCache:
 
     def __init__(self, t: np.ndarray) -> None:
         self.t = t
-        self._cache: list[tuple[weakref.ref[np.ndarray], float, np.ndarray]] = []
+        self._cache: list[tuple[weakref.ref[np.ndarray], float, np.ndarray, int]] = []
 
-    def fidx(self, ts: np.ndarray, shift_s: float = 0.0) -> np.ndarray:
-        """Fractional index into ``ts + shift_s`` of every grid time (``ts`` in time order)."""
-        for ref, s0, f in self._cache:
+    def fidx(self, ts: np.ndarray, shift_s: float = 0.0, k0: int = 0) -> np.ndarray:
+        """Fractional index into ``ts + shift_s`` of every grid time (``ts`` in time order; ``k0``: the index of
+        ``ts[0]`` in the whole channel when ``ts`` is a part of it, so the indices are the whole channel's)."""
+        for ref, s0, f, kk in self._cache:
             # the time bases are held weakly: a lazy Recording's channel dropped after gathering lets its go
             ts0 = ref()
-            if ts0 is not None and s0 == shift_s and (
+            if ts0 is not None and s0 == shift_s and kk == k0 and (
                     ts0 is ts or (ts0.shape == ts.shape and ts0[0] == ts[0] and ts0[-1] == ts[-1]
                                   and np.array_equal(ts0, ts))):
                 return f
         # np.interp walks sorted queries in one pass (a binary search per query costs more on long logs)
-        f = np.interp(self.t, ts + shift_s if shift_s else ts, np.arange(ts.size, dtype=float))
+        f = np.interp(self.t, ts + shift_s if shift_s else ts, np.arange(k0, k0 + ts.size, dtype=float))
         self._cache = [c for c in self._cache if c[0]() is not None]
-        self._cache.append((weakref.ref(ts), shift_s, f))
+        self._cache.append((weakref.ref(ts), shift_s, f, k0))
         return f
 
 
@@ -203,10 +208,14 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
 
 
 def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray, fidx: np.ndarray, hold: bool,
-                  shift_s: float) -> tuple[np.ndarray, np.ndarray]:
+                  shift_s: float, k0: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """One block of :func:`_sample`; ``ts, vs, fl`` may be a part of the channel starting at its sample ``k0``
+    (``fidx`` then holds whole-channel indices, so the weights are the same numbers as on the whole channel)."""
     n = ts.size
     first, last = ts[0] + shift_s, ts[-1] + shift_s
     idx = np.floor(fidx).astype(np.int64)
+    if k0:
+        idx -= k0
     idx[t < first] = -1
     i0 = np.clip(idx, 0, n - 1)
     i1 = np.clip(idx + 1, 0, n - 1)
@@ -217,7 +226,7 @@ def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray,
         v = v0.astype(float)
     else:
         v1 = vs[i1]
-        frac = fidx - np.clip(idx, 0, None)
+        frac = fidx - (np.clip(idx, 0, None) + k0 if k0 else np.clip(idx, 0, None))
         v = v0 + frac * (v1 - v0)
         # a linearly interpolated value depends on the sample after as well
         flagged |= (((fl[i1] & _BAD) != 0) | ~np.isfinite(v1)) & ((ts[i1] + shift_s) > t)

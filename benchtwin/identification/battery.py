@@ -33,7 +33,8 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError, MissingChannelError, NoExcitationError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit, serial_inflation
-from benchtwin.identification._signals import native_rate, segment_mask, strict_resample
+from benchtwin.identification._resample_blocks import rate_of, resample_strict
+from benchtwin.identification._signals import segment_mask
 from benchtwin.recording import Recording
 
 __all__ = [
@@ -145,9 +146,9 @@ def coulomb_soc(t_s: np.ndarray, current_a: np.ndarray, capacity_ah: float, *, s
 
 
 def _native_rate(rec: Recording, name: str, cap_hz: float = 10.0) -> float:
-    if rec[name].timestamps.size < 3:
-        raise InsufficientDataError(f"channel {name!r} has {rec[name].timestamps.size} samples")
-    return native_rate(rec[name], max_hz=cap_hz)
+    if len(rec[name]) < 3:
+        raise InsufficientDataError(f"channel {name!r} has {len(rec[name])} samples")
+    return rate_of(rec[name], max_hz=cap_hz)
 
 
 def _segment_mask(rec: Recording, t: np.ndarray, kinds: tuple[str, ...] | None) -> tuple[np.ndarray, list[str]]:
@@ -180,7 +181,7 @@ def battery_samples(rec: Recording, *, soc: bool, rate_hz: float | None, kinds: 
             raise MissingChannelError(f"battery identification needs channel {n!r}")
     rate = rate_hz or _native_rate(rec, "battery_voltage_v")
     # displayed SOC is interpolated, not held: its CAN steps are a quantisation of a continuous SOC
-    t, v, bad = strict_resample(rec, names, rate)
+    t, v, bad = resample_strict(rec, names, rate)
     seg_mask, segs = _segment_mask(rec, t, kinds)
     use = seg_mask & ~bad
     v["t"] = t

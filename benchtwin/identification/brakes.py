@@ -26,13 +26,14 @@ from benchtwin.errors import IdentificationError, InsufficientDataError, Missing
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate, linear_fit
 from benchtwin.identification._gum import t975
 from benchtwin.identification._signals import (
+    Grid,
     check_spread,
     gather,
     raise_all_failed,
-    segment_mask,
     segments_span,
     smooth_derivative,
 )
+from benchtwin.identification._windows import piece_grids
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
@@ -268,40 +269,29 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     front = _axle_channels(rec, _FRONT, "front")
     rear = _axle_channels(rec, _REAR, "rear")
     vch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
-    g = gather(rec, [vch, *front, *rear, "dyno_force_front_n", "dyno_force_rear_n"], rate_hz, what="brake blending",
-               span=segments_span(rec, kinds))
-    use = ~g.bad
-    seg = segment_mask(rec, g.t, kinds)
-    if seg is not None:
-        use &= seg
-    r = specs.wheel_radius_m
-    v = g[vch]
-    decel = -smooth_derivative(v / 3.6, g.dt, smooth_s, valid=use)
-    p_f = np.mean([g[c] for c in front], axis=0)
-    p_r = np.mean([g[c] for c in rear], axis=0)
-    t_hf = m_f * p_f
-    t_hr = m_r * p_r
-    t_rear = -g["dyno_force_rear_n"] * r - c_r
-    t_regen = t_rear - t_hr
-    t_tot = t_hf + t_rear
-    brk = use & np.isfinite(decel) & (t_tot > min_torque_nm) & (decel > min_decel_mps2)
-    n_transient = 0
-    if max_rate_per_s is not None:
-        rate = smooth_derivative(t_tot, g.dt, smooth_s, valid=use, polyorder=2)
-        rate_h = smooth_derivative(t_hf + t_hr, g.dt, smooth_s, valid=use, polyorder=2)
-        fast = brk & ~((np.abs(rate) <= max_rate_per_s * np.abs(t_tot))
-                       & (np.abs(rate_h) <= max_rate_per_s * np.abs(t_tot)))
-        n_transient = int(fast.sum())
-        brk &= ~fast
-    n_brk = int(brk.sum())
+    names = [vch, *front, *rear, "dyno_force_front_n", "dyno_force_rear_n"]
+    grids = piece_grids(rec, names, rate_hz, kinds, what="brake blending")
+    if grids is None:
+        grids = iter([gather(rec, names, rate_hz, what="brake blending", span=segments_span(rec, kinds))])
+    parts = []  # per grid (a piece of the segments, or the whole span): the braking samples only
+    n_transient = n_flagged = 0
+    for g in grids:
+        sel, fast, flagged = _braking_samples(g, vch, front, rear, (m_f, m_r, c_f, c_r, specs.wheel_radius_m),
+                                              smooth_s, min_torque_nm, min_decel_mps2, max_rate_per_s)
+        parts.append(sel)
+        n_transient += fast
+        n_flagged += flagged
+        del g
+    vb, db, tt, t_regen_b, t_hf_b, t_hr_b, t_brk, front_resid = (np.concatenate([q[k] for q in parts])
+                                                                 for k in range(8))
+    n_brk = int(vb.size)
     if n_brk < max(min_count, 10):
         raise InsufficientDataError(
             f"brake blending: {n_brk} braking samples (total braking torque > {min_torque_nm} Nm and deceleration > "
             f"{min_decel_mps2} m/s^2); need at least {max(min_count, 10)}")
-    vb, db, tt = v[brk], decel[brk], t_tot[brk]
-    regen_share = t_regen[brk] / tt
-    hyd_share = (t_hf[brk] + t_hr[brk]) / tt
-    front_share = t_hf[brk] / tt
+    regen_share = t_regen_b / tt
+    hyd_share = (t_hf_b + t_hr_b) / tt
+    front_share = t_hf_b / tt
     se = np.asarray(speed_edges_kmh, dtype=float) if speed_edges_kmh is not None else \
         np.arange(0.0, max(10.0, float(np.ceil(vb.max() / 10) * 10)) + 1e-9, 10.0)
     de = np.asarray(decel_edges_mps2, dtype=float) if decel_edges_mps2 is not None else \
@@ -309,7 +299,7 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     maps = {}
     for name, z in (("regen", regen_share), ("hydraulic", hyd_share), ("front", front_share)):
         maps[f"map_{name}_share"], cnt = _binned_mean(vb, db, z, se, de, min_count)
-    segs = sorted({s.name for s in rec.segments if s.kind in set(kinds or ()) and np.any(s.contains(g.t[brk]))})
+    segs = sorted({s.name for s in rec.segments if s.kind in set(kinds or ()) and np.any(s.contains(t_brk))})
 
     # consecutive samples are correlated (smoothing, slow manoeuvres): a moving-block bootstrap over
     # blocks of one smoothing window gives the standard errors and percentile intervals
@@ -333,16 +323,14 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
         "regen_share_mean": est("regen_share_mean", regen_share, "mean"),
         "hydraulic_share_mean": est("hydraulic_share_mean", hyd_share, "mean"),
         "front_share_mean": est("front_share_mean", front_share, "mean"),
-        "regen_torque_p95_nm": est("regen_torque_p95_nm", t_regen[brk], "p95", "Nm"),
+        "regen_torque_p95_nm": est("regen_torque_p95_nm", t_regen_b, "p95", "Nm"),
     }
-    fit = FitResult(params, float("nan"), float("nan"), float("nan"), n_brk,
-                    int((g.flagged & (seg if seg is not None else True)).sum()), segs)
-    fit.data.update(time_s=g.t[brk], v_kmh=vb, decel_mps2=db, torque_total_nm=tt, torque_regen_nm=t_regen[brk],
-                    torque_front_nm=t_hf[brk], torque_rear_hyd_nm=t_hr[brk], regen_share=regen_share,
+    fit = FitResult(params, float("nan"), float("nan"), float("nan"), n_brk, n_flagged, segs)
+    fit.data.update(time_s=t_brk, v_kmh=vb, decel_mps2=db, torque_total_nm=tt, torque_regen_nm=t_regen_b,
+                    torque_front_nm=t_hf_b, torque_rear_hyd_nm=t_hr_b, regen_share=regen_share,
                     hydraulic_share=hyd_share, front_share=front_share, map_speed_edges_kmh=se,
                     map_decel_edges_mps2=de, map_count=cnt, **maps)
     # the front axle has no powertrain: its roller torque must match the front hydraulic torque
-    front_resid = (-g["dyno_force_front_n"] * r - c_f - t_hf)[brk]
     fit.data["front_check_residual_nm"] = front_resid
     rel = float(np.median(np.abs(front_resid)) / max(float(np.median(tt)), 1.0))
     if rel > 0.05:
@@ -353,6 +341,36 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     if np.nanmin(regen_share) < -0.05:
         fit.reasons.append("some samples show negative regenerative share: powertrain drag or a gain error")
     return fit
+
+
+def _braking_samples(g: Grid, vch: str, front: list[str], rear: list[str], gains: tuple[float, ...], smooth_s: float,
+                     min_torque_nm: float, min_decel_mps2: float, max_rate_per_s: float | None
+                     ) -> tuple[tuple[np.ndarray, ...], int, int]:
+    """The braking samples of one grid (every point searched): speed, deceleration, total, regenerative, front and
+    rear hydraulic torques, time and the front roller residual; transient samples left out; flagged points."""
+    m_f, m_r, c_f, c_r, r = gains
+    use = ~g.bad
+    v = g[vch]
+    decel = -smooth_derivative(v / 3.6, g.dt, smooth_s, valid=use)
+    p_f = np.mean([g[c] for c in front], axis=0)
+    p_r = np.mean([g[c] for c in rear], axis=0)
+    t_hf = m_f * p_f
+    t_hr = m_r * p_r
+    t_rear = -g["dyno_force_rear_n"] * r - c_r
+    t_regen = t_rear - t_hr
+    t_tot = t_hf + t_rear
+    brk = use & np.isfinite(decel) & (t_tot > min_torque_nm) & (decel > min_decel_mps2)
+    n_fast = 0
+    if max_rate_per_s is not None:
+        rate = smooth_derivative(t_tot, g.dt, smooth_s, valid=use, polyorder=2)
+        rate_h = smooth_derivative(t_hf + t_hr, g.dt, smooth_s, valid=use, polyorder=2)
+        fast = brk & ~((np.abs(rate) <= max_rate_per_s * np.abs(t_tot))
+                       & (np.abs(rate_h) <= max_rate_per_s * np.abs(t_tot)))
+        n_fast = int(fast.sum())
+        brk &= ~fast
+    front_resid = (-g["dyno_force_front_n"] * r - c_f - t_hf)[brk]
+    return ((v[brk], decel[brk], t_tot[brk], t_regen[brk], t_hf[brk], t_hr[brk], g.t[brk], front_resid), n_fast,
+            int(g.flagged.sum()))
 
 
 def identify_brakes(rec: Recording, specs: VehicleSpecs, *, gains_kwargs: dict[str, object] | None = None,

@@ -23,16 +23,17 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, linear_fit
+from benchtwin.identification._resample_blocks import rate_of
 from benchtwin.identification._signals import (
+    Grid,
     check_spread,
     gather,
-    native_rate,
     runs,
-    segment_mask,
     segment_names,
     segments_span,
     smooth_derivative,
 )
+from benchtwin.identification._windows import piece_grids
 from benchtwin.recording import Recording
 
 __all__ = ["coastdown_runs", "fit_road_load", "identify_road_load"]
@@ -52,16 +53,42 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
     Returns
     -------
     t, v, dvdt, runs, n_flagged, channel
-        Grid time (s), speed (km/h), smoothed deceleration derivative (m/s^2, NaN outside the runs),
-        the runs as index ranges, flagged grid samples excluded, and the speed channel used.
+        Grid time (s), speed (km/h) and smoothed deceleration derivative (m/s^2) over the runs only (the runs'
+        grid points one run after the other), the runs as index ranges into them, flagged grid samples excluded,
+        and the speed channel used. With segments of ``kinds`` the grid is gathered one piece of segments at a
+        time (the same points and numbers as over the whole span; memory bounded by a piece).
     """
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
     if rate_hz is None:
-        rate_hz = native_rate(rec[ch])
+        rate_hz = rate_of(rec[ch])
     no_gear = "gear_actual" not in rec
     extra = ("em_torque_nm", *_PRESSURES) if no_gear else ()
-    g = gather(rec, [ch], rate_hz, optional=("gear_actual", "pedal_pct", "brake_pedal_pct", *extra),
-               what="road load", span=segments_span(rec, kinds))
+    optional = ("gear_actual", "pedal_pct", "brake_pedal_pct", *extra)
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int]] = []
+    grids = piece_grids(rec, [ch], rate_hz, kinds, optional=optional, what="road load")
+    if grids is None:
+        g = gather(rec, [ch], rate_hz, optional=optional, what="road load", span=segments_span(rec, kinds))
+        parts.append(_coast_piece(g, None, ch, no_gear, extra, v_min, v_max, smooth_s, min_run_s, min_drop_kmh,
+                                  max_motor_torque_nm))
+    else:
+        for g in grids:  # every point of a piece is inside the searched segments
+            parts.append(_coast_piece(g, None, ch, no_gear, extra, v_min, v_max, smooth_s, min_run_s, min_drop_kmh,
+                                      max_motor_torque_nm))
+    out: list[tuple[int, int]] = []
+    k = 0
+    for _, pv, _, rr, _ in parts:
+        out += [(k + a, k + b) for a, b in rr]
+        k += pv.size
+    cat = [np.concatenate([p[i] for p in parts]) if parts else np.zeros(0) for i in range(3)]
+    return cat[0], cat[1], cat[2], out, sum(p[4] for p in parts), ch
+
+
+def _coast_piece(g: Grid, seg: np.ndarray | None, ch: str, no_gear: bool, extra: tuple[str, ...], v_min: float,
+                 v_max: float | None, smooth_s: float, min_run_s: float, min_drop_kmh: float,
+                 max_motor_torque_nm: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int]:
+    """The coastdown runs in one grid (``seg``: its points inside the searched segments, None: all of them):
+    time, speed and derivative over the runs only, the runs as ranges into them, flagged points excluded."""
     v = g[ch]
     cand = ~g.bad & (v > v_min)
     if v_max is not None:
@@ -75,22 +102,20 @@ def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: I
     for pedal in ("pedal_pct", "brake_pedal_pct"):
         if pedal in g:
             cand &= np.nan_to_num(g[pedal], nan=100.0) <= 0.5
-    for extra in ("gear_actual", "pedal_pct", "brake_pedal_pct"):
-        g.values.pop(extra, None)  # used up: a grid at the speed's own rate over a long log is large
-    seg = segment_mask(rec, g.t, kinds)
+    for name in ("gear_actual", "pedal_pct", "brake_pedal_pct"):
+        g.values.pop(name, None)  # used up: a grid at the speed's own rate over a long log is large
     if seg is not None:
         cand &= seg
     dvdt = smooth_derivative(v / 3.6, g.dt, smooth_s, valid=cand)
     dec = cand & (dvdt < 0)
-    out = []
-    for a, b in runs(dec):
-        if (b - a) * g.dt >= min_run_s and v[a] - v[b - 1] >= min_drop_kmh:
-            out.append((a, b))
-    dv = np.full(v.shape, np.nan)
-    for a, b in out:
-        dv[a:b] = dvdt[a:b]
+    rr = [(a, b) for a, b in runs(dec) if (b - a) * g.dt >= min_run_s and v[a] - v[b - 1] >= min_drop_kmh]
     n_flagged = int((g.flagged & (seg if seg is not None else True)).sum())
-    return g.t, v, dv, out, n_flagged, ch
+    idx = np.concatenate([np.arange(a, b) for a, b in rr]) if rr else np.zeros(0, dtype=np.int64)
+    compact, k = [], 0
+    for a, b in rr:
+        compact.append((k, k + b - a))
+        k += b - a
+    return g.t[idx], v[idx], dvdt[idx], compact, n_flagged
 
 
 def fit_road_load(v_kmh: np.ndarray, force_n: np.ndarray, *, segments: Sequence[str] = (), n_excluded: int = 0,
@@ -166,7 +191,7 @@ def identify_road_load(rec: Recording, specs: VehicleSpecs, *, method: str = "re
         raise DataError(f"road load: method must be 'regression' or 'intervals', got {method!r}")
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
     if rate_hz is None:
-        rate_hz = native_rate(rec[ch]) if ch in rec else 10.0
+        rate_hz = rate_of(rec[ch]) if ch in rec else 10.0
     t, v, dvdt, rr, n_flagged, ch = coastdown_runs(rec, speed_channel=speed_channel, kinds=kinds, rate_hz=rate_hz,
                                                    v_min=v_min, v_max=v_max, smooth_s=smooth_s)
     if not rr:

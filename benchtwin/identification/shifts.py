@@ -26,6 +26,7 @@ import numpy as np
 
 from benchtwin.errors import MissingChannelError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
+from benchtwin.identification._windows import at_times
 from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Recording
 
@@ -92,14 +93,15 @@ def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None =
                 inside |= sg.contains(t_ev)
             k, t_ev = k[inside], t_ev[inside]
     sp, pd = rec["vehicle_speed_kmh"], rec["pedal_pct"]
-    v = sp.at(t_ev)
-    p = pd.at(t_ev)
+    # read around the events only when the channels are read by blocks (see _windows.at_times)
+    v, v_flags = at_times(sp, t_ev)
+    p, p_flags = at_times(pd, t_ev)
     from benchtwin.recording import Flag
 
-    good = np.isfinite(v) & np.isfinite(p) & ((sp.flags_at(t_ev) & int(Flag.bad())) == 0) \
-        & ((pd.flags_at(t_ev) & int(Flag.bad())) == 0)
-    v_before = sp.at(t_ev - lookback_s)
-    p_before = pd.at(t_ev - lookback_s)
+    good = np.isfinite(v) & np.isfinite(p) & ((v_flags & int(Flag.bad())) == 0) \
+        & ((p_flags & int(Flag.bad())) == 0)
+    v_before = at_times(sp, t_ev - lookback_s)[0]
+    p_before = at_times(pd, t_ev - lookback_s)[0]
     up = g[k] > g[k - 1]
     dv = v - v_before
     steady_pedal = np.abs(p - p_before) <= pedal_tol_pct

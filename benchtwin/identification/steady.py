@@ -22,7 +22,6 @@ import numpy as np
 from benchtwin.errors import DataError
 from benchtwin.identification._reuse import reused
 from benchtwin.identification._signals import (
-    BAD_FLAGS,
     Grid,
     gather,
     runs,
@@ -30,7 +29,10 @@ from benchtwin.identification._signals import (
     segments_span,
     time_ordered,
 )
-from benchtwin.recording import Recording
+from benchtwin.identification._window_sums import running_sums, window_groups
+from benchtwin.identification._windows import MARGIN_S, reads_by_block, window_of
+from benchtwin.identification.steady_windowed import find_steady_windows_by_piece
+from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
 
 __all__ = [
@@ -133,6 +135,8 @@ class SteadyWindows:
     n_excluded: int = 0
     searched_s: float = 0.0
     reasons: list[str] = field(default_factory=list)
+    #: found piece by piece (:mod:`~benchtwin.identification.steady_windowed`): ``grid`` holds no samples
+    windowed: bool = False
 
     def __len__(self) -> int:
         return len(self.windows)
@@ -147,6 +151,8 @@ class SteadyWindows:
 
     def average(self, x: np.ndarray) -> np.ndarray:
         """Mean of a grid-aligned array (e.g. a product such as power) over each window."""
+        if self.windowed:
+            raise DataError("steady windows found piece by piece keep no grid: average over them with raw_average")
         x = np.asarray(x, dtype=float)
         fin = np.isfinite(x)
         c1 = np.concatenate(([0.0], np.cumsum(np.where(fin, x, 0.0))))
@@ -167,6 +173,8 @@ class SteadyWindows:
         """
         kept = rec.loaded()
         try:
+            if self.windowed:
+                return self._raw_average_windowed(rec, name, other)
             return self._raw_average(rec, name, other)
         finally:
             rec.drop([n for n in (name, other) if n is not None and n not in kept])
@@ -183,6 +191,49 @@ class SteadyWindows:
         # the type B re-runs average the channels they do not move over the same windows again (see _reuse)
         return reused("raw_average", arrays, key, lambda: self._raw_average_of(rec, name, other))
 
+    def _raw_average_windowed(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
+        """:meth:`raw_average` of windows found piece by piece: a channel in memory (or one its store reads only
+        whole) is averaged as by the whole search; one read by blocks is read once per group of nearby windows
+        (:func:`window_groups`), with the very sums of the whole pass (its running sums carried from group to
+        group)."""
+        if not self.windows:
+            return np.array([])
+        ch = rec[name]
+        ch2 = rec[other] if other is not None else None
+        if not (reads_by_block(ch) and (ch2 is None or reads_by_block(ch2))):
+            return self._raw_average(rec, name, other)
+        edges = np.array([(w.start_s, w.end_s) for w in self.windows])
+        shifts = self.grid.shifts
+        key = (edges.tobytes(), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
+        objs = (ch,) if ch2 is None else (ch, ch2)
+        # keyed by the channel objects: the type B re-runs keep every channel they do not move (see _reuse)
+        return reused("raw_average_windowed", objs, key,  # type: ignore[arg-type]
+                      lambda: self._grouped_average(rec, ch, ch2))
+
+    def _grouped_average(self, rec: Recording, ch: Channel, ch2: Channel | None) -> np.ndarray:
+        shift = self.grid.shifts.get(ch.source, 0.0)
+        shift2 = shift if ch2 is None else self.grid.shifts.get(ch2.source, 0.0)
+        starts = np.array([w.start_s for w in self.windows])
+        ends = np.array([w.end_s for w in self.windows])
+        cs = np.zeros(len(self.windows) + 1)
+        cn = np.zeros(len(self.windows) + 1, dtype=np.int64)
+        for i, j in window_groups(starts, ends):
+            lo_s, hi_s = float(starts[i:j].min()), float(ends[i:j].max())
+            k0, ts, vals, fl = window_of(ch, lo_s - shift - MARGIN_S, hi_s - shift + MARGIN_S)
+            pair = None
+            if ch2 is not None:
+                k2, ts2, vals2, fl2 = window_of(ch2, lo_s - shift2 - MARGIN_S, hi_s - shift2 + MARGIN_S)
+                if not (shift2 == shift and k2 == k0 and ts2.shape == ts.shape and np.array_equal(ts2, ts)):
+                    # on different timestamps: the product of the two means (as the whole search)
+                    return (self._raw_average_windowed(rec, ch.name, None)
+                            * self._raw_average_windowed(rec, ch2.name, None))
+                pair = (vals2, fl2)
+            cs[i:j + 1], cn[i:j + 1] = running_sums(ts, vals, fl, pair, shift, starts[i:j], ends[i:j],
+                                                     float(cs[i]), int(cn[i]))
+        cnt = cn[1:] - cn[:-1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(cnt > 0, (cs[1:] - cs[:-1]) / np.maximum(cnt, 1), np.nan)
+
     def _raw_average_of(self, rec: Recording, name: str, other: str | None) -> np.ndarray:
         shifts = self.grid.shifts
         ch = rec[name]
@@ -198,27 +249,12 @@ class SteadyWindows:
             pair = (vals2, fl2)
         if not self.windows:
             return np.array([])
-        # source samples inside each window [start, end) on the grid's clock, found on the shifted timestamps
-        # near the window edges only (shifting the whole channel would cost a pass over every sample)
         starts = np.array([w.start_s for w in self.windows])
         ends = np.array([w.end_s for w in self.windows])
-        lo = _edges(ts, shift, starts)
-        hi = _edges(ts, shift, ends)
-        # the samples of all windows, one after the other (windows may overlap: their samples then repeat)
-        cnt_all = np.maximum(hi - lo, 0)
-        off = np.concatenate(([0], np.cumsum(cnt_all)))
-        sel = np.repeat(lo - off[:-1], cnt_all) + np.arange(off[-1])
-        v = vals[sel]
-        good = ((fl[sel] & BAD_FLAGS) == 0) & np.isfinite(v)
-        if pair is not None:
-            v2 = pair[0][sel]
-            good &= ((pair[1][sel] & BAD_FLAGS) == 0) & np.isfinite(v2)
-            v = v * v2
-        cs = np.concatenate(([0.0], np.cumsum(np.where(good, v, 0.0))))
-        cn = np.concatenate(([0], np.cumsum(good)))
-        cnt = cn[off[1:]] - cn[off[:-1]]
+        cs, cn = running_sums(ts, vals, fl, pair, shift, starts, ends, 0.0, 0)
+        cnt = cn[1:] - cn[:-1]
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(cnt > 0, (cs[off[1:]] - cs[off[:-1]]) / np.maximum(cnt, 1), np.nan)
+            return np.where(cnt > 0, (cs[1:] - cs[:-1]) / np.maximum(cnt, 1), np.nan)
 
     def segments(self, keep: np.ndarray | None = None) -> list[str]:
         """Names of the segments the (kept) windows came from."""
@@ -228,28 +264,7 @@ class SteadyWindows:
     def select(self, keep: np.ndarray) -> SteadyWindows:
         """A copy holding only the windows where ``keep`` is true."""
         return SteadyWindows([w for w, k in zip(self.windows, keep) if k], self.grid, self.n_excluded,
-                             self.searched_s, list(self.reasons))
-
-
-def _edges(ts: np.ndarray, shift: float, times: np.ndarray) -> np.ndarray:
-    """``np.searchsorted(ts + shift, times, side="left")`` without shifting every sample of ``ts``: the search runs
-    on ``ts`` and is corrected near each hit, where ``ts + shift`` may round across ``times``."""
-    if not shift:
-        return np.searchsorted(ts, times, side="left")
-    i = np.searchsorted(ts, times - shift, side="left")
-    n = ts.size
-    # a step back while the sample before still lies at or after the time, a step on while the sample lies before it
-    while True:
-        back = (i > 0) & (ts[np.maximum(i - 1, 0)] + shift >= times)
-        if not back.any():
-            break
-        i = np.where(back, i - 1, i)
-    while True:
-        on = (i < n) & (ts[np.minimum(i, n - 1)] + shift < times)
-        if not on.any():
-            break
-        i = np.where(on, i + 1, i)
-    return i
+                             self.searched_s, list(self.reasons), self.windowed)
 
 
 def detect_steady(dt: float, signals: Mapping[str, np.ndarray], tolerances: Mapping[str, Tolerance], *,
@@ -389,6 +404,15 @@ def find_steady_windows(rec: Recording, channels: Sequence[str], *, states: Iter
     channels = list(channels)
     state_names = [s for s in states if s in rec]
     extra = [e for e in extra if e not in channels]
+    if grid is None and valid is None and kinds is not None:
+        # the segments' points only, one piece at a time: memory bounded by a piece, not by the Recording
+        tol = dict(tolerances or {})
+        tols = {c: tol.get(c, default_tolerance(c, rec[c].unit or None)) for c in channels}
+        found = find_steady_windows_by_piece(rec, channels, state_names, extra, list(optional), list(kinds),
+                                             rate_hz, window_s, min_duration_s, max_duration_s, trim_s, tols,
+                                             detect_steady, SteadyWindow, SteadyWindows)
+        if found is not None:
+            return found
     if grid is None:
         grid = gather(rec, channels + extra, rate_hz, optional=[*state_names, *optional],
                       what="steady-state detection", span=segments_span(rec, kinds))

@@ -44,7 +44,8 @@ import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._reuse import reusing
-from benchtwin.recording import LazyChannel, Recording
+from benchtwin.identification._windows import reads_by_block, share_time_index
+from benchtwin.recording import Channel, LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
 
@@ -214,13 +215,34 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator,
                      start_time=recording.start_time)
 
 
+def _moved(ch: Channel, comp: Component) -> Channel:
+    """The channel with its values moved by one standard uncertainty of ``comp``: in memory, or, for a lazy channel
+    whose store reads blocks, a lazy channel that moves what it reads (the same numbers: the move is per sample)."""
+    def move(v: np.ndarray) -> np.ndarray:
+        return v * (1.0 + comp.u) if comp.kind == "gain" else v + comp.u
+
+    if not reads_by_block(ch):
+        return ch.with_values(move(ch.values))
+
+    def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ts, v, f = ch.block(0, len(ch))
+        return ts, move(v), f
+
+    def read(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ts, v, f = ch.block(a, b)
+        return ts, move(v), f
+
+    out = LazyChannel(ch.name, ch.unit, ch.source, len(ch), load, ch.value_texts, block_loader=read)
+    share_time_index(out, ch)  # the same timestamps: the re-run finds spans without indexing them again
+    return out
+
+
 def perturbed(recording: Recording, comp: Component) -> Recording:
-    """A shallow copy of the Recording with the component's channels moved by one standard uncertainty."""
+    """A shallow copy of the Recording with the component's channels moved by one standard uncertainty (a channel
+    read by blocks from its store stays so: a method that reads windows of it never holds it whole)."""
     channels = dict(recording.channels)
     for role in comp.roles:
-        ch = recording.channels[role]
-        values = ch.values * (1.0 + comp.u) if comp.kind == "gain" else ch.values + comp.u
-        channels[role] = ch.with_values(values)
+        channels[role] = _moved(recording.channels[role], comp)
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
                      start_time=recording.start_time)
 

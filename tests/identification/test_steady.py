@@ -86,7 +86,15 @@ def test_out_of_order_samples_give_the_same_windows_and_means(ramp_plant) -> Non
     assert [(w.i0, w.i1) for w in got.windows] == [(w.i0, w.i1) for w in ref.windows]
     np.testing.assert_allclose(got.raw_average(rec, "em_torque_nm"), ref_raw, rtol=1e-12)
     np.testing.assert_allclose(got.means("em_torque_nm"), ref.means("em_torque_nm"), rtol=1e-12)
-    np.testing.assert_allclose(got.average(got.grid["em_torque_nm"]), got.means("em_torque_nm"), rtol=1e-9)
+    # the search over the whole grid (a grid given) finds the windows the piece-by-piece search found
+    from benchtwin.identification._signals import gather, segments_span
+
+    g = gather(rec, names, 10.0, span=segments_span(rec, ["ramp_up"]))
+    whole = find_steady_windows(rec, names, kinds=["ramp_up"], grid=g)
+    assert got.windowed and not whole.windowed
+    assert [(w.start_s, w.end_s, w.i0, w.i1) for w in whole.windows] == [
+        (w.start_s, w.end_s, w.i0, w.i1) for w in got.windows]
+    np.testing.assert_allclose(whole.average(g["em_torque_nm"]), got.means("em_torque_nm"), rtol=1e-9)
 
 
 def test_sources_are_put_on_one_clock_with_the_detected_offsets(ramp_plant) -> None:
