@@ -68,12 +68,17 @@ class TruthChannel:
         Discrete state (zero-order hold, not interpolated).
     resolution:
         One step of the wire's representation, in the role's unit.
+    span:
+        The values the wire's representation can carry, in the role's unit (None: unbounded for the check). A
+        truth outside it reaches the acquisition saturated at the nearer end, so the chain's check is valid
+        only inside it.
     """
 
     trace: str
     factor: float
     hold: bool
     resolution: float
+    span: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)

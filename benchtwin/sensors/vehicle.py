@@ -210,7 +210,9 @@ class _DbcDevice(Device):
             for name, sig in codec.signals.items():
                 src = sources.get(name)
                 if src is not None and src.role is not None and src.trace is not None and src.role not in not_sent:
-                    out[src.role] = TruthChannel(src.trace, src.factor, src.hold, float(sig.scale))
+                    ends = sorted((sig.raw_min * sig.scale + sig.offset, sig.raw_max * sig.scale + sig.offset))
+                    out[src.role] = TruthChannel(src.trace, src.factor, src.hold, float(sig.scale),
+                                                 (float(ends[0]), float(ends[1])))
         return out
 
     def error_budget(self) -> dict[str, tuple[ChannelErrors | None, LinkErrors, float]]:

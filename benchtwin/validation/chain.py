@@ -135,15 +135,24 @@ def _check(trace: Trace, dt_s: float, ch: Channel, tc: TruthChannel, profile: st
     def truth_of(win: _TruthWindow, t: np.ndarray) -> np.ndarray:
         return hold_sample(win.time, win.x, t) if hold else np.interp(t, win.time, win.x)
 
+    # the check's domain: a truth beyond what the wire can carry reaches the acquisition saturated (e.g. a displayed
+    # SOC the plant drives below 0 % when a campaign's SOC runs on): those samples are counted, not compared
+    lo, hi = tc.span if tc.span is not None else (-np.inf, np.inf)
+    lo, hi = lo - 0.5 * res, hi + 0.5 * res
+
+    def in_span(truth: np.ndarray) -> np.ndarray:
+        return (truth >= lo) & (truth <= hi)
+
     def usable(t: np.ndarray, v: np.ndarray, f: np.ndarray, truth: np.ndarray) -> np.ndarray:
-        return np.isfinite(truth) & np.isfinite(v) & (f & int(Flag.bad()) == 0)
+        return np.isfinite(truth) & np.isfinite(v) & (f & int(Flag.bad()) == 0) & in_span(truth)
 
     span_s = CHECK_BLOCK_SAMPLES * dt_s if len(trace) > 1 else np.inf
-    n_flag, n_ok, t_max = 0, 0, 0.0
+    n_flag, n_ok, n_out, t_max = 0, 0, 0, 0.0
     worst: tuple[float, float, float, float] | None = None  # |err|, value, truth, err: the first largest
     for t, v, f in _blocks(ch, span_s):
         n_flag += int(np.count_nonzero(f))
         truth = truth_of(_TruthWindow(trace, tc.trace, tc.factor, t, 2), t)
+        n_out += int(np.count_nonzero(np.isfinite(truth) & ~in_span(truth)))
         ok = usable(t, v, f, truth)
         if not ok.any():
             continue
@@ -154,15 +163,17 @@ def _check(trace: Trace, dt_s: float, ch: Channel, tc: TruthChannel, profile: st
             k = int(np.argmax(np.abs(err)))
             if worst is None or abs(err[k]) > worst[0]:
                 worst = (abs(float(err[k])), float(v[ok][k]), float(truth[ok][k]), float(err[k]))
+    domain = (f"; {n_out} samples whose truth lies outside the wire's range [{lo + 0.5 * res:g}, {hi - 0.5 * res:g}] "
+              f"{ch.unit} left out (saturated on the wire: outside the check's domain)") if n_out else ""
     if n_ok == 0:
         return Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", ch.unit, False,
-                     "no usable sample")
+                     "no usable sample" + domain)
     if profile == "ideal":
         assert worst is not None
         # half a step; thermocouples add the 0.5 uV input converter (~0.013 degC at 39 uV/degC)
         tol = 0.5 * res + degc + 1e-9
         passed = bool(worst[0] <= tol and n_flag == 0)
-        note = f"{n_flag} flagged samples" if n_flag else "half a resolution step"
+        note = (f"{n_flag} flagged samples" if n_flag else "half a resolution step") + domain
         return Check("chain", f"chain.{role}", worst[1], worst[2], worst[3], tol, "abs", ch.unit, passed, note)
     errs, link, extra = budget
     # the local slope over a window covering the lags (max of the slope around each sample)
@@ -196,7 +207,7 @@ def _check(trace: Trace, dt_s: float, ch: Channel, tc: TruthChannel, profile: st
     inside = n_in / n_ok
     return Check("chain", f"chain.{role}", inside, 0.99, inside, 0.99, "min", "-", inside >= 0.99,
                  f"fraction of unflagged samples whose error the setup's declared imperfections explain; "
-                 f"{n_flag} flagged samples")
+                 f"{n_flag} flagged samples{domain}")
 
 
 def _median_step(ch: Channel) -> float:
