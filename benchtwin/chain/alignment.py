@@ -217,14 +217,22 @@ class _MotorPower(_Series):
 
 
 def _blocks_back(s: _Series, stop: int, size: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-    for b in range(stop, 0, -size):
-        a = max(b - size, 0)
+    """Runs of samples before ``stop``, backwards: 64 samples first, doubling up to ``size`` (the finite sample
+    looked for is most often the first one read)."""
+    b, step = stop, min(64, size)
+    while b > 0:
+        a = max(b - step, 0)
         yield (a, *s.read(a, b))
+        b, step = a, min(2 * step, size)
 
 
 def _blocks_on(s: _Series, start: int, size: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-    for a in range(start, s.n, size):
-        yield (a, *s.read(a, min(a + size, s.n)))
+    """Runs of samples from ``start`` on: 64 samples first, doubling up to ``size``."""
+    a, step = start, min(64, size)
+    while a < s.n:
+        b = min(a + step, s.n)
+        yield (a, *s.read(a, b))
+        a, step = b, min(2 * step, size)
 
 
 def _finite_span(s: _Series, size: int) -> tuple[float, float] | None:
