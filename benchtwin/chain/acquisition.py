@@ -419,7 +419,7 @@ class Acquisition:
         offsets = dict(sink.counts.pop("clock_offsets_s", {}))
         drifts: dict[str, float] = {}
         if self.align:
-            found, drifts = clock_offsets(rec)
+            found, drifts = clock_offsets(view)  # the windows it uses, a block at a time
             offsets.update(found)
             if self._store.on_disk:
                 rec.drop()

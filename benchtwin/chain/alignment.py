@@ -15,10 +15,13 @@ the one whose least-squares residual is smallest.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterator
 from itertools import pairwise
 
 import numpy as np
 
+from benchtwin.chain.blocks import ChannelBlocks
 from benchtwin.recording import Recording
 
 __all__ = ["DRIFT_WINDOW_S", "clock_offsets", "detect_lag", "slip_aware_lag"]
@@ -46,11 +49,25 @@ def detect_lag(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarra
     lo, hi = max(t_a[0], t_b[0]) + max_lag_s, min(t_a[-1], t_b[-1]) - max_lag_s
     if window is not None:
         lo, hi = max(lo, window[0]), min(hi, window[1])
-    if hi - lo < 4 * max_lag_s:
-        return None
-    if hi - lo > 3600.0:  # the central hour of a long recording is plenty
+    return _correlate(t_a, x_a, t_b, x_b, lo, hi, rate_hz, max_lag_s, min_correlation)
+
+
+def _central_hour(lo: float, hi: float) -> tuple[float, float]:
+    """The span ``lo..hi``, cut to its central hour when longer (all a cross-correlation needs)."""
+    if hi - lo > 3600.0:
         mid = 0.5 * (lo + hi)
         lo, hi = mid - 1800.0, mid + 1800.0
+    return lo, hi
+
+
+def _correlate(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarray, lo: float, hi: float,
+               rate_hz: float, max_lag_s: float, min_correlation: float) -> float | None:
+    """:func:`detect_lag` over the span ``lo..hi`` (its central hour), the samples finite ones: for each point of
+    the grids only the finite samples either side of it matter (any run of them around the grids gives the
+    same bits)."""
+    if hi - lo < 4 * max_lag_s:
+        return None
+    lo, hi = _central_hour(lo, hi)
     m = round(max_lag_s * rate_hz)
     grid = np.arange(lo, hi, 1.0 / rate_hz)
     a = np.interp(grid, t_a, x_a)
@@ -115,9 +132,15 @@ def slip_aware_lag(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.nd
         lo, hi = max(lo, tf[0] + abs(lag0) + search_s), min(hi, tf[-1] - abs(lag0) - search_s)
     if window is not None:
         lo, hi = max(lo, window[0]), min(hi, window[1])
-    if hi - lo > 3600.0:
-        mid = 0.5 * (lo + hi)
-        lo, hi = mid - 1800.0, mid + 1800.0
+    return _slip_fit(t_a, x_a, t_b, x_b, forces, lag0, lo, hi, rate_hz, search_s)
+
+
+def _slip_fit(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarray,
+              forces: list[tuple[np.ndarray, np.ndarray]], lag0: float, lo: float, hi: float, rate_hz: float,
+              search_s: float) -> float:
+    """:func:`slip_aware_lag` over the span ``lo..hi`` (its central hour): for each point of the grids only the
+    samples either side of it matter (any run of them around the grids gives the same bits)."""
+    lo, hi = _central_hour(lo, hi)
     if hi - lo < 20.0:
         return lag0
     grid = np.arange(lo, hi, 1.0 / rate_hz)
@@ -148,45 +171,191 @@ def slip_aware_lag(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.nd
 DRIFT_WINDOW_S = 900.0
 
 
-def _pairs(rec: Recording) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list]]:
-    """Signal pairs that measure one quantity on two sources: (key, t_a, x_a, t_b, x_b, forces), ``forces``
-    the axle forces on ``b``'s clock when ``a`` is a wheel speed that slips (else empty)."""
-    out = []
+class _Series:
+    """One channel's timestamps and values, read by runs of samples through a :class:`ChannelBlocks` view."""
+
+    def __init__(self, view: ChannelBlocks, name: str) -> None:
+        self.view, self.name, self.n = view, name, view.length(name)
+
+    def read(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        t, v, _f = self.view.read(self.name, start, stop)
+        return t, v
+
+    def time(self, index: int) -> float:
+        return self.view.sample(self.name, index)
+
+    def search(self, time_s: float, side: str) -> int:
+        """``np.searchsorted(timestamps, time_s, side)`` of the whole, time-ordered channel (a bisection over
+        single samples)."""
+        lo, hi = 0, self.n
+        while lo < hi:
+            mid = (lo + hi) // 2
+            t = self.time(mid)
+            if t < time_s or (side == "right" and t == time_s):
+                lo = mid + 1
+            else:
+                hi = mid
+        return lo
+
+
+class _MotorPower(_Series):
+    """The motor's mechanical power, torque times the speed interpolated at the torque's timestamps (rad/s)."""
+
+    def __init__(self, torque: _Series, speed: _Series) -> None:
+        self.torque, self.speed = torque, speed
+        self.view, self.name, self.n = torque.view, torque.name, torque.n
+
+    def read(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        t, q = self.torque.read(start, stop)
+        if t.size == 0:
+            return t, q
+        # the speed's samples either side of each torque timestamp: np.interp gives the bits of the whole channel
+        s0 = max(self.speed.search(float(t[0]), "right") - 1, 0)
+        s1 = min(self.speed.search(float(t[-1]), "right") + 1, self.speed.n)
+        ts, vs = self.speed.read(s0, s1)
+        return t, q * np.interp(t, ts, vs) * (2 * np.pi / 60.0)
+
+
+def _blocks_back(s: _Series, stop: int, size: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Runs of samples before ``stop``, backwards: 64 samples first, doubling up to ``size`` (the finite sample
+    looked for is most often the first one read)."""
+    b, step = stop, min(64, size)
+    while b > 0:
+        a = max(b - step, 0)
+        yield (a, *s.read(a, b))
+        b, step = a, min(2 * step, size)
+
+
+def _blocks_on(s: _Series, start: int, size: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """Runs of samples from ``start`` on: 64 samples first, doubling up to ``size``."""
+    a, step = start, min(64, size)
+    while a < s.n:
+        b = min(a + step, s.n)
+        yield (a, *s.read(a, b))
+        a, step = b, min(2 * step, size)
+
+
+def _finite_span(s: _Series, size: int) -> tuple[float, float] | None:
+    """Timestamps of the first and last finite sample, None if fewer than ten (what :func:`detect_lag` needs)."""
+    count, first = 0, math.nan
+    for _a, t, x in _blocks_on(s, 0, size):
+        good = np.flatnonzero(np.isfinite(x))
+        if good.size and count == 0:
+            first = float(t[good[0]])
+        count += good.size
+        if count >= 10:
+            break
+    if count < 10:
+        return None
+    for _a, t, x in _blocks_back(s, s.n, size):
+        good = np.flatnonzero(np.isfinite(x))
+        if good.size:
+            return first, float(t[good[-1]])
+    return None  # pragma: no cover (ten finite samples were found above)
+
+
+def _around(s: _Series, lo: float, hi: float, size: int, *, finite: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The run of samples from the last one at or before ``lo`` to the first one after ``hi`` (with ``finite``:
+    the last and first finite ones, the samples then filtered to the finite ones): what ``np.interp`` uses of
+    the whole channel for points in ``lo..hi``."""
+    start = s.search(lo, "right") - 1
+    if finite:
+        for a, _t, x in _blocks_back(s, start + 1, size):
+            good = np.flatnonzero(np.isfinite(x))
+            if good.size:
+                start = a + int(good[-1])
+                break
+    stop = s.search(hi, "right")
+    if finite:
+        for a, _t, x in _blocks_on(s, stop, size):
+            good = np.flatnonzero(np.isfinite(x))
+            if good.size:
+                stop = a + int(good[0])
+                break
+    t, x = s.read(max(start, 0), min(stop + 1, s.n))
+    if finite:
+        good = np.isfinite(x)
+        t, x = t[good], x[good]
+    return t, x
+
+
+def _cut(s: _Series, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Samples with ``lo <= t < hi`` (the cut :func:`detect_lag` makes for a ``window``)."""
+    return s.read(s.search(lo, "left"), s.search(hi, "left"))
+
+
+def _pairs(view: ChannelBlocks) -> list[tuple[str, _Series, _Series, list[_Series]]]:
+    """Signal pairs that measure one quantity on two sources: (key, a, b, forces), ``forces`` the axle forces on
+    ``b``'s clock when ``a`` is a wheel speed that slips (else empty)."""
+    rec = view.rec
+    out: list[tuple[str, _Series, _Series, list[_Series]]] = []
     if "vehicle_speed_kmh" in rec and "dyno_speed_kmh" in rec:
-        a, b = rec["vehicle_speed_kmh"], rec["dyno_speed_kmh"]
-        forces = [(rec[n].timestamps, rec[n].values) for n in ("dyno_force_front_n", "dyno_force_rear_n")
-                  if n in rec and rec[n].source == b.source]
-        out.append(("vehicle_can->dyno", a.timestamps, a.values, b.timestamps, b.values, forces))
+        source = rec["dyno_speed_kmh"].source
+        forces = [_Series(view, n) for n in ("dyno_force_front_n", "dyno_force_rear_n")
+                  if n in rec and rec[n].source == source]
+        out.append(("vehicle_can->dyno", _Series(view, "vehicle_speed_kmh"), _Series(view, "dyno_speed_kmh"),
+                    forces))
     if "em_torque_nm" in rec and "em_speed_rpm" in rec:
         power_name = "hpcu_power_w" if "hpcu_power_w" in rec else "battery_power_w"
         if power_name in rec:
-            tq, sp, p = rec["em_torque_nm"], rec["em_speed_rpm"], rec[power_name]
-            mech = tq.values * np.interp(tq.timestamps, sp.timestamps, sp.values) * (2 * np.pi / 60.0)
-            out.append((f"vehicle_can->{p.source}", tq.timestamps, mech, p.timestamps, p.values, []))
-    return out
+            mech = _MotorPower(_Series(view, "em_torque_nm"), _Series(view, "em_speed_rpm"))
+            out.append((f"vehicle_can->{rec[power_name].source}", mech, _Series(view, power_name), []))
+    return [(key, a, b, forces) for key, a, b, forces in out
+            if min([a.n, b.n, getattr(a, "speed", a).n] + [f.n for f in forces]) > 0]
 
 
-def clock_offsets(rec: Recording) -> tuple[dict[str, float], dict[str, float]]:
-    """Offsets (s) and, on recordings long enough, relative drifts (ppm) between sources."""
+def clock_offsets(rec: Recording | ChannelBlocks) -> tuple[dict[str, float], dict[str, float]]:
+    """Offsets (s) and, on recordings long enough, relative drifts (ppm) between sources.
+
+    Only the time windows the work uses are read (the central hour of the common span, each 15-minute drift
+    window, and the samples either side of them), a block of samples at a time through ``rec`` when it is a
+    :class:`ChannelBlocks` view (channels in the store's files stay there); the offsets and drifts are those of
+    :func:`detect_lag` and :func:`slip_aware_lag` on the whole channels, bit for bit.
+    """
+    view = rec if isinstance(rec, ChannelBlocks) else ChannelBlocks(rec)
+    size, max_lag = view.size, 2.0
     offsets: dict[str, float] = {}
     drifts: dict[str, float] = {}
-    for key, t_a, x_a, t_b, x_b, forces in _pairs(rec):
-        lag = detect_lag(t_a, x_a, t_b, x_b)
+    for key, a, b, forces in _pairs(view):
+        span_a, span_b = _finite_span(a, size), _finite_span(b, size)
+        if span_a is None or span_b is None:
+            continue
+        lo, hi = max(span_a[0], span_b[0]) + max_lag, min(span_a[1], span_b[1]) - max_lag
+        if hi - lo < 4 * max_lag:  # too short a common span (as _correlate decides)
+            continue
+        g0, g1 = _central_hour(lo, hi)  # the grids: g0..g1 (a), g0 - max_lag..g1 + max_lag (b); a second to spare
+        t_a, x_a = _around(a, g0 - 1.0, g1 + 1.0, size, finite=True)
+        t_b, x_b = _around(b, g0 - max_lag - 1.0, g1 + max_lag + 1.0, size, finite=True)
+        lag = _correlate(t_a, x_a, t_b, x_b, lo, hi, 100.0, max_lag, 0.6)
+        del t_a, x_a, t_b, x_b
         if lag is None:
             continue
+        ends = [(s.time(0), s.time(-1)) for s in (a, b)]
         if forces:
-            lag = slip_aware_lag(t_a, x_a, t_b, x_b, forces, lag)
+            search = 0.3
+            lo = max(ends[0][0], ends[1][0]) + abs(lag) + search
+            hi = min(ends[0][1], ends[1][1]) - abs(lag) - search
+            for f in forces:
+                lo, hi = max(lo, f.time(0) + abs(lag) + search), min(hi, f.time(-1) - abs(lag) - search)
+            g0, g1 = _central_hour(lo, hi)
+            if g1 - g0 >= 20.0:  # else the plain lag stands (as _slip_fit decides)
+                reach = abs(lag) + search + 1.0
+                t_a, x_a = _around(a, g0 - 1.0, g1 + 1.0, size, finite=False)
+                t_b, x_b = _around(b, g0 - reach, g1 + reach, size, finite=False)
+                near = [_around(f, g0 - reach, g1 + reach, size, finite=False) for f in forces]
+                lag = _slip_fit(t_a, x_a, t_b, x_b, near, lag, lo, hi, 20.0, search)
+                del t_a, x_a, t_b, x_b, near
         offsets[key] = lag
-        t0, t1 = max(t_a[0], t_b[0]), min(t_a[-1], t_b[-1])
+        t0, t1 = max(ends[0][0], ends[1][0]), min(ends[0][1], ends[1][1])
         n_win = int((t1 - t0) // DRIFT_WINDOW_S)
         if n_win >= 4:  # offset per window, drift = slope of a straight line through them
             edges = np.linspace(t0, t1, n_win + 1)
-            pts = [(0.5 * (a + b), detect_lag(t_a, x_a, t_b, x_b, window=(a, b), rate_hz=20.0))
-                   for a, b in pairwise(edges)]
+            pts = [(0.5 * (w0 + w1), detect_lag(*_cut(a, w0 - max_lag, w1 + max_lag),
+                                                 *_cut(b, w0 - 2 * max_lag, w1 + 2 * max_lag),
+                                                 window=(w0, w1), rate_hz=20.0))
+                   for w0, w1 in pairwise(edges)]
             pts = [(c, lag_w) for c, lag_w in pts if lag_w is not None]
             if len(pts) >= 3 and pts[-1][0] - pts[0][0] >= 2 * DRIFT_WINDOW_S:
                 c, lw = np.array(pts).T
                 drifts[key] = float(np.polyfit(c, lw, 1)[0] * 1e6)
     return offsets, drifts
-
-

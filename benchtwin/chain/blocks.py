@@ -75,6 +75,18 @@ class ChannelBlocks:
             if write:
                 self.store.write_flags(name, a, f)
 
+    def read(self, name: str, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Timestamps, values and flags of samples ``start:stop`` of ``name`` (``0 <= start <= stop <= length``):
+        read from the store's files, or views of the arrays in memory (not to be changed)."""
+        n = self.length(name)
+        if not 0 <= start <= stop <= n:
+            raise IndexError(f"channel {name!r} has {n} samples, no samples {start}:{stop}")
+        if not self._stored(name):
+            ch = self.rec.channels[name]
+            return ch.timestamps[start:stop], ch.values[start:stop], ch.flags[start:stop]
+        assert self.store is not None
+        return self.store.read_block(name, start, stop)
+
     def sample(self, name: str, index: int) -> float:
         """The timestamp of sample ``index`` of ``name`` (negative counts from the end)."""
         n = self.length(name)

@@ -17,11 +17,9 @@ import pytest
 
 import benchtwin.chain.acquisition as acquisition
 from benchtwin.chain.acquisition import Acquisition, AcquisitionInput, acquire
-from benchtwin.chain.batch import as_logged, deliver
-from benchtwin.config import load_setup, scenario_path
+from benchtwin.config import load_setup
 from benchtwin.errors import DataError
 from benchtwin.recording import Recording
-from benchtwin.sensors import encode
 
 #: inside every fault span of faults.toml (plant time: frame loss 20-25 s, burst 60-62, duplicates 100-105,
 #: reorder 140-145, corrupt payload 180-185, wrong DLC 220-225, IVT error 260-, silent 300-303 and 340-345,
@@ -29,25 +27,6 @@ from benchtwin.sensors import encode
 #: open circuit 760-770, stuck 800-840, the dyno log cut at 905 s)
 THROUGH_FAULTS = [22.5, 61.0, 102.0, 142.0, 182.0, 222.0, 261.0, 301.5, 342.0, 382.0, 422.0, 461.0, 685.0,
                   700.05, 721.5, 765.0, 820.0, 910.0]
-
-
-@pytest.fixture(scope="module")
-def quick_inputs() -> dict[str, AcquisitionInput]:
-    emulator = pytest.importorskip("benchtwin.emulator")
-    from benchtwin.config.campaign import load_campaign
-    from benchtwin.config.vehicle import load_vehicle
-
-    trace = emulator.simulate_campaign(load_vehicle(scenario_path("vehicles", "p2_phev_9at.toml")),
-                                       load_campaign(scenario_path("campaigns", "quick.toml")))
-    out = {}
-    for name in ("paper", "faults"):
-        setup = load_setup(name)
-        received = deliver(encode(trace, setup, 5), setup, seed=5,
-                           span_s=(float(trace.time_s[0]), float(trace.time_s[-1])))
-        received.segments = list(trace.segments)
-        received.meta = {"seed": 5}
-        out[name] = as_logged(received, setup)  # the faults setup's dyno log is cut short: a `truncated` event
-    return out
 
 
 @pytest.fixture(scope="module")
