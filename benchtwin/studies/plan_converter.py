@@ -169,8 +169,8 @@ def _delta(func: Callable[[np.ndarray], float], z: np.ndarray, cov: np.ndarray) 
 
 def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
                    segments: list[Segment], tx: Sequence[PlannedParameter], *, seed: int = 0,
-                   draws: int = CONVERTER_DRAWS, recorded: Mapping[str, Channel] | None = None
-                   ) -> list[PlannedParameter]:
+                   draws: int = CONVERTER_DRAWS, recorded: Mapping[str, Channel] | None = None,
+                   sensed: Mapping[str, Channel] | None = None) -> list[PlannedParameter]:
     """Predicted standard errors of ``a0..a8``, ``J_pump_kgm2``, the coupling point and its derived values.
 
     Parameters
@@ -189,6 +189,11 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     recorded:
         Role -> the channel as the bench recorded it (:data:`CONVERTER_RECORDED`); a role without random error
         on the setup is taken from here instead of its truth.
+    sensed:
+        Role -> the noise-free value each of its readings measures
+        (:func:`~benchtwin.studies.plan_noise.sensor_response`); a noisy role found here is taken from it (with
+        its declared gain and offset) instead of its truth lagged by :func:`~benchtwin.studies.plan_windows.
+        reading_lag_line`.
     seed, draws:
         Seed and number of the draws of the noise that decide the rows the fits keep (module docstring).
 
@@ -206,11 +211,14 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     truth = rec
     swap = {n: ch for n, ch in (recorded or {}).items() if n not in noise and n in rec}
     for n in ("shaft_torque_nm", *CONVERTER_RECORDED):
-        if n in noise and n in rec and (noise[n].gain or noise[n].offset):  # the same gain and offset every seed
+        if n in noise and n in rec and (noise[n].gain or noise[n].offset or (sensed and n in sensed)):
             ch = rec[n]
-            # the readings lag the truth as the bench's do (filter, latency): the launches' torque moves fast
-            a, b = reading_lag_line(ch, recorded[n], noise[n]) if recorded and n in recorded else (0.0, 0.0)
-            y = np.interp(ch.timestamps - (a + b * ch.timestamps), ch.timestamps, ch.values) if a or b else ch.values
+            if sensed and n in sensed:  # the sensor's own noise-free response (filter, clock, latency)
+                y = sensed[n].values
+            else:  # the readings lag the truth as the bench's do: the launches' torque moves fast
+                a, b = reading_lag_line(ch, recorded[n], noise[n]) if recorded and n in recorded else (0.0, 0.0)
+                y = np.interp(ch.timestamps - (a + b * ch.timestamps), ch.timestamps, ch.values) if a or b \
+                    else ch.values
             swap[n] = Channel(n, ch.unit, ch.timestamps, (1.0 + noise[n].gain) * y + noise[n].offset,
                               ch.flags, ch.source)
     if swap:
@@ -328,14 +336,16 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
                                 float("nan") if calib_noisy else 0.0, True,
                                 "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
                                 "the speeds it reads are free of random error on this setup", "", pts.n_cal))
-    # its spread over the draws is not its standard error: on the paper bench's quick campaign it is 3.6 times the
-    # spread over 20 seeds (the calibration samples' errors are not independent draws), so it is not predicted
+    # a median of quantised torque ratios: its standard error is its spread over the draws, which redraw it from
+    # the readings the sensor gives (sensed) and the same draws of the transmission table
     ts_noisy = len(tscales) > 1 and float(np.ptp(tscales)) > 0
-    out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale,
-                                float("nan") if ts_noisy else 0.0, True,
-                                "SE not predicted (a median of noisy torque ratios); the draws redraw it"
-                                if ts_noisy else "the torques it reads are free of random error on this "
-                                "setup", "", pts.n_tcal))
+    ts_se = (float(np.std(tscales, ddof=1)) if sensed and "shaft_torque_nm" in sensed else float("nan")) \
+        if ts_noisy else 0.0
+    out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale, ts_se, True,
+                                (f"the spread of a median of noisy torque ratios over {len(tscales)} draws"
+                                 if math.isfinite(ts_se) else "SE not predicted (a median of noisy torque ratios; "
+                                 "the sensor's response is not known)") if ts_noisy else
+                                "the torques it reads are free of random error on this setup", "", pts.n_tcal))
     if "a6" not in names:
         out.append(PlannedParameter("torque_converter.coupling.*", "", float("nan"), float("nan"), False,
                                     f"{n2} coupling-mode points", "add [[tests]] kind = \"acceleration\" "
