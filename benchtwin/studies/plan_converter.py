@@ -33,10 +33,12 @@ by the delta method on the joint covariance.
 
 The turbine torque of eq. 32 is scaled by the median over the gears of ``T_motor / T_t`` where the lock-up is
 closed (:func:`~benchtwin.identification.torque_converter_points.turbine_torque_scale`): each draw recomputes it
-from the drawn readings of those samples (with the same transmission-model draws) and scales the turbine rows by it
-(its own standard error is not predicted: the draws' spread is 9 times a sweep's on the paper campaign, their
-bulk agreeing with it but a fifth of them jumping by 2e-4 where one gear's median of quantised ratios changes
-level).
+from the drawn readings of those samples (with the same transmission-model draws) and scales the turbine rows by it;
+its own standard error is its spread over the draws. That needs the readings' noise-free values as the sensor
+gives them (:func:`~benchtwin.studies.plan_noise.sensor_response`: its filter, clock and latency): with the truth
+lagged by one delay instead, the first grid sample after a pedal step fell on the other side of the calibration's
+``shaft_torque_nm > 0`` rule (the paper campaign's gear 2: 474 samples against the bench's 475), the median of an
+even count averaged two ranks, and a fifth of the draws jumped by 2e-4 where no seed did.
 
 The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
 spread, and the split at the refined coupling point moves with it. So the rows are decided by the
@@ -47,7 +49,9 @@ reading, quantised at the value the bench's sensor reads (the truth with its gai
 the converter's points, the turbine-torque calibration's samples and the transmission table's fit to the same
 readings (:mod:`~benchtwin.studies.plan_converter_draws`): drawn independently at the unlagged truth, the paper
 campaign's split at the coupling point fell at 0.8540-0.8551 against the bench's 0.8536-0.8541 over 20 seeds, so
-three points beside it never changed fits (a6..a8 2.2 times the plan over the seeds, J_pump 3.4). The CAN
+three points beside it never changed fits (a6..a8 2.2 times the plan over the seeds, J_pump 3.4). The shaft torque's
+noise-free value is the sensor's own response where the plan has it (``sensed``), else the truth lagged by a line
+in time (:func:`~benchtwin.studies.plan_windows.reading_lag_line`). The CAN
 signals the points are made of are taken as recorded (:data:`CONVERTER_RECORDED`: their quantisation is the
 same every seed) and the shaft torque with its declared gain and offset, so the derivatives are taken where a
 bench's estimates are.
