@@ -21,7 +21,11 @@ at the plant step, its latency, the link), by about 15 ms for the paper bench's 
 that lag every drawn window began one grid step early and the edges moved with other odds (the gear-1
 points' windows at 151.0/151.2 s against the bench's 151.0/151.2/151.3 s). The lag of each drawn channel is
 measured on the plan's one bench run (:func:`reading_lag`: the shift of the truth that best matches the
-recorded readings where the truth changes fast) and the drawn readings are the truth shifted by it.
+recorded readings where the truth changes fast) and the drawn readings are the truth shifted by it. Where the
+plan has the sensor's own noise-free response (:func:`~benchtwin.studies.plan_noise.sensor_response`: its filter at
+the plant step, the device clock's offset and drift, the latency), the readings are drawn around that instead: a
+delay is a filter only where the truth changes smoothly, and one delay for a whole campaign misses the clock's
+drift (25 ppm on the paper bench: 0.25 s at 10,000 s).
 """
 
 from __future__ import annotations
