@@ -71,7 +71,13 @@ from benchtwin.studies.plan_fits import (
     plan_shifts,
     plan_transmission,
 )
-from benchtwin.studies.plan_noise import noise_budget, poll_fault_model, reading_variance, truth_recording
+from benchtwin.studies.plan_noise import (
+    noise_budget,
+    poll_fault_model,
+    reading_variance,
+    sensor_response,
+    truth_recording,
+)
 from benchtwin.studies.plan_windows import SEARCHED
 from benchtwin.trace import Trace
 from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
@@ -193,9 +199,12 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
     tx = any(f.name in ("transmission", "torque_converter") for f in fams)
     rec, raw = planned_recording(setup, campaign, trace, families,
                                  recorded=(CONVERTER_RECORDED if conv else ()) + (SEARCHED if tx else ()))
+    # what each noisy reading the window search and the converter read measures (filter, clock, latency)
+    sensed = sensor_response(rec, trace, setup, [n for n in (*SEARCHED, *CONVERTER_RECORDED) if n in noise]) \
+        if tx else {}
     for fam in fams:
         if fam.name == "transmission":
-            plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw)
+            plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed)
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
         elif fam.name == "brakes":
@@ -204,9 +213,9 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
         elif fam.name == "torque_converter":
             planned = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
-                plan_transmission(rec, vehicle, noise, segments, recorded=raw)
+                plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed)
             plan.parameters += plan_converter(rec, vehicle, noise, segments, planned,
-                                              recorded=raw)
+                                              recorded=raw, sensed=sensed)
         elif fam.name == "shifts":
             plan.parameters += plan_shifts(rec, len(vehicle.specs.gear_ratios), noise, fam.roles())
         else:

@@ -88,8 +88,8 @@ class PlannedParameter:
 
 
 def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
-                      segments: list[Segment], *, recorded: Mapping[str, Any] | None = None
-                      ) -> list[PlannedParameter]:
+                      segments: list[Segment], *, recorded: Mapping[str, Any] | None = None,
+                      sensed: Mapping[str, Any] | None = None) -> list[PlannedParameter]:
     """``eta_m`` and ``C0`` of every gear, drive and coast (eq. 15-17), on the identification's steady points.
 
     Each point's efficiency is a ratio of window means of the shaft torque, the input torque and the two
@@ -98,9 +98,10 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
     by the delta method. The windows themselves move with the noise where the signals still settle as a
     hold begins: the variance of the noise-free estimates over draws of the windows is added
     (:mod:`~benchtwin.studies.plan_windows`; ``recorded``: the searched channels as the plan's bench run
-    recorded them, role -> Channel, for the lag of their readings). A gear or direction with fewer than 3
-    points, or one torque level only, is not identifiable: the suggestion is a ramp-up in that gear (with
-    brake steps for the coast side).
+    recorded them, role -> Channel, for the lag of their readings; ``sensed``: role -> the noise-free value
+    of each reading, :func:`~benchtwin.studies.plan_noise.sensor_response`, drawn around instead).
+    A gear or direction with fewer than 3 points, or one torque level only, is not identifiable: the
+    suggestion is a ramp-up in that gear (with brake steps for the coast side).
     """
     specs = vehicle.specs
     ratios = np.asarray(specs.gear_ratios, dtype=float)
@@ -110,7 +111,7 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
     except BenchtwinError as exc:  # a campaign without any steady transmission point
         pts, why = None, f"no steady point: {exc}"
     k_w = specs.final_drive_ratio / 3.6 / specs.wheel_radius_m
-    moved = window_draws(rec, specs, noise, recorded=recorded) if pts is not None else {}
+    moved = window_draws(rec, specs, noise, recorded=recorded, sensed=sensed) if pts is not None else {}
     ramp_gears = {int(s.settings.get("gear", 0)) for s in segments if s.kind == "ramp_up"}
     for g in range(1, ratios.size + 1):
         for direction in ("drive", "coast"):

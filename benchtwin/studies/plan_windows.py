@@ -21,7 +21,11 @@ at the plant step, its latency, the link), by about 15 ms for the paper bench's 
 that lag every drawn window began one grid step early and the edges moved with other odds (the gear-1
 points' windows at 151.0/151.2 s against the bench's 151.0/151.2/151.3 s). The lag of each drawn channel is
 measured on the plan's one bench run (:func:`reading_lag`: the shift of the truth that best matches the
-recorded readings where the truth changes fast) and the drawn readings are the truth shifted by it.
+recorded readings where the truth changes fast) and the drawn readings are the truth shifted by it. Where the
+plan has the sensor's own noise-free response (:func:`~benchtwin.studies.plan_noise.sensor_response`: its filter at
+the plant step, the device clock's offset and drift, the latency), the readings are drawn around that instead: a
+delay is a filter only where the truth changes smoothly, and one delay for a whole campaign misses the clock's
+drift (25 ppm on the paper bench: 0.25 s at 10,000 s).
 """
 
 from __future__ import annotations
@@ -105,11 +109,13 @@ def reading_lag_line(truth: Channel, recorded: Channel, cn: ChannelNoise, chunk_
 
 
 def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tuple[str, ...],
-                   rng: np.random.Generator, lags: Mapping[str, float] | None = None) -> Recording:
+                   rng: np.random.Generator, lags: Mapping[str, float] | None = None,
+                   sensed: Mapping[str, Channel] | None = None) -> Recording:
     """``rec`` with the channels ``names`` drawn as the bench records them (others shared, not copied).
 
-    Each reading is ``q rint(((1 + gain) y + offset + n) / q)`` with ``y`` the noise-free value (the truth
-    ``lags[name]`` seconds earlier) and ``n ~ N(0, sigma^2)`` (no rounding when ``q`` is 0).
+    Each reading is ``q rint(((1 + gain) y + offset + n) / q)`` with ``y`` the noise-free value (``sensed[name]``,
+    the sensor's own response, where given; else the truth ``lags[name]`` seconds earlier) and
+    ``n ~ N(0, sigma^2)`` (no rounding when ``q`` is 0).
     """
     out = Recording(segments=list(rec.segments), meta=dict(rec.meta))
     for name, ch in rec.channels.items():
@@ -118,7 +124,10 @@ def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tup
             out.add(ch)
             continue
         lag = (lags or {}).get(name, 0.0)
-        y = np.interp(ch.timestamps - lag, ch.timestamps, ch.values) if lag else ch.values
+        if sensed and name in sensed:
+            y = sensed[name].values
+        else:
+            y = np.interp(ch.timestamps - lag, ch.timestamps, ch.values) if lag else ch.values
         v = (1.0 + cn.gain) * y + cn.offset + rng.normal(0.0, cn.sigma, ch.values.shape)
         if cn.q > 0:
             v = cn.q * np.rint(v / cn.q)
@@ -128,7 +137,7 @@ def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tup
 
 def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, ChannelNoise], *,
                  recorded: Mapping[str, Channel] | None = None, draws: int = WINDOW_DRAWS,
-                 seed: int = 0) -> dict[str, np.ndarray]:
+                 seed: int = 0, sensed: Mapping[str, Channel] | None = None) -> dict[str, np.ndarray]:
     """The noise-free ``(eta_m, C0)`` of every transmission fit at the windows each draw of the noise gives.
 
     Parameters
@@ -142,6 +151,10 @@ def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, Channe
     recorded:
         The searched channels as the plan's bench run recorded them (role -> Channel), for their lag
         (:func:`reading_lag`); without them the draws take the truth unshifted.
+    sensed:
+        Role -> the noise-free value of each of its readings (:func:`~benchtwin.studies.plan_noise.
+        sensor_response`: filter, clock, latency); a channel found here is drawn around it, not around the
+        lagged truth.
     draws, seed:
         Number of draws and the seed of their generator (the same plan gives the same numbers).
 
@@ -155,12 +168,13 @@ def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, Channe
     if not names or draws < 2:
         return {}
     ratios = np.asarray(specs.gear_ratios, dtype=float)
-    lags = {n: reading_lag(rec[n], recorded[n], noise[n]) for n in names if recorded and n in recorded}
+    lags = {n: reading_lag(rec[n], recorded[n], noise[n]) for n in names
+            if recorded and n in recorded and not (sensed and n in sensed)}
     rng = np.random.default_rng(seed)
     out: dict[str, list[tuple[float, float]]] = {}
     for _ in range(draws):
         try:
-            found = transmission_points(noisy_readings(rec, noise, names, rng, lags), specs)
+            found = transmission_points(noisy_readings(rec, noise, names, rng, lags, sensed), specs)
             pts = transmission_points(rec, specs, steady=found.windows)
         except BenchtwinError:
             continue
