@@ -45,7 +45,7 @@ import numpy as np
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._reuse import reusing
 from benchtwin.identification._windows import reads_by_block, share_time_index
-from benchtwin.recording import Channel, LazyChannel, Recording
+from benchtwin.recording import Channel, Flag, LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
 
@@ -58,6 +58,8 @@ RESOLUTION_DRAWS = 6
 BIN_STEPS = 2.0
 #: seed of those draws: the same Recording gives the same report
 RESOLUTION_SEED = 20260
+#: samples read at a time by the rounding's pass over a channel read by blocks (its lowest and highest level)
+ROUNDING_BLOCK = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -159,9 +161,21 @@ class _Rounding:
     so the draws of one component compute it once (the same floating-point operations as a draw on its own,
     hence the same errors). The largest level index of a draw is that of the largest reading (``floor`` of a
     monotone expression), so the number of errors drawn is known without a maximum over the indices.
+
+    A lazy channel that reads blocks from its store (:func:`reads_by_block`, the chunk files ``validate --out``
+    identifies from) is not held: one pass by blocks finds ``lo`` and the top level (a minimum and a maximum, the
+    same numbers block by block), and each draw is a lazy channel that adds the draw's errors to every block it
+    reads (:meth:`moved_lazily`): the same per-sample operations, so the same values, and a re-run that reads
+    windows of it never holds it whole.
     """
 
     def __init__(self, ch: Any, q: float) -> None:
+        self.q = q
+        #: whether the draws move blocks as they are read (the channel is never held whole)
+        self.by_block = reads_by_block(ch)
+        if self.by_block:
+            self._scan_blocks(ch)
+            return
         v = ch.values
         # the good samples only: a flagged sample (clipped, lost, out of range) is excluded by every method, so
         # its value must not move the grid of the others' rounding errors
@@ -173,17 +187,59 @@ class _Rounding:
         #: the good samples' indices (none: every sample is good)
         self.positions = np.empty(0, dtype=np.int64) if all_good else np.flatnonzero(fin).astype(np.int64)
         vf = v if all_good else v[fin]
-        lo = float(vf.min())
-        self.scaled = (vf - lo) / (BIN_STEPS * q)
+        self.lo = float(vf.min())
+        self.scaled = (vf - self.lo) / (BIN_STEPS * q)
         self.top = float(self.scaled.max())
-        self.q = q
+
+    def _scan_blocks(self, ch: Any) -> None:
+        """``lo`` (lowest good reading) and ``top`` (highest scaled level) of a channel read by blocks."""
+        lo, hi = math.inf, -math.inf
+        for a in range(0, len(ch), ROUNDING_BLOCK):
+            _ts, v, f = ch.block(a, a + ROUNDING_BLOCK)
+            vf = v[_good(v, f)]
+            if vf.size:
+                lo, hi = min(lo, float(vf.min())), max(hi, float(vf.max()))
+        self.usable = math.isfinite(lo) and self.q > 0
+        if self.usable:
+            self.lo = lo
+            # the maximum of (v - lo) / (2 q) over the samples is that of the largest v: floating-point subtraction
+            # and division by a positive number are monotone, so this is the whole pass's maximum bit for bit
+            self.top = float((np.float64(hi) - lo) / (BIN_STEPS * self.q))
+
+    def _draw(self, rng: np.random.Generator) -> tuple[float, np.ndarray]:
+        """One draw's grid phase and level errors (in this order from ``rng``)."""
+        phase = rng.uniform(0.0, 1.0)
+        n_levels = math.floor(self.top + phase) + 1
+        return phase, rng.uniform(-0.5 * self.q, 0.5 * self.q, n_levels)
 
     def moved(self, ch: Any, rng: np.random.Generator) -> np.ndarray:
         """The channel's values with one draw of level-wise rounding errors added (see :func:`dithered`)."""
-        phase = rng.uniform(0.0, 1.0)
-        n_levels = math.floor(self.top + phase) + 1
-        errors = rng.uniform(-0.5 * self.q, 0.5 * self.q, n_levels)
+        phase, errors = self._draw(rng)
         return _add_level_errors(ch.values, self.scaled, phase, errors, self.positions)
+
+    def moved_lazily(self, ch: Any, rng: np.random.Generator) -> LazyChannel:
+        """One draw as a lazy channel that adds the draw's errors to each block it reads (a channel read by blocks)."""
+        phase, errors = self._draw(rng)
+        scale = BIN_STEPS * self.q
+        lo = self.lo
+
+        def read(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            ts, v, f = ch.block(a, b)
+            good = _good(v, f)
+            if good.all():
+                return ts, _add_level_errors(v, (v - lo) / scale, phase, errors, np.empty(0, dtype=np.int64)), f
+            positions = np.flatnonzero(good).astype(np.int64)
+            return ts, _add_level_errors(v, (v[good] - lo) / scale, phase, errors, positions), f
+
+        out = LazyChannel(ch.name, ch.unit, ch.source, len(ch), lambda: read(0, len(ch)), ch.value_texts,
+                          block_loader=read)
+        share_time_index(out, ch)  # the same timestamps: the re-run finds spans without indexing them again
+        return out
+
+
+def _good(values: np.ndarray, flags: np.ndarray) -> np.ndarray:
+    """:attr:`Channel.good` of a block: free of :meth:`Flag.bad` flags and finite."""
+    return ((flags & int(Flag.bad())) == 0) & np.isfinite(values)
 
 
 def dithered(recording: Recording, comp: Component, rng: np.random.Generator,
@@ -198,7 +254,8 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator,
     channel whose noise spreads it over many steps averages its errors out, as the rounding does.
 
     ``shared`` (role -> work shared by the draws, filled on first use) lets several draws of one component
-    skip what they have in common; the draws are the same with or without it.
+    skip what they have in common; the draws are the same with or without it. A channel read by blocks from its
+    store stays so: its draw is a lazy channel moving each block it reads (the same numbers, see :class:`_Rounding`).
     """
     channels = dict(recording.channels)
     for role, q in zip(comp.roles, comp.steps, strict=True):
@@ -210,7 +267,7 @@ def dithered(recording: Recording, comp: Component, rng: np.random.Generator,
                 shared[role] = r
         if not r.usable:
             continue
-        channels[role] = ch.with_values(r.moved(ch, rng))
+        channels[role] = r.moved_lazily(ch, rng) if r.by_block else ch.with_values(r.moved(ch, rng))
     return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
                      start_time=recording.start_time)
 
