@@ -90,11 +90,16 @@ def test_ideal_chain_recovers_every_parameter(paper_trace: Trace) -> None:
     assert len(rel) == 8 and all(c.tolerance <= 1e-3 for c in rel)
     looser = [c for c in report.checks if c.group not in ("chain", "r2") and c.mode == "rel" and c.tolerance > 1e-3]
     assert all(c.note for c in looser)
-    # the identified maps predict the WLTC held out of identification and a second WLTC from a low SOC
+    # the identified maps predict the WLTC held out of identification, a second WLTC from a low SOC and a second
+    # cycle, the NEDC, from 7 points above the 15 % sustain threshold: it runs electric, then the engine sustains
     assert report.prediction["held_out"] == "wltc_class3b"
-    for drive in ("wltc_class3b", "wltc_low_soc"):
+    for drive in ("wltc_class3b", "wltc_low_soc", "nedc"):
         for what in ("fuel", "electric", "final_soc"):
             assert f"{drive}.{what}" in names
+    (nedc,) = [d for d in report.prediction["drives"] if d["name"] == "nedc"]
+    assert abs(nedc["measured"]["initial_soc_pct"] - 22.0) < 0.5
+    assert nedc["measured"]["fuel_g"] > 50.0 and nedc["measured"]["electric_wh"] > 100.0  # both sides judged
+    assert abs(nedc["measured"]["distance_km"] - 11.0) < 0.1  # the NEDC's, not the WLTC's 23.3 km
     assert {"submodel.motor_loss_rms", "submodel.battery_voltage_rms", "submodel.bsfc_rms_covered"} <= names
     assert all(c.note for c in report.checks if c.group == "prediction")
 
