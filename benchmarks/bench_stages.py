@@ -14,7 +14,8 @@ of ``--runs`` runs of each, wall (``perf_counter``) and CPU of the process (``pr
 - ``identify_all(rec, specs, type_b=False)``: the estimates;
 - ``identify_all(rec, specs, type_b=True)``: with the type B budget (``meta['seconds']['type_b']`` is its part);
 - the prediction stage of ``validate`` (``benchtwin.validation.run._prediction``: identification without the
-  campaign's cycle, the map-based model over it twice, and the second drive simulated, measured and predicted).
+  campaign's cycle, the map-based model over it twice, and the further drives, the WLTC from a low SOC and the
+  NEDC, each simulated, measured and predicted).
 
 The machine is shared: the load average before and after is printed, and the CPU time is the steadier figure.
 """

@@ -131,9 +131,11 @@ def test_validate_holds_neither_the_trace_nor_the_recording(monkeypatch: pytest.
     assert any(c.group == "chain" and c.passed for c in report.checks)
 
 
-def test_the_second_drive_runs_after_the_held_out_identification_not_beside_it(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Both at once were the run's peak: the held-out identification sees no other thread simulating the second
-    drive, which runs (and is closed) once it is done."""
+def test_the_further_drives_run_after_the_held_out_identification_one_at_a_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Both at once were the run's peak: the held-out identification sees no other thread simulating a further
+    drive; the further drives (the WLTC from a low SOC, then the NEDC) run once it is done, each closed before the
+    next starts."""
     import threading
 
     from benchtwin.errors import DataError
@@ -143,34 +145,44 @@ def test_the_second_drive_runs_after_the_held_out_identification_not_beside_it(m
     events: list[str] = []
 
     class Closable:
-        segments = (Segment(0.0, 10.0, "cycle", "wltc_low_soc"),)
+        def __init__(self, name: str) -> None:
+            self.name = name
+            self.segments = (Segment(0.0, 10.0, "cycle", name),)
 
         def close(self) -> None:
-            events.append("second closed")
+            events.append(f"{self.name} closed")
 
     def identify(rec: object, *args: object, **kwargs: object) -> object:
         others = [t.name for t in threading.enumerate() if t is not threading.current_thread()]
-        events.append("identify beside " + ",".join(sorted(n for n in others if "second" in n)))
+        events.append("identify beside " + ",".join(sorted(n for n in others if "drive" in n)))
         return object()
 
-    def second(*args: object) -> tuple[Closable, Closable]:
-        events.append("second drive")
-        return Closable(), Closable()
+    def drive(vehicle: object, setup: object, campaign: object, name: str, cycle: str, soc_pct: float,
+              seed: int) -> tuple[Closable, Closable]:
+        events.append(f"{name} from {cycle} at {soc_pct:g} %")
+        return Closable(name), Closable(name)
 
     def predict(*args: object, **kwargs: object) -> object:
         raise DataError("not predicted here")
 
     monkeypatch.setattr(vrun, "identify_all", identify)
-    monkeypatch.setattr(vrun, "_second_drive", second)
+    monkeypatch.setattr(vrun, "_held_out_drive", drive)
     monkeypatch.setattr(vrun, "MapVehicle", lambda result, specs: type("M", (), {"notes": []})())
     monkeypatch.setattr(vrun, "predict_drive", predict)
     monkeypatch.setattr(vrun, "without_window", lambda rec, a, b: rec)
     trace = Trace(np.arange(0.0, 30.0, 0.5), {"x": np.zeros(60)},
                   [Segment(0.0, 10.0, "ramp_up", "r"), Segment(10.0, 30.0, "cycle", "wltc")], {})
-    checks = vrun._prediction(ValidationReport(), load_vehicle(), PAPER, load_campaign("quick.toml"), trace,
-                              Recording(), "realistic")
+    vehicle = load_vehicle()
+    assert vehicle.hybrid is not None and vehicle.hybrid.sustain_soc_pct == 15.0
+    report = ValidationReport()
+    checks = vrun._prediction(report, vehicle, PAPER, load_campaign("quick.toml"), trace, Recording(), "realistic")
     assert checks == []
-    assert events == ["identify beside ", "second drive", "second closed", "second closed"]
+    assert events == ["identify beside ",
+                      "wltc_low_soc from wltc_class3b.csv at 14 %", "wltc_low_soc closed", "wltc_low_soc closed",
+                      "nedc from nedc.csv at 22 %", "nedc closed", "nedc closed"]
+    # a drive that could not be predicted is said so, by name
+    assert [n for n in report.prediction["notes"] if n.startswith("held-out drive")] == [
+        "held-out drive wltc_low_soc: not predicted here", "held-out drive nedc: not predicted here"]
 
 
 def test_recording_mf4_written_from_the_chunk_files_in_small_blocks_reads_back_equal(

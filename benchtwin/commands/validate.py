@@ -4,7 +4,7 @@ Prints every check (chain channels against the Trace, each identified parameter 
 torque-converter curves, shift lines, the BSFC map and, for a realistic setup, R^2 against the paper's)
 and exits 0 when all pass, 1 otherwise. A campaign with a driving cycle beside its identification tests is
 also identified without that cycle, and the map-based vehicle model built from that identification predicts
-the cycle and a second drive (checks of group ``prediction``). With ``--out`` the raw bus logs,
+the cycle, the WLTC again from a low SOC and the NEDC (checks of group ``prediction``). With ``--out`` the raw bus logs,
 ``recording.mf4``, ``params.json``, ``validation.json`` and ``report.html`` (one self-contained page: verdict,
 prediction, checks, chain, figures) are written (and the figure files with ``--figures``). With
 ``--families transmission,battery`` only those identification families are validated, each on the campaign's
@@ -105,7 +105,7 @@ def print_report(report: object, *, show_all: bool) -> None:
               f"electric energy {d['predicted']['electric_wh']:.0f} Wh vs {m['electric_wh']:.0f} Wh: {el}, "
               f"final SOC {e['soc_points']:+.2f} pt, CO2 {100 * e['co2']:+.2f} %")
     for note in report.prediction.get("notes", []):
-        if note.startswith(("no prediction", "second drive")):
+        if note.startswith(("no prediction", "held-out drive")):
             print(f"  {note}")
     print()
     if show_all:

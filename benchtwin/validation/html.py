@@ -115,7 +115,8 @@ def _prediction_section(pred: dict[str, Any]) -> str:
     if pred.get("held_out"):
         out.append(f"<p>Identification ran without the segment <b>{_e(pred['held_out'])}</b>; the map-based model "
                    "(road load, eq. 14 per gear, converter curves, Willans lines, eq. 30, BSFC map; only the "
-                   "identification result and the public specs) predicts it and a second drive it never saw. "
+                   "identification result and the public specs) predicts it and further drives it never saw (the WLTC "
+                   "from a low SOC, the NEDC from a few points above the sustain threshold). "
                    "Goal: fuel and electric energy within 2 %, final SOC within 1 point.</p>")
     if drives:
         out.append("<table><tr><th>drive</th><th>gears</th><th>quantity</th><th>predicted</th><th>measured</th>"

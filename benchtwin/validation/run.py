@@ -285,10 +285,28 @@ def _dropping(rec: Recording, fn: Callable[..., _T], *args: Any, **kwargs: Any) 
 #: sustains the charge with the engine (the paper campaign's cycle runs mostly depleting)
 SECOND_DRIVE_SOC_PCT = 14.0
 
+#: the third held-out drive, a second cycle (the NEDC, UN ECE R101) started this many displayed-SOC points above the
+#: vehicle's sustain threshold ([hybrid] sustain_soc_pct; 15 + 7 = 22 % on the shipped P2 cars, inside the 13-35 %
+#: the paper campaign charges through): the four urban cycles (~1.3 kWh over 4 km) run electric down to the
+#: threshold, the EUDC (to 120 km/h) runs hybrid with the engine sustaining, so one drive judges both the electric
+#: and the fuel side on a speed profile identification never saw (default car: engine on 34 % of the drive,
+#: 325 g of fuel and 603 Wh out of the battery, final SOC 16.3 %)
+NEDC_SOC_ABOVE_SUSTAIN_PT = 7.0
+
+
+def _held_out_drives(vehicle: VehicleConfig) -> list[tuple[str, str, float]]:
+    """The drives simulated and measured after identification, each on its own: (name, cycle file, start SOC %)."""
+    sustain = vehicle.hybrid.sustain_soc_pct if vehicle.hybrid is not None else SECOND_DRIVE_SOC_PCT
+    return [("wltc_low_soc", "wltc_class3b.csv", SECOND_DRIVE_SOC_PCT),
+            ("nedc", "nedc.csv", sustain + NEDC_SOC_ABOVE_SUSTAIN_PT)]
+
 
 def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
                 trace: Trace, rec: Any, profile: str) -> list[Check]:
-    """Identify without the campaign's driving cycle, predict it and a second drive with the map-based model.
+    """Identify without the campaign's driving cycle, predict it and further drives with the map-based model.
+
+    The further drives (:func:`_held_out_drives`: the WLTC from a low SOC, the NEDC) are simulated and measured
+    one at a time after this identification, each closed before the next.
 
     Only for a campaign that holds a cycle beside other tests (the cycle is held out of identification);
     the result goes to ``report.prediction`` and the checks of group ``prediction`` are returned.
@@ -305,7 +323,7 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
                              "hold out")
         return []
     held = cycles[-1]
-    # the second drive (below) is simulated and measured after this identification, not beside it on another thread:
+    # the further drives (below) are simulated and measured after this identification, not beside it on a thread:
     # both at once were the run's peak (1.1-1.3 GB on the paper campaign), for a few seconds of wall saved
     try:
         # the prediction uses the estimates only: no interval of this identification is reported
@@ -340,37 +358,38 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
         fuel_g = np.cumsum(1e3 * tr["fuel_mass_flow_kgps"] * np.diff(tr.time_s, append=tr.time_s[-1]))
         pred["series_measured"] = {"t_s": tr.time_s[::10], "soc_pct": tr["displayed_soc_pct"][::10],
                                    "battery_voltage_v": tr["battery_voltage_v"][::10], "fuel_g": fuel_g[::10]}
-    # the second drive: the WLTC from a low SOC, simulated and measured on its own (never identified on)
-    _give_back_freed_memory()
-    try:
-        trace2, rec2 = _second_drive(vehicle, setup, campaign)
-    except BenchtwinError as exc:
-        pred["notes"].append(f"second drive: {exc}")
-        return checks
-    try:
-        seg = trace2.segments[0]
-        res2, _p2, _d2 = predict_drive(model, rec2, trace2, seg.start_s, seg.end_s, seg.name)
-        _starts(res2, trace2, vehicle)
-        pred["drives"].append(res2.to_dict())
-        checks += prediction_checks(res2, profile, _budget(setup))
-    except BenchtwinError as exc:
-        pred["notes"].append(f"second drive: {exc}")
-    finally:
-        rec2.close()
-        trace2.close()
+    # the further drives, simulated and measured one at a time (never identified on), each closed before the next
+    for k, (name, cycle, soc_pct) in enumerate(_held_out_drives(vehicle), start=1):
+        _give_back_freed_memory()
+        try:
+            trace2, rec2 = _held_out_drive(vehicle, setup, campaign, name, cycle, soc_pct, campaign.seed + k)
+        except BenchtwinError as exc:
+            pred["notes"].append(f"held-out drive {name}: {exc}")
+            continue
+        try:
+            seg = trace2.segments[0]
+            res2, _p2, _d2 = predict_drive(model, rec2, trace2, seg.start_s, seg.end_s, seg.name)
+            _starts(res2, trace2, vehicle)
+            pred["drives"].append(res2.to_dict())
+            checks += prediction_checks(res2, profile, _budget(setup))
+        except BenchtwinError as exc:
+            pred["notes"].append(f"held-out drive {name}: {exc}")
+        finally:
+            rec2.close()
+            trace2.close()
     return checks
 
 
-def _second_drive(vehicle: VehicleConfig, setup: SetupConfig,
-                  campaign: CampaignConfig) -> tuple[SpooledTrace, Recording]:
-    """The second held-out drive, simulated and measured: the WLTC from :data:`SECOND_DRIVE_SOC_PCT`."""
-    second = CampaignConfig(name="wltc_low_soc", seed=campaign.seed + 1, plant_rate_hz=campaign.plant_rate_hz,
-                            initial_displayed_soc_pct=SECOND_DRIVE_SOC_PCT, ambient_degc=campaign.ambient_degc,
-                            dyno=campaign.dyno, driver=campaign.driver,
-                            tests=[CycleTest(kind="cycle", name="wltc_low_soc", mode="hybrid",
-                                             cycle="wltc_class3b.csv")])
+def _held_out_drive(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, name: str, cycle: str,
+                    soc_pct: float, seed: int) -> tuple[SpooledTrace, Recording]:
+    """A further held-out drive, simulated and measured on its own: ``cycle`` in hybrid mode from ``soc_pct``
+    displayed SOC, on the campaign's dyno, driver and ambient (the caller closes both)."""
+    drive = CampaignConfig(name=name, seed=seed, plant_rate_hz=campaign.plant_rate_hz,
+                           initial_displayed_soc_pct=soc_pct, ambient_degc=campaign.ambient_degc,
+                           dyno=campaign.dyno, driver=campaign.driver,
+                           tests=[CycleTest(kind="cycle", name=name, mode="hybrid", cycle=cycle)])
     with ExitStack() as stack:  # streamed as the campaign (the same result): closed by the caller
-        trace2, rec2, _ = _simulated_and_measured(vehicle, setup, second, None, stack)
+        trace2, rec2, _ = _simulated_and_measured(vehicle, setup, drive, None, stack)
         stack.pop_all()
     return trace2, rec2
 
