@@ -31,7 +31,7 @@ from benchtwin.identification._signals import (
 )
 from benchtwin.identification._window_sums import running_sums, window_groups
 from benchtwin.identification._windows import MARGIN_S, reads_by_block, window_of
-from benchtwin.identification.steady_windowed import find_steady_windows_by_piece
+from benchtwin.identification.steady_windowed import find_steady_windows_by_piece, window_stats
 from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
 
@@ -435,23 +435,7 @@ def find_steady_windows(rec: Recording, channels: Sequence[str], *, states: Iter
                           window_s=window_s, min_duration_s=min_duration_s, max_duration_s=max_duration_s,
                           trim_s=trim_s)
     mids = [grid.t[(a + b - 1) // 2] for a, b in spans]
-    a_idx = np.array([a for a, _ in spans], dtype=int)
-    b_idx = np.array([b for _, b in spans], dtype=int)
-    stats_: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for name, x in grid.values.items():
-        # window means and standard deviations from cumulative sums over the finite samples
-        fin = np.isfinite(x)
-        xc = np.where(fin, x, 0.0)
-        ref = float(np.nanmedian(x)) if fin.any() else 0.0  # shift for numerical accuracy of the variance
-        xc = np.where(fin, xc - ref, 0.0)
-        c1 = np.concatenate(([0.0], np.cumsum(xc)))
-        c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
-        cn = np.concatenate(([0], np.cumsum(fin)))
-        cnt = cn[b_idx] - cn[a_idx]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            m = (c1[b_idx] - c1[a_idx]) / cnt
-            var = np.clip((c2[b_idx] - c2[a_idx]) / cnt - m * m, 0.0, None)
-        stats_[name] = (np.where(cnt > 0, m + ref, np.nan), np.where(cnt > 0, np.sqrt(var), np.nan))
+    stats_ = window_stats(grid, spans)
     windows = []
     for k, ((a, b), tm) in enumerate(zip(spans, mids)):
         means = {name: float(v[0][k]) for name, v in stats_.items() if np.isfinite(v[0][k])}

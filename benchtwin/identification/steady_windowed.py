@@ -18,11 +18,15 @@ from benchtwin.identification._signals import Grid, source_shifts
 from benchtwin.identification._windows import piece_grids
 from benchtwin.recording import Recording
 
-__all__ = ["find_steady_windows_by_piece"]
+__all__ = ["find_steady_windows_by_piece", "window_stats"]
 
 
-def _window_stats(grid: Grid, spans: list[tuple[int, int]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per gathered channel, the means and standard deviations over each span (as the whole search computes them)."""
+def window_stats(grid: Grid, spans: list[tuple[int, int]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per gathered channel, the means and standard deviations over each span ``[a, b)`` of the grid.
+
+    From cumulative sums over the finite samples, shifted by the channel's median for the variance's accuracy; the
+    whole search (:func:`~benchtwin.identification.steady.find_steady_windows`) and the piece-by-piece one share it.
+    """
     a_idx = np.array([a for a, _ in spans], dtype=int)
     b_idx = np.array([b for _, b in spans], dtype=int)
     out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -83,7 +87,7 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
         n_excl += int(g.flagged.sum())
         searched += t.size
         if spans:
-            stats = _window_stats(g, spans)
+            stats = window_stats(g, spans)
             for k, (a, b) in enumerate(spans):
                 tm = t[(a + b - 1) // 2]
                 means = {nm: float(v[0][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
