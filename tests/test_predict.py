@@ -140,10 +140,14 @@ def test_the_model_never_reads_the_vehicle_file() -> None:
     ours = {m for m in imported if m.startswith("benchtwin")}
     allowed = ("benchtwin.config.specs", "benchtwin.errors", "benchtwin.identification",
                "benchtwin.validation._pack_steps",  # the model's own compiled pack steps
-               "benchtwin.validation.drive")  # its input and output classes, which import nothing of benchtwin
+               "benchtwin.validation.drive",  # its input and output classes, which import nothing of benchtwin
+               "benchtwin.validation.fuel_map", "benchtwin.validation.shift_lines",
+               "benchtwin.validation.standstill")  # its pieces, numpy only
     assert ours and all(m.startswith(allowed) for m in ours), ours
-    drive_src = (src.parent / "drive.py").read_text(encoding="utf-8")
-    assert "benchtwin" not in "".join(line for line in drive_src.splitlines() if line.startswith(("from", "import")))
+    for piece in ("drive.py", "fuel_map.py", "shift_lines.py", "standstill.py"):
+        piece_src = (src.parent / piece).read_text(encoding="utf-8")
+        assert "benchtwin" not in "".join(line for line in piece_src.splitlines()
+                                          if line.startswith(("from", "import"))), piece
     assert "VehicleConfig" not in src.read_text(encoding="utf-8")
     # and it runs on an IdentificationResult plus VehicleSpecs alone
     assert MapVehicle(synthetic_result(), SPECS).run(cruise()).electric_wh > 0
@@ -244,3 +248,40 @@ def test_coupling_mode_takes_the_pump_side_fit_when_identified() -> None:
     assert any("pump rows" in n for n in model.notes)
     del res.fits["torque_converter.coupling"].data["pump_side_a678"]
     np.testing.assert_array_equal(MapVehicle(res, SPECS).tc_a[6:], [0.04, -0.035, -0.005])
+
+
+def _stop(stop_s: float = 60.0, engine_on: float = 0.0) -> DriveInputs:
+    """10 s at 20 km/h in first gear, converter open, then standing ``stop_s`` in gear with the brakes held."""
+    t = np.arange(0.0, 10.0 + stop_s, 0.1)
+    d = cruise(n=t.size, speed_kmh=20.0, gear=1)
+    d.t_s, d.speed_kmh = t, np.where(t < 10.0, 20.0, 0.0)
+    d.lockup_closed = np.zeros(t.size)
+    d.pedal_pct = np.where(t < 10.0, 20.0, 0.0)
+    d.engine_on = np.where(t < 10.0, 0.0, engine_on)
+    return d
+
+
+def test_standstill_run_down_draws_the_zero_torque_loss_until_the_pump_stops() -> None:
+    """J dw/dt = -a0 w^2 from the stop: the pump is below 1 rad/s after (J/a0)(1 - 1/w0), the motor drawing
+    W_loss / e until then (Willans at zero torque); engine on at the stop: no run-down."""
+    a0 = 0.025
+    res = _with_converter(J_PUMP)
+    res.fits["torque_converter.converter"].params["a0"].value = a0
+    drive = _stop()
+    on, off = MapVehicle(res, SPECS).run(drive), MapVehicle(res, SPECS, standstill=False).run(drive)
+    stand = drive.speed_kmh == 0.0
+    extra_j = float(np.sum((on.series["motor_elec_power_w"] - off.series["motor_elec_power_w"])[stand]) * 0.1)
+    w0 = float(np.max(on.series["motor_speed_rpm"][~stand])) * np.pi / 30.0  # the run-down's start (the drive's top)
+    turning_s = J_PUMP / a0 * (1.0 - 1.0 / w0)  # 10 s here, inside the 60 s stop
+    assert 9.0 < turning_s < 10.0
+    # the samples count the draw from their middles: within one 0.1 s sample of the integral
+    assert abs(extra_j - W_LOSS / E * turning_s) <= W_LOSS / E * 0.1
+    w = on.series["motor_speed_rpm"][stand] * np.pi / 30.0
+    t = (np.arange(w.size) + 0.5) * 0.1
+    assert w == pytest.approx(1.0 / (1.0 / w0 + t * a0 / J_PUMP), rel=1e-9)
+    assert on.electric_wh > off.electric_wh
+    assert np.all(off.series["motor_elec_power_w"][stand] == 0.0)
+    assert any("runs down freely" in n for n in on.notes)
+    fired = _stop(engine_on=1.0)  # the engine at idle holds the pump: not the free run-down
+    assert MapVehicle(res, SPECS).run(fired).electric_wh == MapVehicle(res, SPECS, standstill=False).run(
+        fired).electric_wh

@@ -16,7 +16,9 @@ trace of a drive the model computes, per time step and backwards from the wheels
 4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
    pump speed that carries the turbine torque), rigid when it is closed; plus the pump side's inertia torque
    ``J_pump dw_p/dt`` (``J_pump_kgm2`` of ``torque_converter.converter``, identified beside a0..a5 from the
-   take-offs' pump acceleration: motor rotor and pump) on the pump speed, lock-up closed or open;
+   take-offs' pump acceleration: motor rotor and pump) on the pump speed, lock-up closed or open; standing in
+   gear (lock-up open, engine off) the pump side's free run-down against the converter at stall
+   (:mod:`benchtwin.validation.standstill`), the motor drawing its zero-torque loss while it turns;
 5. the split between engine and motor: a replay of the measured strategy (engine on/off, K0 and the
    engine's CAN torque), the motor taking the rest, so that what is tested are the maps; when the ECU's torque
    was identified against the shaft torque (``engine.can_torque``,
@@ -54,10 +56,13 @@ from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, corrected_engine_torque
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
-from benchtwin.identification.torque_converter_table import table_pump
+from benchtwin.identification.torque_converter_table import table_pump, table_torques
 from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
+from benchtwin.validation.fuel_map import fuel_map_gps
+from benchtwin.validation.shift_lines import shift_line_gears
+from benchtwin.validation.standstill import rundown_speed
 
 __all__ = ["CO2_G_PER_G_DIESEL", "DIESEL_DENSITY_KG_PER_L", "DriveInputs", "MapVehicle", "Prediction"]
 
@@ -93,6 +98,10 @@ class MapVehicle:
     pump_inertia:
         Add the pump side's inertia torque ``J_pump dw_p/dt`` to the torque the motor gives (``J_pump_kgm2`` of
         the converter fit, when identified, positive and its 95 % interval above zero); ``False``: left out.
+    standstill:
+        Count the pump side's free run-down at standstill (:mod:`~benchtwin.validation.standstill`: the motor's
+        zero-torque draw while the pump runs down against the converter at stall, ``J_pump`` and the stall
+        capacity identified); ``False``: pump and motor stand still with the car.
 
     Raises
     ------
@@ -101,7 +110,7 @@ class MapVehicle:
     """
 
     def __init__(self, result: IdentificationResult, specs: VehicleSpecs, *, motor_model: str = "auto",
-                 converter_model: str = "auto", pump_inertia: bool = True) -> None:
+                 converter_model: str = "auto", pump_inertia: bool = True, standstill: bool = True) -> None:
         self.specs = specs
         self.notes: list[str] = []
         if motor_model not in ("auto", "loss", "willans"):
@@ -212,6 +221,7 @@ class MapVehicle:
                               "monotone TR and T_p / w_p^2 over SR); eq. 35-36 only for overrun")
         elif converter_model == "table":
             raise IdentificationError("prediction: torque_converter.table (the converter's curves) not identified")
+        self.j_over_c = self._stall_time_scale(standstill)
         ff = _fit(result, "brakes.front", "m_f")
         fr = _fit(result, "brakes.rear", "m_r")
         self.brake = ((ff.value("m_f"), ff.value("c_f") if "c_f" in ff.params else 0.0),
@@ -252,6 +262,24 @@ class MapVehicle:
                           "torque_converter.converter; the engine's inertia behind K0 not identified, left out)")
         return float(j)
 
+    def _stall_time_scale(self, standstill: bool) -> float:
+        """``J_pump / c`` (s rad/s) of the run-down at standstill, NaN (with a note) when not counted."""
+        if not standstill:
+            return float("nan")
+        c = float("nan")
+        if self.tc_table is not None:
+            c = float(table_torques(self.tc_table, np.array([1.0]), np.array([0.0]))[0][0])
+        elif self.tc_a is not None:
+            c = float(self.tc_a[0])
+        if not (self.j_pump > 0 and math.isfinite(c) and c > 0):
+            self.notes.append("pump run-down at standstill left out (needs the pump-side inertia and the converter's "
+                              "stall capacity): motor and pump stand still with the car")
+            return float("nan")
+        self.notes.append(f"standstill in gear (lock-up open, engine off): the pump side runs down freely against "
+                          f"the converter at stall, J_pump / c = {self.j_pump / c:.1f} s rad/s (c the stall "
+                          "capacity identified), the motor drawing its zero-torque loss while it turns")
+        return self.j_pump / c
+
     # ------------------------------------------------------------------ engine
     def _engine_map(self, result: IdentificationResult) -> None:
         f = result.fits.get("engine.bsfc")
@@ -280,29 +308,11 @@ class MapVehicle:
         lowest BMEP row the fuel MEP goes on linearly to zero load (the Willans form of a diesel), and
         a motoring engine (torque <= 0) burns the zero-load flow.
         """
-        n = np.asarray(speed_rpm, float)
         if self.pmf is None:
-            return np.zeros_like(n)
-        vd, k = self.specs.engine_displacement_m3, self.specs.engine_strokes
-        # BMEP = pi k T / V_d (k strokes: 4 pi T / V_d for a four-stroke)
-        b = np.maximum(np.asarray(torque_nm, float), 0.0) * (np.pi * k) / vd / 1e5
-        sg, bg, P = self.pmf_speed, self.pmf_bmep, self.pmf
-        nc = np.clip(n, sg[0], sg[-1])
-        j = np.clip(np.searchsorted(sg, nc) - 1, 0, sg.size - 2)
-        u = (nc - sg[j]) / (sg[j + 1] - sg[j])
-        col = P[:, j] * (1 - u) + P[:, j + 1] * u  # (n_bmep, n_samples)
-        bc = np.clip(b, bg[0], bg[-1])
-        i = np.clip(np.searchsorted(bg, bc) - 1, 0, bg.size - 2)
-        idx = np.arange(n.size)
-        w = (bc - bg[i]) / (bg[i + 1] - bg[i])
-        pm = col[i, idx] * (1 - w) + col[i + 1, idx] * w
-        low = b < bg[0]
-        if low.any():  # linear towards zero load with the slope of the two lowest rows
-            slope = (col[1, idx] - col[0, idx]) / (bg[1] - bg[0])
-            pm = np.where(low, col[0, idx] + slope * (b - bg[0]), pm)
-        pm = np.maximum(pm, 0.0)
-        p_fuel_w = pm * 1e5 * vd / (np.pi * k) * n * _RPM
-        return p_fuel_w / self.specs.fuel_lhv_j_per_kg * 1e3
+            return np.zeros_like(np.asarray(speed_rpm, float))
+        sp = self.specs
+        return fuel_map_gps(self.pmf_speed, self.pmf_bmep, self.pmf, sp.engine_displacement_m3, sp.engine_strokes,
+                            sp.fuel_lhv_j_per_kg, speed_rpm, torque_nm)
 
     # ------------------------------------------------------------------ transmission and converter
     def _eta_c0(self, gear: int, direction: str) -> tuple[float, float]:
@@ -390,28 +400,8 @@ class MapVehicle:
     # ------------------------------------------------------------------ shift lines
     def shift_gears(self, drive: DriveInputs) -> np.ndarray:
         """Gears from the identified shift lines (hysteresis between up and down lines), the recorded pedal."""
-        n_g = len(self.specs.gear_ratios)
-        rec = drive.gear.astype(int)
-        g = max(int(rec[0]), 1)
-        out = np.zeros(rec.size, dtype=int)
-        for k in range(rec.size):
-            v, p = drive.speed_kmh[k], drive.pedal_pct[k]
-            if rec[k] == 0:
-                out[k] = 0
-                continue
-            for _ in range(n_g):
-                up = self.shift_lines.get((g, "up"))
-                down = self.shift_lines.get((g, "down"))
-                if g < n_g and up is not None and v >= up[0] + up[1] * p:
-                    g += 1
-                elif g > 1 and down is not None and v <= down[0] + down[1] * p:
-                    g -= 1
-                else:
-                    break
-            if v < 1.0:
-                g = 1
-            out[k] = g
-        return out
+        return shift_line_gears(self.shift_lines, len(self.specs.gear_ratios), drive.speed_kmh, drive.pedal_pct,
+                                drive.gear)
 
     # ------------------------------------------------------------------ battery
     def battery(self, p_w: np.ndarray, dt_s: float, soc0_pct: float
@@ -491,6 +481,9 @@ class MapVehicle:
         t_j = np.where(moving & (gear > 0), self.j_pump * np.gradient(w_ps, dt), 0.0)  # neutral: the pump runs free
         on = drive.engine_on > 0.5
         k0 = drive.k0_closed > 0.5
+        free = ~moving & (gear > 0) & ~lock & ~on
+        if free.any() and math.isfinite(self.j_over_c):
+            w_p = np.where(free, rundown_speed(free, dt, self.j_over_c, float(np.max(w_p))), w_p)
         t_e = np.where(on, drive.engine_torque_nm, 0.0)
         t_e_split = t_e
         if self.engine_torque_corr is not None:
