@@ -18,9 +18,11 @@ Channels keep the time base of their source (the device's clock as stamped on th
 pressure module's uptime registers). ``meta["clock_offsets_s"]`` reports the offsets between
 sources detected by cross-correlation: key ``"a->b"`` is the time to add to ``a``'s timestamps to
 line them up with ``b``'s (vehicle speed on the vehicle CAN vs the dyno roller speed; CAN motor
-power vs the HPCU shunt's power), and ``"pressure->acquisition"`` the median of poll time minus
+power vs the HPCU shunt's power; the drive force from the CAN's engine and motor power over the vehicle
+speed vs the telemetry's shaft torque), and ``"pressure->acquisition"`` the median of poll time minus
 module uptime. On recordings of an hour or more, ``meta["clock_drift_ppm"]`` gives the relative
-drift of the same pairs (:mod:`benchtwin.chain.alignment`).
+drift of the same pairs, ``meta["clock_drift_se_ppm"]`` their standard errors and ``meta["clock_offset_time_s"]``
+the time (on the first source's clock) at which each detected offset holds (:mod:`benchtwin.chain.alignment`).
 """
 
 from __future__ import annotations
@@ -418,13 +420,15 @@ class Acquisition:
         m["sources"] = rec.sources()
         offsets = dict(sink.counts.pop("clock_offsets_s", {}))
         drifts: dict[str, float] = {}
+        detail: dict[str, dict[str, float]] = {"clock_drift_se_ppm": {}, "clock_offset_time_s": {}}
         if self.align:
-            found, drifts = clock_offsets(view)  # the windows it uses, a block at a time
+            found, drifts = clock_offsets(view, detail)  # the windows it uses, a block at a time
             offsets.update(found)
             if self._store.on_disk:
                 rec.drop()
         m["clock_offsets_s"] = offsets
         m["clock_drift_ppm"] = drifts
+        m.update(detail)
         sink.counts["flagged_samples"] = _flag_counts(view)
         m.update(sink.counts)
         m["faults_detected"] = faults_found

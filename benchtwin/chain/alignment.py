@@ -3,7 +3,8 @@
 Two sources that measure one quantity (vehicle speed on the vehicle CAN and the dyno's roller speed; the
 motor's mechanical power from the CAN torque and speed and the HPCU shunt's electrical power) are
 cross-correlated: :func:`detect_lag` gives the time to add to one to line it up with the other. On
-recordings of an hour or more the drift is the slope of the offsets found in consecutive 15-minute windows.
+recordings of an hour or more the drift is the slope of the offsets found in consecutive 15-minute windows (a
+Theil-Sen slope: a window whose correlation peak is a wrong one does not move it).
 
 The vehicle's speed comes from its wheels, which slip on the rollers in proportion to the force they pass
 (a fraction of a percent at cruise, 1-3 % in a hard acceleration): the difference to the roller speed then
@@ -11,6 +12,14 @@ follows the acceleration and a plain cross-correlation takes it for a time shift
 campaign's high-fidelity vehicle). :func:`slip_aware_lag` refines the lag with the slip in the model,
 ``v_wheel(t) = v_roller(t + lag) (g + k_f F_front + k_r F_rear) + c`` (forces on the dyno's clock), the lag
 the one whose least-squares residual is smallest.
+
+The shaft torque's telemetry carries no speed: its pair is the drive force the vehicle CAN's engine and motor
+give, their power over the vehicle speed (:class:`_DriveForce`, the engine and motor torques times the gear
+ratio as the speeds give it, up to the final drive and the converter's losses), which the shaft torque follows
+within a few percent outside friction braking (the offsets are Pearson correlations: the scale does not matter).
+Each drift comes with its standard error (from the scatter of the windows' offsets about the line) and the time on
+``a``'s clock at which the offset holds (the centre of the span it was found on), so a reader can map times as
+``offset + drift * (t - t_ref)``.
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ import numpy as np
 from benchtwin.chain.blocks import ChannelBlocks
 from benchtwin.recording import Recording
 
-__all__ = ["DRIFT_WINDOW_S", "clock_offsets", "detect_lag", "slip_aware_lag"]
+__all__ = ["DRIFT_WINDOW_S", "MIN_DRIVE_SPEED_KMH", "clock_offsets", "detect_lag", "slip_aware_lag"]
 
 
 
@@ -216,6 +225,35 @@ class _MotorPower(_Series):
         return t, q * np.interp(t, ts, vs) * (2 * np.pi / 60.0)
 
 
+#: below this vehicle speed the drive force (power over speed) is left out (NaN): the converter's slip and a
+#: near-zero divisor make the ratio of speeds no gear ratio there
+MIN_DRIVE_SPEED_KMH = 10.0
+
+
+class _DriveForce(_Series):
+    """The drive force the engine and motor give at the wheels, ``(T_em w_em + T_e w_e) / v`` on the vehicle CAN
+    (N, the speeds interpolated at the motor torque's timestamps; NaN below :data:`MIN_DRIVE_SPEED_KMH`)."""
+
+    def __init__(self, torque: _Series, others: list[_Series]) -> None:
+        # others: the motor speed (rpm), the engine torque (Nm), the engine speed (rpm), the vehicle speed (km/h)
+        self.torque, self.others = torque, others
+        self.view, self.name, self.n = torque.view, torque.name, torque.n
+
+    def read(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        t, q = self.torque.read(start, stop)
+        if t.size == 0:
+            return t, q
+        at = []
+        for s in self.others:  # the samples either side of each timestamp: np.interp gives the whole channel's bits
+            s0 = max(s.search(float(t[0]), "right") - 1, 0)
+            s1 = min(s.search(float(t[-1]), "right") + 1, s.n)
+            at.append(np.interp(t, *s.read(s0, s1)))
+        w_em, q_e, w_e, v = at
+        power = (q * w_em + q_e * w_e) * (2 * np.pi / 60.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return t, np.where(v >= MIN_DRIVE_SPEED_KMH, power / (v / 3.6), np.nan)
+
+
 def _blocks_back(s: _Series, stop: int, size: int) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """Runs of samples before ``stop``, backwards: 64 samples first, doubling up to ``size`` (the finite sample
     looked for is most often the first one read)."""
@@ -300,12 +338,31 @@ def _pairs(view: ChannelBlocks) -> list[tuple[str, _Series, _Series, list[_Serie
         if power_name in rec:
             mech = _MotorPower(_Series(view, "em_torque_nm"), _Series(view, "em_speed_rpm"))
             out.append((f"vehicle_can->{rec[power_name].source}", mech, _Series(view, power_name), []))
+    drive = ("em_torque_nm", "em_speed_rpm", "engine_torque_nm", "engine_speed_rpm", "vehicle_speed_kmh")
+    if "shaft_torque_nm" in rec and all(n in rec for n in drive):
+        series = [_Series(view, n) for n in drive]
+        out.append((f"vehicle_can->{rec['shaft_torque_nm'].source}", _DriveForce(series[0], series[1:]),
+                    _Series(view, "shaft_torque_nm"), []))
     return [(key, a, b, forces) for key, a, b, forces in out
-            if min([a.n, b.n, getattr(a, "speed", a).n] + [f.n for f in forces]) > 0]
+            if min([a.n, b.n] + [s.n for s in _parts(a)] + [f.n for f in forces]) > 0]
 
 
-def clock_offsets(rec: Recording | ChannelBlocks) -> tuple[dict[str, float], dict[str, float]]:
+def _parts(s: _Series) -> list[_Series]:
+    """The channels a composite series reads besides its own."""
+    if isinstance(s, _MotorPower):
+        return [s.speed]
+    if isinstance(s, _DriveForce):
+        return list(s.others)
+    return []
+
+
+def clock_offsets(rec: Recording | ChannelBlocks, detail: dict[str, dict[str, float]] | None = None
+                  ) -> tuple[dict[str, float], dict[str, float]]:
     """Offsets (s) and, on recordings long enough, relative drifts (ppm) between sources.
+
+    With ``detail`` (a dict), ``detail["clock_drift_se_ppm"]`` gets each drift's standard error (ppm) and
+    ``detail["clock_offset_time_s"]`` the time on ``a``'s clock at which each offset holds (the centre of the span
+    it was found on): the offset at time ``t`` is then ``offset + drift * 1e-6 * (t - t_ref)``.
 
     Only the time windows the work uses are read (the central hour of the common span, each 15-minute drift
     window, and the samples either side of them), a block of samples at a time through ``rec`` when it is a
@@ -316,6 +373,8 @@ def clock_offsets(rec: Recording | ChannelBlocks) -> tuple[dict[str, float], dic
     size, max_lag = view.size, 2.0
     offsets: dict[str, float] = {}
     drifts: dict[str, float] = {}
+    drift_se: dict[str, float] = {}
+    at_time: dict[str, float] = {}
     for key, a, b, forces in _pairs(view):
         span_a, span_b = _finite_span(a, size), _finite_span(b, size)
         if span_a is None or span_b is None:
@@ -330,6 +389,7 @@ def clock_offsets(rec: Recording | ChannelBlocks) -> tuple[dict[str, float], dic
         del t_a, x_a, t_b, x_b
         if lag is None:
             continue
+        centre = 0.5 * (g0 + g1)
         ends = [(s.time(0), s.time(-1)) for s in (a, b)]
         if forces:
             search = 0.3
@@ -344,8 +404,10 @@ def clock_offsets(rec: Recording | ChannelBlocks) -> tuple[dict[str, float], dic
                 t_b, x_b = _around(b, g0 - reach, g1 + reach, size, finite=False)
                 near = [_around(f, g0 - reach, g1 + reach, size, finite=False) for f in forces]
                 lag = _slip_fit(t_a, x_a, t_b, x_b, near, lag, lo, hi, 20.0, search)
+                centre = 0.5 * (g0 + g1)
                 del t_a, x_a, t_b, x_b, near
         offsets[key] = lag
+        at_time[key] = float(centre)
         t0, t1 = max(ends[0][0], ends[1][0]), min(ends[0][1], ends[1][1])
         n_win = int((t1 - t0) // DRIFT_WINDOW_S)
         if n_win >= 4:  # offset per window, drift = slope of a straight line through them
@@ -354,8 +416,23 @@ def clock_offsets(rec: Recording | ChannelBlocks) -> tuple[dict[str, float], dic
                                                  *_cut(b, w0 - 2 * max_lag, w1 + 2 * max_lag),
                                                  window=(w0, w1), rate_hz=20.0))
                    for w0, w1 in pairwise(edges)]
-            pts = [(c, lag_w) for c, lag_w in pts if lag_w is not None]
+            # a best lag at the search's edge is no peak (the quantity's lag lies outside, or none is found)
+            pts = [(c, lag_w) for c, lag_w in pts if lag_w is not None and abs(lag_w) < max_lag - 0.5 / 20.0]
             if len(pts) >= 3 and pts[-1][0] - pts[0][0] >= 2 * DRIFT_WINDOW_S:
                 c, lw = np.array(pts).T
-                drifts[key] = float(np.polyfit(c, lw, 1)[0] * 1e6)
+                drifts[key], drift_se[key] = _drift_fit(c, lw)
+    if detail is not None:
+        detail["clock_drift_se_ppm"] = drift_se
+        detail["clock_offset_time_s"] = at_time
     return offsets, drifts
+
+
+def _drift_fit(centres: np.ndarray, lags: np.ndarray) -> tuple[float, float]:
+    """Drift (ppm) through the windows' offsets and its standard error (ppm): the Theil-Sen slope (the median of
+    the slopes between pairs of windows, unmoved by up to 29 % of windows whose correlation peak is a wrong one,
+    e.g. on a steady cruise where the signals are flat and noisy) and half its 68.27 % confidence interval (one
+    standard deviation)."""
+    from scipy.stats import theilslopes
+
+    res = theilslopes(lags, centres, alpha=0.6827)
+    return float(res[0] * 1e6), float(0.5 * (res[3] - res[2]) * 1e6)
