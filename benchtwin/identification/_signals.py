@@ -30,7 +30,9 @@ from benchtwin.recording import Channel, Flag, Recording
 __all__ = [
     "BAD_FLAGS",
     "STATE_ROLES",
+    "ClockShift",
     "Grid",
+    "Shift",
     "check_spread",
     "gap_mask",
     "gather",
@@ -44,6 +46,8 @@ __all__ = [
     "source_shifts",
     "strict_resample",
     "time_ordered",
+    "to_ref",
+    "to_source",
 ]
 
 #: roles that are discrete states: zero-order hold, never interpolated
@@ -73,7 +77,8 @@ class Grid:
     present:
         Names of optional channels that were present.
     shifts:
-        Source -> seconds added to its timestamps (clock alignment, see :func:`source_shifts`).
+        Source -> seconds added to its timestamps, a constant or a :class:`ClockShift` (clock alignment, see
+        :func:`source_shifts`).
     first_index:
         Index of ``t[0]`` in the whole grid (a piece of it), else 0.
     """
@@ -84,7 +89,7 @@ class Grid:
     flagged: np.ndarray
     rate_hz: float
     present: set[str] = field(default_factory=set)
-    shifts: dict[str, float] = field(default_factory=dict)
+    shifts: dict[str, Shift] = field(default_factory=dict)
     #: index of ``t[0]`` in the whole grid when this is a piece of it (``_windows.piece_grids``)
     first_index: int = 0
 
@@ -103,11 +108,42 @@ class Grid:
         return 1.0 / self.rate_hz
 
 
-def time_ordered(ch: Channel, shift_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class ClockShift:
+    """An affine clock map: ``offset_s + rate * t`` seconds added to a source's timestamps ``t`` (a constant
+    offset plus a drift; ``rate`` is the drift in s/s, ppm * 1e-6)."""
+
+    offset_s: float
+    rate: float
+
+    def __bool__(self) -> bool:
+        return bool(self.offset_s or self.rate)
+
+
+#: seconds added to a source's timestamps: a constant, or an affine map (:class:`ClockShift`)
+Shift = float | ClockShift
+
+
+def to_ref(ts: np.ndarray | float, shift: Shift) -> np.ndarray | float:
+    """A source's timestamps ``ts`` on the reference clock (``ts + shift``, or the affine map's ``ts + offset + rate
+    ts``); a plain constant shift gives the bits of ``ts + shift``."""
+    if isinstance(shift, ClockShift):
+        return ts + (shift.offset_s + shift.rate * ts)
+    return ts + shift
+
+
+def to_source(t: np.ndarray | float, shift: Shift) -> np.ndarray | float:
+    """Reference-clock times ``t`` on the source's clock (the inverse of :func:`to_ref`)."""
+    if isinstance(shift, ClockShift):
+        return (t - shift.offset_s) / (1.0 + shift.rate)
+    return t - shift
+
+
+def time_ordered(ch: Channel, shift_s: Shift = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Timestamps (plus ``shift_s``), values and flags of a channel in time order (samples delivered out
     of order are sorted, stably; interpolation and window sums need increasing time)."""
     ts, vs, fl = _in_order(ch)
-    return (ts + shift_s if shift_s else ts), vs, fl
+    return (to_ref(ts, shift_s) if shift_s else ts), vs, fl
 
 
 def _in_order(ch: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -120,7 +156,7 @@ def _in_order(ch: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ts, vs, fl
 
 
-def source_shifts(rec: Recording) -> dict[str, float]:
+def source_shifts(rec: Recording) -> dict[str, Shift]:
     """Time to add to each source's timestamps to put it on one reference clock.
 
     The acquisition keeps every source on its own clock and reports the offsets it detected in
@@ -129,11 +165,26 @@ def source_shifts(rec: Recording) -> dict[str, float]:
     acquisition host clock (``"acquisition"``) is taken as that reference, since the bus loggers
     stamp frames on it. An offset key names a source exactly or by a unique part of its name
     (``"pressure"`` for ``"brake_pressure"``). Sources not linked to the reference get no shift.
+
+    A pair's drift (``meta["clock_drift_ppm"]``, with its standard error ``meta["clock_drift_se_ppm"]`` and the
+    time its offset holds ``meta["clock_offset_time_s"]``) makes its offset ``offset + drift (t - t_ref)``, and the
+    shift a :class:`ClockShift`, when the drift is significant: ``|drift| > sqrt(2) se``. Left out, a drift ``d``
+    leaves an error ``d (t - t_ref)`` in the mapped times; applied, the estimate's ``(d_hat - d) (t - t_ref)``,
+    of mean square ``se^2 (t - t_ref)^2``. Since ``d_hat^2 - se^2`` estimates ``d^2`` without bias, applying it is
+    expected to do better when ``d_hat^2 - se^2 > se^2``. A drift without the other two keys (an older
+    recording) is not applied. Shifts without an applied drift are plain floats.
     """
-    offsets = rec.meta.get("clock_offsets_s") if isinstance(rec.meta, dict) else None
+    meta = rec.meta if isinstance(rec.meta, dict) else {}
+    offsets = meta.get("clock_offsets_s")
     sources = {c.source for c in rec.channels.values() if c.source}
     if not offsets or not isinstance(offsets, dict) or not sources:
         return {}
+
+    def table(key: str) -> dict:
+        val = meta.get(key)
+        return val if isinstance(val, dict) else {}
+
+    drifts, errors, times = table("clock_drift_ppm"), table("clock_drift_se_ppm"), table("clock_offset_time_s")
 
     def node(name: str) -> str:
         if name in sources:
@@ -141,23 +192,35 @@ def source_shifts(rec: Recording) -> dict[str, float]:
         found = [s for s in sources if name and name in s]
         return found[0] if len(found) == 1 else name
 
-    edges = []
+    def number(x: object) -> bool:
+        return isinstance(x, int | float) and bool(np.isfinite(x))
+
+    edges = []  # (a, b, c, r): a's offset to b at a's time t is c + r t
     for key, val in offsets.items():
-        if not isinstance(key, str) or "->" not in key or not isinstance(val, int | float) or not np.isfinite(val):
+        if not isinstance(key, str) or "->" not in key or not number(val):
             continue
         a, b = key.split("->", 1)
-        edges.append((node(a), node(b), float(val)))
+        c, r = float(val), 0.0
+        d, se, t_ref = drifts.get(key), errors.get(key), times.get(key)
+        if number(d) and number(se) and number(t_ref) and abs(d) > np.sqrt(2.0) * se:
+            r = float(d) * 1e-6
+            c = float(val) - r * float(t_ref)
+        edges.append((node(a), node(b), c, r))
     ref = "vehicle_can" if "vehicle_can" in sources else sorted(sources)[0]
-    shift = {ref: 0.0, "acquisition": 0.0}
+    shift: dict[str, tuple[float, float]] = {ref: (0.0, 0.0), "acquisition": (0.0, 0.0)}
     changed = True
     while changed:
         changed = False
-        for a, b, o in edges:
+        for a, b, c, r in edges:
             if b in shift and a not in shift:
-                shift[a], changed = shift[b] + o, True
+                shift[a], changed = (shift[b][0] + c, shift[b][1] + r), True
             elif a in shift and b not in shift:
-                shift[b], changed = shift[a] - o, True
-    return {k: v for k, v in shift.items() if k in sources and v != 0.0}
+                shift[b], changed = (shift[a][0] - c, shift[a][1] - r), True
+    out: dict[str, Shift] = {}
+    for k, (c, r) in shift.items():
+        if k in sources and (c != 0.0 or r != 0.0):
+            out[k] = ClockShift(c, r) if r != 0.0 else c
+    return out
 
 
 class _IndexCache:
@@ -165,9 +228,9 @@ class _IndexCache:
 
     def __init__(self, t: np.ndarray) -> None:
         self.t = t
-        self._cache: list[tuple[weakref.ref[np.ndarray], float, np.ndarray, int]] = []
+        self._cache: list[tuple[weakref.ref[np.ndarray], Shift, np.ndarray, int]] = []
 
-    def fidx(self, ts: np.ndarray, shift_s: float = 0.0, k0: int = 0) -> np.ndarray:
+    def fidx(self, ts: np.ndarray, shift_s: Shift = 0.0, k0: int = 0) -> np.ndarray:
         """Fractional index into ``ts + shift_s`` of every grid time (``ts`` in time order; ``k0``: the index of
         ``ts[0]`` in the whole channel when ``ts`` is a part of it, so the indices are the whole channel's)."""
         for ref, s0, f, kk in self._cache:
@@ -178,7 +241,7 @@ class _IndexCache:
                                   and np.array_equal(ts0, ts))):
                 return f
         # np.interp walks sorted queries in one pass (a binary search per query costs more on long logs)
-        f = np.interp(self.t, ts + shift_s if shift_s else ts, np.arange(k0, k0 + ts.size, dtype=float))
+        f = np.interp(self.t, to_ref(ts, shift_s) if shift_s else ts, np.arange(k0, k0 + ts.size, dtype=float))
         self._cache = [c for c in self._cache if c[0]() is not None]
         self._cache.append((weakref.ref(ts), shift_s, f, k0))
         return f
@@ -188,7 +251,7 @@ class _IndexCache:
 SAMPLE_BLOCK = 1 << 20
 
 
-def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = None, shift_s: float = 0.0
+def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = None, shift_s: Shift = 0.0
             ) -> tuple[np.ndarray, np.ndarray]:
     """Values of ``ch`` at ``t`` (linear, or zero-order hold; NaN outside its span) and a mask of grid
     samples touched by a flagged or non-finite source sample."""
@@ -208,11 +271,11 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
 
 
 def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray, fidx: np.ndarray, hold: bool,
-                  shift_s: float, k0: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                  shift_s: Shift, k0: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """One block of :func:`_sample`; ``ts, vs, fl`` may be a part of the channel starting at its sample ``k0``
     (``fidx`` then holds whole-channel indices, so the weights are the same numbers as on the whole channel)."""
     n = ts.size
-    first, last = ts[0] + shift_s, ts[-1] + shift_s
+    first, last = to_ref(ts[0], shift_s), to_ref(ts[-1], shift_s)
     idx = np.floor(fidx).astype(np.int64)
     if k0:
         idx -= k0
@@ -229,7 +292,7 @@ def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray,
         frac = fidx - (np.clip(idx, 0, None) + k0 if k0 else np.clip(idx, 0, None))
         v = v0 + frac * (v1 - v0)
         # a linearly interpolated value depends on the sample after as well
-        flagged |= (((fl[i1] & _BAD) != 0) | ~np.isfinite(v1)) & ((ts[i1] + shift_s) > t)
+        flagged |= (((fl[i1] & _BAD) != 0) | ~np.isfinite(v1)) & (to_ref(ts[i1], shift_s) > t)
     outside = (idx < 0) | (t > last)
     v[outside] = np.nan
     flagged &= ~outside
@@ -289,8 +352,8 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
     kept = rec.loaded()
     lo, hi = -np.inf, np.inf
     for c in chans:
-        lo = max(lo, float(c.timestamps.min()) + shifts.get(c.source, 0.0))
-        hi = min(hi, float(c.timestamps.max()) + shifts.get(c.source, 0.0))
+        lo = max(lo, float(to_ref(float(c.timestamps.min()), shifts.get(c.source, 0.0))))
+        hi = min(hi, float(to_ref(float(c.timestamps.max()), shifts.get(c.source, 0.0))))
         if c.name not in kept:
             rec.drop([c.name])
     if span is not None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchtwin.identification._signals import BAD_FLAGS
+from benchtwin.identification._signals import BAD_FLAGS, Shift, to_ref, to_source
 
 __all__ = ["GROUP_S", "running_sums", "window_groups"]
 
@@ -34,7 +34,7 @@ def window_groups(starts: np.ndarray, ends: np.ndarray, span_s: float = GROUP_S)
 
 
 def running_sums(ts: np.ndarray, vals: np.ndarray, fl: np.ndarray, pair: tuple[np.ndarray, np.ndarray] | None,
-                 shift: float, starts: np.ndarray, ends: np.ndarray, c0: float, n0: int
+                 shift: Shift, starts: np.ndarray, ends: np.ndarray, c0: float, n0: int
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Running sums of the good samples (or of the products with ``pair``'s) of the windows ``[start, end)`` (grid
     clock) laid one after the other, and of their counts, at each window's first sample and after the last one,
@@ -58,21 +58,21 @@ def running_sums(ts: np.ndarray, vals: np.ndarray, fl: np.ndarray, pair: tuple[n
     return cs[off], cn[off]
 
 
-def _edges(ts: np.ndarray, shift: float, times: np.ndarray) -> np.ndarray:
-    """``np.searchsorted(ts + shift, times, side="left")`` without shifting every sample of ``ts``: the search runs
-    on ``ts`` and is corrected near each hit, where ``ts + shift`` may round across ``times``."""
+def _edges(ts: np.ndarray, shift: Shift, times: np.ndarray) -> np.ndarray:
+    """``np.searchsorted(to_ref(ts, shift), times, side="left")`` without shifting every sample of ``ts``: the
+    search runs on ``ts`` and is corrected near each hit, where the shifted ``ts`` may round across ``times``."""
     if not shift:
         return np.searchsorted(ts, times, side="left")
-    i = np.searchsorted(ts, times - shift, side="left")
+    i = np.searchsorted(ts, to_source(times, shift), side="left")
     n = ts.size
     # a step back while the sample before still lies at or after the time, a step on while the sample lies before it
     while True:
-        back = (i > 0) & (ts[np.maximum(i - 1, 0)] + shift >= times)
+        back = (i > 0) & (to_ref(ts[np.maximum(i - 1, 0)], shift) >= times)
         if not back.any():
             break
         i = np.where(back, i - 1, i)
     while True:
-        on = (i < n) & (ts[np.minimum(i, n - 1)] + shift < times)
+        on = (i < n) & (to_ref(ts[np.minimum(i, n - 1)], shift) < times)
         if not on.any():
             break
         i = np.where(on, i + 1, i)

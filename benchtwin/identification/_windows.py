@@ -25,10 +25,13 @@ from benchtwin.identification._signals import (
     SAMPLE_BLOCK,
     STATE_ROLES,
     Grid,
+    Shift,
     _IndexCache,
     _sample_block,
     source_shifts,
     time_ordered,
+    to_ref,
+    to_source,
 )
 from benchtwin.recording import Channel, LazyChannel, Recording
 
@@ -208,7 +211,7 @@ def channel_bounds(ch: Channel) -> tuple[float, float]:
 
 def grid_bounds(rec: Recording, names: Sequence[str], rate_hz: float, *, what: str = "identification",
                 span: tuple[float, float] | None = None, align: bool = True
-                ) -> tuple[float, int, dict[str, float]]:
+                ) -> tuple[float, int, dict[str, Shift]]:
     """The grid :func:`~benchtwin.identification._signals.gather` would build: its first time, its number of points
     and the sources' clock shifts (point ``k`` is at ``lo + k / rate_hz``); the same errors as ``gather``."""
     names = list(names)
@@ -227,8 +230,8 @@ def grid_bounds(rec: Recording, names: Sequence[str], rate_hz: float, *, what: s
     lo, hi = -np.inf, np.inf
     for c in chans:
         first, last = channel_bounds(c)
-        lo = max(lo, first + shifts.get(c.source, 0.0))
-        hi = min(hi, last + shifts.get(c.source, 0.0))
+        lo = max(lo, float(to_ref(first, shifts.get(c.source, 0.0))))
+        hi = min(hi, float(to_ref(last, shifts.get(c.source, 0.0))))
         if c.name not in kept:
             rec.drop([c.name])
     if span is not None:
@@ -238,11 +241,12 @@ def grid_bounds(rec: Recording, names: Sequence[str], rate_hz: float, *, what: s
     return lo, int(np.floor((hi - lo) * rate_hz)) + 1, shifts
 
 
-def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift_s: float,
+def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift_s: Shift,
                ordered: dict[int, bool] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``_sample`` of the channel's samples around ``t`` only."""
     def compute() -> tuple[np.ndarray, np.ndarray]:
-        k0, ts, vs, fl = window_of(ch, float(t[0]) - shift_s - MARGIN_S, float(t[-1]) - shift_s + MARGIN_S, ordered)
+        k0, ts, vs, fl = window_of(ch, float(to_source(float(t[0]), shift_s)) - MARGIN_S,
+                                   float(to_source(float(t[-1]), shift_s)) + MARGIN_S, ordered)
         fidx = cache.fidx(ts, shift_s, k0)
         v = np.empty(t.shape, dtype=float)
         flagged = np.empty(t.shape, dtype=bool)
@@ -255,7 +259,7 @@ def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift
     return reused("sample_at", (ch,), (t.size, float(t[0]), t.tobytes(), hold, shift_s), compute)  # type: ignore[arg-type]
 
 
-def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: float, shifts: dict[str, float], *,
+def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: float, shifts: dict[str, Shift], *,
               optional: Iterable[str] = (), hold: Iterable[str] = (), ordered: dict[int, bool] | None = None) -> Grid:
     """The channels at grid points ``t`` (a part of the grid of :func:`grid_bounds`), as ``gather`` gives them there.
 

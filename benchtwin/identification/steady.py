@@ -28,6 +28,7 @@ from benchtwin.identification._signals import (
     segment_mask,
     segments_span,
     time_ordered,
+    to_source,
 )
 from benchtwin.identification._window_sums import running_sums, window_groups
 from benchtwin.identification._windows import MARGIN_S, reads_by_block, window_of
@@ -219,10 +220,12 @@ class SteadyWindows:
         cn = np.zeros(len(self.windows) + 1, dtype=np.int64)
         for i, j in window_groups(starts, ends):
             lo_s, hi_s = float(starts[i:j].min()), float(ends[i:j].max())
-            k0, ts, vals, fl = window_of(ch, lo_s - shift - MARGIN_S, hi_s - shift + MARGIN_S)
+            k0, ts, vals, fl = window_of(ch, float(to_source(lo_s, shift)) - MARGIN_S,
+                                         float(to_source(hi_s, shift)) + MARGIN_S)
             pair = None
             if ch2 is not None:
-                k2, ts2, vals2, fl2 = window_of(ch2, lo_s - shift2 - MARGIN_S, hi_s - shift2 + MARGIN_S)
+                k2, ts2, vals2, fl2 = window_of(ch2, float(to_source(lo_s, shift2)) - MARGIN_S,
+                                                float(to_source(hi_s, shift2)) + MARGIN_S)
                 if not (shift2 == shift and k2 == k0 and ts2.shape == ts.shape and np.array_equal(ts2, ts)):
                     # on different timestamps: the product of the two means (as the whole search)
                     return (self._raw_average_windowed(rec, ch.name, None)
