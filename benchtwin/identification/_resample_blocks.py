@@ -6,15 +6,19 @@ fit) resample every channel at a few hertz: the grid is small, the channels are 
 interpolation or hold, the bad samples next to each grid point, the gap mask with its strided typical step), reading
 each channel around one block of grid points at a time (``_windows.window_of``). A Recording whose channels are in
 memory, or not in time order, or not read by blocks, goes through ``strict_resample`` itself.
+
+With ``shifts`` (:func:`~benchtwin.identification._signals.source_shifts`) the grid is the reference clock's and
+each channel is sampled at the grid times on its own clock (a constant offset, or offset and drift), as ``gather``
+aligns its channels; without them the channels' own timestamps are taken as one clock.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from benchtwin.identification._signals import native_rate, strict_resample
+from benchtwin.identification._signals import Shift, native_rate, strict_resample, to_ref, to_source
 from benchtwin.identification._windows import (
     MARGIN_S,
     channel_bounds,
@@ -49,7 +53,18 @@ def _typical_step(ch: Channel) -> float:
     return float(np.median(np.concatenate(picked)))
 
 
-def resample_strict(rec: Recording, names: Sequence[str], rate_hz: float, *, hold: tuple[str, ...] = ()
+def _shifted(rec: Recording, names: Sequence[str], shifts: Mapping[str, Shift]) -> Recording:
+    """The channels ``names`` of ``rec`` with their timestamps on the reference clock (copies of the shifted ones)."""
+    out = Recording()
+    for n in names:
+        c = rec[n]
+        s = shifts.get(c.source, 0.0)
+        out.add(Channel(c.name, c.unit, to_ref(c.timestamps, s) if s else c.timestamps, c.values, c.flags, c.source))
+    return out
+
+
+def resample_strict(rec: Recording, names: Sequence[str], rate_hz: float, *, hold: tuple[str, ...] = (),
+                    shifts: Mapping[str, Shift] | None = None
                     ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
     """``strict_resample(rec, names, rate_hz, hold=hold)``, reading lazy channels around blocks of grid points.
 
@@ -57,6 +72,8 @@ def resample_strict(rec: Recording, names: Sequence[str], rate_hz: float, *, hol
     ----------
     rec, names, rate_hz, hold:
         As for :func:`~benchtwin.identification._signals.strict_resample`.
+    shifts:
+        Source -> clock shift onto the reference clock (none: the timestamps as they are).
 
     Returns
     -------
@@ -65,24 +82,27 @@ def resample_strict(rec: Recording, names: Sequence[str], rate_hz: float, *, hol
     """
     names = list(names)
     chans = [rec[n] for n in names]
-    if not chans or not all(reads_by_block(c) and len(c) >= 3 for c in chans):
-        return strict_resample(rec, names, rate_hz, hold=hold)
-    if not all(ordered_by_blocks(c) for c in chans):
+    sh = [(shifts or {}).get(c.source, 0.0) for c in chans]
+    if not all(reads_by_block(c) and len(c) >= 3 for c in chans) or not all(ordered_by_blocks(c) for c in chans):
+        if any(sh):
+            return strict_resample(_shifted(rec, names, shifts or {}), names, rate_hz, hold=hold)
         return strict_resample(rec, names, rate_hz, hold=hold)
     bounds = [channel_bounds(c) for c in chans]  # first and last timestamps (read from the ends)
-    lo = max(b[0] for b in bounds)
-    hi = min(b[1] for b in bounds)
-    if not hi > lo:
-        return strict_resample(rec, names, rate_hz, hold=hold)  # its error
+    lo = max(float(to_ref(b[0], s)) for b, s in zip(bounds, sh, strict=True))
+    hi = min(float(to_ref(b[1], s)) for b, s in zip(bounds, sh, strict=True))
+    if not hi > lo:  # its error
+        return strict_resample(_shifted(rec, names, shifts or {}) if any(sh) else rec, names, rate_hz, hold=hold)
     t = np.arange(lo, hi, 1.0 / rate_hz)
     out = {n: np.empty(t.shape) for n in names}
     bad = np.zeros(t.shape, dtype=bool)
     held = set(hold)
     bad_bits = int(Flag.bad())
-    for c, (first, last) in zip(chans, bounds, strict=True):
+    for c, (first, last), s in zip(chans, bounds, sh, strict=True):
         step = None if c.name in held else _typical_step(c)
         for a in range(0, t.size, GRID_BLOCK):
             tb = t[a:a + GRID_BLOCK]
+            if s:
+                tb = to_source(tb, s)  # the grid times on the channel's own clock
             _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
             # Channel.at on the samples around the block (the same bracketing samples as on the whole channel)
             if c.name in held:

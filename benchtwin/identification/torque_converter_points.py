@@ -19,6 +19,7 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import MissingChannelError
 from benchtwin.identification._fit import FitResult
 from benchtwin.identification._resample_blocks import resample_strict
+from benchtwin.identification._signals import source_shifts
 from benchtwin.identification.transmission_drag import drag_c0
 from benchtwin.recording import Recording
 
@@ -243,7 +244,9 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     if drag_gears and "gearbox_oil_degc" in rec:
         opt.append("gearbox_oil_degc")
     states = {"gear_actual", "lockup_closed", "gear_target", "k0_closed", "engine_on"}
-    t, d, bad = resample_strict(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)))
+    # the shaft torque (telemetry clock) on the vehicle CAN's: offset, and drift where significant
+    t, d, bad = resample_strict(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)),
+                                shifts=source_shifts(rec))
     gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
     change = np.r_[False, np.diff(gear) != 0]
     if "gear_target" in d:
