@@ -18,6 +18,7 @@ minus the module's uptime) against its neighbours (:func:`poll_clock_evidence`).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -200,6 +201,47 @@ def poll_clock_evidence(t: np.ndarray, up: np.ndarray, update_period_s: float, d
     blk0 = np.searchsorted(np.flatnonzero(np.bincount(k)), k)
     dev = age - m[blk0]
     jitter = 1.4826 * float(np.median(np.abs(dev - np.median(dev))))
+    judged = judge_age_medians(tb, m, jitter, update_period_s, declared_ppm, block_s)
+    late = judged.late(t, age, blk0)
+    return late, judged.steps, judged.drifts
+
+
+@dataclass
+class AgeJudgement:
+    """What :func:`judge_age_medians` finds from the per-block medians of the answers' age."""
+
+    #: ``(time, size)`` of each clock step
+    steps: list[tuple[float, float]]
+    #: ``(start, end)`` of each drifting span
+    drifts: list[tuple[float, float]]
+    #: an answer this much older than the running median is late
+    late_s: float
+    #: block centre times, and per block the steps' level and the running median after removing it (None: no
+    #: block to take it from)
+    tb: np.ndarray
+    level: np.ndarray
+    base_b: np.ndarray | None
+    block_s: float
+
+    def late(self, t: np.ndarray, age: np.ndarray, blk: np.ndarray) -> np.ndarray:
+        """Mask of late answers among good answers at times ``t`` with ages ``age`` in blocks ``blk`` (the
+        index of each answer's block among the non-empty ones); per answer: any part of the log gives the same."""
+        if self.base_b is None:
+            return np.zeros(t.size, bool)
+        late = age - self.level[blk] - np.interp(t, self.tb, self.base_b) > self.late_s
+        for ts, _ in self.steps:  # around a step the level is uncertain: those answers are flagged CLOCK instead
+            late &= np.abs(t - ts) > 1.5 * self.block_s
+        return late
+
+
+def judge_age_medians(tb: np.ndarray, m: np.ndarray, jitter: float, update_period_s: float,
+                      declared_ppm: float = 0.0, block_s: float = 1.0) -> AgeJudgement:
+    """Clock steps, stretches of slow answers and clock drift from the per-block medians ``m`` (centre times ``tb``)
+    of the answers' age, and the level a late answer is judged against (see :func:`poll_clock_evidence`).
+
+    ``jitter``: the acquisition's own timing scatter (a scaled median absolute deviation of the answers' age about
+    their block's median); the thresholds never fall below a multiple of it.
+    """
     late_s = max(LATE_S, 8.0 * jitter)
     step_s = max(CLOCK_STEP_S, 4.0 * jitter)
     w = 5
@@ -241,15 +283,11 @@ def poll_clock_evidence(t: np.ndarray, up: np.ndarray, update_period_s: float, d
     for a, b in slow:
         in_slow |= (tb >= a - block_s) & (tb <= b + block_s)
     ref = np.flatnonzero(~in_slow)
-    late = np.zeros(t.size, bool)
+    base_b = None
     if ref.size:
         from scipy.ndimage import median_filter
 
         base_b = np.interp(tb, tb[ref], median_filter(mc[ref], size=21, mode="nearest"))
-        blk = np.searchsorted(np.flatnonzero(np.bincount(k)), k)  # block of each answer among non-empty ones
-        late = age - level[blk] - np.interp(t, tb, base_b) > late_s
-        for ts, _ in steps:  # around a step the level is uncertain: those answers are flagged CLOCK instead
-            late &= np.abs(t - ts) > 1.5 * block_s
     # drift: one-period ticks of the age, away from steps and slow answers
     quiet = ~in_slow
     for ts, _ in steps:
@@ -268,7 +306,7 @@ def poll_clock_evidence(t: np.ndarray, up: np.ndarray, update_period_s: float, d
                 drifts[-1] = (drifts[-1][0], b)
             else:
                 drifts.append((a, b))
-    return late, steps, drifts
+    return AgeJudgement(steps, drifts, late_s, tb, level, base_b, block_s)
 
 
 def decode_pressure_polls(log_: PollLog, cfg: PressureConfig | None, sink: DecodeSink, drops: np.ndarray) -> None:
@@ -383,6 +421,12 @@ class PressureModule(Device):
     def decode_polls(self, log: PollLog, sink: DecodeSink, drops: np.ndarray) -> None:
         """See :func:`decode_pressure_polls`."""
         decode_pressure_polls(log, self.cfg, sink, drops)
+
+    def decode_poll_blocks(self, log, sink: DecodeSink, drops: np.ndarray, emit, block: int) -> None:
+        """See :func:`benchtwin.sensors.pressure_polls.decode_pressure_poll_blocks` (the same channels by blocks)."""
+        from benchtwin.sensors.pressure_polls import decode_pressure_poll_blocks
+
+        decode_pressure_poll_blocks(log, self.cfg, sink, drops, emit, block)
 
     def truth_channels(self) -> dict[str, TruthChannel]:
         """The five pressures (Pa in the Trace, bar recorded), to one step of the module's converter."""
