@@ -1,9 +1,11 @@
-"""The pressure module's poll log decoded block by block: what :func:`~benchtwin.sensors.pressure.decode_pressure_polls`
-gives, bit for bit, holding one block of polls at a time however long the log.
+"""The pressure module's poll log decoded block by block: what
+:func:`~benchtwin.sensors.pressure_decode.decode_pressure_polls` gives, bit for bit, holding one block of polls at a
+time however long the log.
 
-The whole-log decoder judges the module's clock over the whole log (:func:`~benchtwin.sensors.pressure.
-poll_clock_evidence`): per-second medians of the answers' age, the medians of their deviations (the acquisition's
-jitter) and of the age itself (the clock offset). Here the log is read in passes of blocks:
+The whole-log decoder judges the module's clock over the whole log
+(:func:`~benchtwin.sensors.poll_clock.poll_clock_evidence`): per-second medians of the answers' age, the medians of
+their deviations (the acquisition's jitter) and of the age itself (the clock offset). Here the log is read in passes
+of blocks:
 
 1. a scan: the counts, the uptime unwrapping's carry at each block's start, the runs of timeouts, and the
    per-second medians of the age (a second that straddles a block edge is carried into the next block);
@@ -25,12 +27,8 @@ import numpy as np
 
 from benchtwin.config.setup import PressureConfig
 from benchtwin.roles import unit_of_role
-from benchtwin.sensors.pressure import (
-    RESTART_RUN,
-    decode_pressure_polls,
-    judge_age_medians,
-    pressure_from_counts,
-)
+from benchtwin.sensors.poll_clock import RESTART_RUN, judge_age_medians
+from benchtwin.sensors.pressure_decode import decode_pressure_polls, pressure_from_counts
 from benchtwin.wire.frames import POLL_OK, POLL_TIMEOUT, PollLog
 from benchtwin.wire.modbus_map import CHANNELS, REG_RAW, REG_STATUS, REG_UPTIME_HI, REG_UPTIME_LO, volts_to_counts
 from benchtwin.wire.quality import FLAG, DecodeSink
@@ -167,7 +165,7 @@ def _per_second(t: np.ndarray, first: float, block_s: float) -> np.ndarray:
 def decode_pressure_poll_blocks(src: PollBlocks, cfg: PressureConfig | None, sink: DecodeSink, drops: np.ndarray,
                                 emit: Emit, block: int = 1 << 18) -> None:
     """Decode the pressure module's poll log ``block`` polls at a time, as
-    :func:`~benchtwin.sensors.pressure.decode_pressure_polls` decodes it whole.
+    :func:`~benchtwin.sensors.pressure_decode.decode_pressure_polls` decodes it whole.
 
     Parameters
     ----------
