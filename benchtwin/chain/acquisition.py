@@ -49,7 +49,7 @@ from benchtwin.chain.decoding import (
 )
 from benchtwin.chain.decoding import bus_load as _bus_load  # noqa: F401  (the name earlier code imports)
 from benchtwin.chain.faults import detect_faults
-from benchtwin.chain.pollspool import PollSpool
+from benchtwin.chain.pollspool import PollSpool, decode_spooled
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Flag, Recording
@@ -271,6 +271,12 @@ class Acquisition:
                 self._polls[device] = PollSpool(plog, self._store.directory)
         return self
 
+    @property
+    def poll_logs(self) -> dict[str, PollSpool]:
+        """The poll logs fed so far, one :class:`~benchtwin.chain.pollspool.PollSpool` per device (read them, do not
+        change them; :meth:`finish` decodes and removes them)."""
+        return dict(self._polls)
+
     def _decode_bus(self, table: FrameTable, last: bool) -> None:
         frames = table.frames
         decoders, owner = self._decoders(table.bus)
@@ -392,29 +398,8 @@ class Acquisition:
         view = ChannelBlocks(rec, self._store, self.block_samples)
         flag_truncations(view, self._events, self._of_bus)
         decoded = set(rec.channels)
-        emitted: list[str] = []
-
-        def emit(name: str, unit: str, t: np.ndarray, v: np.ndarray, f: np.ndarray, source: str) -> None:
-            if name not in emitted:
-                emitted.append(name)
-            self._store.append(name, unit, source, None, (math.inf, len(emitted) - 1), t, v, f)
-
-        for device in list(self._polls):
-            spool = self._polls.pop(device)  # decoded a block at a time, from its files when on disk
-            drops = events_for(self._events, {device})
-            dev = self._polled.get(device)
-            try:
-                if dev is None:
-                    log.warning("poll log %s belongs to no device of setup %s: not decoded", device, self.setup.name)
-                    sink.count("unknown_poll_devices", device, len(spool))
-                    continue
-                try:
-                    dev.decode_poll_blocks(spool, sink, drops, emit, min(self.block_samples, POLL_BLOCK))
-                except Exception as exc:
-                    log.error("poll log %s could not be decoded: %s", device, exc)
-                    sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(spool)))
-            finally:
-                spool.cleanup()
+        emitted = decode_spooled(self._polls, self._polled, self._events, sink, self._store,
+                                 min(self.block_samples, POLL_BLOCK), self.setup.name)
         for name in emitted:  # in their place among the channels (read from the store's files when on disk)
             rec.channels[name] = self._store.channel(name)
         if self._store.on_disk:  # the poll logs' channels go to the store's files too: none stays in memory

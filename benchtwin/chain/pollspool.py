@@ -9,18 +9,26 @@ block by block.
 
 from __future__ import annotations
 
+import logging
+import math
 import shutil
 import tempfile
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.lib import format as npformat
 
+from benchtwin.chain.channel_store import ChannelStore
+from benchtwin.chain.decoding import events_for
 from benchtwin.errors import DataError
-from benchtwin.wire.frames import PollLog
+from benchtwin.wire.frames import PollLog, TransportEvent
+from benchtwin.wire.quality import DecodeSink
 
-__all__ = ["PollSpool"]
+__all__ = ["PollSpool", "decode_spooled"]
+
+log = logging.getLogger(__name__)
 
 _BLOCK = 1 << 18
 
@@ -153,3 +161,37 @@ class PollSpool:
         self._parts = []
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)
+
+
+def decode_spooled(polls: dict[str, PollSpool], polled: dict[str, Any], events: list[TransportEvent], sink: DecodeSink,
+                   store: ChannelStore, block: int, setup_name: str) -> list[str]:
+    """Decode every spooled poll log (removed from ``polls`` and cleaned up as it goes) ``block`` polls at a time,
+    each block of each channel appended to ``store`` after its other channels (their order: as first emitted).
+
+    ``polled``: device name -> the setup's device polled under it. Counts, protocol errors and fault evidence go to
+    ``sink``; a log of no device is counted, one whose decoding fails is a protocol error. Returns the names of the
+    channels appended, in order (a device's default decoder may instead put whole channels in ``sink.rec``).
+    """
+    emitted: list[str] = []
+
+    def emit(name: str, unit: str, t: np.ndarray, v: np.ndarray, f: np.ndarray, source: str) -> None:
+        if name not in emitted:
+            emitted.append(name)
+        store.append(name, unit, source, None, (math.inf, len(emitted) - 1), t, v, f)
+
+    for device in list(polls):
+        spool = polls.pop(device)
+        dev = polled.get(device)
+        try:
+            if dev is None:
+                log.warning("poll log %s belongs to no device of setup %s: not decoded", device, setup_name)
+                sink.count("unknown_poll_devices", device, len(spool))
+                continue
+            try:
+                dev.decode_poll_blocks(spool, sink, events_for(events, {device}), emit, block)
+            except Exception as exc:
+                log.error("poll log %s could not be decoded: %s", device, exc)
+                sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(spool)))
+        finally:
+            spool.cleanup()
+    return emitted
