@@ -102,12 +102,13 @@ def select_ranks(blocks: Callable[[], Iterator[list[np.ndarray]]], ranks: list[l
 
 
 def _median_ranks(n: int) -> list[int]:
-    return [] if n == 0 else sorted({(n - 1) // 2, n // 2})
+    """The two middle ranks (the same one twice for an odd count: the work does not depend on the parity)."""
+    return [] if n == 0 else [(n - 1) // 2, n // 2]
 
 
 def _median(vals: list[float]) -> float:
-    """``np.median``'s value from the one or two middle values."""
-    return float(np.mean(np.array(vals, dtype=np.float64)))
+    """``np.median``'s value from the two middle values (for an odd count the middle one twice: (a + a) / 2 is a)."""
+    return float(np.mean(np.array(vals, dtype=np.float64))) if vals[0] != vals[1] else vals[0]
 
 
 class _Scan:
