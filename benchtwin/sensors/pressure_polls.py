@@ -83,15 +83,25 @@ def select_ranks(blocks: Callable[[], Iterator[list[np.ndarray]]], ranks: list[l
     left = [list(r) for r in ranks]
     for shift in (48, 32, 16, 0):
         hist = [[np.zeros(1 << 16, np.int64) for _ in r] for r in ranks]
+        held: list[list[np.ndarray]] = [[] for _ in ranks]  # small blocks are counted together
+
+        def count(s: int, shift: int = shift, hist: list = hist, held: list = held) -> None:
+            k = np.concatenate(held[s])
+            held[s] = []
+            for j in range(len(ranks[s])):
+                kk = k if shift == 48 else k[(k >> np.uint64(shift + 16)) == np.uint64(prefix[s][j])]
+                hist[s][j] += np.bincount(((kk >> np.uint64(shift)) & np.uint64(0xFFFF)).astype(np.intp),
+                                          minlength=1 << 16)
+
         for arrays in blocks():
             for s, x in enumerate(arrays):
-                if not ranks[s] or x.size == 0:
-                    continue
-                k = _keys(x)
-                for j in range(len(ranks[s])):
-                    kk = k if shift == 48 else k[(k >> np.uint64(shift + 16)) == np.uint64(prefix[s][j])]
-                    hist[s][j] += np.bincount(((kk >> np.uint64(shift)) & np.uint64(0xFFFF)).astype(np.intp),
-                                              minlength=1 << 16)
+                if ranks[s] and x.size:
+                    held[s].append(_keys(x))
+                    if sum(a.size for a in held[s]) >= 1 << 14:
+                        count(s)
+        for s in range(len(ranks)):
+            if held[s]:
+                count(s)
         for s in range(len(ranks)):
             for j in range(len(ranks[s])):
                 c = np.cumsum(hist[s][j])

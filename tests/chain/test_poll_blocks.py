@@ -140,3 +140,47 @@ def test_the_block_decoding_holds_a_block_not_the_log() -> None:
     bound = block * 130
     assert peaks["blocks", 3] - peaks["blocks", 1] <= bound, peaks
     assert peaks["whole", 3] - peaks["whole", 1] > bound, peaks  # the bound tells the two apart
+
+
+def _faulty_log() -> tuple[PollLog, np.ndarray]:
+    """120 s of polls with something at many block edges: failed polls before the first answer, the uptime passing
+    2^31 ms at 8 s (a first answer below it: read unsigned to the end), timeouts alone and in runs (a restart),
+    exception answers, clock steps of +60 ms at 62 s and -80 ms at 100 s, a second of answers 40 ms late, 400 ppm
+    of drift, jittered latencies; and transport drops, some at poll times."""
+    rng = np.random.default_rng(11)
+    t_req = np.arange(0.0, 120.0, 0.01)
+    t = t_req + 0.002 + 0.001 * rng.random(t_req.size)
+    dev_s = t_req * (1 + 400e-6) + (2**31 / 1000.0 - 8.0) + np.where(t_req >= 62.0, 0.06, 0.0)
+    dev_s = dev_s - np.where(t_req >= 100.0, 0.08, 0.0)  # a step back: held times must not go back
+    dev_s = dev_s - np.where((t_req > 90.0) & (t_req < 91.0), 0.04, 0.0)  # late answers: an older update
+    up_ms = (np.floor(dev_s * 200.0) * 5.0).astype(np.int64) & 0xFFFFFFFF
+    values = rng.integers(0, 40000, (t.size, 14)).astype(np.uint16)
+    values[:, 10] = rng.choice([0, 0, 0, 1, 256], t.size)
+    values[:, 12] = (up_ms >> 16).astype(np.uint16)
+    values[:, 13] = (up_ms & 0xFFFF).astype(np.uint16)
+    status = np.zeros(t.size, np.int16)
+    status[:5] = POLL_TIMEOUT
+    status[rng.random(t.size) < 0.03] = POLL_TIMEOUT
+    status[rng.random(t.size) < 0.02] = 4
+    status[1500:1511] = POLL_TIMEOUT
+    status[11990:11996] = POLL_TIMEOUT
+    values[status != 0] = 0
+    drops = np.sort(np.concatenate([rng.uniform(0.0, 120.0, 40), t[rng.integers(0, t.size, 40)]]))
+    return PollLog("brake_pressure", 1, 4, 0, t, values, status), drops
+
+
+@pytest.mark.parametrize("block", [13, 61, 1000])
+def test_what_spans_block_edges_is_carried(block: int) -> None:
+    """Blocks far shorter than a second, a run of timeouts or the wrap: every carried state is exercised."""
+    cfg = load_setup("paper").pressure
+    plog, drops = _faulty_log()
+    whole = DecodeSink()
+    decode_pressure_polls(plog, cfg, whole, drops)
+    assert {e[0] for e in whole.evidence} >= {"clock_step", "modbus_restart", "modbus_slow", "clock_drift"}
+    sink, got = _blocks(plog, cfg, drops, block)
+    for name, ch in whole.rec.channels.items():
+        t, v, f, _unit, _source = got[name]
+        assert t.tobytes() == ch.timestamps.tobytes() and v.tobytes() == ch.values.tobytes(), name
+        assert np.array_equal(f, ch.flags), name
+    assert sink.counts == whole.counts
+    assert _same_evidence(sink, whole)
