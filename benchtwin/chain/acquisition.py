@@ -51,6 +51,7 @@ from benchtwin.chain.decoding import (
 )
 from benchtwin.chain.decoding import bus_load as _bus_load  # noqa: F401  (the name earlier code imports)
 from benchtwin.chain.faults import detect_faults
+from benchtwin.chain.pollspool import PollSpool, decode_spooled
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Flag, Recording
@@ -65,6 +66,10 @@ __all__ = ["CONTEXT_FRAMES", "HOLD_FRAMES", "Acquisition", "AcquisitionInput", "
            "detect_lag"]
 
 log = logging.getLogger(__name__)
+
+#: polls of a poll log decoded at a time (at most; ``block_samples`` when smaller): 38 B a poll read, ~0.13 kB a poll
+#: while its five channels are made
+POLL_BLOCK = 1 << 18
 
 
 @dataclass
@@ -213,7 +218,7 @@ class Acquisition:
         self._frames: dict[str, int] = {}
         self._unknown: dict[str, dict[int, int]] = {}
         self._counts: dict[str, Any] = {"protocol_errors": {}}
-        self._polls: dict[str, list[PollLog]] = {}
+        self._polls: dict[str, PollSpool] = {}  # on disk beside the channels when the store is
         self._events: list[TransportEvent] = []
         self._segments: list[Segment] = []
         self._meta: dict[str, Any] = {}
@@ -262,8 +267,17 @@ class Acquisition:
                 log.error("bus %s could not be decoded: %s", bus, exc)
                 _add_counts(self._counts, {"protocol_errors": {f"{bus}: decoding failed ({exc})": max(1, len(table))}})
         for device, plog in chunk.polls.items():
-            self._polls.setdefault(device, []).append(plog)
+            if device in self._polls:
+                self._polls[device].append(plog)
+            else:
+                self._polls[device] = PollSpool(plog, self._store.directory)
         return self
+
+    @property
+    def poll_logs(self) -> dict[str, PollSpool]:
+        """The poll logs fed so far, one :class:`~benchtwin.chain.pollspool.PollSpool` per device (read them, do not
+        change them; :meth:`finish` decodes and removes them)."""
+        return dict(self._polls)
 
     def _decode_bus(self, table: FrameTable, last: bool) -> None:
         frames = table.frames
@@ -386,30 +400,15 @@ class Acquisition:
         view = ChannelBlocks(rec, self._store, self.block_samples)
         flag_truncations(view, self._events, self._of_bus)
         decoded = set(rec.channels)
-        for device in list(self._polls):
-            parts = self._polls.pop(device)  # the chunks' pieces go once joined: one copy of the log at a time
-            plog = parts[0] if len(parts) == 1 else PollLog(
-                device, parts[0].unit_id, parts[0].function_code, parts[0].first_register,
-                np.concatenate([p.times for p in parts]), np.concatenate([p.values for p in parts]),
-                np.concatenate([p.status for p in parts]))
-            del parts
-            drops = events_for(self._events, {device})
-            dev = self._polled.get(device)
-            if dev is None:
-                log.warning("poll log %s belongs to no device of setup %s: not decoded", device, self.setup.name)
-                sink.count("unknown_poll_devices", device, len(plog))
-                continue
-            try:
-                dev.decode_polls(plog, sink, drops)
-            except Exception as exc:
-                log.error("poll log %s could not be decoded: %s", device, exc)
-                sink.protocol_error(f"modbus:{device}: decoding failed ({exc})", max(1, len(plog)))
-        plog = None  # the joined log is not kept through the passes below
+        emitted = decode_spooled(self._polls, self._polled, self._events, sink, self._store,
+                                 min(self.block_samples, POLL_BLOCK), self.setup.name)
+        for name in emitted:  # in their place among the channels (read from the store's files when on disk)
+            rec.channels[name] = self._store.channel(name)
         if self._store.on_disk:  # the poll logs' channels go to the store's files too: none stays in memory
-            for k, name in enumerate(n for n in list(rec.channels) if n not in decoded):
+            for k, name in enumerate(n for n in list(rec.channels) if n not in decoded and n not in emitted):
                 ch = rec.channels[name]
-                self._store.append(name, ch.unit, ch.source, ch.value_texts, (math.inf, k), ch.timestamps,
-                                   ch.values, ch.flags)
+                self._store.append(name, ch.unit, ch.source, ch.value_texts, (math.inf, len(emitted) + k),
+                                   ch.timestamps, ch.values, ch.flags)
                 rec.channels[name] = self._store.channel(name)  # in its place among the channels
         flag_saturation(view, devs)
         faults_found = detect_faults(view, devs, sink.evidence, self._events)

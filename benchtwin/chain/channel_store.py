@@ -159,6 +159,11 @@ class ChannelStore:
             np.ascontiguousarray(flags, dtype=_DTYPES[2]).tofile(fh)
 
     @property
+    def directory(self) -> Path | None:
+        """The folder the samples go to (None: in memory)."""
+        return self._dir
+
+    @property
     def on_disk(self) -> bool:
         """Whether the samples go to files (a directory was given)."""
         return self._dir is not None

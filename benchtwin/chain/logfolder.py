@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Mapping
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.chain.polllog import write_poll_csv, write_poll_log
+from benchtwin.chain.pollspool import PollSpool
 from benchtwin.config.setup import SetupConfig
 from benchtwin.segments import Segment, save_segments
 from benchtwin.sensors import devices, write_bus_dbcs
@@ -39,14 +41,17 @@ def bus_channel(setup: SetupConfig, bus: str) -> int:
 
 
 def write_side_files(out: Path, setup: SetupConfig, segments: list[Segment], meta: dict[str, Any],
-                     events: list[TransportEvent], start: datetime, *, polls: dict[str, PollLog] | None = None,
-                     poll_csv: bool = False) -> dict[str, Path]:
+                     events: list[TransportEvent], start: datetime, *,
+                     polls: Mapping[str, PollLog | PollSpool] | None = None, poll_csv: bool = False) -> dict[str, Path]:
     """The files of a log folder beside the bus logs: the poll logs, the DBCs and EDS to decode the buses,
     ``setup.json``, ``segments.json`` and ``meta.json`` (``meta`` with the start time and the transport events).
     """
     paths: dict[str, Path] = {}
     for dev, plog in (polls or {}).items():
-        paths[f"{dev}.polls.npz"] = write_poll_log(plog, out / f"{dev}.polls.npz")
+        if isinstance(plog, PollSpool):  # written block by block
+            paths[f"{dev}.polls.npz"] = plog.write_npz(out / f"{dev}.polls.npz")
+        else:
+            paths[f"{dev}.polls.npz"] = write_poll_log(plog, out / f"{dev}.polls.npz")
         if poll_csv:
             paths[f"{dev}.polls.csv"] = write_poll_csv(plog, out / f"{dev}.polls.csv")
     for bus, p in write_bus_dbcs(setup, out).items():

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,14 +47,16 @@ def read_poll_log(path: str | Path) -> PollLog:
         raise DataError(f"{path}: not a poll log ({why})") from None
 
 
-def write_poll_csv(log: PollLog, path: str | Path) -> Path:
-    """Human-readable CSV of a poll log: time, unit, function code, status, then one column per register."""
+def write_poll_csv(log: PollLog | Any, path: str | Path) -> Path:
+    """Human-readable CSV of a poll log (or a :class:`~benchtwin.chain.pollspool.PollSpool`, read by blocks): time,
+    unit, function code, status, then one column per register."""
     path = Path(path)
     with path.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(["time_s", "unit_id", "function_code", "status",
                     *[f"reg{log.first_register + k}" for k in range(log.count)]])
-        for k in range(len(log)):
-            w.writerow([f"{log.times[k]:.6f}", log.unit_id, log.function_code, int(log.status[k]),
-                        *log.values[k].tolist()])
+        for part in (log.blocks() if hasattr(log, "blocks") else [log]):  # a spooled log: block by block
+            for k in range(len(part)):
+                w.writerow([f"{part.times[k]:.6f}", part.unit_id, part.function_code, int(part.status[k]),
+                            *part.values[k].tolist()])
     return path

@@ -32,7 +32,7 @@ from benchtwin.config.setup import SetupConfig
 from benchtwin.recording import Recording
 from benchtwin.sensors.imperfections import truncate_log
 from benchtwin.trace import Trace
-from benchtwin.wire.frames import FrameTable, PollLog, TransportEvent
+from benchtwin.wire.frames import FrameTable, TransportEvent
 
 __all__ = ["SLICE_S", "run_chunked", "time_slices", "trace_pieces"]
 
@@ -74,26 +74,6 @@ def time_slices(pieces: Iterable[Trace], max_s: float = SLICE_S) -> Iterator[Tra
         for k, (a, b) in enumerate(pairwise(bounds)):
             yield Trace(t[a:b], {n: v[a:b] for n, v in piece.channels.items()}, piece.segments if k == 0 else [],
                         piece.meta)
-
-
-class _Polls:
-    """The poll logs of a run gathered chunk by chunk (small: a hundredth of the frames)."""
-
-    def __init__(self) -> None:
-        self.parts: dict[str, list[PollLog]] = {}
-
-    def add(self, polls: dict[str, PollLog]) -> None:
-        for dev, plog in polls.items():
-            self.parts.setdefault(dev, []).append(plog)
-
-    def whole(self) -> dict[str, PollLog]:
-        out = {}
-        for dev, parts in self.parts.items():
-            p0 = parts[0]
-            out[dev] = p0 if len(parts) == 1 else PollLog(
-                dev, p0.unit_id, p0.function_code, p0.first_register, np.concatenate([p.times for p in parts]),
-                np.concatenate([p.values for p in parts]), np.concatenate([p.status for p in parts]))
-        return out
 
 
 def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 0,
@@ -148,7 +128,6 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
                       keep_chunks=keep_chunks)
     spans: dict[str, list[float]] = {}  # bus -> [first, last, frames] as logged
     bitrates: dict[str, int] = {}
-    polls = _Polls()
     events: list[TransportEvent] = []
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -162,7 +141,6 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
             for got in delivered:
                 segments += got.segments
                 events += got.events
-                polls.add(got.polls)
                 chunk = AcquisitionInput(events=list(got.events), polls=dict(got.polls), start_time=start)
                 for bus in sorted(got.can):
                     table = got.can[bus]
@@ -181,9 +159,9 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
                         writers[bus].append(frames)
                     chunk.can[bus] = FrameTable(bus, frames, bitrates[bus])
                 acq.feed(chunk)
-        whole_polls = polls.whole()
+        poll_logs = acq.poll_logs  # spooled beside the chunk files (or in memory): the written logs read them by blocks
         run_meta = json.loads(json.dumps({"trace": dict(trace_meta), "seed": seed, **(meta or {})}, default=str))
-        polled = [(float(p.times[0]), float(p.times[-1])) for p in whole_polls.values() if len(p.times)]
+        polled = [(p.first_s, p.last_s) for p in poll_logs.values() if len(p)]
         seg_spans = [(float(s.start_s), float(s.end_s)) for s in segments]
         damaged = damaged_from_spans({b: (s[0], s[1], int(s[2])) for b, s in spans.items()}, polled, seg_spans,
                                       {bus: (f"{bus}.mf4", None) for bus in spans})
@@ -194,7 +172,7 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
             acq.feed(AcquisitionInput(events=truncated, start_time=start))
         if out is not None:
             write_side_files(out, setup, segments, {"trace": dict(trace_meta), "seed": seed, **(meta or {})}, events,
-                             start, polls=whole_polls)
+                             start, polls=poll_logs)
             if blf:
                 for bus in sorted(spans):
                     write_blf(read_mf4(out / f"{bus}.mf4", bus, bitrates[bus]), out / f"{bus}.blf",

@@ -26,6 +26,7 @@ import numpy as np
 
 from benchtwin.errors import MissingChannelError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
+from benchtwin.identification._state_changes import state_changes
 from benchtwin.identification._windows import at_times
 from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Recording
@@ -35,14 +36,6 @@ __all__ = ["find_shift_events", "identify_shift_thresholds"]
 
 #: segment kinds in which the gearbox's own schedule chooses the gear
 SCHEDULE_SEGMENT_KINDS: tuple[str, ...] = ("acceleration", "deceleration", "ramp_down", "cycle")
-
-
-def _is_periodic(ts: np.ndarray) -> bool:
-    if ts.size < 10:
-        return False
-    dt = np.diff(ts)
-    med = float(np.median(dt))
-    return med > 0 and float(np.mean(np.abs(dt - med) <= 0.1 * med)) > 0.8
 
 
 def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None = SCHEDULE_SEGMENT_KINDS,
@@ -78,20 +71,18 @@ def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None =
     for n in ("gear_target", "vehicle_speed_kmh", "pedal_pct"):
         if n not in rec:
             raise MissingChannelError(f"shift-threshold identification needs channel {n!r}")
-    gch = rec["gear_target"]
-    ok = gch.good
-    ts, g = gch.timestamps[ok], np.rint(gch.values[ok]).astype(int)
-    k = np.flatnonzero(np.diff(g) != 0) + 1
-    t_ev = ts[k]
-    if _is_periodic(ts):
-        t_ev = 0.5 * (ts[k] + ts[k - 1])
+    ch = state_changes(rec["gear_target"])  # read by blocks: only the changes are kept
+    g_old, g_new = ch.old, ch.new
+    t_ev = ch.t_new
+    if ch.periodic:
+        t_ev = 0.5 * (ch.t_new + ch.t_old)
     if segment_kinds and rec.segments:
         segs = [sg for sg in rec.segments if sg.kind in segment_kinds]
         if segs:
             inside = np.zeros(t_ev.shape, dtype=bool)
             for sg in segs:
                 inside |= sg.contains(t_ev)
-            k, t_ev = k[inside], t_ev[inside]
+            g_old, g_new, t_ev = g_old[inside], g_new[inside], t_ev[inside]
     sp, pd = rec["vehicle_speed_kmh"], rec["pedal_pct"]
     # read around the events only when the channels are read by blocks (see _windows.at_times)
     v, v_flags = at_times(sp, t_ev)
@@ -102,11 +93,11 @@ def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None =
         & ((p_flags & int(Flag.bad())) == 0)
     v_before = at_times(sp, t_ev - lookback_s)[0]
     p_before = at_times(pd, t_ev - lookback_s)[0]
-    up = g[k] > g[k - 1]
+    up = g_new > g_old
     dv = v - v_before
     steady_pedal = np.abs(p - p_before) <= pedal_tol_pct
     crossing = np.where(up, dv > 0, dv < 0) & steady_pedal & np.isfinite(dv)
-    return {"t": t_ev, "from_gear": g[k - 1], "to_gear": g[k], "speed_kmh": v, "pedal_pct": p, "good": good,
+    return {"t": t_ev, "from_gear": g_old, "to_gear": g_new, "speed_kmh": v, "pedal_pct": p, "good": good,
             "crossing": crossing}
 
 

@@ -232,6 +232,15 @@ class Device(ABC):
     def decode_polls(self, log: PollLog, sink: DecodeSink, drops: np.ndarray) -> None:  # noqa: B027
         """Decode this device's poll log (polled devices only; the default decodes nothing)."""
 
+    def decode_poll_blocks(self, log: Any, sink: DecodeSink, drops: np.ndarray,
+                           emit: Callable[[str, str, np.ndarray, np.ndarray, np.ndarray, str], None],
+                           block: int) -> None:
+        """Decode this device's poll log read by blocks (``log``: ``len()`` and ``part(start, stop)`` giving a
+        :class:`~benchtwin.wire.frames.PollLog`); each block of a channel goes to ``emit(name, unit, t, v, flags,
+        source)``, counts and evidence to ``sink``. The default reads the whole log into :meth:`decode_polls`
+        (its channels land in ``sink.rec``)."""
+        self.decode_polls(log.part(0, len(log)), sink, drops)
+
     @property
     def poll_device(self) -> str | None:
         """Name of the poll log this device's polls are logged under (polled devices only)."""

@@ -220,6 +220,11 @@ class PollLog:
     def __len__(self) -> int:
         return int(self.times.shape[0])
 
+    def part(self, start: int, stop: int) -> PollLog:
+        """Polls ``start`` to ``stop`` (indices) as a poll log of their own (views, not copies)."""
+        return PollLog(self.device, self.unit_id, self.function_code, self.first_register, self.times[start:stop],
+                       self.values[start:stop], self.status[start:stop])
+
     @property
     def count(self) -> int:
         """Registers read per poll."""
