@@ -35,6 +35,7 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import ConfigError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
+from benchtwin.identification.torque_converter_borrowed import borrowed_gear_offsets
 from benchtwin.identification.torque_converter_model import (
     _zero_torque_sr,
     converter_design,
@@ -47,7 +48,6 @@ from benchtwin.identification.torque_converter_model import (
 from benchtwin.identification.torque_converter_points import (
     RPM_PER_RADS,
     ConverterPoints,
-    borrowed_gear_offsets,
     converter_points,
 )
 from benchtwin.identification.torque_converter_table import fit_converter_table
@@ -403,7 +403,7 @@ def identify_torque_converter(
         Gear -> ``(eta_m, C0)`` from the transmission identification. A gear without a model uses
         the nearest gear's (flagged with the reason), its turbine torque then offset to meet the pump torque on
         its own coupling-mode points (``turbine_torque_offset_g<k>``, iterated with the coupling point;
-        :func:`~benchtwin.identification.torque_converter_points.borrowed_gear_offsets`), or left as it is and
+        :func:`~benchtwin.identification.torque_converter_borrowed.borrowed_gear_offsets`), or left as it is and
         flagged when it has too few of them. Without any, eta = 1 and C0 = 0 and the result
         is flagged (turbine torque underestimated by the gearbox losses).
     max_pump_accel_rpm_s:

@@ -1,0 +1,202 @@
+"""A gear on a borrowed transmission model: its turbine-torque offset from its own coupling points.
+
+The second half of the points' calibration of
+:func:`~benchtwin.identification.torque_converter.identify_torque_converter`: a gear without a transmission model of
+its own (:func:`~benchtwin.identification.torque_converter_points.converter_points` lends it the nearest gear's)
+has its eq. 32 turbine torque offset to meet the pump torque on its coupling points
+(:func:`borrowed_gear_offsets`), when the gear's passes through the coupling mode refute the borrowed C0
+(:func:`offset_significance`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from benchtwin.identification.torque_converter_points import ConverterPoints
+
+__all__ = ["COUPLED_TR_TOL", "OFFSET_CONFIDENCE", "PASS_GAP_S", "borrowed_gear_offsets", "offset_significance"]
+
+#: a torque ratio this close to 1 counts as the coupling mode seen (:func:`borrowed_gear_offsets`): a few times the
+#: torque ratio's scatter from the telemetry step (about 0.5 Nm at 20-80 Nm), well below a converter's TR - 1 short of
+#: its coupling point (the TR curve falls by about 1 per unit SR there)
+COUPLED_TR_TOL = 0.03
+#: a borrowed gear's offset is applied only beyond this two-sided confidence of zero (the 3-sigma level of the
+#: Student t of its passes, :func:`offset_significance`): the borrowed model's C0 is kept unless the gear's own
+#: coupling points refute it
+OFFSET_CONFIDENCE = 0.9973
+#: coupling points further apart than this (s) are separate passes: 2.5 times the 0.4 s pump-acceleration window,
+#: so no two passes share a sample of dw_p/dt, while the points of one pass share its operating point and errors
+PASS_GAP_S = 1.0
+
+
+def _plateau_start(sr: np.ndarray, d: np.ndarray, t_p: np.ndarray, min_points: int) -> float:
+    """The SR from which ``d`` is flat: a broken stick ``d = c + s T_p max(G - SR, 0)`` fitted over ``G``.
+
+    Below the coupling point the turbine torque exceeds the pump torque by ``(TR - 1) T_p``, falling to 0 at
+    Gamma; above it the difference of eq. 32's turbine torque and the pump torque is the gear's offset alone.
+    The least-squares ``G`` (at least ``min_points`` points above it) starts the coupling point of a gear whose
+    offset moved the converter fit's (NaN: too few points).
+    """
+    best, g_best = np.inf, float("nan")
+    for g in np.unique(np.round(sr, 3)):
+        if int((sr >= g).sum()) < min_points:
+            break
+        a = np.column_stack([np.ones_like(sr), t_p * np.clip(g - sr, 0.0, None)])
+        coef, *_ = np.linalg.lstsq(a, d, rcond=None)
+        sse = float(np.sum((d - a @ coef) ** 2))
+        if coef[1] > 0 and sse < best:
+            best, g_best = sse, float(g)
+    return g_best
+
+
+def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max_pump_accel_rads2: float,
+                          min_points: int, *, start: bool = False
+                          ) -> tuple[dict[int, tuple[float, float, int]], dict[int, str]]:
+    """Per gear on a borrowed transmission model, the offset of its eq. 32 turbine torque on its coupling points.
+
+    A gear without a transmission model of its own (gear 1 never runs with the lock-up closed on most cars, so
+    the steady lock-up-closed points of eq. 13-17 and the turbine-torque calibration have none) takes the
+    nearest gear's ``eta_m`` and ``C0``, and its turbine torque is off by the difference of the two gears'
+    drag, ``C0`` mostly (several Nm, against turbine torques of 20-60 Nm in a take-off). In coupling mode the
+    turbine torque is the pump torque (eq. 36), i.e. the motor torque less the pump-side inertia torque: the
+    difference ``T_t(eq. 32) - (T_motor - J dw_p/dt)`` over the gear's own coupling points (SR at or above
+    ``gamma``, the pump nearly steady), taken with the pump steady (:func:`offset_significance`: its median, or
+    the line through its passes at ``dw_p/dt = 0``), is that gear's offset. Only when the gears with a model of
+    their own show the coupling mode (``COUPLED_TR_TOL``): else every borrowed gear is left as it is, with the
+    reason. And only
+    when the offset is significant (:func:`offset_significance`: beyond the ``OFFSET_CONFIDENCE`` Student-t bound
+    of zero over the gear's passes through the coupling mode): else the borrowed C0 is consistent with the gear's
+    own points and is kept, with the reason.
+
+    Parameters
+    ----------
+    pts:
+        The converter points (:func:`converter_points`), with ``borrowed``.
+    gamma:
+        The coupling point of the current converter fit.
+    j_pump:
+        The pump-side inertia of that fit (kg m^2; 0 without).
+    max_pump_accel_rads2:
+        Points with a larger ``|dw_p/dt|`` are left out (a tenth of the quasi-steady limit: the inertia torque
+        stays about 1 % of the pump torque).
+    min_points:
+        Least coupling points of a gear.
+    start:
+        The first round: each gear's coupling point taken no higher than where the difference of its turbine
+        and pump torques turns flat (:func:`_plateau_start`), since an offset moves the converter fit's.
+
+    Returns
+    -------
+    offsets, reasons
+        Gear -> (offset in Nm, its standard error over the passes, points used) for the gears with enough
+        coupling points and a significant offset; gear -> the reason for the others (turbine torque left as it is).
+    """
+    out: dict[int, tuple[float, float, int]] = {}
+    reasons: dict[int, str] = {}
+    if not np.isfinite(gamma):
+        gamma = 1.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sr = pts.w_t / pts.w_p
+    calm = np.abs(pts.dw_p) <= max_pump_accel_rads2
+    # the anchor: the coupling mode seen in the gears with a model of their own (TR within ``COUPLED_TR_TOL`` of 1
+    # on ``min_points`` points or more, the pump's inertia torque within that share of its torque). Without it, the
+    # top of a borrowed gear's SR range may still be converter mode, where the turbine torque exceeds the pump
+    # torque by (TR - 1) T_p: an "offset" taken there would pull the coupling point down with it
+    own = ~np.isin(pts.gear, list(pts.borrowed))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tr = pts.t_t / (pts.t_p - j_pump * pts.dw_p)
+    # and where the pump's inertia torque (J of a fit it is correlated with) is within that share of its torque
+    coupled = own & (np.abs(tr - 1.0) <= COUPLED_TR_TOL) & (np.abs(j_pump * pts.dw_p) <= COUPLED_TR_TOL * pts.t_p)
+    if int(coupled.sum()) < min_points:
+        for k, near in sorted(pts.borrowed.items()):
+            reasons[k] = (f"gear {k} on gear {near}'s transmission model: left uncalibrated, no coupling mode seen in "
+                          f"the gears with a model of their own ({int(coupled.sum())} points with TR within "
+                          f"{COUPLED_TR_TOL:g} of 1) to anchor it (too little excitation: its turbine torque may be "
+                          "off by the two gears' C0 difference)")
+        return out, reasons
+    for k, near in sorted(pts.borrowed.items()):
+        g = gamma
+        own = (pts.gear == k) & calm & np.isfinite(pts.t_t)
+        if start and own.any():
+            g0 = _plateau_start(sr[own], pts.t_t[own] - (pts.t_p[own] - j_pump * pts.dw_p[own]), pts.t_p[own],
+                                min_points)
+            g = min(g, g0) if np.isfinite(g0) else g
+        m = own & (sr >= g)
+        n = int(m.sum())
+        if n < min_points:
+            reasons[k] = (f"gear {k} on gear {near}'s transmission model: {n} coupling-mode points (SR >= "
+                           f"{g:.3f}), need {min_points} to calibrate its turbine torque against the pump "
+                           "torque: left uncalibrated (too little excitation, its turbine torque may be off by the "
+                           "two gears' C0 difference)")
+            continue
+        d = pts.t_t[m] - (pts.t_p[m] - j_pump * pts.dw_p[m])
+        off, se, n_pass, bound = offset_significance(pts.t[m], d, dw=pts.dw_p[m])
+        if not abs(off) > bound:
+            passes = f"{n_pass} pass" + ("es" if n_pass != 1 else "")
+            reasons[k] = (f"gear {k} on gear {near}'s transmission model: left uncalibrated, its turbine torque on its "
+                          f"{n} coupling-mode points ({passes}) is {off:+.2f} +- {se:.2f} Nm off the pump torque, "
+                          f"within the {100 * OFFSET_CONFIDENCE:g} % bound {bound:.2f} Nm of zero (the borrowed C0 "
+                          "not refuted)")
+            continue
+        out[k] = (off, se, n)
+    return out, reasons
+
+
+def offset_significance(t: np.ndarray, d: np.ndarray, *, dw: np.ndarray | None = None, gap_s: float = PASS_GAP_S,
+                        confidence: float = OFFSET_CONFIDENCE) -> tuple[float, float, int, float]:
+    """A borrowed gear's turbine-torque offset, its standard error over its passes, and the bound it must exceed.
+
+    The points of one pass through the coupling mode (``t`` closer than ``gap_s``) share their operating point,
+    the sensors' slow errors and the dw_p/dt window, so they are not independent samples: each pass counts
+    once, by its median. Without ``dw`` (or without passes on both sides of a steady pump), the offset is the
+    median of ``d``, its standard error that of a median over the passes, ``1.2533 s / sqrt(n_pass)`` with ``s``
+    the spread of the passes' medians, and ``n_pass - 1`` degrees of freedom.
+
+    With ``dw`` and at least three passes, some with the pump speeding up and some slowing down (the passes'
+    median ``dw`` on both sides of 0), the offset is the intercept at ``dw = 0`` of the straight line through the
+    passes' medians (``d`` against ``dw``, least squares), its standard error the intercept's (``n_pass - 2``
+    degrees of freedom). In coupling mode ``d`` does not depend on the pump's acceleration when the pump-side
+    inertia torque is taken out exactly; the ``J_pump`` of the converter fit is correlated with ``a0..a2`` and
+    the motor torque lags the speed on the bus, so a pass that speeds the pump up and one that slows it down
+    read ``d`` high and low by the part left in, and a median over a few passes lands on the side that has more
+    of them. The intercept is the offset with the pump steady, whichever passes the campaign has.
+
+    The offset differs from zero when ``|offset|`` exceeds Student's t at ``confidence`` (two-sided) times its
+    standard error. A single pass gives no spread: the bound is infinite, the offset never significant.
+
+    Parameters
+    ----------
+    t, d:
+        Times (s) and ``T_t(eq. 32) - (T_p - J dw_p/dt)`` (Nm) of the gear's coupling points.
+    dw:
+        The pump acceleration ``dw_p/dt`` (rad/s^2) at those points; None: the median of ``d``.
+    gap_s:
+        Least time between two passes.
+    confidence:
+        Two-sided confidence of the bound (0.9973: 3 sigma).
+
+    Returns
+    -------
+    offset, se, n_pass, bound
+        The offset (Nm), its standard error over the passes (NaN for one pass), the number of passes and the
+        bound on ``|offset|`` (Nm; inf for one pass).
+    """
+    order = np.argsort(t)
+    t, d = np.asarray(t, dtype=float)[order], np.asarray(d, dtype=float)[order]
+    cuts = np.flatnonzero(np.diff(t) > gap_s) + 1
+    meds = np.array([np.median(p) for p in np.split(d, cuts)])
+    off, n_pass = float(np.median(d)), int(meds.size)
+    if n_pass < 2:
+        return off, float("nan"), n_pass, float("inf")
+    if dw is not None and n_pass >= 3:
+        x = np.array([np.median(p) for p in np.split(np.asarray(dw, dtype=float)[order], cuts)])
+        if x.min() < 0.0 < x.max():
+            a = np.column_stack([np.ones(n_pass), x])
+            coef, *_ = np.linalg.lstsq(a, meds, rcond=None)
+            dof = n_pass - 2  # at least 1
+            s2 = float(np.sum((meds - a @ coef) ** 2)) / dof
+            se = float(np.sqrt(s2 * np.linalg.inv(a.T @ a)[0, 0]))
+            return float(coef[0]), se, n_pass, float(stats.t.ppf(0.5 + confidence / 2.0, dof)) * se
+    se = 1.2533 * float(np.std(meds, ddof=1)) / np.sqrt(n_pass)
+    return off, se, n_pass, float(stats.t.ppf(0.5 + confidence / 2.0, n_pass - 1)) * se
