@@ -59,6 +59,7 @@ from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
 from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
+from benchtwin.validation.cold_start import cold_start_model
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
 from benchtwin.validation.fuel_map import fuel_map_gps
 from benchtwin.validation.shift_lines import shift_line_gears
@@ -186,6 +187,8 @@ class MapVehicle:
         if missing:
             raise IdentificationError("prediction needs " + ", ".join(missing))
         self._engine_map(result)
+        self.cold, note = cold_start_model(result)
+        self.notes.append(note)
         et = _fit(result, ENGINE_TORQUE_KEY, "gain", "offset")
         self.engine_torque_corr: tuple[float, float] | None = None
         same_gearbox = self.drag is not None and bool(np.all(np.asarray(et.data.get("reference_drag", [False]))))\
@@ -496,6 +499,8 @@ class MapVehicle:
         p_bat = p_el + drive.p_lv_w / self.eta_dcdc
         i_b, v_b, soc = self.battery(p_bat, dt, drive.initial_soc_pct)
         fuel = np.where(on, self.fuel_gps(w_e / _RPM, t_e), 0.0)
+        if self.cold is not None and drive.initial_coolant_degc is not None:  # the factor on the predicted coolant
+            fuel, _coolant = self.cold.run(fuel, t_e * w_e, on, dt, drive.initial_coolant_degc, sp.fuel_lhv_j_per_kg)
         fuel_g = float(np.sum(fuel) * dt)
         notes.append("engine on/off, K0 and engine torque replayed from the recording (the strategy's split)")
         notes.append("not modelled (not in the public specs): the engine's rotating inertia and start energy; "
