@@ -54,6 +54,7 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, corrected_engine_torque
+from benchtwin.identification.fuel_map import fuel_map_gps
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
@@ -61,7 +62,6 @@ from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
 from benchtwin.validation.cold_start import cold_start_model
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
-from benchtwin.validation.fuel_map import fuel_map_gps
 from benchtwin.validation.shift_lines import shift_line_gears
 from benchtwin.validation.standstill import rundown_speed
 
