@@ -32,7 +32,7 @@ trace of a drive the model computes, per time step and backwards from the wheels
 7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
    literature maps, ``soc_per_ah``);
 8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
-   linear towards zero load), and CO2 from the fuel mass.
+   linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), and CO2.
 
 It reads nothing but an :class:`~benchtwin.identification._fit.IdentificationResult`, the public
 :class:`~benchtwin.config.specs.VehicleSpecs` and the measured inputs of the drive
