@@ -38,6 +38,15 @@ def test_no_cold_points_flagged() -> None:
     assert model is None and "no cold points" in note
 
 
+def test_never_warm_flagged() -> None:
+    # the quick campaign's engine: 23-37 degC throughout, so its "warm level" is no warm reference
+    rng = np.random.default_rng(6)
+    t = rng.uniform(23.0, 45.0, 60)
+    fit = fit_cold_factor(cold_factor(0.002, 80.0, t), t)
+    assert fit.status == "flagged" and any("no warm engine" in r for r in fit.reasons)
+    assert not bool(fit.data["use"][0])
+
+
 def test_warm_engine_factor_not_used() -> None:
     # cold points, but the fuel does not depend on the coolant (the paper-form engine): k's interval holds zero
     r, t = _points(0.0, 80.0, seed=5)

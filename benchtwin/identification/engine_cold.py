@@ -66,7 +66,8 @@ def warm_mask(coolant_degc: np.ndarray, *, min_cold_span_k: float = 15.0) -> tup
 
 def fit_cold_factor(ratio: np.ndarray, coolant_degc: np.ndarray, *, weights: np.ndarray | None = None,
                     hinge_grid_degc: np.ndarray | None = None, min_cold_points: int = 3,
-                    min_cold_span_k: float = 15.0, segments: list[str] | None = None) -> FitResult:
+                    min_cold_span_k: float = 15.0, min_warm_degc: float = 60.0,
+                    segments: list[str] | None = None) -> FitResult:
     """Fit ``ratio = a + b max(0, T_warm - T)`` over coolant temperature; ``k = b / a`` per K.
 
     Parameters
@@ -82,6 +83,9 @@ def fit_cold_factor(ratio: np.ndarray, coolant_degc: np.ndarray, *, weights: np.
     min_cold_points, min_cold_span_k:
         "Cold" is ``min_cold_span_k`` below the warm level (:func:`warm_mask`); fewer cold points than
         ``min_cold_points`` flag the fit ("no cold points": the factor cannot be identified).
+    min_warm_degc:
+        A warm level below this flags the fit ("no warm engine": a campaign whose engine never warmed has no
+        warm reference for the map).
 
     Returns
     -------
@@ -113,6 +117,14 @@ def fit_cold_factor(ratio: np.ndarray, coolant_degc: np.ndarray, *, weights: np.
                         ratio=r, coolant_degc=t)
         fit.flag(f"no cold points: {n_cold} block(s) of the firing engine more than {min_cold_span_k:.0f} K "
                  f"below the warm level ({level:.1f} degC; need {min_cold_points}): the factor is not identified")
+        return fit
+    if level < min_warm_degc:
+        fit = linear_fit(np.ones((r.size, 1)), r, ["a"], units=["-"], segments=segments or [], what=COLD_KEY,
+                         weights=w)
+        fit.data.update(T_warm_degc=np.array([level]), use=np.array([False]), n_cold=np.array([n_cold]),
+                        ratio=r, coolant_degc=t)
+        fit.flag(f"no warm engine: the firing engine's warm level is {level:.1f} degC (below {min_warm_degc:.0f}): "
+                 "no warm reference, the factor is not identified")
         return fit
     best: tuple[float, float] = (math.inf, float(grid[0]))
     sw = np.sqrt(w)
