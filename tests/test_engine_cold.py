@@ -53,6 +53,8 @@ def test_warm_engine_factor_not_used() -> None:
     fit = fit_cold_factor(r, t)
     assert abs(fit.value("k")) < 1.5e-4
     assert not bool(fit.data["use"][0])
+    assert fit.status == "flagged" and any("not significant" in r for r in fit.reasons)
+    assert cold_start_model(_result(fit))[0] is None
 
 
 def _result(cold: object, warm: object | None = None) -> IdentificationResult:

@@ -12,7 +12,7 @@ fuel flow at the same speed and torque. Where the Recording has the engine coola
   ``k = b / a`` per kelvin (delta method). ``data['use']`` is True only when the campaign has cold points
   (at least ``min_cold_points`` blocks ``min_cold_span_k`` below the warm level, the 90th percentile of
   the blocks' coolant temperature) and ``k``'s 95 % interval lies above zero; otherwise the fit is flagged
-  ("no cold points") or kept with ``use`` False ("not significant") and the warm map is the map of all points.
+  ("no cold points", "no warm engine", "not significant") and the warm map is the map of all points.
 - the **warm-up** ``engine.warmup``: the coolant as one lump heated by the engine's heat
   (fuel power less brake power) and losing heat to its surroundings below the thermostat,
   ``dT/dt = h P_heat - g (T - T_env)``, fitted as ``dT/dt = h P_heat - g T + c`` on 20 s blocks of the whole
@@ -140,8 +140,12 @@ def fit_cold_factor(ratio: np.ndarray, coolant_degc: np.ndarray, *, weights: np.
                      cond_max=1e12)
     derived(fit, "k", lambda x: x[1] / x[0], unit="1/K")
     lo = fit.params["k"].ci95[0]
-    fit.data.update(T_warm_degc=np.array([tw]), use=np.array([bool(math.isfinite(lo) and lo > 0)]),
-                    n_cold=np.array([n_cold]), ratio=r, coolant_degc=t)
+    use = bool(math.isfinite(lo) and lo > 0)
+    fit.data.update(T_warm_degc=np.array([tw]), use=np.array([use]), n_cold=np.array([n_cold]), ratio=r,
+                    coolant_degc=t)
+    if not use:
+        fit.flag(f"not significant: k = {fit.value('k'):.2e} /K, its 95 % interval reaches zero or below (the "
+                 "engine burns no more fuel cold); the factor is not used")
     return fit
 
 
