@@ -37,6 +37,14 @@ from benchtwin.identification._fit import (
     r_squared,
 )
 from benchtwin.identification._signals import check_spread
+from benchtwin.identification.engine_cold import (
+    COLD_KEY,
+    COOLANT_ROLE,
+    WARMUP_KEY,
+    fit_warmup,
+    identify_cold_fuel,
+    warm_mask,
+)
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
@@ -57,12 +65,20 @@ class EnginePoints:
     """Steady engine points: speed (rpm), torque (Nm), fuel mass flow (g/s), segments."""
 
     def __init__(self, speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: np.ndarray,
-                 segments: Sequence[str] = (), n_flagged: int = 0) -> None:
+                 segments: Sequence[str] = (), n_flagged: int = 0, coolant_degc: np.ndarray | None = None) -> None:
         self.speed_rpm = np.asarray(speed_rpm, dtype=float)
         self.torque_nm = np.asarray(torque_nm, dtype=float)
         self.fuel_gps = np.asarray(fuel_gps, dtype=float)
         self.segments = list(segments) if segments else [""] * self.speed_rpm.size
         self.n_flagged = n_flagged
+        #: mean engine coolant temperature per point (NaN when not recorded)
+        self.coolant_degc = (np.full(self.speed_rpm.size, np.nan) if coolant_degc is None
+                             else np.asarray(coolant_degc, dtype=float))
+
+    def subset(self, keep: np.ndarray) -> EnginePoints:
+        """The points where ``keep`` is True."""
+        return EnginePoints(self.speed_rpm[keep], self.torque_nm[keep], self.fuel_gps[keep],
+                            [s for s, k in zip(self.segments, keep) if k], self.n_flagged, self.coolant_degc[keep])
 
 
 def engine_points(rec: Recording, *, steady: SteadyWindows | None = None,
@@ -82,7 +98,8 @@ def engine_points(rec: Recording, *, steady: SteadyWindows | None = None,
     if "engine_on" in steady.grid:
         keep &= steady.state("engine_on") > 0.5
     segs = [w.segment for w, k in zip(steady.windows, keep) if k]
-    return EnginePoints(n[keep], t[keep], f[keep], segs, steady.n_excluded)
+    cool = steady.raw_average(rec, COOLANT_ROLE)[keep] if COOLANT_ROLE in rec else None
+    return EnginePoints(n[keep], t[keep], f[keep], segs, steady.n_excluded, cool)
 
 
 def _scale(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -376,7 +393,7 @@ def fit_engine_willans(speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: n
 
 
 def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints | None = None,
-                    willans: bool = True, map_kwargs: Mapping[str, object] | None = None,
+                    willans: bool = True, map_kwargs: Mapping[str, object] | None = None, cold: bool = True,
                     **kwargs: object) -> IdentificationResult:
     """BSFC map (``engine.bsfc``) and Willans lines per speed band (``engine.willans_*``) from a Recording.
 
@@ -393,6 +410,11 @@ def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints
         Also fit the Willans lines.
     map_kwargs:
         Options of :func:`fit_bsfc_map`.
+    cold:
+        With the coolant temperature recorded (``engine_coolant_out_degc``): the cold-start factor
+        ``engine.cold_fuel`` and the coolant's warm-up ``engine.warmup``
+        (:mod:`~benchtwin.identification.engine_cold`); when the factor is significant, ``engine.bsfc`` is the map
+        of the warm points only (``data['warm_only']``).
 
     Raises
     ------
@@ -407,6 +429,8 @@ def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints
                                                **dict(map_kwargs or {}))  # type: ignore[arg-type]
     except IdentificationError as exc:
         out.errors["engine.bsfc"] = f"{type(exc).__name__}: {exc}"
+    if cold and np.any(np.isfinite(pts.coolant_degc)):
+        _cold_fuel(out, rec, specs, pts, dict(map_kwargs or {}))
     if willans:
         try:
             w = fit_engine_willans(pts.speed_rpm, pts.torque_nm, pts.fuel_gps, lhv_j_per_kg=specs.fuel_lhv_j_per_kg,
@@ -419,3 +443,34 @@ def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints
         raise InsufficientDataError("engine: no fit possible (" + "; ".join(f"{k}: {v}" for k, v in out.errors.items())
                                     + ")")
     return out
+
+
+def _cold_fuel(out: IdentificationResult, rec: Recording, specs: VehicleSpecs, pts: EnginePoints,
+               map_kwargs: dict[str, object]) -> None:
+    """``engine.cold_fuel`` and ``engine.warmup`` into ``out``; ``engine.bsfc`` replaced by the warm points' map when
+    the factor is significant (the map of all points stays otherwise, so a warm-only engine's map is unchanged)."""
+    warm, _level = warm_mask(pts.coolant_degc)
+    ref = out.fits.get("engine.bsfc")
+    warm_fit = None
+    if ref is not None and not warm.all() and warm.sum() >= 6:
+        wp = pts.subset(warm)
+        try:
+            warm_fit = fit_bsfc_map(specs, wp.speed_rpm, wp.torque_nm, wp.fuel_gps, segments=wp.segments,
+                                    n_excluded=wp.n_flagged, **map_kwargs)  # type: ignore[arg-type]
+        except IdentificationError:
+            warm_fit = None
+    base = warm_fit if warm_fit is not None else ref
+    if base is not None:
+        try:
+            cf = identify_cold_fuel(rec, specs, base.data)
+            out.fits[COLD_KEY] = cf
+            use = bool(np.all(np.asarray(cf.data.get("use", [False]))))
+            if use and warm_fit is not None:
+                warm_fit.data["warm_only"] = np.array([True])
+                out.fits["engine.bsfc"] = warm_fit
+        except IdentificationError as exc:
+            out.errors[COLD_KEY] = f"{type(exc).__name__}: {exc}"
+    try:
+        out.fits[WARMUP_KEY] = fit_warmup(rec, specs)
+    except IdentificationError as exc:
+        out.errors[WARMUP_KEY] = f"{type(exc).__name__}: {exc}"

@@ -55,6 +55,7 @@ from benchtwin.identification.battery_map_free import (
 )
 from benchtwin.identification.brakes import identify_brakes
 from benchtwin.identification.engine import identify_engine
+from benchtwin.identification.engine_cold import COOLANT_ROLE
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor import identify_motor
 from benchtwin.identification.reduction_gear import identify_reduction_gear
@@ -198,7 +199,7 @@ METHODS: tuple[Method, ...] = (
            spec_keys=("em_rotor_radius_m", "em_rotor_volume_m3"),
            alternatives=(("hpcu_current_a", "hpcu_voltage_v"), ("battery_current_a", "battery_voltage_v"))),
     Method("engine", ("engine_speed_rpm", "engine_torque_nm", "fuel_mass_flow_gps"),
-           _direct(identify_engine), spec_keys=("engine_displacement_m3",)),
+           _direct(identify_engine), spec_keys=("engine_displacement_m3",), optional_roles=(COOLANT_ROLE,)),
     Method("road_load", ("vehicle_speed_kmh",), _direct(identify_road_load),
            any_roles=("dyno_speed_kmh", "dyno_force_front_n"), spec_keys=("test_mass_kg",)),
     Method("brakes", ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",

@@ -44,6 +44,8 @@ class DriveInputs:
     oil_degc:
         Measured gearbox oil temperature (degC), or None when not logged (gaps are filled from the nearest
         reading).
+    initial_coolant_degc:
+        The engine coolant's first reading (the cold-start model's initial state), or None when not logged.
     """
 
     t_s: np.ndarray
@@ -61,6 +63,7 @@ class DriveInputs:
     initial_soc_pct: float
     name: str = "drive"
     oil_degc: np.ndarray | None = None
+    initial_coolant_degc: float | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.t_s).size

@@ -22,6 +22,7 @@ from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._signals import gather
+from benchtwin.identification.engine_cold import COOLANT_ROLE
 from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Channel, LazyChannel, Recording
 from benchtwin.trace import Trace
@@ -178,7 +179,7 @@ def drive_inputs(rec: Recording, start_s: float, end_s: float, *, name: str = "d
     req = ["vehicle_speed_kmh", "gear_actual", "lockup_closed", "k0_closed", "engine_on", "engine_torque_nm",
            "engine_speed_rpm", "pedal_pct"]
     opt = ["brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar", "brake_pressure_rr_bar",
-           "dcdc_lv_current_a", "dcdc_lv_voltage_v", "gearbox_oil_degc"]
+           "dcdc_lv_current_a", "dcdc_lv_voltage_v", "gearbox_oil_degc", COOLANT_ROLE]
     g = gather(rec, req, rate_hz, optional=opt, span=(start_s, end_s), what="prediction")
 
     def mean(*names: str) -> np.ndarray:
@@ -197,7 +198,14 @@ def drive_inputs(rec: Recording, start_s: float, end_s: float, *, name: str = "d
                        pedal_pct=g["pedal_pct"], brake_front_bar=mean("brake_pressure_fl_bar", "brake_pressure_fr_bar"),
                        brake_rear_bar=mean("brake_pressure_rl_bar", "brake_pressure_rr_bar"), p_lv_w=p_lv,
                        initial_soc_pct=_initial_soc(rec, start_s, soc_per_ah), name=name,
-                       oil_degc=g["gearbox_oil_degc"] if "gearbox_oil_degc" in g.present else None)
+                       oil_degc=g["gearbox_oil_degc"] if "gearbox_oil_degc" in g.present else None,
+                       initial_coolant_degc=_first(g[COOLANT_ROLE]) if COOLANT_ROLE in g.present else None)
+
+
+def _first(x: np.ndarray) -> float | None:
+    """The first finite value (the coolant's reading at the drive's start), None when there is none."""
+    ok = np.flatnonzero(np.isfinite(x))
+    return float(x[ok[0]]) if ok.size else None
 
 
 def measured(trace: Trace, start_s: float, end_s: float) -> dict[str, float]:

@@ -32,7 +32,7 @@ trace of a drive the model computes, per time step and backwards from the wheels
 7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
    literature maps, ``soc_per_ah``);
 8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
-   linear towards zero load), and CO2 from the fuel mass.
+   linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), and CO2.
 
 It reads nothing but an :class:`~benchtwin.identification._fit.IdentificationResult`, the public
 :class:`~benchtwin.config.specs.VehicleSpecs` and the measured inputs of the drive
@@ -54,13 +54,14 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError
 from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, corrected_engine_torque
+from benchtwin.identification.fuel_map import fuel_map_gps
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
 from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
+from benchtwin.validation.cold_start import cold_start_model
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
-from benchtwin.validation.fuel_map import fuel_map_gps
 from benchtwin.validation.shift_lines import shift_line_gears
 from benchtwin.validation.standstill import rundown_speed
 
@@ -186,6 +187,8 @@ class MapVehicle:
         if missing:
             raise IdentificationError("prediction needs " + ", ".join(missing))
         self._engine_map(result)
+        self.cold, note = cold_start_model(result)
+        self.notes.append(note)
         et = _fit(result, ENGINE_TORQUE_KEY, "gain", "offset")
         self.engine_torque_corr: tuple[float, float] | None = None
         same_gearbox = self.drag is not None and bool(np.all(np.asarray(et.data.get("reference_drag", [False]))))\
@@ -496,6 +499,8 @@ class MapVehicle:
         p_bat = p_el + drive.p_lv_w / self.eta_dcdc
         i_b, v_b, soc = self.battery(p_bat, dt, drive.initial_soc_pct)
         fuel = np.where(on, self.fuel_gps(w_e / _RPM, t_e), 0.0)
+        if self.cold is not None and drive.initial_coolant_degc is not None:  # the factor on the predicted coolant
+            fuel, _coolant = self.cold.run(fuel, t_e * w_e, on, dt, drive.initial_coolant_degc, sp.fuel_lhv_j_per_kg)
         fuel_g = float(np.sum(fuel) * dt)
         notes.append("engine on/off, K0 and engine torque replayed from the recording (the strategy's split)")
         notes.append("not modelled (not in the public specs): the engine's rotating inertia and start energy; "

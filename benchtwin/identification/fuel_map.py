@@ -1,4 +1,4 @@
-"""Reading the identified BSFC map as a fuel mean effective pressure (the map-based model's fuel flow)."""
+"""Reading the identified BSFC map as a fuel mean effective pressure (the map-based model and the cold-start factor)."""
 
 from __future__ import annotations
 
@@ -47,3 +47,24 @@ def fuel_map_gps(pmf_speed: np.ndarray, pmf_bmep: np.ndarray, pmf: np.ndarray, d
     pm = np.maximum(pm, 0.0)
     p_fuel_w = pm * 1e5 * vd / (np.pi * k) * n * _RPM
     return p_fuel_w / lhv_j_per_kg * 1e3
+
+
+def map_pmf(bsfc_data: dict, lhv_j_per_kg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The identified BSFC map (``engine.bsfc`` data) as fuel MEP: ``(speed nodes, BMEP rows, pmf)``.
+
+    ``None`` when the map is missing or has fewer than two usable BMEP rows.
+    """
+    if not all(k in bsfc_data for k in ("map_speed_rpm", "map_bmep_bar", "map_bsfc")):
+        return None
+    sg = np.asarray(bsfc_data["map_speed_rpm"], float)
+    bg = np.asarray(bsfc_data["map_bmep_bar"], float)
+    z = np.asarray(bsfc_data["map_bsfc"], float)
+    if z.shape != (bg.size, sg.size):
+        z = z.T
+    q = 3.6e9 / lhv_j_per_kg
+    with np.errstate(invalid="ignore"):
+        pmf = z * bg[:, None] / q  # fuel mean effective pressure, bar (rows BMEP, columns speed)
+    keep = np.all(np.isfinite(pmf), axis=1) & (bg > 0)
+    if keep.sum() < 2:
+        return None
+    return sg, bg[keep], pmf[keep]
