@@ -286,3 +286,47 @@ def test_standstill_run_down_draws_the_zero_torque_loss_until_the_pump_stops() -
     fired = _stop(engine_on=1.0)  # the engine at idle holds the pump: not the free run-down
     assert MapVehicle(res, SPECS).run(fired).electric_wh == MapVehicle(res, SPECS, standstill=False).run(
         fired).electric_wh
+
+
+def test_loss_model_speed_part_falls_linearly_to_p0_at_rest_below_the_identified_range() -> None:
+    """``to_standstill``: below w_lo the speed part k_w w + k_w2 w^2 is the chord from 0 (at rest) to its value at
+    w_lo, by hand; inside the range and without the option the clamped polynomial as before."""
+    from benchtwin.identification.motor_loss import loss_w
+
+    c = (150.0, 3.0, 0.01, 0.03, 2.0)  # P0, k_w, k_w2, k_cu, k_sw
+    lo, hi = 80.0, 500.0
+    s_lo = 3.0 * lo + 0.01 * lo**2  # 304 W
+    t = np.array([0.0, 0.0, 0.0, 20.0, 20.0, 0.0])
+    w = np.array([0.0, 40.0, 80.0, 40.0, 200.0, -40.0])
+    want = np.array([150.0, 150.0 + s_lo / 2, 150.0 + s_lo, 150.0 + s_lo / 2 + 0.03 * 400 + 40,
+                     150.0 + 3.0 * 200 + 0.01 * 200**2 + 0.03 * 400 + 40, 150.0 + s_lo / 2])
+    np.testing.assert_allclose(loss_w(c, t, w, (lo, hi), to_standstill=True), want, rtol=1e-12)
+    clamped = loss_w(c, t, w, (lo, hi))
+    np.testing.assert_allclose(clamped[:4], [150.0 + s_lo, 150.0 + s_lo, 150.0 + s_lo, 150.0 + s_lo + 52.0])
+    # a convex speed loss (friction ~w, eddy ~w^2) lies under the chord, touching it at rest and at w_lo
+    wq = np.linspace(0.0, lo, 9)
+    assert np.all(150.0 + 3.0 * wq + 0.01 * wq**2 <= loss_w(c, 0 * wq, wq, (lo, hi), to_standstill=True) + 1e-9)
+
+
+def test_standstill_run_down_with_the_loss_model_draws_p0_plus_the_speed_part_on_the_pump_speed() -> None:
+    """Loss model P0 + k_w w (k_w2 = 0: the chord below 50 rad/s is the line itself) on the free run-down
+    w(t) = 1 / (1/w0 + t c/J): the draw until w = 1 rad/s is, in closed form, P0 T1 + k_w (J/c) ln(w0) with
+    T1 = (J/c)(1 - 1/w0); holding the speed part at its 50 rad/s value instead would add ~0.9 kJ here."""
+    a0 = 0.025
+    res = _with_loss(True)
+    conv = _fit({**{f"a{i}": 1e-3 for i in range(6)}, "J_pump_kgm2": J_PUMP})
+    conv.params["a0"].value = a0
+    res.fits["torque_converter.converter"] = conv
+    drive = _stop()
+    on, off = MapVehicle(res, SPECS).run(drive), MapVehicle(res, SPECS, standstill=False).run(drive)
+    stand = drive.speed_kmh == 0.0
+    extra_j = float(np.sum((on.series["motor_elec_power_w"] - off.series["motor_elec_power_w"])[stand]) * 0.1)
+    w0 = float(np.max(on.series["motor_speed_rpm"][~stand])) * np.pi / 30.0
+    jc = J_PUMP / a0
+    t1 = jc * (1.0 - 1.0 / w0)
+    want = 200.0 * t1 + 2.0 * jc * math.log(w0)
+    # midpoint sampling of a convex, decreasing w(t): within one 0.1 s sample of the top draw (P0 + k_w w0)
+    assert abs(extra_j - want) <= (200.0 + 2.0 * w0) * 0.1
+    t50 = jc * (1.0 / 50.0 - 1.0 / w0)  # the pump reaches the range's lower end
+    held = 200.0 * t1 + 2.0 * jc * math.log(w0 / 50.0) + 2.0 * 50.0 * (t1 - t50)
+    assert held - want > 10 * (200.0 + 2.0 * w0) * 0.1  # the clamped form is far outside the bound above

@@ -40,7 +40,7 @@ def _design(torque_nm: np.ndarray, speed_radps: np.ndarray) -> np.ndarray:
 
 
 def loss_w(coeffs: Iterable[float], torque_nm: np.ndarray, speed_radps: np.ndarray,
-           speed_range_radps: tuple[float, float] | None = None) -> np.ndarray:
+           speed_range_radps: tuple[float, float] | None = None, *, to_standstill: bool = False) -> np.ndarray:
     """The loss model ``P0 + k_w w + k_w2 w^2 + k_cu T^2 + k_sw |T|`` (W), never below zero.
 
     Parameters
@@ -52,14 +52,27 @@ def loss_w(coeffs: Iterable[float], torque_nm: np.ndarray, speed_radps: np.ndarr
     speed_range_radps:
         The speed range the fit covered: the speed terms are evaluated at the speed clamped to it (a
         polynomial is not extrapolated); None: no clamping.
+    to_standstill:
+        Below the range's lower end ``w_lo``, let the speed part ``S(w_lo) = k_w w_lo + k_w2 w_lo^2`` fall
+        linearly to zero at standstill, ``P0 + S(w_lo) |w| / w_lo + ...``, instead of holding it: iron
+        (hysteresis ~w, eddy ~w^2), friction (~w) and windage (~w^3) losses all vanish with the speed, what is
+        left at rest is the intercept ``P0`` (the inverter's standby). The line is the chord of the terms over
+        ``[0, w_lo]``, so for any convex speed loss it bounds it from above. Without a range: no change.
     """
     c = np.asarray(list(coeffs), float)
     if c.shape != (len(LOSS_TERMS),):
         raise ValueError(f"loss_w: {c.size} coefficients, expected {len(LOSS_TERMS)} ({', '.join(LOSS_TERMS)})")
     w = np.asarray(speed_radps, float)
-    if speed_range_radps is not None:
-        w = np.clip(w, *speed_range_radps)
-    return np.maximum(_design(torque_nm, w) @ c, 0.0)
+    t = np.asarray(torque_nm, float)
+    if speed_range_radps is None:
+        return np.maximum(_design(t, w) @ c, 0.0)
+    lo = float(speed_range_radps[0])
+    wc = np.clip(w, *speed_range_radps)
+    raw = _design(t, wc) @ c
+    if to_standstill and lo > 0:
+        s_lo = c[1] * lo + c[2] * lo * lo  # the speed part at the range's lower end
+        raw = raw - np.where(np.abs(w) < lo, (1.0 - np.abs(w) / lo) * s_lo, 0.0)
+    return np.maximum(raw, 0.0)
 
 
 def fit_motor_loss(torque_nm: np.ndarray, speed_rpm: np.ndarray, p_el_w: np.ndarray, *, min_points: int = 12,

@@ -126,7 +126,8 @@ class MapVehicle:
             rng = np.asarray(lf.data.get("speed_range_radps", [0.0, np.inf]), float)
             self.loss_model = (np.array([lf.value(k) for k in LOSS_TERMS]), (float(rng[0]), float(rng[1])))
             self.notes.append("motor DC power from the loss model motor.loss (T w + P0 + k_w w + k_w2 w^2 + k_cu T^2 "
-                              "+ k_sw |T|, speed clamped to the range identified); the Willans lines not used")
+                              "+ k_sw |T|, speed clamped to the range identified; below it the speed part falls "
+                              "linearly to P0 at rest); the Willans lines not used")
         elif motor_model == "loss":  # not usable
             raise IdentificationError("prediction: motor.loss (the motor's loss model) not identified or flagged")
         missing = []
@@ -422,7 +423,7 @@ class MapVehicle:
         """Motor DC power (W): the loss model when the model uses it, else the Willans lines per side."""
         t, w = np.asarray(torque_nm, float), np.asarray(speed_radps, float)
         if self.loss_model is not None:
-            return t * w + loss_w(self.loss_model[0], t, w, self.loss_model[1])
+            return t * w + loss_w(self.loss_model[0], t, w, self.loss_model[1], to_standstill=True)
         return np.where(t >= 0, (t * w + self.w_loss) / self.e, self.e_gen * t * w + self.w_loss_gen)
 
     # ------------------------------------------------------------------ the drive
