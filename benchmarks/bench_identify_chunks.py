@@ -14,7 +14,6 @@ run this script with ``PYTHONPATH`` set to it. The paper campaign needs the shar
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -24,25 +23,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_stream import repeated_campaign
+from _repeated import chunked_recording, size_arguments
 
-from benchtwin.chain.stream import run_chunked, trace_pieces
-from benchtwin.config._base import scenario_path
-from benchtwin.config.campaign import load_campaign
-from benchtwin.config.setup import load_setup
-from benchtwin.config.vehicle import load_vehicle
-from benchtwin.emulator import simulate_campaign
 from benchtwin.identification.run import identify_all
 
 
 def measure(n: int, campaign: str, setup: str, vehicle_name: str) -> tuple[dict[str, float], dict]:
     """Seconds of ``identify_all`` (type B on) on the campaign repeated ``n`` times, and the fits."""
-    vehicle = load_vehicle(scenario_path("vehicles", f"{vehicle_name}.toml"))
     with tempfile.TemporaryDirectory() as tmp:
-        camp = repeated_campaign(n, Path(tmp), scenario_path("campaigns", f"{campaign}.toml"))
-        trace = simulate_campaign(vehicle, load_campaign(camp))
-        rec = run_chunked(trace_pieces(trace), load_setup(setup), seed=1, keep_chunks=True)
-        del trace
+        vehicle, rec = chunked_recording(n, Path(tmp), campaign, setup, vehicle_name)
         load0 = os.getloadavg()[0]
         w0, c0 = time.perf_counter(), time.process_time()
         res = identify_all(rec, vehicle.specs, type_b=True)
@@ -54,17 +43,11 @@ def measure(n: int, campaign: str, setup: str, vehicle_name: str) -> tuple[dict[
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sizes", default="1,3", help="campaign repeats (default 1,3)")
-    ap.add_argument("--campaign", default="paper", help="shipped campaign name (default paper)")
-    ap.add_argument("--setup", default="paper", help="shipped setup name (default paper)")
-    ap.add_argument("--vehicle", default="p2_phev_9at", help="shipped vehicle name")
-    ap.add_argument("--json", type=Path, help="also write the times and every fit as JSON")
-    args = ap.parse_args()
+    args = size_arguments(__doc__, "paper", "also write the times and every fit as JSON")
     results = {}
     print("| campaign | identify wall (s) | identify CPU (s) | load before / after |")
     print("|---|---|---|---|")
-    for n in (int(s) for s in args.sizes.split(",")):
+    for n in args.sizes:
         t, fits = measure(n, args.campaign, args.setup, args.vehicle)
         results[n] = {"times": t, "fits": fits}
         print(f"| {args.campaign} x{n} | {t['wall_s']:.1f} | {t['cpu_s']:.1f} | "

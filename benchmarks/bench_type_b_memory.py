@@ -17,7 +17,6 @@ another tree, run this script with ``PYTHONPATH`` set to it. About 1-2 min per s
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -26,26 +25,16 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_stream import repeated_campaign
+from _repeated import chunked_recording, size_arguments
 
-from benchtwin.chain.stream import run_chunked, trace_pieces
-from benchtwin.config._base import scenario_path
-from benchtwin.config.campaign import load_campaign
-from benchtwin.config.setup import load_setup
-from benchtwin.config.vehicle import load_vehicle
-from benchtwin.emulator import simulate_campaign
 from benchtwin.identification.run import METHODS, _reads, _rerun, identify_all
 from benchtwin.identification.uncertainty import _propagate_one, components
 
 
 def measure(n: int, campaign: str, setup: str, vehicle_name: str) -> dict[str, float]:
     """``method / kind`` -> peak traced MB of that component's re-runs on the campaign repeated ``n`` times."""
-    vehicle = load_vehicle(scenario_path("vehicles", f"{vehicle_name}.toml"))
     with tempfile.TemporaryDirectory() as tmp:
-        camp = repeated_campaign(n, Path(tmp), scenario_path("campaigns", f"{campaign}.toml"))
-        trace = simulate_campaign(vehicle, load_campaign(camp))
-        rec = run_chunked(trace_pieces(trace), load_setup(setup), seed=1, keep_chunks=True)
-        del trace
+        vehicle, rec = chunked_recording(n, Path(tmp), campaign, setup, vehicle_name)
         result = identify_all(rec, vehicle.specs, type_b=False)
         rec.drop()
         out: dict[str, float] = {}
@@ -72,14 +61,8 @@ def measure(n: int, campaign: str, setup: str, vehicle_name: str) -> dict[str, f
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sizes", default="1,3", help="campaign repeats (default 1,3)")
-    ap.add_argument("--campaign", default="quick", help="shipped campaign name (default quick)")
-    ap.add_argument("--setup", default="paper", help="shipped setup name (default paper)")
-    ap.add_argument("--vehicle", default="p2_phev_9at", help="shipped vehicle name")
-    ap.add_argument("--json", type=Path, help="also write the results as JSON")
-    args = ap.parse_args()
-    sizes = [int(s) for s in args.sizes.split(",")]
+    args = size_arguments(__doc__, "quick", "also write the results as JSON")
+    sizes = args.sizes
     results = {n: measure(n, args.campaign, args.setup, args.vehicle) for n in sizes}
     rows = list(next(iter(results.values())))
     print("| method / component | " + " | ".join(f"{args.campaign} x{n} (MB)" for n in sizes) + " |")
