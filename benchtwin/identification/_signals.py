@@ -11,7 +11,7 @@ differentiate smoothly and check that a regressor really varies.
 from __future__ import annotations
 
 import weakref
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -23,6 +23,7 @@ from benchtwin.errors import (
     MissingChannelError,
     NoExcitationError,
 )
+from benchtwin.identification._clock import ClockShift, Shift, source_shifts, to_ref, to_source
 from benchtwin.identification._derivative import runs, smooth_derivative
 from benchtwin.identification._reuse import reused
 from benchtwin.recording import Channel, Flag, Recording
@@ -108,37 +109,6 @@ class Grid:
         return 1.0 / self.rate_hz
 
 
-@dataclass(frozen=True)
-class ClockShift:
-    """An affine clock map: ``offset_s + rate * t`` seconds added to a source's timestamps ``t`` (a constant
-    offset plus a drift; ``rate`` is the drift in s/s, ppm * 1e-6)."""
-
-    offset_s: float
-    rate: float
-
-    def __bool__(self) -> bool:
-        return bool(self.offset_s or self.rate)
-
-
-#: seconds added to a source's timestamps: a constant, or an affine map (:class:`ClockShift`)
-Shift = float | ClockShift
-
-
-def to_ref(ts: np.ndarray | float, shift: Shift) -> np.ndarray | float:
-    """A source's timestamps ``ts`` on the reference clock (``ts + shift``, or the affine map's ``ts + offset + rate
-    ts``); a plain constant shift gives the bits of ``ts + shift``."""
-    if isinstance(shift, ClockShift):
-        return ts + (shift.offset_s + shift.rate * ts)
-    return ts + shift
-
-
-def to_source(t: np.ndarray | float, shift: Shift) -> np.ndarray | float:
-    """Reference-clock times ``t`` on the source's clock (the inverse of :func:`to_ref`)."""
-    if isinstance(shift, ClockShift):
-        return (t - shift.offset_s) / (1.0 + shift.rate)
-    return t - shift
-
-
 def time_ordered(ch: Channel, shift_s: Shift = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Timestamps (plus ``shift_s``), values and flags of a channel in time order (samples delivered out
     of order are sorted, stably; interpolation and window sums need increasing time)."""
@@ -154,73 +124,6 @@ def _in_order(ch: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         order = np.argsort(ts, kind="stable")
         ts, vs, fl = ts[order], vs[order], fl[order]
     return ts, vs, fl
-
-
-def source_shifts(rec: Recording) -> dict[str, Shift]:
-    """Time to add to each source's timestamps to put it on one reference clock.
-
-    The acquisition keeps every source on its own clock and reports the offsets it detected in
-    ``rec.meta["clock_offsets_s"]`` (``"a->b"``: time to add to ``a``'s timestamps to line them up
-    with ``b``). The reference is the vehicle CAN's clock (else the first source by name); the
-    acquisition host clock (``"acquisition"``) is taken as that reference, since the bus loggers
-    stamp frames on it. An offset key names a source exactly or by a unique part of its name
-    (``"pressure"`` for ``"brake_pressure"``). Sources not linked to the reference get no shift.
-
-    A pair's drift (``meta["clock_drift_ppm"]``, with its standard error ``meta["clock_drift_se_ppm"]`` and the
-    time its offset holds ``meta["clock_offset_time_s"]``) makes its offset ``offset + drift (t - t_ref)``, and the
-    shift a :class:`ClockShift`, when the drift is significant: ``|drift| > sqrt(2) se``. Left out, a drift ``d``
-    leaves an error ``d (t - t_ref)`` in the mapped times; applied, the estimate's ``(d_hat - d) (t - t_ref)``,
-    of mean square ``se^2 (t - t_ref)^2``. Since ``d_hat^2 - se^2`` estimates ``d^2`` without bias, applying it is
-    expected to do better when ``d_hat^2 - se^2 > se^2``. A drift without the other two keys (an older
-    recording) is not applied. Shifts without an applied drift are plain floats.
-    """
-    meta = rec.meta if isinstance(rec.meta, dict) else {}
-    offsets = meta.get("clock_offsets_s")
-    sources = {c.source for c in rec.channels.values() if c.source}
-    if not offsets or not isinstance(offsets, dict) or not sources:
-        return {}
-
-    def table(key: str) -> dict:
-        val = meta.get(key)
-        return val if isinstance(val, dict) else {}
-
-    drifts, errors, times = table("clock_drift_ppm"), table("clock_drift_se_ppm"), table("clock_offset_time_s")
-
-    def node(name: str) -> str:
-        if name in sources:
-            return name
-        found = [s for s in sources if name and name in s]
-        return found[0] if len(found) == 1 else name
-
-    def number(x: object) -> bool:
-        return isinstance(x, int | float) and bool(np.isfinite(x))
-
-    edges = []  # (a, b, c, r): a's offset to b at a's time t is c + r t
-    for key, val in offsets.items():
-        if not isinstance(key, str) or "->" not in key or not number(val):
-            continue
-        a, b = key.split("->", 1)
-        c, r = float(val), 0.0
-        d, se, t_ref = drifts.get(key), errors.get(key), times.get(key)
-        if number(d) and number(se) and number(t_ref) and abs(d) > np.sqrt(2.0) * se:
-            r = float(d) * 1e-6
-            c = float(val) - r * float(t_ref)
-        edges.append((node(a), node(b), c, r))
-    ref = "vehicle_can" if "vehicle_can" in sources else sorted(sources)[0]
-    shift: dict[str, tuple[float, float]] = {ref: (0.0, 0.0), "acquisition": (0.0, 0.0)}
-    changed = True
-    while changed:
-        changed = False
-        for a, b, c, r in edges:
-            if b in shift and a not in shift:
-                shift[a], changed = (shift[b][0] + c, shift[b][1] + r), True
-            elif a in shift and b not in shift:
-                shift[b], changed = (shift[a][0] - c, shift[a][1] - r), True
-    out: dict[str, Shift] = {}
-    for k, (c, r) in shift.items():
-        if k in sources and (c != 0.0 or r != 0.0):
-            out[k] = ClockShift(c, r) if r != 0.0 else c
-    return out
 
 
 class _IndexCache:
@@ -299,6 +202,47 @@ def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray,
     return v, flagged
 
 
+def grid_origin(rec: Recording, names: Sequence[str], rate_hz: float, *, what: str = "identification",
+                span: tuple[float, float] | None = None, align: bool = True,
+                bounds: Callable[[Channel], tuple[float, float]] | None = None
+                ) -> tuple[list[Channel], float, int, dict[str, Shift], set[str]]:
+    """The required channels checked, and the first time and number of points of their common grid.
+
+    Returns ``(channels, lo, n, shifts, kept)``: point ``k`` of the grid is at ``lo + k / rate_hz`` on the reference
+    clock, ``shifts`` the sources' clock maps (:func:`source_shifts`, empty without ``align``) and ``kept`` the
+    channels that were in memory before (others are dropped again once read). ``bounds`` gives a channel's first
+    and last timestamp (default: its timestamps' extremes). Raises :class:`MissingChannelError` for an absent
+    channel, :class:`DataError` for a non-positive rate, an empty channel or channels that do not overlap.
+    """
+    names = list(names)
+    missing = [n for n in names if n not in rec]
+    if missing:
+        raise MissingChannelError(f"{what}: the recording lacks {', '.join(missing)} "
+                                  f"(has: {', '.join(sorted(rec.channels)) or 'none'})")
+    if not rate_hz > 0:
+        raise DataError(f"{what}: grid rate must be positive, got {rate_hz}")
+    chans = [rec[n] for n in names]
+    empty = [c.name for c in chans if len(c) == 0]
+    if empty:
+        raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
+    shifts = source_shifts(rec) if align else {}
+    # a lazy Recording (Recording.open, a log imported on demand): a channel read here goes again once it has
+    # given its span and its values on the grid, so one channel at its own rate is in memory at a time
+    kept = rec.loaded()
+    lo, hi = -np.inf, np.inf
+    for c in chans:
+        first, last = bounds(c) if bounds is not None else (float(c.timestamps.min()), float(c.timestamps.max()))
+        lo = max(lo, float(to_ref(first, shifts.get(c.source, 0.0))))
+        hi = min(hi, float(to_ref(last, shifts.get(c.source, 0.0))))
+        if c.name not in kept:
+            rec.drop([c.name])
+    if span is not None:
+        lo, hi = max(lo, float(span[0])), min(hi, float(span[1]))
+    if not hi > lo:
+        raise DataError(f"{what}: channels {', '.join(names)} do not overlap in time")
+    return chans, lo, int(np.floor((hi - lo) * rate_hz)) + 1, shifts, kept
+
+
 def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: Iterable[str] = (),
            hold: Iterable[str] = (), what: str = "identification", span: tuple[float, float] | None = None,
            align: bool = True) -> Grid:
@@ -335,32 +279,8 @@ def gather(rec: Recording, names: Sequence[str], rate_hz: float, *, optional: It
     DataError
         If a required channel is empty or the channels do not overlap in time.
     """
-    names = list(names)
-    missing = [n for n in names if n not in rec]
-    if missing:
-        raise MissingChannelError(f"{what}: the recording lacks {', '.join(missing)} "
-                                  f"(has: {', '.join(sorted(rec.channels)) or 'none'})")
-    if not rate_hz > 0:
-        raise DataError(f"{what}: grid rate must be positive, got {rate_hz}")
-    chans = [rec[n] for n in names]
-    empty = [c.name for c in chans if len(c) == 0]
-    if empty:
-        raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
-    shifts = source_shifts(rec) if align else {}
-    # a lazy Recording (Recording.open, a log imported on demand): a channel read here goes again once it has
-    # given its span and its values on the grid, so one channel at its own rate is in memory at a time
-    kept = rec.loaded()
-    lo, hi = -np.inf, np.inf
-    for c in chans:
-        lo = max(lo, float(to_ref(float(c.timestamps.min()), shifts.get(c.source, 0.0))))
-        hi = min(hi, float(to_ref(float(c.timestamps.max()), shifts.get(c.source, 0.0))))
-        if c.name not in kept:
-            rec.drop([c.name])
-    if span is not None:
-        lo, hi = max(lo, float(span[0])), min(hi, float(span[1]))
-    if not hi > lo:
-        raise DataError(f"{what}: channels {', '.join(names)} do not overlap in time")
-    t = lo + np.arange(int(np.floor((hi - lo) * rate_hz)) + 1) / rate_hz
+    chans, lo, n, shifts, kept = grid_origin(rec, names, rate_hz, what=what, span=span, align=align)
+    t = lo + np.arange(n) / rate_hz
     held = set(hold) | STATE_ROLES
     values: dict[str, np.ndarray] = {}
     bad = np.zeros(t.shape, dtype=bool)

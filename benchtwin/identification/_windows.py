@@ -18,7 +18,6 @@ from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 
-from benchtwin.errors import DataError, MissingChannelError
 from benchtwin.identification._derivative import runs
 from benchtwin.identification._reuse import reused
 from benchtwin.identification._signals import (
@@ -28,9 +27,8 @@ from benchtwin.identification._signals import (
     Shift,
     _IndexCache,
     _sample_block,
-    source_shifts,
+    grid_origin,
     time_ordered,
-    to_ref,
     to_source,
 )
 from benchtwin.recording import Channel, LazyChannel, Recording
@@ -214,31 +212,8 @@ def grid_bounds(rec: Recording, names: Sequence[str], rate_hz: float, *, what: s
                 ) -> tuple[float, int, dict[str, Shift]]:
     """The grid :func:`~benchtwin.identification._signals.gather` would build: its first time, its number of points
     and the sources' clock shifts (point ``k`` is at ``lo + k / rate_hz``); the same errors as ``gather``."""
-    names = list(names)
-    missing = [n for n in names if n not in rec]
-    if missing:
-        raise MissingChannelError(f"{what}: the recording lacks {', '.join(missing)} "
-                                  f"(has: {', '.join(sorted(rec.channels)) or 'none'})")
-    if not rate_hz > 0:
-        raise DataError(f"{what}: grid rate must be positive, got {rate_hz}")
-    chans = [rec[n] for n in names]
-    empty = [c.name for c in chans if len(c) == 0]
-    if empty:
-        raise DataError(f"{what}: channels without samples: {', '.join(empty)}")
-    shifts = source_shifts(rec) if align else {}
-    kept = rec.loaded()
-    lo, hi = -np.inf, np.inf
-    for c in chans:
-        first, last = channel_bounds(c)
-        lo = max(lo, float(to_ref(first, shifts.get(c.source, 0.0))))
-        hi = min(hi, float(to_ref(last, shifts.get(c.source, 0.0))))
-        if c.name not in kept:
-            rec.drop([c.name])
-    if span is not None:
-        lo, hi = max(lo, float(span[0])), min(hi, float(span[1]))
-    if not hi > lo:
-        raise DataError(f"{what}: channels {', '.join(names)} do not overlap in time")
-    return lo, int(np.floor((hi - lo) * rate_hz)) + 1, shifts
+    _, lo, n, shifts, _ = grid_origin(rec, names, rate_hz, what=what, span=span, align=align, bounds=channel_bounds)
+    return lo, n, shifts
 
 
 def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift_s: Shift,
