@@ -380,72 +380,84 @@ class _Selection:
                  k0_name: str | None, rate_hz: float, max_pump_accel_rpm_s: float, min_pump_speed_rpm: float,
                  min_pump_torque_nm: float, shift_hold_s: float, derivative_window_s: float,
                  calibrate_turbine_speed: bool, lockup_slip_tol: float) -> None:
+        self._grid, self._specs = grid, specs
+        self._roles, self._engine_only, self._k0_name = (n_role, t_role), engine_only, k0_name
+        self._limits = (max_pump_accel_rpm_s, min_pump_speed_rpm, min_pump_torque_nm)
+        self._window_s, self._calibrate, self._slip_tol = derivative_window_s, calibrate_turbine_speed, lockup_slip_tol
         n = self.size = grid.size
-        n_hold = round(shift_hold_s * rate_hz)
+        self._n_hold = round(shift_hold_s * rate_hz)
         h = 1
         if n > 1:  # the whole grid's: its median step (a block's: the same uniform step), clipped to its size
             dt = float(np.median(np.diff(grid.block(0, min(n, POINTS_BLOCK))[0])))
             h = min(max(1, round(0.5 * derivative_window_s / dt)) if dt > 0 else 1, (n - 1) // 2) or 1
-        margin = max(n_hold, 2 * h) + 2
-        n_gears = len(specs.gear_ratios)
+        self._h = h
+        self._carry = (-1, -1)
         cols: dict[str, list[np.ndarray]] = {}
-        ratios, gears = [], set()
-        carry = (-1, -1)
+        ratios: list[np.ndarray] = []
+        gears: set[int] = set()
         for a in range(0, n, POINTS_BLOCK):
-            b = min(a + POINTS_BLOCK, n)
-            e0, e1 = max(0, a - margin), min(n, b + margin)
-            t, d, bad = grid.block(e0, e1)
-            gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
-            change = np.r_[False, np.diff(gear) != 0]
-            if "gear_target" in d:
-                tgt = np.rint(np.nan_to_num(d["gear_target"])).astype(int)
-                change |= np.r_[False, np.diff(tgt) != 0] | (tgt != gear)
-            n_p, t_p = d[n_role], d[t_role]
-            g = np.clip(gear, 1, n_gears)
-            ig = np.asarray(specs.gear_ratios)[g - 1]
-            w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
-            if "lockup_closed" not in d:
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    slip = np.abs(1.0 - w_t / (n_p / RPM_PER_RADS))
-                d["lockup_closed"] = (slip < lockup_slip_tol).astype(float)
-            held = ~bad & _hold_mask(change, n_hold) & (gear >= 1) & (gear <= n_gears)
-            closed = np.nan_to_num(d["lockup_closed"]) >= 0.5
-            use = held & ~closed
-            k0_open = None
-            if engine_only:
-                if "engine_on" in d:
-                    use &= np.nan_to_num(d["engine_on"], nan=0.0) >= 0.5
-            elif k0_name is not None:
-                k0_open = np.nan_to_num(d[k0_name], nan=1.0) < 0.5
-                use &= k0_open
-            dn = _central_derivative(n_p, t, derivative_window_s, h) if n >= 3 else np.zeros_like(n_p)
-            use &= np.abs(dn) <= max_pump_accel_rpm_s
-            i = slice(a - e0, b - e0)
-            unsteady = np.zeros(e1 - e0, dtype=bool)
-            if n >= 2:
-                unsteady[i], carry = _unsettled_block(n_p, t, max_pump_accel_rpm_s, derivative_window_s, h, e0, a,
-                                                      b, carry)
-            use &= ~unsteady
-            use &= (n_p >= min_pump_speed_rpm) & (t_p >= min_pump_torque_nm) & (d["shaft_torque_nm"] > 0)
-            if calibrate_turbine_speed:
-                cal = (held & closed & (n_p >= min_pump_speed_rpm) & (np.abs(dn) <= max_pump_accel_rpm_s)
-                       & (d["vehicle_speed_kmh"] > 10.0))[i]
-                ratios.append(n_p[i][cal] / RPM_PER_RADS / w_t[i][cal])
-            tcal = np.zeros(e1 - e0, dtype=bool)
-            if k0_open is not None:
-                tcal = held & closed & k0_open & (n_p >= min_pump_speed_rpm) \
-                    & (np.abs(dn) <= 0.1 * max_pump_accel_rpm_s) & ~unsteady & (t_p >= min_pump_torque_nm) \
-                    & (d["shaft_torque_nm"] > 0)
-            gears.update(int(k) for k in np.unique(g[i]))
-            keep = (use | tcal)[i]
-            block = {"t": t, "gear": gear, "g": g, "ig": ig, "n_p": n_p, "t_p": t_p, "w_t": w_t, "dn": dn,
-                     "shaft_torque_nm": d["shaft_torque_nm"], "use": use, "tcal": tcal}
-            if "gearbox_oil_degc" in d:
-                block["gearbox_oil_degc"] = d["gearbox_oil_degc"]
-            for k, v in block.items():
-                cols.setdefault(k, []).append(v[i][keep])
+            part, ratio, met = self._block(a, min(a + POINTS_BLOCK, n))
+            for k, v in part.items():
+                cols.setdefault(k, []).append(v)
+            ratios.append(ratio)
+            gears |= met
         if not cols:
             raise ValueError("torque converter identification: no grid points")  # resample_strict raises first
         self.points = {k: np.concatenate(v) for k, v in cols.items()}
         self.ratio = np.concatenate(ratios) if ratios else np.zeros(0)
         self.gears = sorted(gears)
+
+    def _block(self, a: int, b: int) -> tuple[dict[str, np.ndarray], np.ndarray, set[int]]:
+        """The candidates of grid points ``a .. b - 1``, their calibration ratios and the clipped gears met."""
+        n, h, n_hold, specs = self.size, self._h, self._n_hold, self._specs
+        max_accel, min_speed, min_torque = self._limits
+        margin = max(n_hold, 2 * h) + 2
+        e0, e1 = max(0, a - margin), min(n, b + margin)
+        t, d, bad = self._grid.block(e0, e1)
+        gear = np.rint(np.nan_to_num(d["gear_actual"])).astype(int)
+        change = np.r_[False, np.diff(gear) != 0]
+        if "gear_target" in d:
+            tgt = np.rint(np.nan_to_num(d["gear_target"])).astype(int)
+            change |= np.r_[False, np.diff(tgt) != 0] | (tgt != gear)
+        n_p, t_p = d[self._roles[0]], d[self._roles[1]]
+        n_gears = len(specs.gear_ratios)
+        g = np.clip(gear, 1, n_gears)
+        ig = np.asarray(specs.gear_ratios)[g - 1]
+        w_t = d["vehicle_speed_kmh"] / 3.6 / specs.wheel_radius_m * ig * specs.final_drive_ratio
+        if "lockup_closed" not in d:
+            # many cars do not broadcast the lock-up state: take it as closed where there is no slip
+            with np.errstate(invalid="ignore", divide="ignore"):
+                slip = np.abs(1.0 - w_t / (n_p / RPM_PER_RADS))
+            d["lockup_closed"] = (slip < self._slip_tol).astype(float)
+        held = ~bad & _hold_mask(change, n_hold) & (gear >= 1) & (gear <= n_gears)
+        closed = np.nan_to_num(d["lockup_closed"]) >= 0.5
+        use = held & ~closed
+        k0_open = None  # where the motor alone drives the pump (the turbine-torque calibration's samples)
+        if self._engine_only:
+            if "engine_on" in d:
+                use &= np.nan_to_num(d["engine_on"], nan=0.0) >= 0.5
+        elif self._k0_name is not None:
+            k0_open = np.nan_to_num(d[self._k0_name], nan=1.0) < 0.5
+            use &= k0_open
+        dn = _central_derivative(n_p, t, self._window_s, h) if n >= 3 else np.zeros_like(n_p)
+        use &= np.abs(dn) <= max_accel
+        i = slice(a - e0, b - e0)
+        # a pump speed step the central difference cannot resolve: left out until the pump speed has settled
+        unsteady = np.zeros(e1 - e0, dtype=bool)
+        if n >= 2:
+            unsteady[i], self._carry = _unsettled_block(n_p, t, max_accel, self._window_s, h, e0, a, b, self._carry)
+        use &= ~unsteady & (n_p >= min_speed) & (t_p >= min_torque) & (d["shaft_torque_nm"] > 0)
+        ratio = np.zeros(0)
+        if self._calibrate:
+            cal = (held & closed & (n_p >= min_speed) & (np.abs(dn) <= max_accel) & (d["vehicle_speed_kmh"] > 10.0))[i]
+            ratio = n_p[i][cal] / RPM_PER_RADS / w_t[i][cal]
+        tcal = np.zeros(e1 - e0, dtype=bool)
+        if k0_open is not None:
+            tcal = held & closed & k0_open & (n_p >= min_speed) & (np.abs(dn) <= 0.1 * max_accel) & ~unsteady \
+                & (t_p >= min_torque) & (d["shaft_torque_nm"] > 0)
+        keep = (use | tcal)[i]
+        cols = {"t": t, "gear": gear, "g": g, "ig": ig, "n_p": n_p, "t_p": t_p, "w_t": w_t, "dn": dn,
+                "shaft_torque_nm": d["shaft_torque_nm"], "use": use, "tcal": tcal}
+        if "gearbox_oil_degc" in d:
+            cols["gearbox_oil_degc"] = d["gearbox_oil_degc"]
+        return {k: v[i][keep] for k, v in cols.items()}, ratio, {int(k) for k in np.unique(g[i])}
