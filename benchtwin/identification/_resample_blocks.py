@@ -49,7 +49,7 @@ def _typical_step(ch: Channel) -> float:
         if first >= b:
             continue
         ts = ch.block(first, b + 1)[0]
-        picked.append(np.diff(ts)[::stride])
+        picked.append(np.diff(ts)[::stride].copy())  # a copy: a view would keep the block's steps
     return float(np.median(np.concatenate(picked)))
 
 
