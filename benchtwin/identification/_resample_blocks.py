@@ -185,12 +185,16 @@ class StrictGrid:
         held = set(hold)
         self._steps = [None if c.name in held else _typical_step(c) for c in self._chans]
 
+    def times(self, i0: int, i1: int) -> np.ndarray:
+        """The times of grid points ``i0 .. i1 - 1`` (no channel read)."""
+        return self._whole[0][i0:i1] if self._whole is not None else grid_times(self.lo, self.step, i0, i1)
+
     def block(self, i0: int, i1: int) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
         """Grid points ``i0 .. i1 - 1``: their times, each channel's values and the bad mask."""
         if self._whole is not None:
             t, d, bad = self._whole
             return t[i0:i1], {n: v[i0:i1] for n, v in d.items()}, bad[i0:i1]
-        t = grid_times(self.lo, self.step, i0, i1)
+        t = self.times(i0, i1)
         out, bad = {}, np.zeros(t.shape, dtype=bool)
         if t.size == 0:
             return t, {n: np.empty(0) for n in self.names}, bad

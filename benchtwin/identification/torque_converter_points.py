@@ -364,6 +364,21 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
                            tcal_points, borrowed)
 
 
+def _median_step(grid: StrictGrid) -> float:
+    """``np.median(np.diff(t))`` of the grid's times, a block at a time: the steps of a uniform grid take a few
+    values (its rounding), counted block by block."""
+    counts: dict[float, int] = {}
+    for a in range(0, grid.size - 1, POINTS_BLOCK):
+        vals, k = np.unique(np.diff(grid.times(a, min(a + POINTS_BLOCK, grid.size - 1) + 1)), return_counts=True)
+        for v, c in zip(vals.tolist(), k.tolist(), strict=True):
+            counts[v] = counts.get(v, 0) + c
+    steps = sorted(counts)
+    cum = np.cumsum([counts[v] for v in steps])
+    m = int(cum[-1])
+    lo, hi = (steps[int(np.searchsorted(cum, r, side="right"))] for r in ((m - 1) // 2, m // 2))
+    return float(np.mean([lo, hi]))
+
+
 class _Selection:
     """The grid's selection read a block at a time (:data:`POINTS_BLOCK` points with margins): what
     :func:`converter_points` needs of the grid, gathered, and nothing as long as the grid.
@@ -387,8 +402,8 @@ class _Selection:
         n = self.size = grid.size
         self._n_hold = round(shift_hold_s * rate_hz)
         h = 1
-        if n > 1:  # the whole grid's: its median step (a block's: the same uniform step), clipped to its size
-            dt = float(np.median(np.diff(grid.block(0, min(n, POINTS_BLOCK))[0])))
+        if n > 1:  # the whole grid's (as _half_window of the whole grid), clipped to its size
+            dt = _median_step(grid)
             h = min(max(1, round(0.5 * derivative_window_s / dt)) if dt > 0 else 1, (n - 1) // 2) or 1
         self._h = h
         self._carry = (-1, -1)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import tracemalloc
+import types
 
 import numpy as np
 import pytest
@@ -43,6 +44,17 @@ def test_grid_times_are_numpys_arange() -> None:
         a = int(rng.integers(0, whole.size + 1))
         b = int(rng.integers(a, whole.size + 1))
         np.testing.assert_array_equal(grid_times(lo, step, a, b), whole[a:b])
+
+
+def test_the_median_step_by_blocks_is_the_whole_grids(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The derivative's half window comes from the whole grid's median step, counted block by block."""
+    rng = np.random.default_rng(2)
+    for _ in range(40):
+        lo, step = float(rng.uniform(0.0, 1e5)), 1.0 / float(rng.choice([10.0, 3.0, 7.0]))
+        n = int(rng.integers(2, 5000))
+        monkeypatch.setattr(tcp, "POINTS_BLOCK", int(rng.choice([37, 97, 8192])))
+        grid = types.SimpleNamespace(size=n, times=lambda a, b, lo=lo, step=step: grid_times(lo, step, a, b))
+        assert tcp._median_step(grid) == float(np.median(np.diff(grid_times(lo, step, 0, n))))
 
 
 def _unsettled_by_blocks(n_p: np.ndarray, t: np.ndarray, max_rate: float, window_s: float, block: int
