@@ -7,6 +7,11 @@ transmission model (eq. 32), each with its calibration where the lock-up is clos
 (:mod:`benchtwin.studies.plan_converter`) runs the same function on the noise-free Recording of a campaign. A gear
 on a borrowed transmission model is calibrated on its own coupling points in
 :mod:`benchtwin.identification.torque_converter_borrowed`.
+
+The 10 Hz grid is read a block of :data:`POINTS_BLOCK` points at a time (:class:`~benchtwin.identification.
+_resample_blocks.StrictGrid`, with margins for the shift hold and the derivative window; the settle rule's state
+carried from block to block): only the candidate points and the calibration ratios are gathered, so the memory does
+not grow with the campaign, and the points are those of the whole grid bit for bit.
 """
 
 from __future__ import annotations
