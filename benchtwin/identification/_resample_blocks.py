@@ -29,7 +29,7 @@ from benchtwin.identification._windows import (
 )
 from benchtwin.recording import Channel, Flag, Recording
 
-__all__ = ["GRID_BLOCK", "rate_of", "resample_strict"]
+__all__ = ["GRID_BLOCK", "StrictGrid", "grid_times", "rate_of", "resample_strict"]
 
 #: grid points resampled at a time (at 10 Hz: 819 s, a 500 Hz channel's 410 k samples read around them)
 GRID_BLOCK = 8192
@@ -49,7 +49,7 @@ def _typical_step(ch: Channel) -> float:
         if first >= b:
             continue
         ts = ch.block(first, b + 1)[0]
-        picked.append(np.diff(ts)[::stride])
+        picked.append(np.diff(ts)[::stride].copy())  # a copy: a view would keep the block's steps
     return float(np.median(np.concatenate(picked)))
 
 
@@ -96,39 +96,112 @@ def resample_strict(rec: Recording, names: Sequence[str], rate_hz: float, *, hol
     out = {n: np.empty(t.shape) for n in names}
     bad = np.zeros(t.shape, dtype=bool)
     held = set(hold)
-    bad_bits = int(Flag.bad())
     for c, (first, last), s in zip(chans, bounds, sh, strict=True):
         step = None if c.name in held else _typical_step(c)
         for a in range(0, t.size, GRID_BLOCK):
-            tb = t[a:a + GRID_BLOCK]
-            if s:
-                tb = to_source(tb, s)  # the grid times on the channel's own clock
-            _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
-            # Channel.at on the samples around the block (the same bracketing samples as on the whole channel)
-            if c.name in held:
-                idx = np.searchsorted(ts, tb, side="right") - 1
-                v = vs[np.clip(idx, 0, ts.size - 1)].copy()
-                v[idx < 0] = np.nan
-            else:
-                v = np.interp(tb, ts, vs)
-                v[tb < first] = np.nan
-            v[tb > last] = np.nan
+            v, blk = _channel_block(c, first, last, s, step, t[a:a + GRID_BLOCK])
             out[c.name][a:a + GRID_BLOCK] = v
-            # Recording.resample: not finite, or flagged at the sample at or before
-            k = np.clip(np.searchsorted(ts, tb, side="right") - 1, 0, ts.size - 1)
-            blk = ~np.isfinite(v) | ((fl[k] & bad_bits) != 0)
-            if step is not None:
-                # strict_resample: the sample at or after flagged bad or not finite ...
-                nxt = np.clip(np.searchsorted(ts, tb, side="left"), 0, ts.size - 1)
-                blk |= ((fl[nxt] & bad_bits) != 0) | ~np.isfinite(vs[nxt])
-                # ... and gap_mask: the grid point inside a step longer than 3 typical steps
-                idx = np.searchsorted(ts, tb, side="right") - 1
-                inside = (idx >= 0) & (idx < ts.size - 1)
-                gap = np.zeros(tb.shape, dtype=bool)
-                gap[inside] = (np.diff(ts)[idx[inside]] > 3.0 * step) & (tb[inside] > ts[idx[inside]])
-                blk |= gap
             bad[a:a + GRID_BLOCK] |= blk
     return t, out, bad
+
+
+def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float | None, tb: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One channel at the grid times ``tb`` (reference clock) and their bad mask, read around them.
+
+    ``first``, ``last``: the channel's first and last timestamps; ``s``: its clock shift; ``step``: its typical
+    step (None: a held state, no gap mask)."""
+    if s:
+        tb = to_source(tb, s)  # the grid times on the channel's own clock
+    _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
+    # Channel.at on the samples around the block (the same bracketing samples as on the whole channel)
+    if step is None:
+        idx = np.searchsorted(ts, tb, side="right") - 1
+        v = vs[np.clip(idx, 0, ts.size - 1)].copy()
+        v[idx < 0] = np.nan
+    else:
+        v = np.interp(tb, ts, vs)
+        v[tb < first] = np.nan
+    v[tb > last] = np.nan
+    bad_bits = int(Flag.bad())
+    # Recording.resample: not finite, or flagged at the sample at or before
+    k = np.clip(np.searchsorted(ts, tb, side="right") - 1, 0, ts.size - 1)
+    blk = ~np.isfinite(v) | ((fl[k] & bad_bits) != 0)
+    if step is not None:
+        # strict_resample: the sample at or after flagged bad or not finite ...
+        nxt = np.clip(np.searchsorted(ts, tb, side="left"), 0, ts.size - 1)
+        blk |= ((fl[nxt] & bad_bits) != 0) | ~np.isfinite(vs[nxt])
+        # ... and gap_mask: the grid point inside a step longer than 3 typical steps
+        idx = np.searchsorted(ts, tb, side="right") - 1
+        inside = (idx >= 0) & (idx < ts.size - 1)
+        gap = np.zeros(tb.shape, dtype=bool)
+        gap[inside] = (np.diff(ts)[idx[inside]] > 3.0 * step) & (tb[inside] > ts[idx[inside]])
+        blk |= gap
+    return v, blk
+
+
+def grid_times(lo: float, step: float, i0: int, i1: int) -> np.ndarray:
+    """``np.arange(lo, hi, step)[i0:i1]`` without the rest of the grid: numpy's own fill, ``lo + i * delta`` with
+    ``delta = (lo + step) - lo`` (the second point ``lo + step``)."""
+    i = np.arange(i0, i1)
+    out = lo + i * ((lo + step) - lo)
+    out[i == 0] = lo
+    out[i == 1] = lo + step
+    return out
+
+
+class StrictGrid:
+    """:func:`resample_strict`'s grid read a block of grid points at a time: the very times, values and bad mask
+    of its points ``i0 .. i1 - 1``, with no array as long as the grid.
+
+    A Recording that :func:`resample_strict` resamples whole (channels in memory, not in time order or not read by
+    blocks) is resampled whole once, and its blocks are slices of that.
+
+    Parameters
+    ----------
+    rec, names, rate_hz, hold, shifts:
+        As for :func:`resample_strict`.
+    """
+
+    def __init__(self, rec: Recording, names: Sequence[str], rate_hz: float, *, hold: tuple[str, ...] = (),
+                 shifts: Mapping[str, Shift] | None = None) -> None:
+        self.names = list(names)
+        self._chans = [rec[n] for n in self.names]
+        self._sh = [(shifts or {}).get(c.source, 0.0) for c in self._chans]
+        self._whole: tuple[np.ndarray, dict[str, np.ndarray], np.ndarray] | None = None
+        lazy = all(reads_by_block(c) and len(c) >= 3 for c in self._chans) \
+            and all(ordered_by_blocks(c) for c in self._chans)
+        if lazy:
+            self._bounds = [channel_bounds(c) for c in self._chans]
+            self.lo = max(float(to_ref(b[0], s)) for b, s in zip(self._bounds, self._sh, strict=True))
+            hi = min(float(to_ref(b[1], s)) for b, s in zip(self._bounds, self._sh, strict=True))
+            lazy = hi > self.lo
+        if not lazy:  # resample_strict's own whole path (and its errors)
+            self._whole = resample_strict(rec, self.names, rate_hz, hold=hold, shifts=shifts)
+            self.size = int(self._whole[0].size)
+            return
+        self.step = 1.0 / rate_hz
+        self.size = int(np.ceil((hi - self.lo) / self.step))  # np.arange's length
+        held = set(hold)
+        self._steps = [None if c.name in held else _typical_step(c) for c in self._chans]
+
+    def times(self, i0: int, i1: int) -> np.ndarray:
+        """The times of grid points ``i0 .. i1 - 1`` (no channel read)."""
+        return self._whole[0][i0:i1] if self._whole is not None else grid_times(self.lo, self.step, i0, i1)
+
+    def block(self, i0: int, i1: int) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+        """Grid points ``i0 .. i1 - 1``: their times, each channel's values and the bad mask."""
+        if self._whole is not None:
+            t, d, bad = self._whole
+            return t[i0:i1], {n: v[i0:i1] for n, v in d.items()}, bad[i0:i1]
+        t = self.times(i0, i1)
+        out, bad = {}, np.zeros(t.shape, dtype=bool)
+        if t.size == 0:
+            return t, {n: np.empty(0) for n in self.names}, bad
+        for c, (first, last), s, step in zip(self._chans, self._bounds, self._sh, self._steps, strict=True):
+            out[c.name], blk = _channel_block(c, first, last, s, step, t)
+            bad |= blk
+        return t, out, bad
 
 
 def _diff_bits(ch: Channel):  # type: ignore[no-untyped-def]
