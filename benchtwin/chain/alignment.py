@@ -218,11 +218,15 @@ class _MotorPower(_Series):
         t, q = self.torque.read(start, stop)
         if t.size == 0:
             return t, q
-        # the speed's samples either side of each torque timestamp: np.interp gives the bits of the whole channel
-        s0 = max(self.speed.search(float(t[0]), "right") - 1, 0)
-        s1 = min(self.speed.search(float(t[-1]), "right") + 1, self.speed.n)
-        ts, vs = self.speed.read(s0, s1)
-        return t, q * np.interp(t, ts, vs) * (2 * np.pi / 60.0)
+        return t, q * _interp_at(self.speed, t) * (2 * np.pi / 60.0)
+
+
+def _interp_at(s: _Series, t: np.ndarray) -> np.ndarray:
+    """``s`` interpolated at the increasing times ``t``, from its samples either side of them only (np.interp gives
+    the bits of the whole channel)."""
+    s0 = max(s.search(float(t[0]), "right") - 1, 0)
+    s1 = min(s.search(float(t[-1]), "right") + 1, s.n)
+    return np.interp(t, *s.read(s0, s1))
 
 
 #: below this vehicle speed the drive force (power over speed) is left out (NaN): the converter's slip and a
@@ -243,12 +247,7 @@ class _DriveForce(_Series):
         t, q = self.torque.read(start, stop)
         if t.size == 0:
             return t, q
-        at = []
-        for s in self.others:  # the samples either side of each timestamp: np.interp gives the whole channel's bits
-            s0 = max(s.search(float(t[0]), "right") - 1, 0)
-            s1 = min(s.search(float(t[-1]), "right") + 1, s.n)
-            at.append(np.interp(t, *s.read(s0, s1)))
-        w_em, q_e, w_e, v = at
+        w_em, q_e, w_e, v = (_interp_at(s, t) for s in self.others)
         power = (q * w_em + q_e * w_e) * (2 * np.pi / 60.0)
         with np.errstate(invalid="ignore", divide="ignore"):
             return t, np.where(v >= MIN_DRIVE_SPEED_KMH, power / (v / 3.6), np.nan)

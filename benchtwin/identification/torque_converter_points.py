@@ -92,19 +92,23 @@ def unsettled(n_p: np.ndarray, t: np.ndarray, max_rate: float, window_s: float) 
     jumps = np.flatnonzero(d > max_rate * window_s)
     if jumps.size == 0:
         return out
-    calm = d <= max_rate * np.diff(t)
-    # calm_run[i]: calm[i : i + 2h] all true (a whole derivative window of calm one-sample changes)
-    c = np.r_[0, np.cumsum(~calm)]
-    w = 2 * h
-    calm_run = np.zeros(d.size, dtype=bool)
-    if d.size >= w:
-        calm_run[: d.size - w + 1] = (c[w:] - c[: d.size - w + 1]) == 0
-    settle_at = np.flatnonzero(calm_run)
+    settle_at = np.flatnonzero(_calm_run(d, t, max_rate, 2 * h))
     for j in jumps:
         i = np.searchsorted(settle_at, j + 1)
         k = int(settle_at[i]) if i < settle_at.size else m
         out[max(0, j + 1 - h): min(m, k + h)] = True
     return out
+
+
+def _calm_run(d: np.ndarray, t: np.ndarray, max_rate: float, w: int) -> np.ndarray:
+    """``[i]``: the one-sample changes ``d[i : i + w]`` all calm (``d <= max_rate`` times their time steps; a whole
+    derivative window of ``w`` calm changes starts at ``i``)."""
+    calm = d <= max_rate * np.diff(t)
+    c = np.r_[0, np.cumsum(~calm)]
+    run = np.zeros(d.size, dtype=bool)
+    if d.size >= w:
+        run[: d.size - w + 1] = (c[w:] - c[: d.size - w + 1]) == 0
+    return run
 
 
 def _hold_mask(gear_change: np.ndarray, n_hold: int) -> np.ndarray:
@@ -127,12 +131,7 @@ def _unsettled_block(n_p: np.ndarray, t: np.ndarray, max_rate: float, window_s: 
     :func:`unsettled` (the settle index is non-decreasing in the step)."""
     d = np.abs(np.diff(n_p))
     jump = d > max_rate * window_s
-    calm = d <= max_rate * np.diff(t)
-    c = np.r_[0, np.cumsum(~calm)]
-    w = 2 * h
-    calm_run = np.zeros(d.size, dtype=bool)
-    if d.size >= w:
-        calm_run[: d.size - w + 1] = (c[w:] - c[: d.size - w + 1]) == 0
+    calm_run = _calm_run(d, t, max_rate, 2 * h)
     idx = np.arange(d.size) + e0  # the steps' record indices
     last_jump = np.maximum.accumulate(np.where(jump, idx, -1)) if d.size else np.zeros(0, dtype=np.int64)
     last_settle = np.maximum.accumulate(np.where(calm_run, idx, -1)) if d.size else np.zeros(0, dtype=np.int64)
