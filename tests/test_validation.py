@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
-from benchtwin.emulator import simulate_campaign
 from benchtwin.errors import ConfigError
 from benchtwin.trace import Trace
 from benchtwin.validation import (
@@ -30,8 +29,12 @@ CAMPAIGN = load_campaign("paper.toml")
 
 
 @pytest.fixture(scope="module")
-def paper_trace() -> Trace:
-    return simulate_campaign(VEHICLE, CAMPAIGN)
+def ideal_report(paper_trace: Trace) -> ValidationReport:
+    """The paper campaign through the ideal bench, validated once for the tests that judge it (read only).
+
+    ``paper_trace`` (tests/conftest.py) is the paper campaign on the shipped vehicle: VEHICLE and CAMPAIGN here.
+    """
+    return validate(VEHICLE, load_setup("ideal"), CAMPAIGN, trace=paper_trace)
 
 
 #: prediction checks the ideal bench misses today, each explained in docs/fidelity.md (none since the model counts
@@ -59,9 +62,9 @@ def _worst_case_eta_bound(c_in: np.ndarray, ratio: float, k_tel: int) -> float:
     return float(np.abs(gain[0]) @ dy)
 
 
-def test_ideal_chain_recovers_every_parameter(paper_trace: Trace) -> None:
+def test_ideal_chain_recovers_every_parameter(ideal_report: ValidationReport) -> None:
     setup = load_setup("ideal")
-    report = validate(VEHICLE, setup, CAMPAIGN, trace=paper_trace)
+    report = ideal_report
     assert report.meta["profile"] == "ideal"
     # every check passes but the open misses listed (docs/fidelity.md, "A second cycle: the NEDC held out"); a listed
     # check must keep failing until the model is fixed (then drop it from there), and nothing else may fail
@@ -130,9 +133,9 @@ def test_second_vehicle_recovered_without_retuning() -> None:
     assert {c.name for c in report.checks if not c.passed} == KNOWN_MISSES_IDEAL, _fail_text(report)
 
 
-def test_a_wrong_truth_fails(paper_trace: Trace) -> None:
+def test_a_wrong_truth_fails(ideal_report: ValidationReport) -> None:
     """The comparison can fail: the same identification judged against a perturbed vehicle file."""
-    report = validate(VEHICLE, load_setup("ideal"), CAMPAIGN, trace=paper_trace)
+    report = ideal_report
     wrong = VEHICLE.model_copy(deep=True)
     wrong.transmission.eta_m = [e - 0.01 for e in wrong.transmission.eta_m]
     wrong.battery.beta_charge *= 1.02

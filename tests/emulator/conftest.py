@@ -1,4 +1,5 @@
-"""Shared, expensive emulator runs (one per session): the quick campaign, WLTC, and the paper campaign."""
+"""Shared, expensive emulator runs (one per session): the quick campaign and WLTC (the paper campaign's is in
+tests/conftest.py, shared with tests/test_validation.py)."""
 
 from __future__ import annotations
 
@@ -28,8 +29,3 @@ def quick_trace(vehicle: VehicleConfig, quick_campaign: CampaignConfig) -> Trace
 @pytest.fixture(scope="session")
 def wltc_trace(vehicle: VehicleConfig) -> Trace:
     return simulate_campaign(vehicle, load_campaign("wltc.toml"))
-
-
-@pytest.fixture(scope="session")
-def paper_trace(vehicle: VehicleConfig) -> Trace:
-    return simulate_campaign(vehicle, load_campaign("paper.toml"))
