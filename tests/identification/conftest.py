@@ -77,6 +77,8 @@ def quick_ideal(request):
     This is the real path (plant -> sensors -> wire formats -> acquisition) with every imperfection off;
     what remains is each wire's resolution (e.g. 2.1 Nm on the shaft torque at K_TEL 500, 0.01 km/h speeds).
     """
+    if request.param == "p2_phev_9at.toml":  # the same run as tests/conftest.py's, made once per session there
+        return request.getfixturevalue("quick_ideal_9at")
     from benchtwin.chain.batch import run_batch
     from benchtwin.config._base import scenario_path
     from benchtwin.config.campaign import load_campaign

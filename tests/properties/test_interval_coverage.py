@@ -33,10 +33,8 @@ from hypothesis import strategies as st
 from scipy.stats import binom
 
 from benchtwin.chain.acquisition import declared_uncertainty
-from benchtwin.chain.batch import run_batch
-from benchtwin.config import load_campaign, load_vehicle, scenario_path
+from benchtwin.config import scenario_path
 from benchtwin.config.setup import load_setup
-from benchtwin.emulator.cache import cached_campaign
 from benchtwin.identification._fit import linear_fit
 from benchtwin.identification.run import identify_all
 from benchtwin.recording import Recording
@@ -52,11 +50,13 @@ MIN_COVERAGE = 0.90
 
 
 @pytest.fixture(scope="module")
-def bench() -> tuple:
-    """(vehicle, ideal Recording of the quick campaign, the paper bench's budget, its noise per role)."""
-    vehicle = load_vehicle()
-    trace, _hit = cached_campaign(vehicle, load_campaign(scenario_path("campaigns", "quick.toml")))
-    rec = run_batch(trace, load_setup(scenario_path("setups", "ideal.toml")), seed=1)
+def bench(quick_ideal_9at: tuple) -> tuple:
+    """(vehicle, ideal Recording of the quick campaign, the paper bench's budget, its noise per role).
+
+    The Recording is tests/conftest.py's ``quick_ideal_9at`` (the shipped vehicle, seed 1), shared with the
+    identification tests; it is only read here (:func:`imperfect` builds new channels).
+    """
+    vehicle, rec = quick_ideal_9at
     paper = load_setup(scenario_path("setups", "paper.toml"))
     budget = declared_uncertainty(devices(paper), set(rec.channels))
     for role, d in rec.meta["declared_uncertainty"].items():  # the ideal wire's steps stay in the Recording
