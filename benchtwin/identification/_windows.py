@@ -85,6 +85,7 @@ class _TimeIndex:
         #: first and last timestamp of a time-ordered channel (its bounds without reading its ends again)
         self.bounds = (float(self.marks[0]), float(last)) if self.marks.size else None
         self.median_step: float | None = None  #: kept by ``_resample_blocks.rate_of`` (a property of the times)
+        self.typical_step: float | None = None  #: kept by ``_resample_blocks._typical_step`` (the same)
 
 
 _indexes: dict[int, tuple[weakref.ref[Channel], _TimeIndex]] = {}
