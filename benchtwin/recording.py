@@ -187,13 +187,14 @@ class LazyChannel(Channel):
         self._assigned = False
 
     def _load(self) -> list[np.ndarray]:
-        if self._arrays is None:
+        arrays = self._arrays  # one read: another thread's drop() between the check and the return cannot empty it
+        if arrays is None:
             ts, vs, fl = self._loader()
             if not (ts.shape == vs.shape == fl.shape == (self._n,)):
                 raise DataError(f"channel {self.name!r}: the file gave {vs.shape[0]} values and {ts.shape[0]} times, "
                                 f"its channel group counts {self._n}")
-            self._arrays = [ts, vs, fl]
-        return self._arrays
+            arrays = self._arrays = [ts, vs, fl]
+        return arrays
 
     def _set(self, k: int, value: Any, dtype: Any) -> None:
         arrays = self._load()
@@ -209,7 +210,7 @@ class LazyChannel(Channel):
                      lambda self, v: self._set(2, v, np.uint16))
 
     def __len__(self) -> int:
-        return self._n if self._arrays is None else int(self._arrays[1].shape[0])
+        return self._n if (arrays := self._arrays) is None else int(arrays[1].shape[0])  # read once (see _load)
 
     def __repr__(self) -> str:
         state = "loaded" if self._arrays is not None else "not loaded"

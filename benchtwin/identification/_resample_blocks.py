@@ -39,7 +39,18 @@ _STEP_BLOCK = 1 << 16
 
 
 def _typical_step(ch: Channel) -> float:
-    """``np.median(dt[:: max(1, dt.size // 20000)])`` of ``dt = np.diff(ch.timestamps)``, read block by block."""
+    """``np.median(dt[:: max(1, dt.size // 20000)])`` of ``dt = np.diff(ch.timestamps)``, read block by block (kept
+    with the time index of a channel read by blocks: a property of its times, which the type B re-runs share)."""
+    index = time_index(ch) if reads_by_block(ch) else None
+    if index is not None and index.typical_step is not None and index.n == len(ch):
+        return index.typical_step
+    step = _typical_step_of(ch)
+    if index is not None:
+        index.typical_step = step
+    return step
+
+
+def _typical_step_of(ch: Channel) -> float:
     n = len(ch)
     stride = max(1, (n - 1) // 20000)
     picked = []

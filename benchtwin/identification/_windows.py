@@ -82,7 +82,10 @@ class _TimeIndex:
                 last = ts[-1]
                 marks.append(ts[::INDEX_STRIDE].copy())  # INDEX_BLOCK is a multiple of the stride
         self.marks = np.concatenate(marks) if marks and self.ordered else np.zeros(0)
+        #: first and last timestamp of a time-ordered channel (its bounds without reading its ends again)
+        self.bounds = (float(self.marks[0]), float(last)) if self.marks.size else None
         self.median_step: float | None = None  #: kept by ``_resample_blocks.rate_of`` (a property of the times)
+        self.typical_step: float | None = None  #: kept by ``_resample_blocks._typical_step`` (the same)
 
 
 _indexes: dict[int, tuple[weakref.ref[Channel], _TimeIndex]] = {}
@@ -199,7 +202,12 @@ def at_times(ch: Channel, t: np.ndarray, *, hold: bool = False) -> tuple[np.ndar
 
 
 def channel_bounds(ch: Channel) -> tuple[float, float]:
-    """First and last timestamp of a non-empty channel (read from its ends when it is time-ordered)."""
+    """First and last timestamp of a non-empty channel (read from its ends when it is time-ordered; from its time
+    index when it reads by blocks)."""
+    if reads_by_block(ch):
+        bounds = _time_index(ch).bounds
+        if bounds is not None:
+            return bounds
     a, b = _window(ch, -np.inf, -np.inf), _window(ch, np.inf, np.inf)
     if a is not None and b is not None:
         return float(a[1][0]), float(b[1][-1])

@@ -351,8 +351,9 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
     workers:
         Threads that share the re-runs (default :data:`WORKERS`). Each re-run is independent of the others
         and the contributions are put together in the plan's order, so the budget is the same for any
-        count. A lazy Recording (:meth:`Recording.open`) is worked through on one thread, method by method,
-        each method's channels dropped before the next's are read (its memory stays bounded by one method).
+        count. A lazy Recording (:meth:`Recording.open`) is worked through method by method (the method's
+        re-runs on the threads), each method's channels dropped before the next's are read (its memory stays
+        bounded by one method).
 
     Returns
     -------
@@ -371,14 +372,17 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         if nominal:
             tasks.append([(fits, nominal, comp, run) for comp in components(recording, roles)])
     lazy = any(isinstance(c, LazyChannel) for c in recording.channels.values())
-    n_threads = 1 if lazy else max(1, int(workers if workers is not None else WORKERS))
-    if n_threads == 1 and lazy:
+    n_threads = max(1, int(workers if workers is not None else WORKERS))
+    if lazy:
         kept = recording.loaded()
         done = []
         for method_tasks in tasks:
-            # a lazy Recording: what one method's re-runs read goes before the next method's
+            # a lazy Recording: what one method's re-runs read goes before the next method's; the method's re-runs
+            # share the threads and what they have in common (the channels a re-run does not move), then it goes
             recording.drop(recording.loaded() - kept)
-            done += [_propagate_one(recording, t) for t in method_tasks]
+            with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
+                futures = [pool.submit(_propagate_one, recording, t) for t in method_tasks]
+                done += [f.result() for f in futures]
         recording.drop(recording.loaded() - kept)
     else:
         flat = [t for method_tasks in tasks for t in method_tasks]

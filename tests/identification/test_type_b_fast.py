@@ -1,5 +1,6 @@
 """The fast type B propagation (shared rounding levels, two threads, reused resampling) gives the budget of the
-plain re-runs exactly, on the quick campaign through the paper bench (about 10 s on 2 cores)."""
+plain re-runs exactly, on the quick campaign through the paper bench (about 10 s on 2 cores); so does the one of a
+Recording read by blocks from the acquisition's chunk files, on two threads and on one (about 15 s more)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ def quick_paper():
 
     vehicle = load_vehicle(scenario_path("vehicles", "p2_phev_9at.toml"))
     trace = simulate_campaign(vehicle, load_campaign(scenario_path("campaigns", "quick.toml")))
-    return vehicle, run_batch(trace, load_setup(scenario_path("setups", "paper.toml")), seed=1)
+    return vehicle, run_batch(trace, load_setup(scenario_path("setups", "paper.toml")), seed=1), trace
 
 
 def _plain_dither(rec: Recording, comp: Component, rng: np.random.Generator) -> Recording:
@@ -73,7 +74,7 @@ def _plain_budget(rec: Recording, specs, nominal) -> dict[str, dict[str, float]]
 
 
 def test_fast_type_b_equals_the_plain_reruns(quick_paper, monkeypatch) -> None:
-    vehicle, rec = quick_paper
+    vehicle, rec, _ = quick_paper
     monkeypatch.setattr(uncertainty, "WORKERS", 2)  # the threaded path, also on a one-core runner
     fast = identify_all(rec, vehicle.specs, type_b=True)
     assert fast.meta["type_b"]["failed"] == []
@@ -86,3 +87,31 @@ def test_fast_type_b_equals_the_plain_reruns(quick_paper, monkeypatch) -> None:
     one = identify_all(rec, vehicle.specs, type_b=True)
     assert repr({k: (p.type_b, p.ci95_total) for k, p in one.parameters().items()}) == \
         repr({k: (p.type_b, p.ci95_total) for k, p in fast.parameters().items()})
+
+
+def test_type_b_of_a_recording_read_by_blocks_is_the_same_on_two_threads_and_one(quick_paper, monkeypatch) -> None:
+    """The chunk-file Recording ``validate --out`` identifies: its re-runs, method by method on two threads sharing
+    what the unmoved channels give (``_reuse``), give every budget of the one-thread re-runs and of the in-memory
+    Recording exactly, and leave no channel in memory."""
+    from benchtwin.chain.stream import run_chunked, trace_pieces
+    from benchtwin.config._base import scenario_path
+    from benchtwin.config.setup import load_setup
+    from benchtwin.recording import LazyChannel
+
+    vehicle, in_memory, trace = quick_paper
+    rec = run_chunked(trace_pieces(trace), load_setup(scenario_path("setups", "paper.toml")), seed=1,
+                      keep_chunks=True)
+    with rec:
+        assert all(isinstance(c, LazyChannel) for c in rec.channels.values())
+        runs = {}
+        for workers in (2, 1):
+            monkeypatch.setattr(uncertainty, "WORKERS", workers)
+            res = identify_all(rec, vehicle.specs, type_b=True)
+            assert res.meta["type_b"]["failed"] == [] and res.meta["type_b"]["reruns"] > 60
+            assert rec.loaded() == set()  # each method's channels went before the next's
+            runs[workers] = repr({k: (p.value, p.type_b, p.ci95_total) for k, p in res.parameters().items()})
+        assert "resolution" in runs[2] and runs[2] == runs[1]
+    # and the same as the in-memory Recording's (the batch chain's: the same samples)
+    monkeypatch.setattr(uncertainty, "WORKERS", 2)
+    res = identify_all(in_memory, vehicle.specs, type_b=True)
+    assert repr({k: (p.value, p.type_b, p.ci95_total) for k, p in res.parameters().items()}) == runs[2]
