@@ -52,6 +52,8 @@ __all__ = ["EnginePoints", "bmep_bar", "engine_points", "fit_bsfc_map", "fit_eng
            "speed_bands"]
 
 RPM = 2.0 * math.pi / 60.0
+#: bootstrap replicates whose maps on the fine grid are held at a time (each: 8 bytes a fine point, ~115 kB)
+BOOT_BLOCK = 16
 _SMOOTHINGS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
 
@@ -226,12 +228,16 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     # operator from fuel MEP values at the points to the fine grid, so bootstrap refits are products
     op = RBFInterpolator(P, np.eye(n.size), kernel="thin_plate_spline", smoothing=smoothing, degree=1)(fine)
 
-    def minima(y: np.ndarray) -> np.ndarray:
+    def minima_block(y: np.ndarray) -> np.ndarray:
         v = q * (op @ y) / fine_b[:, None]
         v[~(v > 0)] = np.inf  # a non-positive fuel MEP is no minimum
         k = np.argmin(v, axis=0)
         cols = np.arange(v.shape[1])
         return np.column_stack([v[k, cols], nlo + fine[k, 0] * (nhi - nlo), fine_b[k]])
+
+    def minima(y: np.ndarray) -> np.ndarray:
+        # a few replicates at a time: the fine grid's maps of all of them at once would be fine points x n_boot
+        return np.concatenate([minima_block(y[:, j:j + BOOT_BLOCK]) for j in range(0, y.shape[1], BOOT_BLOCK)])
 
     bmin, nmin, bmin_at = (float(x) for x in minima(pmf[:, None])[0])
     rng = np.random.default_rng(seed)
