@@ -222,13 +222,14 @@ def fit_warmup(rec: Recording, specs: VehicleSpecs, *, block_s: float = 20.0, ra
     names = [COOLANT_ROLE, "fuel_mass_flow_gps", "engine_speed_rpm", "engine_torque_nm"]
     n = max(round(block_s * rate_hz), 2)
     readings: list[np.ndarray] = []  # the grid's finite coolant readings, for the regulated level
-    blocks: list[tuple[float, float, float, float]] = []  # per complete block: max T, mean P_heat, -mean T, dT/dt
+    blocks: list[np.ndarray] = []  # per run, a row per complete block: max T, mean P_heat, -mean T, dT/dt
     for g in grid_runs(rec, names, rate_hz, n, what=WARMUP_KEY):
         t_c = g[COOLANT_ROLE]
         p_f = np.nan_to_num(g["fuel_mass_flow_gps"], nan=0.0) * 1e-3 * specs.fuel_lhv_j_per_kg
         p_b = np.nan_to_num(g["engine_torque_nm"] * g["engine_speed_rpm"] * _RPM, nan=0.0)
         p_heat = np.maximum(p_f - np.maximum(p_b, 0.0), 0.0)
         readings.append(t_c[np.isfinite(t_c)])
+        run: list[tuple[float, float, float, float]] = []
         for k in range(t_c.size // n):  # the run holds whole blocks: these are the whole grid's blocks
             s = slice(k * n, (k + 1) * n)
             tb = t_c[s]
@@ -237,22 +238,25 @@ def fit_warmup(rec: Recording, specs: VehicleSpecs, *, block_s: float = 20.0, ra
             dt = (g.t[s][-1] - g.t[s][0])
             if dt <= 0:
                 continue
-            blocks.append((float(np.max(tb)), float(np.mean(p_heat[s])), -float(np.mean(tb)),
-                           float((tb[-1] - tb[0]) / dt)))
+            run.append((float(np.max(tb)), float(np.mean(p_heat[s])), -float(np.mean(tb)),
+                        float((tb[-1] - tb[0]) / dt)))
+        blocks.append(np.array(run).reshape(-1, 4))
     ok_t = np.concatenate(readings) if readings else np.zeros(0)
+    del readings
     if ok_t.size < 10:
         raise InsufficientDataError(f"{WARMUP_KEY}: no coolant temperature readings")
-    t_reg = float(np.percentile(ok_t, 95))
-    del readings, ok_t
-    rows = [[p, m, 1.0] for top, p, m, _ in blocks if not top > t_reg - 5.0]
-    y = [d for top, _, _, d in blocks if not top > t_reg - 5.0]
-    if len(rows) < min_blocks:
-        raise InsufficientDataError(f"{WARMUP_KEY}: {len(rows)} blocks below the regulated level; need {min_blocks}")
-    A = np.asarray(rows)
+    t_reg = float(np.percentile(ok_t, 95, overwrite_input=True))  # the same value; no third copy
+    del ok_t
+    stats = np.concatenate(blocks) if blocks else np.zeros((0, 4))
+    below = ~(stats[:, 0] > t_reg - 5.0)
+    if below.sum() < min_blocks:
+        raise InsufficientDataError(f"{WARMUP_KEY}: {below.sum()} blocks below the regulated level; need {min_blocks}")
+    A = np.column_stack([stats[below, 1], stats[below, 2], np.ones(below.sum())])
+    y = stats[below, 3]
     heated = A[:, 0] > 0.0
     if heated.sum() < 3:
         raise InsufficientDataError(f"{WARMUP_KEY}: the engine never fires below the regulated coolant level")
-    fit = linear_fit(A, np.asarray(y), ["h", "g", "c"], units=["K/J", "1/s", "K/s"], what=WARMUP_KEY, cond_max=1e14)
+    fit = linear_fit(A, y, ["h", "g", "c"], units=["K/J", "1/s", "K/s"], what=WARMUP_KEY, cond_max=1e14)
     derived(fit, "T_env_degc", lambda x: x[2] / x[1] if x[1] != 0 else float("nan"), unit="degC")
     fit.data.update(T_reg_degc=np.array([t_reg]))
     if not (fit.value("h") > 0 and fit.value("g") >= 0):
