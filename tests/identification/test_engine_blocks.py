@@ -1,13 +1,13 @@
 """The engine's cold-start blocks, coolant warm-up and BSFC bootstrap by runs: the same numbers, memory by a run.
 
 :func:`cold_blocks` and :func:`fit_warmup` read the grid a run of whole blocks at a time (``grid_runs``) and keep per
-block only what their fits use; ``fit_bsfc_map`` takes the bootstrap's minima a few replicates at a time. Checked
-here: on a two-hour Recording with bad samples, read from lazy channels that refuse a whole read, both give the very
-numbers of the whole-grid path (``gather`` over the whole Recording) with runs of 5, 37, 300 and 1234.5 s; the map's
-parameters are those of all replicates at once with blocks of 7 and 16; and the peak traced allocation of the two
-Recording readers grows from the Recording laid twice to four times by less than one run's reads plus the warm-up's
-coolant readings (the whole-grid path, one run as long as the Recording, grows by some thirty times that and fails
-the bound). About 15 s.
+block only what their fits use; ``fit_bsfc_map`` takes the bootstrap's minima a block of fine points and a few
+replicates at a time. Checked here: on a two-hour Recording with bad samples, read from lazy channels that refuse a
+whole read, both readers give the very numbers of the whole-grid path (``gather`` over the whole Recording) with runs
+of 5, 37, 300 and 1234.5 s; the map's parameters are those of all points and replicates at once with blocks of 333
+or 1,024 fine points and 7 or 16 replicates; and the peak traced allocation of the two readers grows from the
+Recording laid twice to four times by less than one run's reads plus the warm-up's coolant readings (the whole-grid
+path, one run as long as the Recording, grows by some thirty times that and fails the bound). About 15 s.
 """
 
 from __future__ import annotations
@@ -94,13 +94,15 @@ def test_the_bootstrap_by_replicate_blocks_is_all_at_once(monkeypatch: pytest.Mo
     f = pmf * 1e5 * SPECS.engine_displacement_m3 / (np.pi * SPECS.engine_strokes) * n * np.pi / 30.0 \
         / SPECS.fuel_lhv_j_per_kg * 1e3
     monkeypatch.setattr(eng, "BOOT_BLOCK", 10**9)
+    monkeypatch.setattr(eng, "FINE_BLOCK", 10**9)
     ref = eng.fit_bsfc_map(SPECS, n, t, f, n_boot=100)
     assert ref.params["bsfc_min"].ci95[1] > ref.params["bsfc_min"].ci95[0]  # the replicates differ
-    for block in (7, 16):
-        monkeypatch.setattr(eng, "BOOT_BLOCK", block)
+    for fine, boot in ((10**9, 7), (1024, 16), (333, 7)):
+        monkeypatch.setattr(eng, "BOOT_BLOCK", boot)
+        monkeypatch.setattr(eng, "FINE_BLOCK", fine)
         fit = eng.fit_bsfc_map(SPECS, n, t, f, n_boot=100)
         for k, p in ref.params.items():
-            assert repr(fit.params[k]) == repr(p), (block, k)
+            assert repr(fit.params[k]) == repr(p), (fine, boot, k)
 
 
 def _peak(rec: Recording) -> int:
