@@ -52,6 +52,10 @@ __all__ = ["EnginePoints", "bmep_bar", "engine_points", "fit_bsfc_map", "fit_eng
            "speed_bands"]
 
 RPM = 2.0 * math.pi / 60.0
+#: bootstrap replicates whose maps on the fine grid are held at a time (each: 8 bytes a fine point, ~115 kB)
+BOOT_BLOCK = 16
+#: fine grid points of the minimum's search evaluated at a time (the operator's rows: 8 bytes a data point each)
+FINE_BLOCK = 1024
 _SMOOTHINGS = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 
 
@@ -224,14 +228,26 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
 
     # the map is linear in the data for a fixed smoothing: one fit with the identity as data gives the
     # operator from fuel MEP values at the points to the fine grid, so bootstrap refits are products
-    op = RBFInterpolator(P, np.eye(n.size), kernel="thin_plate_spline", smoothing=smoothing, degree=1)(fine)
+    # (evaluated a block of fine points at a time: the whole operator is fine points x data points)
+    rbf_eye = RBFInterpolator(P, np.eye(n.size), kernel="thin_plate_spline", smoothing=smoothing, degree=1)
 
     def minima(y: np.ndarray) -> np.ndarray:
-        v = q * (op @ y) / fine_b[:, None]
-        v[~(v > 0)] = np.inf  # a non-positive fuel MEP is no minimum
-        k = np.argmin(v, axis=0)
-        cols = np.arange(v.shape[1])
-        return np.column_stack([v[k, cols], nlo + fine[k, 0] * (nhi - nlo), fine_b[k]])
+        # per column of y: the least BSFC over the fine grid (np.argmin's first least point), its speed and BMEP;
+        # a block of fine points and a few replicates at a time (all at once: fine points x n_boot)
+        best_v = np.full(y.shape[1], np.inf)
+        best_k = np.zeros(y.shape[1], dtype=np.intp)
+        for r0 in range(0, fine.shape[0], FINE_BLOCK):
+            op = rbf_eye(fine[r0:r0 + FINE_BLOCK])
+            fb = fine_b[r0:r0 + FINE_BLOCK, None]
+            for j in range(0, y.shape[1], BOOT_BLOCK):
+                v = q * (op @ y[:, j:j + BOOT_BLOCK]) / fb
+                v[~(v > 0)] = np.inf  # a non-positive fuel MEP is no minimum
+                k = np.argmin(v, axis=0)
+                vk = v[k, np.arange(v.shape[1])]
+                better = vk < best_v[j:j + BOOT_BLOCK]  # strictly: an earlier block keeps a tie, as argmin does
+                best_v[j:j + BOOT_BLOCK][better] = vk[better]
+                best_k[j:j + BOOT_BLOCK][better] = r0 + k[better]
+        return np.column_stack([best_v, nlo + fine[best_k, 0] * (nhi - nlo), fine_b[best_k]])
 
     bmin, nmin, bmin_at = (float(x) for x in minima(pmf[:, None])[0])
     rng = np.random.default_rng(seed)

@@ -20,30 +20,81 @@ fuel flow at the same speed and torque. Where the Recording has the engine coola
   regulated level ``T_reg`` (the 95th percentile of the recorded coolant temperature). The map-based model
   integrates it from a drive's first coolant reading, so the factor follows a coolant it predicts itself.
 
+Both read the Recording's channels a run of whole blocks at a time (:func:`grid_runs`: ``gather``'s grid and its
+numbers, each channel read around the run only) and keep per block only what the fits use, so their memory does
+not grow with the campaign (the warm-up keeps the grid's coolant readings, 8 bytes a second at 1 Hz, for its 95th
+percentile).
+
 Reads only the Recording and the public specs (no truth).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, derived, linear_fit
-from benchtwin.identification._signals import gather
+from benchtwin.identification._signals import Grid
+from benchtwin.identification._windows import gather_at, grid_bounds
 from benchtwin.identification.fuel_map import fuel_map_gps, map_pmf
 from benchtwin.recording import Recording
 
 __all__ = ["COLD_KEY", "COOLANT_ROLE", "WARMUP_KEY", "cold_blocks", "cold_factor", "fit_cold_factor", "fit_warmup",
-           "identify_cold_fuel", "warm_mask"]
+           "grid_runs", "identify_cold_fuel", "warm_mask"]
 
 COLD_KEY = "engine.cold_fuel"
 WARMUP_KEY = "engine.warmup"
 COOLANT_ROLE = "engine_coolant_out_degc"
 
 _RPM = math.pi / 30.0
+
+#: grid points read at a time by :func:`grid_runs`, at most (rounded down to whole blocks)
+GRID_RUN = 8192
+
+#: seconds of the channels read at a time by :func:`grid_runs`, at most (a 100 Hz channel: 30 k samples)
+RUN_S = 300.0
+
+
+def grid_runs(rec: Recording, names: Sequence[str], rate_hz: float, per: int, *, optional: Iterable[str] = (),
+              what: str = "identification") -> Iterator[Grid]:
+    """``gather(rec, names, rate_hz, optional=optional)``'s grid, a run of whole ``per``-point blocks at a time.
+
+    Parameters
+    ----------
+    rec, names, rate_hz, optional, what:
+        As for :func:`~benchtwin.identification._signals.gather`.
+    per:
+        Points of one block: every run but the last holds a whole number of blocks (the last ends with the grid);
+        a run is at most :data:`GRID_RUN` points and :data:`RUN_S` seconds long, unless one block is longer.
+
+    Yields
+    ------
+    Grid
+        Grid points ``a .. b - 1`` (``first_index`` ``a``): the times and values ``gather`` gives there, each channel
+        read around the run only (``_windows.gather_at``); one run is let go before the next is read.
+
+    Raises
+    ------
+    MissingChannelError, DataError
+        As ``gather`` (checked before the first run).
+    """
+    lo, n, shifts = grid_bounds(rec, names, rate_hz, what=what)
+    kept = rec.loaded()
+    step = max(min(GRID_RUN, int(RUN_S * rate_hz)) // per, 1) * per
+    optional = list(optional)
+    ordered: dict[int, bool] = {}  # channels in memory checked for time order once
+    try:
+        for a in range(0, n, step):
+            g = gather_at(rec, names, lo + np.arange(a, min(a + step, n)) / rate_hz, rate_hz, shifts,
+                          optional=optional, ordered=ordered)
+            g.first_index = a
+            yield g
+    finally:  # a lazy Recording's channel read whole here (no block reads) goes again, as after ``gather``
+        rec.drop([c for c in [*names, *optional] if c in rec and c not in kept])
 
 
 def cold_factor(k_per_k: float, t_warm_degc: float, coolant_degc: np.ndarray | float) -> np.ndarray:
@@ -169,35 +220,43 @@ def fit_warmup(rec: Recording, specs: VehicleSpecs, *, block_s: float = 20.0, ra
         ``h`` (K/J), ``g`` (1/s), ``c`` (K/s) and derived ``T_env_degc``; data ``T_reg_degc`` (the regulated level).
     """
     names = [COOLANT_ROLE, "fuel_mass_flow_gps", "engine_speed_rpm", "engine_torque_nm"]
-    g = gather(rec, names, rate_hz, what=WARMUP_KEY)
-    t_c = g[COOLANT_ROLE]
-    p_f = np.nan_to_num(g["fuel_mass_flow_gps"], nan=0.0) * 1e-3 * specs.fuel_lhv_j_per_kg
-    p_b = np.nan_to_num(g["engine_torque_nm"] * g["engine_speed_rpm"] * _RPM, nan=0.0)
-    p_heat = np.maximum(p_f - np.maximum(p_b, 0.0), 0.0)
-    ok_t = np.isfinite(t_c)
-    if ok_t.sum() < 10:
-        raise InsufficientDataError(f"{WARMUP_KEY}: no coolant temperature readings")
-    t_reg = float(np.percentile(t_c[ok_t], 95))
     n = max(round(block_s * rate_hz), 2)
-    nb = t_c.size // n
-    rows, y = [], []
-    for k in range(nb):
-        s = slice(k * n, (k + 1) * n)
-        tb = t_c[s]
-        if not np.all(np.isfinite(tb)) or np.max(tb) > t_reg - 5.0:
-            continue
-        dt = (g.t[s][-1] - g.t[s][0])
-        if dt <= 0:
-            continue
-        rows.append([float(np.mean(p_heat[s])), -float(np.mean(tb)), 1.0])
-        y.append((tb[-1] - tb[0]) / dt)
-    if len(rows) < min_blocks:
-        raise InsufficientDataError(f"{WARMUP_KEY}: {len(rows)} blocks below the regulated level; need {min_blocks}")
-    A = np.asarray(rows)
+    readings: list[np.ndarray] = []  # the grid's finite coolant readings, for the regulated level
+    blocks: list[np.ndarray] = []  # per run, a row per complete block: max T, mean P_heat, -mean T, dT/dt
+    for g in grid_runs(rec, names, rate_hz, n, what=WARMUP_KEY):
+        t_c = g[COOLANT_ROLE]
+        p_f = np.nan_to_num(g["fuel_mass_flow_gps"], nan=0.0) * 1e-3 * specs.fuel_lhv_j_per_kg
+        p_b = np.nan_to_num(g["engine_torque_nm"] * g["engine_speed_rpm"] * _RPM, nan=0.0)
+        p_heat = np.maximum(p_f - np.maximum(p_b, 0.0), 0.0)
+        readings.append(t_c[np.isfinite(t_c)])
+        run: list[tuple[float, float, float, float]] = []
+        for k in range(t_c.size // n):  # the run holds whole blocks: these are the whole grid's blocks
+            s = slice(k * n, (k + 1) * n)
+            tb = t_c[s]
+            if not np.all(np.isfinite(tb)):
+                continue
+            dt = (g.t[s][-1] - g.t[s][0])
+            if dt <= 0:
+                continue
+            run.append((float(np.max(tb)), float(np.mean(p_heat[s])), -float(np.mean(tb)),
+                        float((tb[-1] - tb[0]) / dt)))
+        blocks.append(np.array(run).reshape(-1, 4))
+    ok_t = np.concatenate(readings) if readings else np.zeros(0)
+    del readings
+    if ok_t.size < 10:
+        raise InsufficientDataError(f"{WARMUP_KEY}: no coolant temperature readings")
+    t_reg = float(np.percentile(ok_t, 95, overwrite_input=True))  # the same value; no third copy
+    del ok_t
+    stats = np.concatenate(blocks) if blocks else np.zeros((0, 4))
+    below = ~(stats[:, 0] > t_reg - 5.0)
+    if below.sum() < min_blocks:
+        raise InsufficientDataError(f"{WARMUP_KEY}: {below.sum()} blocks below the regulated level; need {min_blocks}")
+    A = np.column_stack([stats[below, 1], stats[below, 2], np.ones(below.sum())])
+    y = stats[below, 3]
     heated = A[:, 0] > 0.0
     if heated.sum() < 3:
         raise InsufficientDataError(f"{WARMUP_KEY}: the engine never fires below the regulated coolant level")
-    fit = linear_fit(A, np.asarray(y), ["h", "g", "c"], units=["K/J", "1/s", "K/s"], what=WARMUP_KEY, cond_max=1e14)
+    fit = linear_fit(A, y, ["h", "g", "c"], units=["K/J", "1/s", "K/s"], what=WARMUP_KEY, cond_max=1e14)
     derived(fit, "T_env_degc", lambda x: x[2] / x[1] if x[1] != 0 else float("nan"), unit="degC")
     fit.data.update(T_reg_degc=np.array([t_reg]))
     if not (fit.value("h") > 0 and fit.value("g") >= 0):
@@ -223,15 +282,26 @@ def cold_blocks(rec: Recording, specs: VehicleSpecs, bsfc_data: dict, *, block_s
     m = map_pmf(bsfc_data, specs.fuel_lhv_j_per_kg)
     if m is None:
         raise IdentificationError(f"{COLD_KEY}: the BSFC map cannot be read")
-    g = gather(rec, [COOLANT_ROLE, "fuel_mass_flow_gps", "engine_speed_rpm", "engine_torque_nm"], rate_hz,
-               optional=["engine_on"], what=COLD_KEY)
+    k = max(round(block_s * rate_hz), 2)
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per run: fuel and map sums, mean coolant
+    for g in grid_runs(rec, [COOLANT_ROLE, "fuel_mass_flow_gps", "engine_speed_rpm", "engine_torque_nm"], rate_hz,
+                       k, optional=["engine_on"], what=COLD_KEY):
+        parts.append(_cold_run(g, m, specs, k, min_torque_nm))
+    f_b, p_b, c_b = (np.concatenate([p[j] for p in parts]) for j in range(3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = f_b / p_b
+    return {"ratio": ratio, "coolant_degc": c_b, "map_gps": p_b / k}
+
+
+def _cold_run(g: Grid, m: tuple[np.ndarray, np.ndarray, np.ndarray], specs: VehicleSpecs, k: int,
+              min_torque_nm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kept blocks of one run of whole ``k``-point blocks: fuel sums, the map's fuel sums, mean coolant."""
     n_rpm, tq, fuel, cool = g["engine_speed_rpm"], g["engine_torque_nm"], g["fuel_mass_flow_gps"], g[COOLANT_ROLE]
     on = (g["engine_on"] > 0.5) if "engine_on" in g.present else np.ones(n_rpm.size, bool)
     on &= np.isfinite(n_rpm) & np.isfinite(tq) & np.isfinite(fuel) & np.isfinite(cool) & (n_rpm > 300)
     pred = np.zeros_like(n_rpm)
     pred[on] = fuel_map_gps(*m, specs.engine_displacement_m3, specs.engine_strokes, specs.fuel_lhv_j_per_kg,
                             n_rpm[on], tq[on])
-    k = max(round(block_s * rate_hz), 2)
     nb = n_rpm.size // k
     shape = (nb, k)
     on_b = on[: nb * k].reshape(shape).all(axis=1)
@@ -240,9 +310,7 @@ def cold_blocks(rec: Recording, specs: VehicleSpecs, bsfc_data: dict, *, block_s
     f_b = np.where(on, fuel, 0.0)[: nb * k].reshape(shape).sum(axis=1)[keep]
     p_b = pred[: nb * k].reshape(shape).sum(axis=1)[keep]
     c_b = np.where(on, cool, 0.0)[: nb * k].reshape(shape).mean(axis=1)[keep]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = f_b / p_b
-    return {"ratio": ratio, "coolant_degc": c_b, "map_gps": p_b / k}
+    return f_b, p_b, c_b
 
 
 def identify_cold_fuel(rec: Recording, specs: VehicleSpecs, bsfc_data: dict, **kwargs: object) -> FitResult:
