@@ -115,7 +115,10 @@ def test_converter_errors_agree_with_the_spread_over_seeds() -> None:
     [0.600, 1.5] (the chi-square's lower end, below the factor 1.5's 0.667; the factor above). The pump side
     (a0..a2, the pump inertia) reads only CAN signals, free of random error on this bench: predicted 0, and the
     estimates agree over the seeds to float rounding; the coupling mode (a6..a8) is fitted to the turbine torque,
-    which reads the noisy shaft torque (its zero-torque speed ratio is 1 by construction).
+    which reads the noisy shaft torque (its zero-torque speed ratio is 1 by construction). The turbine-torque
+    scale is the median torque ratio of one calibrated gear here, predicted by its spread over the plan's 80
+    draws (that std known to about 8 %): 1.35e-5 against 1.39e-5 over the seeds, while a plan off by a factor
+    2 either way (0.52, 2.06) leaves the bounds.
     """
     n = 20
     lo, hi = _chi2_interval(n)
@@ -128,10 +131,11 @@ def test_converter_errors_agree_with_the_spread_over_seeds() -> None:
     est = _spread(vehicle, setup, campaign, trace, "torque_converter", n)
     rows = [p for p in plan.parameters if p.name.startswith("torque_converter.")]
     noisy = {p.name for p in rows if p.se > 0}
-    # the turbine-torque scale (a median of noisy torque ratios) says its SE is not predicted
-    assert {p.name for p in rows if not math.isfinite(p.se)} == {"torque_converter.converter.turbine_torque_scale"}
-    rows = [p for p in rows if math.isfinite(p.se)]
-    assert noisy == {f"torque_converter.converter.{k}" for k in ("a3", "a4", "a5", "gamma_coupling")} | {
+    # the turbine-torque scale is one gear's median torque ratio here (gear 4): its spread over the draws is its SE
+    assert all(math.isfinite(p.se) for p in rows)
+    assert "one gear's median" in plan.get("torque_converter.converter.turbine_torque_scale").reason
+    assert noisy == {f"torque_converter.converter.{k}" for k in ("a3", "a4", "a5", "gamma_coupling",
+                                                               "turbine_torque_scale")} | {
         f"torque_converter.coupling.{k}" for k in ("a6", "a7", "a8", "k_at_gamma")}
     for p in rows:
         v = est[p.name]
