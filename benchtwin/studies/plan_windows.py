@@ -26,12 +26,12 @@ plan has the sensor's own noise-free response (:func:`~benchtwin.studies.plan_no
 the plant step, the device clock's offset and drift, the latency), the readings are drawn around that instead: a
 delay is a filter only where the truth changes smoothly, and one delay for a whole campaign misses the clock's
 drift (25 ppm on the paper bench: 0.25 s at 10,000 s). The noise-free estimate at the windows found reads that
-response too, not the truth at the readings' timestamps: the identification maps the telemetry's timestamps by
-the offset the acquisition measured, which puts each reading where its truth was but moves a truth sampled at
-the device's timestamps by the whole offset against the CAN channels. A family run of the paper campaign
-measures the offset on its first run of tests and the telemetry clock has drifted 0.14 s by the hybrid gear-1
-ramp-up (5,525 s), so there the truth led the readings by 0.14 s, the window means it gave moved less with a
-window's start than the readings' do, and gear 1's C0 was planned 1.5 times too small.
+response too, not the truth sampled at the readings' timestamps: those are on the device's clock, so that truth
+leads the readings by the clock's offset from the plant (and the sensor's lag), whatever offset the
+identification maps. On the paper campaign the telemetry clock is 0.125 s ahead by the hybrid gear-1 ramp-up
+(about 5,000 s; a transmission family run maps the 0.02 s it measured on its first run of tests, too short for a
+drift), so the window means of the truth moved less with a window's start than the readings' do, and gear 1's C0
+was planned 1.8 times too small (eta_m 1.4, gear 2's C0 1.6).
 """
 
 from __future__ import annotations
@@ -146,11 +146,10 @@ def sensed_recording(rec: Recording, sensed: Mapping[str, Channel]) -> Recording
     """``rec`` with the channels found in ``sensed`` taking its values (the noise-free value each reading measures).
 
     The truth Recording holds each channel's truth at the reading's own timestamp, as if the device's clock
-    were the plant's; the identification maps a source's timestamps onto the reference clock with the offset
-    (and drift) the acquisition measured, which moves that truth by the whole offset against the channels of
-    other sources, while a bench reading, filtered and stamped on the device's clock, lands where the truth
-    was. Window means of the truth then differ from what the bench averages wherever the windows' edges sit
-    on a transient. Others (and channels not in ``rec``) are shared, not copied.
+    were the plant's, so it leads the bench's readings (filtered, stamped on the device's clock) by that
+    clock's offset from the plant and the sensor's lag; window means of it then differ from what the bench
+    averages wherever a window's edge sits on a transient. Channels of ``rec`` not in ``sensed`` are shared,
+    not copied.
     """
     if not sensed:
         return rec

@@ -183,8 +183,8 @@ def test_transmission_gears_1_2_agree_with_the_spread_over_seeds(tmp_path: Path)
                 assert 1 / 1.5 < ratio < 1.5, (p.name, ratio, p.se)
     assert "windows move with the noise" in plan.get("transmission.gear1.C0").reason
     # A telemetry clock offset the acquisition measures and the identification maps leaves every bench estimate
-    # the same bit for bit (30 seeds, offset 0.15 s: the clock drift's 0.14 s by the paper campaign's gear-1
-    # ramp-up), so the plan must not move either. Both plans draw the same noise (the window draws' fixed seed)
+    # the same bit for bit (30 seeds, offset 0.15 s: the telemetry clock is 0.125 s ahead by the paper campaign's
+    # gear-1 ramp-up), so the plan must not move either. Both plans draw the same noise (the window draws' fixed seed)
     # around the same sensor response; 5 % leaves room for a quantised reading flipping a step at a rounding
     # edge. Before the draws' noise-free estimate read the sensor's response, the truth sampled at the
     # telemetry's timestamps led the readings by the offset: gear 1's eta_m fell to 0.76 and C0 to 0.56 of this.
