@@ -40,8 +40,8 @@ delay instead, the first grid sample after the paper campaign's first pedal step
 calibration's ``shaft_torque_nm > 0`` rule (gear 2: 474 samples against the bench's 475 in that test), and the
 median of an even count averaged two ranks. With one calibrated gear the scale's spread over the draws is its
 standard error (the quick campaign: 1.35e-5 against 1.39e-5 over 20 seeds); the median over several gears' medians
-is still not predicted (flagged with the draws' spread): over the paper campaign's draws (8 gears) it scatters 9
-times its spread over 20 seeds (1.1e-4 against 1.2e-5).
+is still not predicted (flagged with the draws' spread): over the paper campaign's draws (8 gears) it scatters 2.7
+times its spread over 20 seeds (1.9e-4 against 7.0e-5).
 
 The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
 spread, and the split at the refined coupling point moves with it. So the rows are decided by the
@@ -346,7 +346,7 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
     # one calibrated gear: the scale is that gear's median, and its spread over the draws is its standard error
     # (quick campaign, gear 4: 1.35e-5 over 80 draws against 1.39e-5 over 20 seeds); over several gears the
     # median of the gear medians is not predicted: on the paper campaign (8 gears), with the readings drawn around
-    # the sensor's own response, the draws still scatter 9 times the spread over 20 seeds (1.1e-4 against 1.2e-5)
+    # the sensor's own response, the draws scatter 2.7 times the spread over 20 seeds (1.9e-4 against 7.0e-5)
     ts_noisy = len(tscales) > 1 and float(np.ptp(tscales)) > 0
     tcal = pts.torque_calibration
     cal_gears = 0 if tcal is None else sum(int((tcal.gear == k).sum() >= tcal.min_points) for k in np.unique(tcal.gear))
@@ -359,7 +359,7 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         ts_se = float("nan")
         ts_why = (f"SE not predicted: a median over {cal_gears} gears' medians of noisy torque ratios, whose "
                   f"spread over {len(tscales)} draws ({float(np.std(tscales, ddof=1)):.2g}) is not its standard "
-                  "error (paper campaign: 9 times the spread over seeds)")
+                  "error (paper campaign: 2.7 times the spread over seeds)")
     out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale, ts_se, True,
                                 ts_why, "", pts.n_tcal))
     if "a6" not in names:
