@@ -38,8 +38,10 @@ The readings are drawn around their noise-free values as the sensor gives them
 (:func:`~benchtwin.studies.plan_noise.sensor_response`: its filter, clock and latency): with the truth lagged by one
 delay instead, the first grid sample after the paper campaign's first pedal step fell on the other side of the
 calibration's ``shaft_torque_nm > 0`` rule (gear 2: 474 samples against the bench's 475 in that test), and the
-median of an even count averaged two ranks. The scale's own standard error is still not predicted: over the
-paper campaign's draws it scatters 9 times its spread over 20 seeds (1.1e-4 against 1.2e-5).
+median of an even count averaged two ranks. With one calibrated gear the scale's spread over the draws is its
+standard error (the quick campaign: 1.35e-5 against 1.39e-5 over 20 seeds); the median over several gears' medians
+is still not predicted (flagged with the draws' spread): over the paper campaign's draws (8 gears) it scatters 2.7
+times its spread over 20 seeds (1.9e-4 against 7.0e-5).
 
 The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
 spread, and the split at the refined coupling point moves with it. So the rows are decided by the
@@ -341,15 +343,25 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
                                 float("nan") if calib_noisy else 0.0, True,
                                 "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
                                 "the speeds it reads are free of random error on this setup", "", pts.n_cal))
-    # its spread over the draws is not yet its standard error: on the paper campaign, with the readings drawn around
-    # the sensor's own response, it is still 9 times the spread over 20 seeds (1.1e-4 against 1.2e-5), so it is not
-    # predicted
+    # one calibrated gear: the scale is that gear's median, and its spread over the draws is its standard error
+    # (quick campaign, gear 4: 1.35e-5 over 80 draws against 1.39e-5 over 20 seeds); over several gears the
+    # median of the gear medians is not predicted: on the paper campaign (8 gears), with the readings drawn around
+    # the sensor's own response, the draws scatter 2.7 times the spread over 20 seeds (1.9e-4 against 7.0e-5)
     ts_noisy = len(tscales) > 1 and float(np.ptp(tscales)) > 0
-    out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale,
-                                float("nan") if ts_noisy else 0.0, True,
-                                "SE not predicted (a median of noisy torque ratios); the draws redraw it"
-                                if ts_noisy else "the torques it reads are free of random error on this "
-                                "setup", "", pts.n_tcal))
+    tcal = pts.torque_calibration
+    cal_gears = 0 if tcal is None else sum(int((tcal.gear == k).sum() >= tcal.min_points) for k in np.unique(tcal.gear))
+    if not ts_noisy:
+        ts_se, ts_why = 0.0, "the torques it reads are free of random error on this setup"
+    elif cal_gears == 1:
+        ts_se = float(np.std(tscales, ddof=1))
+        ts_why = f"one gear's median torque ratio: its spread over {len(tscales)} draws of the readings"
+    else:
+        ts_se = float("nan")
+        ts_why = (f"SE not predicted: a median over {cal_gears} gears' medians of noisy torque ratios, whose "
+                  f"spread over {len(tscales)} draws ({float(np.std(tscales, ddof=1)):.2g}) is not its standard "
+                  "error (paper campaign: 2.7 times the spread over seeds)")
+    out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale, ts_se, True,
+                                ts_why, "", pts.n_tcal))
     if "a6" not in names:
         out.append(PlannedParameter("torque_converter.coupling.*", "", float("nan"), float("nan"), False,
                                     f"{n2} coupling-mode points", "add [[tests]] kind = \"acceleration\" "

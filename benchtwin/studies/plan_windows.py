@@ -11,9 +11,9 @@ so the planned standard errors of gear 1 were 1.6-2.8 times too small.
 The term is computed from the setup alone, as the brakes' poll faults are (:mod:`.plan_brakes`): the readings
 the window search reads are drawn as the bench records them (the truth with the sensor's gain and offset,
 white noise, the step of the converter or the wire), the identification's own window search runs on each
-draw, and the noise-free estimate is taken at the windows found (window means of the truth). The planned
-variance is the law of total variance over the draws: the noise term at the planned windows plus the
-variance of the noise-free estimates over the draws.
+draw, and the noise-free estimate is taken at the windows found (window means of the noise-free readings).
+The planned variance is the law of total variance over the draws: the noise term at the planned windows plus
+the variance of the noise-free estimates over the draws.
 
 Where a hold begins is decided to a grid step (0.1 s) by the edge of the pedal step before it, so the draws
 must see that edge when the bench does: a reading lags the plant's truth (the sensor's filter, discretised
@@ -25,7 +25,13 @@ recorded readings where the truth changes fast) and the drawn readings are the t
 plan has the sensor's own noise-free response (:func:`~benchtwin.studies.plan_noise.sensor_response`: its filter at
 the plant step, the device clock's offset and drift, the latency), the readings are drawn around that instead: a
 delay is a filter only where the truth changes smoothly, and one delay for a whole campaign misses the clock's
-drift (25 ppm on the paper bench: 0.25 s at 10,000 s).
+drift (25 ppm on the paper bench: 0.25 s at 10,000 s). The noise-free estimate at the windows found reads that
+response too, not the truth sampled at the readings' timestamps: those are on the device's clock, so that truth
+leads the readings by the clock's offset from the plant (and the sensor's lag), whatever offset the
+identification maps. On the paper campaign the telemetry clock is 0.125 s ahead by the hybrid gear-1 ramp-up
+(about 5,000 s; a transmission family run maps the 0.02 s it measured on its first run of tests, too short for a
+drift), so the window means of the truth moved less with a window's start than the readings' do, and gear 1's C0
+was planned 1.8 times too small (eta_m 1.4, gear 2's C0 1.6).
 """
 
 from __future__ import annotations
@@ -41,7 +47,8 @@ from benchtwin.identification.transmission import direction_points, efficiency_d
 from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan_noise import ChannelNoise
 
-__all__ = ["SEARCHED", "WINDOW_DRAWS", "noisy_readings", "reading_lag", "reading_lag_line", "window_draws"]
+__all__ = ["SEARCHED", "WINDOW_DRAWS", "noisy_readings", "reading_lag", "reading_lag_line", "sensed_recording",
+           "window_draws"]
 
 #: draws of the noise deciding the windows: the selection variance over K draws is known to about
 #: sqrt(2 / (K - 1)) (26 % at 30, 13 % on the standard error); one draw is one window search over the steady
@@ -135,6 +142,27 @@ def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tup
     return out
 
 
+def sensed_recording(rec: Recording, sensed: Mapping[str, Channel]) -> Recording:
+    """``rec`` with the channels found in ``sensed`` taking its values (the noise-free value each reading measures).
+
+    The truth Recording holds each channel's truth at the reading's own timestamp, as if the device's clock
+    were the plant's, so it leads the bench's readings (filtered, stamped on the device's clock) by that
+    clock's offset from the plant and the sensor's lag; window means of it then differ from what the bench
+    averages wherever a window's edge sits on a transient. Channels of ``rec`` not in ``sensed`` are shared,
+    not copied.
+    """
+    if not sensed:
+        return rec
+    out = Recording(segments=list(rec.segments), meta=dict(rec.meta))
+    for name, ch in rec.channels.items():
+        s = sensed.get(name)
+        if s is not None and s.values.shape == ch.values.shape:
+            out.add(Channel(name, ch.unit, ch.timestamps, s.values, ch.flags, ch.source))
+        else:
+            out.add(ch)
+    return out
+
+
 def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, ChannelNoise], *,
                  recorded: Mapping[str, Channel] | None = None, draws: int = WINDOW_DRAWS,
                  seed: int = 0, sensed: Mapping[str, Channel] | None = None) -> dict[str, np.ndarray]:
@@ -154,7 +182,8 @@ def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, Channe
     sensed:
         Role -> the noise-free value of each of its readings (:func:`~benchtwin.studies.plan_noise.
         sensor_response`: filter, clock, latency); a channel found here is drawn around it, not around the
-        lagged truth.
+        lagged truth, and the noise-free estimate at the windows found reads it too
+        (:func:`sensed_recording`).
     draws, seed:
         Number of draws and the seed of their generator (the same plan gives the same numbers).
 
@@ -171,11 +200,12 @@ def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, Channe
     lags = {n: reading_lag(rec[n], recorded[n], noise[n]) for n in names
             if recorded and n in recorded and not (sensed and n in sensed)}
     rng = np.random.default_rng(seed)
+    read = sensed_recording(rec, {n: sensed[n] for n in names if n in sensed} if sensed else {})
     out: dict[str, list[tuple[float, float]]] = {}
     for _ in range(draws):
         try:
             found = transmission_points(noisy_readings(rec, noise, names, rng, lags, sensed), specs)
-            pts = transmission_points(rec, specs, steady=found.windows)
+            pts = transmission_points(read, specs, steady=found.windows)
         except BenchtwinError:
             continue
         for g in range(1, ratios.size + 1):
