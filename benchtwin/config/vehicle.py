@@ -221,6 +221,15 @@ class BatteryConfig(StrictModel):
     soc_max_frac: float = Field(gt=0, le=1)
     max_discharge_power_w: float = Field(gt=0)
     max_charge_power_w: float = Field(gt=0)
+    discharge_derate_band_pct: float = Field(
+        default=5.0, ge=0, le=50, description="BMS: discharge power falls linearly to 0 over this many displayed-SOC "
+        "points above 0 % (soc_min); 0: full power down to the floor")
+    charge_derate_band_pct: float = Field(
+        default=3.0, ge=0, le=50, description="BMS: charge power falls linearly to 0 over this many displayed-SOC "
+        "points below 100 % (soc_max)")
+    floor_engine_start_pct: float = Field(
+        default=1.0, ge=0, le=50, description="BMS: below this displayed SOC the engine starts and K0 closes "
+        "whatever the test commands, until the SOC is back above the discharge band")
 
     @model_validator(mode="after")
     def _window(self) -> BatteryConfig:

@@ -15,6 +15,7 @@ from numba import njit
 
 __all__ = [
     "battery_rc_update",
+    "bms_power_limits_w",
     "bsfc_kg_per_j",
     "clutch_merge",
     "cold_start_factor",
@@ -184,6 +185,41 @@ def torque_converter_curves_nm(a_nm_per_radps2: np.ndarray, coupling_speed_ratio
         tp[k] = tp_k
         tt[k] = tt_k
     return tp, tt
+
+
+@njit(cache=True)
+def bms_power_limits_w(max_discharge_w: float, max_charge_w: float, displayed_soc_pct: float,
+                       discharge_band_pct: float, charge_band_pct: float) -> tuple[float, float]:
+    """BMS power limits of the HV pack, derated linearly towards the ends of its usable window.
+
+    Discharge: full power from ``discharge_band_pct`` displayed-SOC points up, falling linearly to 0 at
+    0 % (soc_min) and 0 below. Charge: the same towards 100 % (soc_max) over ``charge_band_pct`` points. A band of
+    0 keeps full power up to the end of the window and none beyond it.
+
+    Parameters
+    ----------
+    max_discharge_w, max_charge_w:
+        Pack's rated discharge and charge power (W, both positive).
+    displayed_soc_pct:
+        Displayed SOC, % of the usable window (may lie outside 0..100).
+    discharge_band_pct, charge_band_pct:
+        Widths of the derating bands, displayed-SOC points (>= 0).
+
+    Returns
+    -------
+    tuple of float
+        ``(discharge_limit_w, charge_limit_w)``, both in 0..rated.
+    """
+    s = displayed_soc_pct
+    if discharge_band_pct > 0.0:
+        kd = min(max(s / discharge_band_pct, 0.0), 1.0)
+    else:
+        kd = 1.0 if s > 0.0 else 0.0
+    if charge_band_pct > 0.0:
+        kc = min(max((100.0 - s) / charge_band_pct, 0.0), 1.0)
+    else:
+        kc = 1.0 if s < 100.0 else 0.0
+    return max_discharge_w * kd, max_charge_w * kc
 
 
 @njit(cache=True)

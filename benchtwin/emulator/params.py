@@ -126,7 +126,10 @@ P_HF_RADIATOR_UA_W_PER_K = 100
 P_HF_THERMOSTAT_DEGC = 101
 P_HF_SLIP_STIFFNESS_N = 102  # driven axle's longitudinal slip stiffness, N per unit slip (0: no slip)
 P_CONVENTIONAL = 103  # 1: conventional layout (no motor, no HV pack: the 12 V loads on an alternator), 0: P2 PHEV
-NP = 104
+P_BMS_DISCHARGE_BAND_PCT = 104  # displayed-SOC points above 0 % over which the discharge power derates to 0
+P_BMS_CHARGE_BAND_PCT = 105  # displayed-SOC points below 100 % over which the charge power derates to 0
+P_BMS_ENGINE_START_PCT = 106  # displayed SOC below which the BMS starts the engine (-1: never, no HV pack)
+NP = 107
 
 # ---- command rows (one value per plant step) ----
 C_DYNO_MODE = 0  # 0 road-load, 1 speed-controlled
@@ -365,9 +368,12 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
         p[P_BATT_ALPHA], p[P_BATT_BETA_DISCHARGE], p[P_BATT_BETA_CHARGE] = ba.alpha, ba.beta_discharge, ba.beta_charge
         p[P_SOC_MIN_FRAC], p[P_SOC_MAX_FRAC] = ba.soc_min_frac, ba.soc_max_frac
         p[P_BATT_MAX_DISCHARGE_W], p[P_BATT_MAX_CHARGE_W] = ba.max_discharge_power_w, ba.max_charge_power_w
+        p[P_BMS_DISCHARGE_BAND_PCT], p[P_BMS_CHARGE_BAND_PCT] = ba.discharge_derate_band_pct, ba.charge_derate_band_pct
+        p[P_BMS_ENGINE_START_PCT] = ba.floor_engine_start_pct
     else:  # no HV pack: a placeholder the loop never draws on (its current is 0, its outputs are dropped)
         p[P_BATT_CAPACITY_AS], p[P_BATT_ALPHA], p[P_BATT_BETA_DISCHARGE], p[P_BATT_BETA_CHARGE] = 3600.0, 1, 1, 1
         p[P_SOC_MIN_FRAC], p[P_SOC_MAX_FRAC] = 0.0, 1.0
+        p[P_BMS_ENGINE_START_PCT] = -1.0
     p[P_N_CELLS_SERIES] = s.n_cells_series or 1
     p[P_DCDC_EFFICIENCY], p[P_DCDC_SET_V] = lv.dcdc_efficiency, lv.dcdc_voltage_v
     p[P_LV_CAPACITY_AS] = lv.battery_capacity_ah * 3600.0

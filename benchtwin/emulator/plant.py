@@ -18,12 +18,11 @@ the cold-start fuel factor and the tyre slip (wheel speed = roller speed x (1 + 
 force); battery, coolant and oil temperatures are states (docs/fidelity.md). The paper form skips them all. A
 conventional car is the record with the motor's terms zeroed and ``P_CONVENTIONAL`` set (docs/models.md).
 
-Parameters travel as one record, :class:`~benchtwin.emulator.params.PlantTables` (scalars ``p`` with
-named ``P_*`` indices, lookup tables); the state between steps and calls is ``st`` (``S_*`` below).
-The step and its sub-steps are compiled without numba's reference counting (``_nrt=False``): array
-arguments cost nothing per call and any allocation inside a step is a compile error. Every power term
-of the ledger is taken at the step's mid-point speeds, the rule that advances the speed states, so that
-the ledger closes up to what the model really loses or stores. Units: rad/s, m/s, Nm, N, W.
+Parameters travel as one record, :class:`~benchtwin.emulator.params.PlantTables` (scalars ``p`` with named ``P_*``
+indices, lookup tables); the state between steps and calls is ``st`` (``S_*`` below). The step and its sub-steps are
+compiled without numba's reference counting (``_nrt=False``): array arguments cost nothing per call, an allocation
+inside a step is a compile error. Every power term of the ledger is taken at the step's mid-point speeds, the rule that
+advances the speed states, so the ledger closes up to what the model loses or stores. Units: rad/s, m/s, Nm, N, W.
 """
 
 from __future__ import annotations
@@ -86,6 +85,7 @@ from benchtwin.emulator.params import (
     PlantTables,
 )
 from benchtwin.emulator.steps_control import (
+    bms_commands,
     driver_step,
     engine_on_off,
     gear_gains,
@@ -286,8 +286,8 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     time_s = kstep * dt
     dyno_mode = int(cmd[C_DYNO_MODE, i])
     hybrid_mode = int(cmd[C_HMODE, i])
-    engine_cmd = int(cmd[C_ENG, i])
     displayed_soc_pct = 100.0 * (soc_frac - smin) / (smax - smin)
+    engine_cmd, k0_cmd = bms_commands(p, displayed_soc_pct, engine_on, int(cmd[C_ENG, i]), int(cmd[C_K0, i]))
 
     # ---- protocol: new test, dyno mode, end condition ----
     (segment, end_latched, latch_time_s, latch_speed_mps, driver_force_n, driver_error_mps, esave_soc_pct,
@@ -313,7 +313,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     # ---- machine limits and torque demand ----
     motor_max_nm, motor_gen_max_nm, engine_max_nm, torque_demand_nm, power_demand_w, limit_speed_radps = \
         torque_demand(tab, pump_speed_radps, turbine_speed_radps, speed_mps, pedal_pct, hybrid_mode, engine_cmd,
-                      gear, lockup_closed)
+                      gear, lockup_closed, displayed_soc_pct)
 
     # ---- hybrid strategy: engine on/off ----
     engine_on, engine_on_time_s, start_fuel_kg = engine_on_off(
@@ -322,7 +322,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
 
     # ---- K0 clutch ----
     k0_closed, engine_speed_radps, pump_speed_radps, speed_mps, turbine_speed_radps, engine_self_energy_j = k0_step(
-        p, led, int(cmd[C_K0, i]), engine_on, k0_closed, engine_speed_radps, pump_speed_radps, speed_mps,
+        p, led, k0_cmd, engine_on, k0_closed, engine_speed_radps, pump_speed_radps, speed_mps,
         turbine_speed_radps, lockup_closed, gear, gain_rad_per_m * kin, eff_mass_kg)
     pump_inertia_kgm2 = p[P_MOTOR_INERTIA_KGM2] + (p[P_ENGINE_INERTIA_KGM2] if k0_closed else 0.0)
 

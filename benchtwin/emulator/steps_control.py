@@ -15,11 +15,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from benchtwin.emulator.models import converter_torques_nm, interp_1d, road_load_force_n
+from benchtwin.emulator.models import bms_power_limits_w, converter_torques_nm, interp_1d, road_load_force_n
 from benchtwin.emulator.params import (
     L_DYNO,
     P_BATT_MAX_CHARGE_W,
     P_BATT_MAX_DISCHARGE_W,
+    P_BMS_CHARGE_BAND_PCT,
+    P_BMS_DISCHARGE_BAND_PCT,
+    P_BMS_ENGINE_START_PCT,
     P_BRAKE_MAX_TORQUE_NM,
     P_COAST_REGEN_TORQUE_NM,
     P_DRIVER_B0_N_PER_MPS,
@@ -242,13 +245,16 @@ def gear_gains(tab: PlantTables, gear: int, inertia_phase_left_s: float, old_gai
 
 @njit(cache=True, _nrt=False)
 def torque_demand(tab: PlantTables, pump_speed_radps: float, turbine_speed_radps: float, speed_mps: float,
-                  pedal_pct: float, hybrid_mode: int, engine_cmd: int, gear: int, lockup_closed: bool) -> tuple:
+                  pedal_pct: float, hybrid_mode: int, engine_cmd: int, gear: int, lockup_closed: bool,
+                  displayed_soc_pct: float) -> tuple:
     """Machine limits and the driver's torque demand at the pump (eq. 18-24 power limits, eq. 35-36 limiter).
 
     The motor is limited by its full-load curve and the battery's discharge / charge power through the
-    Willans line; the demand is the pedal share of what is available, limited to ``P_HYB_MAX_WHEEL_FORCE_N``
-    at the wheels through the converter's present torque ratio, and a coast-regeneration torque with the
-    pedal released and the lock-up closed.
+    Willans line, both derated by the BMS towards the ends of the usable window
+    (:func:`~benchtwin.emulator.models.bms_power_limits_w`); the demand is the pedal share of what is
+    available, limited to ``P_HYB_MAX_WHEEL_FORCE_N`` at the wheels through the converter's present torque
+    ratio, and a coast-regeneration torque (within the charge limit) with the pedal released and the lock-up
+    closed.
 
     Returns
     -------
@@ -259,10 +265,12 @@ def torque_demand(tab: PlantTables, pump_speed_radps: float, turbine_speed_radps
     p = tab.p
     wp = pump_speed_radps
     wq = max(wp, 1.0)
+    p_dis_w, p_chg_w = bms_power_limits_w(p[P_BATT_MAX_DISCHARGE_W], p[P_BATT_MAX_CHARGE_W], displayed_soc_pct,
+                                          p[P_BMS_DISCHARGE_BAND_PCT], p[P_BMS_CHARGE_BAND_PCT])
     tm_max = interp_1d(wp, tab.m_fl_w, tab.m_fl_t)
-    tm_max = min(tm_max, max((p[P_BATT_MAX_DISCHARGE_W] * p[P_WILLANS_E] - p[P_WILLANS_LOSS_W]) / wq, 0.0))
+    tm_max = min(tm_max, max((p_dis_w * p[P_WILLANS_E] - p[P_WILLANS_LOSS_W]) / wq, 0.0))
     tm_gen = interp_1d(wp, tab.m_fl_w, tab.m_fl_t)
-    tm_gen = min(tm_gen, (p[P_BATT_MAX_CHARGE_W] + p[P_WILLANS_LOSS_GEN_W]) / (p[P_WILLANS_E_GEN] * wq))
+    tm_gen = min(tm_gen, max((p_chg_w + p[P_WILLANS_LOSS_GEN_W]) / (p[P_WILLANS_E_GEN] * wq), 0.0))
     te_max = interp_1d(max(wp, p[P_ENGINE_IDLE_RADPS]), tab.e_fl_w, tab.e_fl_t)
     t_avail = tm_max if (hybrid_mode == 1 and engine_cmd != 1) else tm_max + te_max
     t_dem = pedal_pct * 0.01 * t_avail
@@ -279,9 +287,34 @@ def torque_demand(tab: PlantTables, pump_speed_radps: float, turbine_speed_radps
                     / (tab.ratios[gear] * p[P_FINAL_DRIVE_RATIO] * tab.eta_m[gear] * tr_now) + tab.c0[gear])
     lu_ok = lockup_closed and gear > 0
     if pedal_pct <= 0.0 and lu_ok and speed_mps > p[P_REGEN_CUTOFF_MPS]:
-        t_dem = -p[P_COAST_REGEN_TORQUE_NM]
+        t_dem = -min(p[P_COAST_REGEN_TORQUE_NM], tm_gen)
     p_dem = t_dem * wp
     return tm_max, tm_gen, te_max, t_dem, p_dem, wq
+
+
+@njit(cache=True, _nrt=False)
+def bms_commands(p: np.ndarray, displayed_soc_pct: float, engine_on: bool, engine_cmd: int,
+                 k0_cmd: int) -> tuple[int, int]:
+    """BMS floor: the engine and K0 commands after the battery's own request.
+
+    Below ``P_BMS_ENGINE_START_PCT`` displayed SOC the engine is started and K0 closed whatever the test
+    commands (a forced-electric test then runs as a real car would: on the engine, which recharges through
+    the motor by the hybrid strategy's SOC-sustaining term); with the engine running the request holds until
+    the displayed SOC is back above the discharge derating band. A car without an HV pack (start -1) never
+    requests.
+
+    Returns
+    -------
+    tuple of int
+        ``(engine_cmd, k0_cmd)``: the test's commands, or ``(1, 1)`` while the BMS requests the engine.
+    """
+    start = p[P_BMS_ENGINE_START_PCT]
+    if start < 0.0:
+        return engine_cmd, k0_cmd
+    release = max(start, p[P_BMS_DISCHARGE_BAND_PCT])
+    if displayed_soc_pct < start or (engine_on and displayed_soc_pct < release):
+        return 1, 1
+    return engine_cmd, k0_cmd
 
 
 @njit(cache=True, _nrt=False)
