@@ -16,7 +16,8 @@ Two estimators:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import TypeVar
 
 import numpy as np
 
@@ -27,68 +28,82 @@ from benchtwin.identification._resample_blocks import rate_of
 from benchtwin.identification._signals import (
     Grid,
     check_spread,
-    gather,
     runs,
     segment_names,
-    segments_span,
     smooth_derivative,
 )
-from benchtwin.identification._windows import piece_grids
+from benchtwin.identification._windows import gather_at, grid_bounds, segment_pieces
 from benchtwin.recording import Recording
 
-__all__ = ["coastdown_runs", "fit_road_load", "identify_road_load"]
+__all__ = ["BLOCK", "coastdown_runs", "fit_road_load", "identify_road_load"]
+
+_T = TypeVar("_T")
 
 _PRESSURES = ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar", "brake_pressure_rr_bar")
 
 
-def coastdown_runs(rec: Recording, *, speed_channel: str | None = None, kinds: Iterable[str] | None = ("coastdown",),
-                   rate_hz: float | None = None, v_min: float = 15.0, v_max: float | None = None, smooth_s: float = 3.0,
-                   min_run_s: float = 20.0, min_drop_kmh: float = 20.0, max_motor_torque_nm: float = 2.0
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int, str]:
-    """The coastdown runs of a Recording.
-
-    Without a gear signal (a BEV's one fixed ratio has no neutral), coasting is where the motor torque stays
-    within ``max_motor_torque_nm`` of zero and no brake pressure is applied.
-
-    Returns
-    -------
-    t, v, dvdt, runs, n_flagged, channel
-        Grid time (s), speed (km/h) and smoothed deceleration derivative (m/s^2) over the runs only (the runs'
-        grid points one run after the other), the runs as index ranges into them, flagged grid samples excluded,
-        and the speed channel used. With segments of ``kinds`` the grid is gathered one piece of segments at a
-        time (the same points and numbers as over the whole span; memory bounded by a piece).
-    """
-    ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
-    if rate_hz is None:
-        rate_hz = rate_of(rec[ch])
-    no_gear = "gear_actual" not in rec
-    extra = ("em_torque_nm", *_PRESSURES) if no_gear else ()
-    optional = ("gear_actual", "pedal_pct", "brake_pedal_pct", *extra)
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int]] = []
-    grids = piece_grids(rec, [ch], rate_hz, kinds, optional=optional, what="road load")
-    if grids is None:
-        g = gather(rec, [ch], rate_hz, optional=optional, what="road load", span=segments_span(rec, kinds))
-        parts.append(_coast_piece(g, None, ch, no_gear, extra, v_min, v_max, smooth_s, min_run_s, min_drop_kmh,
-                                  max_motor_torque_nm))
-    else:
-        for g in grids:  # every point of a piece is inside the searched segments
-            parts.append(_coast_piece(g, None, ch, no_gear, extra, v_min, v_max, smooth_s, min_run_s, min_drop_kmh,
-                                      max_motor_torque_nm))
-    out: list[tuple[int, int]] = []
-    k = 0
-    for _, pv, _, rr, _ in parts:
-        out += [(k + a, k + b) for a, b in rr]
-        k += pv.size
-    cat = [np.concatenate([p[i] for p in parts]) if parts else np.zeros(0) for i in range(3)]
-    return cat[0], cat[1], cat[2], out, sum(p[4] for p in parts), ch
+#: grid points gathered at a time (at the speed's 100 Hz: 164 s); a candidate coasting run open at a block's end is
+#: carried into the next block, so memory is bounded by a block plus the longest candidate run, not by the campaign
+BLOCK = 1 << 14
 
 
-def _coast_piece(g: Grid, seg: np.ndarray | None, ch: str, no_gear: bool, extra: tuple[str, ...], v_min: float,
-                 v_max: float | None, smooth_s: float, min_run_s: float, min_drop_kmh: float,
-                 max_motor_torque_nm: float
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]], int]:
-    """The coastdown runs in one grid (``seg``: its points inside the searched segments, None: all of them):
-    time, speed and derivative over the runs only, the runs as ranges into them, flagged points excluded."""
+class _Run:
+    """One coastdown run, reduced: its first and last grid times, the names of the segments it touches, and the
+    speed, force points it gives the fit."""
+
+    __slots__ = ("f", "segments", "t0", "t1", "v")
+
+    def __init__(self, t0: float, t1: float, segments: list[str], v: np.ndarray, f: np.ndarray) -> None:
+        self.t0, self.t1, self.segments, self.v, self.f = t0, t1, segments, v, f
+
+
+def _grid_blocks(rec: Recording, ch: str, rate_hz: float, kinds: Iterable[str] | None, optional: Sequence[str],
+                 per: int) -> Iterator[tuple[Grid, bool]]:
+    """The grid ``coastdown_runs`` searches, at most ``per`` points at a time: over the segments of ``kinds`` (only
+    the points inside them, as ``piece_grids``) or, without such segments, over the whole span (as ``gather``).
+    Each block comes with whether it goes on from the previous one (False at a piece's first block); its
+    ``first_index`` places it in the whole grid. The bounds are checked before the first block."""
+    pieces = segment_pieces(rec, kinds)
+    span = None if pieces is None else (min(p[0] for p in pieces), max(p[1] for p in pieces))
+    lo, n, shifts = grid_bounds(rec, [ch], rate_hz, what="road load", span=span)
+    segs = [s for s in rec.segments if s.kind in set(kinds or ())] if pieces is not None else []
+    kept = rec.loaded()
+
+    def spans() -> Iterator[tuple[int, int]]:
+        if pieces is None:
+            yield 0, n
+            return
+        for start, end in pieces:  # piece_grids' points: the grid's, inside a searched segment
+            ka = max(int(np.floor((start - lo) * rate_hz)) - 1, 0)
+            kb = min(int(np.ceil((end - lo) * rate_hz)) + 2, n)
+            if kb <= ka:
+                continue
+            t_all = lo + np.arange(ka, kb) / rate_hz
+            inside = np.zeros(t_all.shape, dtype=bool)
+            for s in segs:
+                inside |= s.contains(t_all)
+            for j0, j1 in runs(inside):
+                yield ka + j0, ka + j1
+
+    def blocks() -> Iterator[tuple[Grid, bool]]:
+        ordered: dict[int, bool] = {}
+        try:
+            for a0, b0 in spans():
+                for a in range(a0, b0, per):
+                    g = gather_at(rec, [ch], lo + np.arange(a, min(a + per, b0)) / rate_hz, rate_hz, shifts,
+                                  optional=optional, ordered=ordered)
+                    g.first_index = a
+                    yield g, a > a0
+        finally:  # a channel read whole here (no block reads) goes again, as after ``gather``
+            rec.drop([c for c in [ch, *optional] if c in rec and c not in kept])
+
+    return blocks()
+
+
+def _candidates(g: Grid, ch: str, no_gear: bool, extra: tuple[str, ...], v_min: float, v_max: float | None,
+                max_motor_torque_nm: float) -> np.ndarray:
+    """The grid points that may be coasting: not bad, above ``v_min`` (below ``v_max``), in neutral (or without
+    motor torque and brake pressure), no pedal (a point's own values only)."""
     v = g[ch]
     cand = ~g.bad & (v > v_min)
     if v_max is not None:
@@ -102,20 +117,78 @@ def _coast_piece(g: Grid, seg: np.ndarray | None, ch: str, no_gear: bool, extra:
     for pedal in ("pedal_pct", "brake_pedal_pct"):
         if pedal in g:
             cand &= np.nan_to_num(g[pedal], nan=100.0) <= 0.5
-    for name in ("gear_actual", "pedal_pct", "brake_pedal_pct"):
-        g.values.pop(name, None)  # used up: a grid at the speed's own rate over a long log is large
-    if seg is not None:
-        cand &= seg
-    dvdt = smooth_derivative(v / 3.6, g.dt, smooth_s, valid=cand)
-    dec = cand & (dvdt < 0)
-    rr = [(a, b) for a, b in runs(dec) if (b - a) * g.dt >= min_run_s and v[a] - v[b - 1] >= min_drop_kmh]
-    n_flagged = int((g.flagged & (seg if seg is not None else True)).sum())
-    idx = np.concatenate([np.arange(a, b) for a, b in rr]) if rr else np.zeros(0, dtype=np.int64)
-    compact, k = [], 0
-    for a, b in rr:
-        compact.append((k, k + b - a))
-        k += b - a
-    return g.t[idx], v[idx], dvdt[idx], compact, n_flagged
+    return cand
+
+
+def coastdown_runs(rec: Recording, reduce: Callable[[np.ndarray, np.ndarray, np.ndarray], _T], *,
+                   speed_channel: str | None = None, kinds: Iterable[str] | None = ("coastdown",),
+                   rate_hz: float | None = None, v_min: float = 15.0, v_max: float | None = None,
+                   smooth_s: float = 3.0, min_run_s: float = 20.0, min_drop_kmh: float = 20.0,
+                   max_motor_torque_nm: float = 2.0) -> tuple[list[_T], int, str]:
+    """The coastdown runs of a Recording, each reduced by ``reduce`` as soon as it is found.
+
+    Without a gear signal (a BEV's one fixed ratio has no neutral), coasting is where the motor torque stays
+    within ``max_motor_torque_nm`` of zero and no brake pressure is applied.
+
+    The grid (the speed channel's, over the segments of ``kinds`` when the table has them, else over the whole
+    span) is read :data:`BLOCK` points at a time; the points of a candidate coasting run still open at a block's
+    end are carried into the next, so that each run's derivative and tests see the whole run: the same runs and
+    numbers as over the whole grid, with memory bounded by a block and the longest candidate run.
+
+    Parameters
+    ----------
+    rec:
+        The Recording.
+    reduce:
+        ``reduce(t, v, dvdt)`` of one run's grid time (s), speed (km/h) and smoothed derivative (m/s^2); what it
+        returns is kept (the run's arrays are not).
+    speed_channel, kinds, rate_hz, v_min, v_max, smooth_s, min_run_s, min_drop_kmh, max_motor_torque_nm:
+        As for :func:`identify_road_load`; a run lasts at least ``min_run_s`` and loses ``min_drop_kmh``.
+
+    Returns
+    -------
+    reduced, n_flagged, channel
+        ``reduce``'s results in time order, the flagged grid points excluded and the speed channel used.
+    """
+    ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
+    if rate_hz is None:
+        rate_hz = rate_of(rec[ch])
+    no_gear = "gear_actual" not in rec
+    extra = ("em_torque_nm", *_PRESSURES) if no_gear else ()
+    optional = ("gear_actual", "pedal_pct", "brake_pedal_pct", *extra)
+    out: list[_T] = []
+    n_flagged = 0
+    dt = 1.0 / rate_hz
+    tail: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # an open candidate run: t, v, cand
+
+    def close(t: np.ndarray, v: np.ndarray, cand: np.ndarray) -> None:
+        """The runs of closed candidate runs (each whole in ``t``, ``v``, ``cand``)."""
+        if not cand.any():
+            return
+        dvdt = smooth_derivative(v / 3.6, dt, smooth_s, valid=cand)
+        dec = cand & (dvdt < 0)
+        for a, b in runs(dec):
+            if (b - a) * dt >= min_run_s and v[a] - v[b - 1] >= min_drop_kmh:
+                out.append(reduce(t[a:b], v[a:b], dvdt[a:b]))
+
+    for g, goes_on in _grid_blocks(rec, ch, rate_hz, kinds, optional, BLOCK):
+        cand = _candidates(g, ch, no_gear, extra, v_min, v_max, max_motor_torque_nm)
+        n_flagged += int(g.flagged.sum())
+        t, v = g.t, g[ch]
+        if tail is not None:
+            if goes_on:  # the open run goes on in this block
+                t, v, cand = (np.concatenate([x, y]) for x, y in zip(tail, (t, v, cand), strict=True))
+            else:
+                close(*tail)
+            tail = None
+        off = np.flatnonzero(~cand)
+        cut = int(off[-1]) + 1 if off.size else 0  # from ``cut`` on, a candidate run open at the block's end
+        close(t[:cut], v[:cut], cand[:cut])
+        if cut < t.size:
+            tail = (t[cut:].copy(), v[cut:].copy(), cand[cut:].copy())
+    if tail is not None:
+        close(*tail)
+    return out, n_flagged, ch
 
 
 def fit_road_load(v_kmh: np.ndarray, force_n: np.ndarray, *, segments: Sequence[str] = (), n_excluded: int = 0,
@@ -192,38 +265,39 @@ def identify_road_load(rec: Recording, specs: VehicleSpecs, *, method: str = "re
     ch = speed_channel or ("dyno_speed_kmh" if "dyno_speed_kmh" in rec else "vehicle_speed_kmh")
     if rate_hz is None:
         rate_hz = rate_of(rec[ch]) if ch in rec else 10.0
-    t, v, dvdt, rr, n_flagged, ch = coastdown_runs(rec, speed_channel=speed_channel, kinds=kinds, rate_hz=rate_hz,
-                                                   v_min=v_min, v_max=v_max, smooth_s=smooth_s)
+    m = specs.test_mass_kg
+    step = max(round(smooth_s / 2 * rate_hz), 1)
+
+    def reduce(t: np.ndarray, v: np.ndarray, dvdt: np.ndarray) -> _Run:
+        """One run's points: every ``step``-th sample (regression) or its speed intervals (GTR 15)."""
+        segs = segment_names(rec, t)
+        if method == "regression":
+            return _Run(float(t[0]), float(t[-1]), segs, v[::step].copy(), -m * dvdt[::step])
+        vv, tt = v[::-1], t[::-1]  # increasing speed for interpolation
+        if np.any(np.diff(vv) <= 0):
+            keep = np.concatenate(([True], np.diff(vv) > 0))
+            vv, tt = vv[keep], tt[keep]
+        vs, fs = [], []
+        centres = np.arange(np.ceil((vv[0] + interval_kmh / 2) / step_kmh) * step_kmh,
+                            vv[-1] - interval_kmh / 2 + 1e-9, step_kmh)
+        for vc in centres:
+            t_hi = np.interp(vc + interval_kmh / 2, vv, tt)
+            t_lo = np.interp(vc - interval_kmh / 2, vv, tt)
+            if t_lo > t_hi:
+                vs.append(vc)
+                fs.append(m * interval_kmh / 3.6 / (t_lo - t_hi))
+        return _Run(float(t[0]), float(t[-1]), segs, np.array(vs, dtype=float), np.array(fs, dtype=float))
+
+    rr, n_flagged, ch = coastdown_runs(rec, reduce, speed_channel=speed_channel, kinds=kinds, rate_hz=rate_hz,
+                                       v_min=v_min, v_max=v_max, smooth_s=smooth_s)
     if not rr:
         raise InsufficientDataError(
             f"road load: no coastdown found in {ch} (neutral, no pedals, decelerating for at least 20 s and 20 km/h "
             f"above {v_min} km/h)")
-    m = specs.test_mass_kg
-    vs, fs = [], []
-    if method == "regression":
-        step = max(round(smooth_s / 2 * rate_hz), 1)
-        for a, b in rr:
-            idx = np.arange(a, b, step)
-            vs.append(v[idx])
-            fs.append(-m * dvdt[idx])
-    else:
-        for a, b in rr:
-            vv, tt = v[a:b][::-1], t[a:b][::-1]  # increasing speed for interpolation
-            if np.any(np.diff(vv) <= 0):
-                keep = np.concatenate(([True], np.diff(vv) > 0))
-                vv, tt = vv[keep], tt[keep]
-            centres = np.arange(np.ceil((vv[0] + interval_kmh / 2) / step_kmh) * step_kmh,
-                                vv[-1] - interval_kmh / 2 + 1e-9, step_kmh)
-            for vc in centres:
-                t_hi = np.interp(vc + interval_kmh / 2, vv, tt)
-                t_lo = np.interp(vc - interval_kmh / 2, vv, tt)
-                if t_lo > t_hi:
-                    vs.append(np.array([vc]))
-                    fs.append(np.array([m * interval_kmh / 3.6 / (t_lo - t_hi)]))
-    v_pts = np.concatenate(vs) if vs else np.array([])
-    f_pts = np.concatenate(fs) if fs else np.array([])
-    segs = segment_names(rec, np.concatenate([t[a:b] for a, b in rr]))
+    v_pts = np.concatenate([r.v for r in rr])
+    f_pts = np.concatenate([r.f for r in rr])
+    segs = sorted({name for r in rr for name in r.segments})
     fit = fit_road_load(v_pts, f_pts, segments=segs, n_excluded=n_flagged)
-    fit.data["runs_s"] = np.array([[t[a], t[b - 1]] for a, b in rr])
+    fit.data["runs_s"] = np.array([[r.t0, r.t1] for r in rr])
     fit.data["n_runs"] = np.array([len(rr)])
     return fit
