@@ -174,6 +174,9 @@ def test_hifi_truth_paper_bench_identifies_the_drag() -> None:
     res = identify_transmission(rec, vehicle.specs)
     f = res.fits[DRAG_KEY]
     assert bool(f.data["use"][0]), f.reasons
+    for key in ("transmission.gear3", "transmission.gear5"):  # each eq. 14 point keeps its oil temperature
+        oil = res.fits[key].data["oil_degc"]
+        assert oil.shape == res.fits[key].data["speed_rpm"].shape and 15.0 < np.nanmean(oil) < 130.0, key
     assert abs(f.value("k_T") - K_T) < 0.002, f.reasons
     assert abs(f.value("k_w") - K_W) < 5e-4, f.reasons
     e = res.fits["engine.can_torque"]
