@@ -13,8 +13,8 @@ trace of a drive the model computes, per time step and backwards from the wheels
    ``transmission.drag`` was identified and is supported by the data
    (:mod:`benchtwin.identification.transmission_drag`), its ``eta_m`` and ``C0(T_oil)`` at the drive's measured
    oil temperature (a measured boundary input, as the ambient temperature); a gear without a drag group keeps
-   its eq. 14 ``C0`` moved by the drag's shared factor from its own points' mean oil temperature and speed
-   (:mod:`benchtwin.validation.gearbox`);
+   its eq. 14 constants (optionally its ``C0`` moved by the drag's shared factor from its own points' mean oil
+   temperature and speed, :mod:`benchtwin.validation.gearbox`);
 4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
    pump speed that carries the turbine torque), rigid when it is closed; plus the pump side's inertia torque
    ``J_pump dw_p/dt`` (``J_pump_kgm2`` of ``torque_converter.converter``, identified beside a0..a5 from the
@@ -104,6 +104,10 @@ class MapVehicle:
         Count the pump side's free run-down at standstill (:mod:`~benchtwin.validation.standstill`: the motor's
         zero-torque draw while the pump runs down against the converter at stall, ``J_pump`` and the stall
         capacity identified); ``False``: pump and motor stand still with the car.
+    move_ungrouped_c0:
+        Move the eq. 14 ``C0`` of a gear without a drag group by the drag's shared oil-temperature and speed factor
+        (:class:`~benchtwin.validation.gearbox.GearboxModel`); off by default: on the high-fidelity truth it moved
+        the NEDC's electric energy away from the truth on both benches (docs/fidelity.md).
 
     Raises
     ------
@@ -112,7 +116,8 @@ class MapVehicle:
     """
 
     def __init__(self, result: IdentificationResult, specs: VehicleSpecs, *, motor_model: str = "auto",
-                 converter_model: str = "auto", pump_inertia: bool = True, standstill: bool = True) -> None:
+                 converter_model: str = "auto", pump_inertia: bool = True, standstill: bool = True,
+                 move_ungrouped_c0: bool = False) -> None:
         self.specs = specs
         self.notes: list[str] = []
         if motor_model not in ("auto", "loss", "willans"):
@@ -138,7 +143,7 @@ class MapVehicle:
         else:
             self.f0, self.f1, self.f2 = rl.value("F0"), rl.value("F1"), rl.value("F2")
         # transmission: eq. 14 per gear and direction, with the oil-temperature drag (validation/gearbox.py)
-        self.gearbox = GearboxModel(result, specs.gear_ratios)
+        self.gearbox = GearboxModel(result, specs.gear_ratios, move_ungrouped_c0=move_ungrouped_c0)
         self.tx, self.drag = self.gearbox.tx, self.gearbox.drag
         if not self.gearbox.has_drive:
             missing.append("transmission (no gear's eta_m/C0)")
