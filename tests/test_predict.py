@@ -142,9 +142,10 @@ def test_the_model_never_reads_the_vehicle_file() -> None:
                "benchtwin.validation._pack_steps",  # the model's own compiled pack steps
                "benchtwin.validation.drive",  # its input and output classes, which import nothing of benchtwin
                "benchtwin.validation.shift_lines", "benchtwin.validation.standstill",  # its pieces, numpy only
-               "benchtwin.validation.cold_start")  # its piece reading identification results only
+               "benchtwin.validation.cold_start",  # its piece reading identification results only
+               "benchtwin.validation.gearbox")  # its gearbox, from identification results only
     assert ours and all(m.startswith(allowed) for m in ours), ours
-    for piece in ("drive.py", "shift_lines.py", "standstill.py", "cold_start.py"):
+    for piece in ("drive.py", "shift_lines.py", "standstill.py", "cold_start.py", "gearbox.py"):
         piece_src = (src.parent / piece).read_text(encoding="utf-8")
         imports = [line for line in piece_src.splitlines() if line.startswith(("from", "import"))]
         assert all(not line.split()[1].startswith("benchtwin") or line.split()[1].startswith(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_predict import SPECS, cruise, synthetic_result
+from test_predict import ETA_M, SPECS, cruise, synthetic_result
 
 from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
 from benchtwin.identification._fit import IdentificationResult
@@ -109,6 +109,44 @@ def test_the_model_takes_the_drag_at_the_drive_oil_temperature() -> None:
     assert model.run(d_cold).electric_wh > model.run(d_hot).electric_wh  # cold oil drags more
 
 
+def test_a_gear_without_a_drag_group_moves_its_c0_from_its_own_points() -> None:
+    """First gear has no drag group (its eq. 14 points are engine-coupled, hot): its C0 = 3.0 Nm, identified at its
+    points' mean oil temperature and speed, is moved by the drag's shared factor. By hand: points at 100 and
+    110 degC (a third without a reading is left out) and 1000, 2000 rpm: T_pts = 105 degC, w_pts = 50 pi rad/s."""
+    res = IdentificationResult()
+    add_drag_fit(res, _groups(K_T, K_W, np.linspace(25.0, 110.0, 24)), ["s"])
+    base = synthetic_result()
+    base.fits[DRAG_KEY] = res.fits[DRAG_KEY]
+    base.fits["transmission.gear1"].data.update(oil_degc=np.array([100.0, 110.0, np.nan]),
+                                                speed_rpm=np.array([1000.0, 2000.0, 3000.0]))
+    model = MapVehicle(base, SPECS, move_ungrouped_c0=True)
+    d = model.drag
+    assert d is not None and "C0_g1" not in d.params
+    k_t, k_w, t_ref = d.value("k_T"), d.value("k_w"), d.value("T_ref")
+    assert k_w > 0  # the speed term is part of the check
+    i_g = SPECS.gear_ratios[0]
+    t_out = np.array([100.0, 100.0])
+    oil, w = np.array([40.0, 105.0]), np.array([200.0, 50.0 * np.pi])
+
+    def f(t: float, ww: float) -> float:
+        return (1.0 + k_w * ww) * np.exp(-k_t * (t - t_ref))
+
+    c0 = np.array([3.0 * f(40.0, 200.0) / f(105.0, 50.0 * np.pi), 3.0])  # at its own points' conditions: C0 itself
+    got = model.input_torque_nm(np.ones(2, dtype=int), t_out, oil, w)
+    np.testing.assert_allclose(got, 100.0 / (i_g * ETA_M) + c0, rtol=1e-9)
+    assert c0[0] > 1.9 * 3.0  # cold oil 65 K below the points: about twice the drag (exp(0.012 * 65) = 2.2)
+    # coast falls back on the drive fit and its points; without the oil logged eq. 14's constant stays
+    coast = model.input_torque_nm(np.ones(1, dtype=int), np.array([-100.0]), oil[:1], w[:1])
+    assert coast[0] == pytest.approx(ETA_M * (-100.0 / i_g + c0[0]), rel=1e-9)
+    assert model.input_torque_nm(np.ones(2, dtype=int), t_out)[0] == pytest.approx(100.0 / (i_g * ETA_M) + 3.0)
+    # a gear whose points carry no oil reading keeps eq. 14's constant C0 even with the oil logged
+    assert model.input_torque_nm(np.full(1, 3), t_out[:1], oil[:1], w[:1])[0] == pytest.approx(
+        100.0 / (SPECS.gear_ratios[2] * ETA_M) + 3.0)
+    # off by default: eq. 14's constant C0 for the gear without a group
+    assert MapVehicle(base, SPECS).input_torque_nm(np.ones(1, dtype=int), t_out[:1], oil[:1], w[:1])[0] == \
+        pytest.approx(100.0 / (i_g * ETA_M) + 3.0)
+
+
 def test_an_unsupported_drag_leaves_eq14() -> None:
     model = MapVehicle(_with_drag(0.0), SPECS)
     assert model.drag is None
@@ -139,6 +177,9 @@ def test_hifi_truth_paper_bench_identifies_the_drag() -> None:
     res = identify_transmission(rec, vehicle.specs)
     f = res.fits[DRAG_KEY]
     assert bool(f.data["use"][0]), f.reasons
+    for key in ("transmission.gear3", "transmission.gear5"):  # each eq. 14 point keeps its oil temperature
+        oil = res.fits[key].data["oil_degc"]
+        assert oil.shape == res.fits[key].data["speed_rpm"].shape and 15.0 < np.nanmean(oil) < 130.0, key
     assert abs(f.value("k_T") - K_T) < 0.002, f.reasons
     assert abs(f.value("k_w") - K_W) < 5e-4, f.reasons
     e = res.fits["engine.can_torque"]

@@ -299,7 +299,8 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
         logged (and every gear fitted), also ``transmission.drag``
         (:mod:`~benchtwin.identification.transmission_drag`). Besides the points (``c``, ``eta``) each fit's data
         hold ``gear_ratio``, ``speed_rpm`` and ``c_engine``, the engine torque counted in each point's input
-        torque (0 with K0 open).
+        torque (0 with K0 open), and ``oil_degc``, each point's oil temperature (NaN where not read), when the
+        Recording logs the oil.
 
     Raises
     ------
@@ -330,6 +331,8 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
             fit.data["gear_ratio"] = np.array([ig])
             if pts.c_engine is not None:  # the engine's share of each point's input torque (drive and coast)
                 fit.data["c_engine"] = pts.c_engine[m][dom]
+            if pts.oil_degc is not None:  # the conditions C0 was identified at (validation/gearbox.py)
+                fit.data["oil_degc"] = np.asarray(pts.oil_degc, dtype=float)[m][dom]
             for r in pts.reasons:
                 fit.reasons.append(r)
             if n_dom:

@@ -32,7 +32,7 @@ from scipy.optimize import minimize
 
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate
 
-__all__ = ["DRAG_KEY", "MIN_EFFECT", "MIN_SPAN_K", "add_drag_fit", "drag_c0"]
+__all__ = ["DRAG_KEY", "MIN_EFFECT", "MIN_SPAN_K", "add_drag_fit", "drag_c0", "drag_factor"]
 
 DRAG_KEY = "transmission.drag"
 #: the least oil-temperature span over the points that can show a temperature dependence, K (at ~1 %/K a 15 K
@@ -44,13 +44,31 @@ MIN_EFFECT = 0.05
 Groups = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
-def drag_c0(fit: FitResult, group: str, oil_degc: np.ndarray | float, speed_radps: np.ndarray | float
-            ) -> np.ndarray:
-    """The drag of one group (``"g5"``, ``"g5_coast"``) at oil temperature ``oil_degc`` and input speed, Nm."""
+def drag_factor(fit: FitResult, oil_degc: np.ndarray | float, speed_radps: np.ndarray | float) -> np.ndarray:
+    """The drag's factor shared by the gears, ``(1 + k_w |w_in|) exp(-k_T (T_oil - T_ref))`` (1 at ``T_ref``, rest).
+
+    Parameters
+    ----------
+    fit:
+        The fit ``transmission.drag``.
+    oil_degc, speed_radps:
+        Oil temperature (degC) and gearbox input speed (rad/s), scalars or arrays that broadcast.
+
+    Returns
+    -------
+    numpy.ndarray
+        The factor; a group's drag is its ``C0`` times it (:func:`drag_c0`).
+    """
     t = np.asarray(oil_degc, dtype=float)
     w = np.abs(np.asarray(speed_radps, dtype=float))
     kw = fit.value("k_w") if "k_w" in fit.params else 0.0
-    return fit.value(f"C0_{group}") * (1.0 + kw * w) * np.exp(-fit.value("k_T") * (t - fit.value("T_ref")))
+    return (1.0 + kw * w) * np.exp(-fit.value("k_T") * (t - fit.value("T_ref")))
+
+
+def drag_c0(fit: FitResult, group: str, oil_degc: np.ndarray | float, speed_radps: np.ndarray | float
+            ) -> np.ndarray:
+    """The drag of one group (``"g5"``, ``"g5_coast"``) at oil temperature ``oil_degc`` and input speed, Nm."""
+    return fit.value(f"C0_{group}") * drag_factor(fit, oil_degc, speed_radps)
 
 
 class _Points:

@@ -12,7 +12,9 @@ trace of a drive the model computes, per time step and backwards from the wheels
    the output torque is positive, coast fit when negative); when the temperature-dependent drag
    ``transmission.drag`` was identified and is supported by the data
    (:mod:`benchtwin.identification.transmission_drag`), its ``eta_m`` and ``C0(T_oil)`` at the drive's measured
-   oil temperature (a measured boundary input, as the ambient temperature);
+   oil temperature (a measured boundary input, as the ambient temperature); a gear without a drag group keeps
+   its eq. 14 constants (optionally its ``C0`` moved by the drag's shared factor from its own points' mean oil
+   temperature and speed, :mod:`benchtwin.validation.gearbox`);
 4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
    pump speed that carries the turbine torque), rigid when it is closed; plus the pump side's inertia torque
    ``J_pump dw_p/dt`` (``J_pump_kgm2`` of ``torque_converter.converter``, identified beside a0..a5 from the
@@ -46,7 +48,6 @@ speed.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
@@ -58,10 +59,10 @@ from benchtwin.identification.fuel_map import fuel_map_gps
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
-from benchtwin.identification.transmission_drag import DRAG_KEY, drag_c0
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
 from benchtwin.validation.cold_start import cold_start_model
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
+from benchtwin.validation.gearbox import GearboxModel
 from benchtwin.validation.shift_lines import shift_line_gears
 from benchtwin.validation.standstill import rundown_speed
 
@@ -103,6 +104,10 @@ class MapVehicle:
         Count the pump side's free run-down at standstill (:mod:`~benchtwin.validation.standstill`: the motor's
         zero-torque draw while the pump runs down against the converter at stall, ``J_pump`` and the stall
         capacity identified); ``False``: pump and motor stand still with the car.
+    move_ungrouped_c0:
+        Move the eq. 14 ``C0`` of a gear without a drag group by the drag's shared oil-temperature and speed factor
+        (:class:`~benchtwin.validation.gearbox.GearboxModel`); off by default: on the high-fidelity truth it moved
+        the NEDC's electric energy away from the truth on both benches (docs/fidelity.md).
 
     Raises
     ------
@@ -111,7 +116,8 @@ class MapVehicle:
     """
 
     def __init__(self, result: IdentificationResult, specs: VehicleSpecs, *, motor_model: str = "auto",
-                 converter_model: str = "auto", pump_inertia: bool = True, standstill: bool = True) -> None:
+                 converter_model: str = "auto", pump_inertia: bool = True, standstill: bool = True,
+                 move_ungrouped_c0: bool = False) -> None:
         self.specs = specs
         self.notes: list[str] = []
         if motor_model not in ("auto", "loss", "willans"):
@@ -136,22 +142,12 @@ class MapVehicle:
             missing.append("road_load (F0, F1, F2)")
         else:
             self.f0, self.f1, self.f2 = rl.value("F0"), rl.value("F1"), rl.value("F2")
-        # transmission: (eta_m, C0) per gear and direction
-        self.tx: dict[tuple[int, str], tuple[float, float]] = {}
-        for g in range(1, len(specs.gear_ratios) + 1):
-            for d in ("drive", "coast"):
-                f = _fit(result, str(FitKey.transmission(g, d)), "eta_m", "C0")
-                if f is not None and 0.5 < f.value("eta_m") <= 1.0:
-                    self.tx[(g, d)] = (f.value("eta_m"), f.value("C0"))
-        if not any(d == "drive" for _, d in self.tx):
+        # transmission: eq. 14 per gear and direction, with the oil-temperature drag (validation/gearbox.py)
+        self.gearbox = GearboxModel(result, specs.gear_ratios, move_ungrouped_c0=move_ungrouped_c0)
+        self.tx, self.drag = self.gearbox.tx, self.gearbox.drag
+        if not self.gearbox.has_drive:
             missing.append("transmission (no gear's eta_m/C0)")
-        drag = result.fits.get(DRAG_KEY)
-        self.drag: FitResult | None = None
-        if drag is not None and drag.status == "ok" and bool(np.all(np.asarray(drag.data.get("use", [False])))):
-            self.drag = drag
-            self.notes.append(f"gearbox drag C0 (1 + k_w |w_in|) exp(-k_T (T_oil - T_ref)) from {DRAG_KEY} "
-                              f"(k_T = {drag.value('k_T'):.4f} 1/K, k_w = {drag.value('k_w'):.2e} s/rad) at the "
-                              "drive's measured oil temperature (a measured input, as the ambient)")
+        self.notes += self.gearbox.notes
         mot = _fit(result, "motor.motoring", "e", "W_loss")
         gen = _fit(result, "motor.generating", "e_gen", "W_loss_gen")
         if mot is None:
@@ -319,43 +315,10 @@ class MapVehicle:
                             sp.fuel_lhv_j_per_kg, speed_rpm, torque_nm)
 
     # ------------------------------------------------------------------ transmission and converter
-    def _eta_c0(self, gear: int, direction: str) -> tuple[float, float]:
-        if (gear, direction) in self.tx:
-            return self.tx[(gear, direction)]
-        if (gear, "drive") in self.tx:
-            return self.tx[(gear, "drive")]
-        gears = sorted(g for g, d in self.tx if d == "drive")
-        near = min(gears, key=lambda g: abs(g - gear))
-        return self.tx[(near, "drive")]
-
-    def _eta_c0_at(self, gear: int, direction: str, oil: np.ndarray | None, w_in: np.ndarray) -> tuple[Any, Any]:
-        """``(eta_m, C0)`` of a gear and direction, C0 at the oil temperature when the drag model is used."""
-        group = f"g{gear}" + ("_coast" if direction == "coast" else "")
-        if self.drag is not None and oil is not None and f"C0_{group}" in self.drag.params:
-            return self.drag.value(f"eta_m_{group}"), drag_c0(self.drag, group, oil, w_in)
-        if self.drag is not None and oil is not None and direction == "coast" and f"C0_g{gear}" in self.drag.params:
-            return self._eta_c0_at(gear, "drive", oil, w_in)
-        return self._eta_c0(gear, direction)
-
     def input_torque_nm(self, gear: np.ndarray, out_torque_nm: np.ndarray, oil_degc: np.ndarray | None = None,
                         input_speed_radps: np.ndarray | None = None) -> np.ndarray:
-        """Gearbox input torque from the output (propeller shaft) torque, eq. 14 per gear and direction.
-
-        With ``oil_degc`` and ``input_speed_radps`` (per sample) and an identified ``transmission.drag`` the drag
-        is taken at the oil temperature and input speed; else eq. 14's constant ``C0``.
-        """
-        t_in = np.zeros_like(out_torque_nm)
-        use_drag = oil_degc is not None and input_speed_radps is not None
-        for g in np.unique(gear[gear > 0]).astype(int):
-            i_g = self.specs.gear_ratios[g - 1]
-            m = gear == g
-            to = out_torque_nm[m]
-            oil = np.asarray(oil_degc, dtype=float)[m] if use_drag else None
-            w_in = np.asarray(input_speed_radps, dtype=float)[m] if use_drag else np.zeros(int(m.sum()))
-            eta_d, c0_d = self._eta_c0_at(g, "drive", oil, w_in)
-            eta_c, c0_c = self._eta_c0_at(g, "coast", oil, w_in)
-            t_in[m] = np.where(to >= 0, to / (i_g * eta_d) + c0_d, eta_c * (to / i_g + c0_c))
-        return t_in
+        """Gearbox input torque from the output torque: :meth:`GearboxModel.input_torque_nm`."""
+        return self.gearbox.input_torque_nm(gear, out_torque_nm, oil_degc, input_speed_radps)
 
     def pump_nm(self, w_t: np.ndarray, t_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pump speed and torque that carry turbine torque ``t_t`` at turbine speed ``w_t`` (converter open).
