@@ -119,7 +119,7 @@ def test_a_gear_without_a_drag_group_moves_its_c0_from_its_own_points() -> None:
     base.fits[DRAG_KEY] = res.fits[DRAG_KEY]
     base.fits["transmission.gear1"].data.update(oil_degc=np.array([100.0, 110.0, np.nan]),
                                                 speed_rpm=np.array([1000.0, 2000.0, 3000.0]))
-    model = MapVehicle(base, SPECS, move_ungrouped_c0=True)
+    model = MapVehicle(base, SPECS)  # the move is the default
     d = model.drag
     assert d is not None and "C0_g1" not in d.params
     k_t, k_w, t_ref = d.value("k_T"), d.value("k_w"), d.value("T_ref")
@@ -142,8 +142,8 @@ def test_a_gear_without_a_drag_group_moves_its_c0_from_its_own_points() -> None:
     # a gear whose points carry no oil reading keeps eq. 14's constant C0 even with the oil logged
     assert model.input_torque_nm(np.full(1, 3), t_out[:1], oil[:1], w[:1])[0] == pytest.approx(
         100.0 / (SPECS.gear_ratios[2] * ETA_M) + 3.0)
-    # off by default: eq. 14's constant C0 for the gear without a group
-    assert MapVehicle(base, SPECS).input_torque_nm(np.ones(1, dtype=int), t_out[:1], oil[:1], w[:1])[0] == \
+    # switched off: eq. 14's constant C0 for the gear without a group
+    assert MapVehicle(base, SPECS, move_ungrouped_c0=False).input_torque_nm(np.ones(1, dtype=int), t_out[:1], oil[:1], w[:1])[0] == \
         pytest.approx(100.0 / (i_g * ETA_M) + 3.0)
 
 

@@ -9,10 +9,10 @@ points are a hot hybrid ramp-up) keeps its eq. 14 ``eta_m`` and ``C0``. With ``m
 is moved by the drag's shared factor ``f(T, w) = (1 + k_w |w|) exp(-k_T (T - T_ref))``:
 ``C0 f(T_oil, w_in) / f(T_pts, w_pts)``, with ``T_pts`` and ``w_pts`` the mean oil temperature and mean input
 speed of that gear's own eq. 14 points (the conditions its ``C0`` was identified at). Only identified data are
-read. The move is off by default: on the high-fidelity truth (paper campaign; first gear's points at ~98 degC, the
-NEDC's take-offs at 23-56 degC, so its C0 about doubles) it moved the NEDC's electric energy from -0.62 % to
-+2.00 % (ideal bench) and from +0.10 % to +3.83 % (paper bench), the WLTC's by at most 0.15 points
-(docs/fidelity.md).
+read. The move is on by default: on the high-fidelity truth (paper campaign; first gear's points at ~98 degC, the
+NEDC's take-offs at 23-56 degC, so its C0 about doubles) it takes the NEDC's electric energy from -3.36 % to
++0.72 % (paper bench) and from -4.12 % to -1.22 % (ideal bench) once the converter's table no longer over-books the
+slip at the take-offs (it had hidden first gear's missing loss; docs/fidelity.md).
 """
 
 from __future__ import annotations
@@ -64,11 +64,12 @@ class GearboxModel:
     gear_ratios:
         The gear ratios of the public specs (gear ``g`` is ``gear_ratios[g - 1]``).
     move_ungrouped_c0:
-        Move the ``C0`` of a gear without a drag group by the drag's shared factor (module docstring).
+        Move the ``C0`` of a gear without a drag group by the drag's shared factor (module docstring); ``False``: keep
+        eq. 14's constant ``C0``.
     """
 
     def __init__(self, result: IdentificationResult, gear_ratios: list[float] | tuple[float, ...], *,
-                 move_ungrouped_c0: bool = False) -> None:
+                 move_ungrouped_c0: bool = True) -> None:
         self.move_ungrouped_c0 = move_ungrouped_c0
         self.ratios = [float(x) for x in gear_ratios]
         self.notes: list[str] = []
