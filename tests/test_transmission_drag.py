@@ -143,7 +143,8 @@ def test_a_gear_without_a_drag_group_moves_its_c0_from_its_own_points() -> None:
     assert model.input_torque_nm(np.full(1, 3), t_out[:1], oil[:1], w[:1])[0] == pytest.approx(
         100.0 / (SPECS.gear_ratios[2] * ETA_M) + 3.0)
     # switched off: eq. 14's constant C0 for the gear without a group
-    assert MapVehicle(base, SPECS, move_ungrouped_c0=False).input_torque_nm(np.ones(1, dtype=int), t_out[:1], oil[:1], w[:1])[0] == \
+    fixed = MapVehicle(base, SPECS, move_ungrouped_c0=False)
+    assert fixed.input_torque_nm(np.ones(1, dtype=int), t_out[:1], oil[:1], w[:1])[0] == \
         pytest.approx(100.0 / (i_g * ETA_M) + 3.0)
 
 
