@@ -12,10 +12,7 @@ So one draw here is one error per shaft-torque reading (the quantised noisy read
 the truth with the sensor's gain and offset, lagged as the bench reads it), from which follow, together:
 
 - the error of each grid sample (the converter's points and the calibration's), interpolated between the two
-  readings around it on the reference clock (the telemetry's clock map, as the identification's grid takes
-  them): on the sensor's own timestamps the paper campaign's grid samples took the errors of readings 64 ms
-  away, whose quantisation does not belong to the sample's noise-free value, and the turbine-torque scale's
-  gear medians moved (gear 9: 0.98380 over the draws against 0.98358 over 20 seeds; 0.98360 mapped);
+  readings around it;
 - the error of each gear's ``(eta_m, C0)``: the drive fit (eq. 14) linearised in its windows' mean shaft
   torque, ``d eta_i = eta_i / T_out,i d T_out,i``, at the windows the identification finds on the plan's
   Recording. What the table's planned variance holds beyond the shaft torque's noise in those windows (other
@@ -31,7 +28,6 @@ import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError
-from benchtwin.identification._clock import source_shifts, to_ref
 from benchtwin.identification.transmission import transmission_points
 from benchtwin.identification.transmission_eq14 import direction_points, efficiency_design
 from benchtwin.recording import Recording
@@ -91,11 +87,7 @@ def shared_shaft_draws(view: Recording, specs: VehicleSpecs, cn: ChannelNoise, t
     if SHAFT not in view or len(view[SHAFT]) < 2:
         return None
     ch = view[SHAFT]
-    # the readings on the reference clock, as the identification's grid and windows take them (the telemetry's
-    # clock map): on the sensor's own timestamps a grid sample took a reading 0.02-0.25 s away on the paper
-    # campaign, whose error does not belong to the noise-free value the sample carries
-    ts = np.asarray(to_ref(ch.timestamps, source_shifts(view).get(ch.source, 0.0)), dtype=float)
-    y, good = ch.values, ch.good
+    ts, y, good = ch.timestamps, ch.values, ch.good
     idx = [_grid_index(ts, np.asarray(t, dtype=float)) for t in times]
     try:
         tp = transmission_points(view, specs)
