@@ -359,7 +359,8 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         ts_se = float("nan")
         ts_why = (f"SE not predicted: a median over {cal_gears} gears' medians of noisy torque ratios, whose "
                   f"spread over {len(tscales)} draws ({float(np.std(tscales, ddof=1)):.2g}) is not its standard "
-                  "error (paper campaign: 2.7 times the spread over seeds)")
+                  "error (paper campaign: 2.7 times the spread over seeds; the draws take each calibration sample's "
+                  "error from readings on the telemetry's own clock, 64 ms off the grid's clock map)")
     out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale, ts_se, True,
                                 ts_why, "", pts.n_tcal))
     if "a6" not in names:
