@@ -34,15 +34,16 @@ trace of a drive the model computes, per time step and backwards from the wheels
 7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
    literature maps, ``soc_per_ah``);
 8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
-   linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), and CO2.
+   linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), plus the
+   identified fuel of an engine start (``engine.start_fuel``, when used) per start of the replayed strategy; CO2.
 
 It reads nothing but an :class:`~benchtwin.identification._fit.IdentificationResult`, the public
 :class:`~benchtwin.config.specs.VehicleSpecs` and the measured inputs of the drive
 (:class:`DriveInputs`); the vehicle file's parameters never enter. What the maps cannot know is left
 out and said so in :attr:`Prediction.notes`: the engine's rotating inertia when K0 closes it onto the pump
 side and the energy of an engine start (neither identified), the motor's and pump's when the converter fit
-did not identify ``J_pump_kgm2``, the fuel of an engine start, the converter's idle-speed holding at crawling
-speed.
+did not identify ``J_pump_kgm2``, the fuel of an engine start when ``engine.start_fuel`` is not used, the
+converter's idle-speed holding at crawling speed.
 """
 
 from __future__ import annotations
