@@ -331,3 +331,24 @@ def test_standstill_run_down_with_the_loss_model_draws_p0_plus_the_speed_part_on
     t50 = jc * (1.0 / 50.0 - 1.0 / w0)  # the pump reaches the range's lower end
     held = 200.0 * t1 + 2.0 * jc * math.log(w0 / 50.0) + 2.0 * 50.0 * (t1 - t50)
     assert held - want > 10 * (200.0 + 2.0 * w0) * 0.1  # the clamped form is far outside the bound above
+
+
+def test_identified_start_fuel_added_per_replayed_start() -> None:
+    """Three rises of the replayed engine_on (one already on at the drive's start is no start) add 3 x m."""
+    drive = cruise(engine_torque_nm=80.0, gear=5, speed_kmh=80.0)
+    on = np.ones(drive.t_s.size)
+    for a in (100, 250, 450):  # off for 5 s three times: three starts after the one already on at t = 0
+        on[a:a + 50] = 0.0
+    drive.engine_on = on
+    drive.k0_closed = on.copy()
+    drive.engine_torque_nm = 80.0 * on
+    base = MapVehicle(synthetic_result(), SPECS).run(drive)
+    n_rises = int(np.count_nonzero(np.diff(on) > 0.5))
+    assert n_rises == 3 and base.start_fuel_g == 0.0 and base.engine_starts == 3
+    res = synthetic_result()
+    res.fits["engine.start_fuel"] = _fit({"m_g": 0.6}, use=np.array([True]), n_starts=np.array([300]))
+    pred = MapVehicle(res, SPECS).run(drive)
+    assert pred.start_fuel_g == pytest.approx(3 * 0.6, rel=1e-12)
+    assert pred.fuel_g == pytest.approx(base.fuel_g + 1.8, rel=1e-12)
+    res.fits["engine.start_fuel"].flag("too few starts")  # a flagged fit is not used
+    assert MapVehicle(res, SPECS).run(drive).fuel_g == pytest.approx(base.fuel_g, rel=1e-12)

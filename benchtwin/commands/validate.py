@@ -97,8 +97,8 @@ def print_report(report: object, *, show_all: bool) -> None:
     for d in report.prediction.get("drives", []):
         e, m = d["errors"], d["measured"]
         firing = m.get("fuel_firing_g")
-        f_firing = f" ({100 * (d['predicted']['fuel_g'] / firing - 1):+.2f} % without engine starts)" \
-            if firing else ""
+        p_firing = d["predicted"].get("fuel_firing_g", d["predicted"]["fuel_g"])
+        f_firing = f" ({100 * (p_firing / firing - 1):+.2f} % without engine starts)" if firing else ""
         el = (f"{100 * e['electric_of_fuel_energy']:+.2f} % of the fuel energy (charge-sustaining)"
               if e.get("charge_sustaining") else f"{100 * e['electric']:+.2f} %")
         print(f"  predicted {d['name']} ({d['gear_source']} gears): fuel {100 * e['fuel']:+.2f} %{f_firing}, "

@@ -45,6 +45,7 @@ from benchtwin.identification.engine_cold import (
     identify_cold_fuel,
     warm_mask,
 )
+from benchtwin.identification.engine_start import START_KEY, identify_start_fuel
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
 
@@ -410,7 +411,7 @@ def fit_engine_willans(speed_rpm: np.ndarray, torque_nm: np.ndarray, fuel_gps: n
 
 def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints | None = None,
                     willans: bool = True, map_kwargs: Mapping[str, object] | None = None, cold: bool = True,
-                    **kwargs: object) -> IdentificationResult:
+                    start: bool = True, **kwargs: object) -> IdentificationResult:
     """BSFC map (``engine.bsfc``) and Willans lines per speed band (``engine.willans_*``) from a Recording.
 
     Parameters
@@ -431,6 +432,9 @@ def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints
         ``engine.cold_fuel`` and the coolant's warm-up ``engine.warmup``
         (:mod:`~benchtwin.identification.engine_cold`); when the factor is significant, ``engine.bsfc`` is the map
         of the warm points only (``data['warm_only']``).
+    start:
+        The fuel of one engine start ``engine.start_fuel`` over the campaign's starts, beyond the (warm) map
+        (:mod:`~benchtwin.identification.engine_start`).
 
     Raises
     ------
@@ -447,6 +451,8 @@ def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints
         out.errors["engine.bsfc"] = f"{type(exc).__name__}: {exc}"
     if cold and np.any(np.isfinite(pts.coolant_degc)):
         _cold_fuel(out, rec, specs, pts, dict(map_kwargs or {}))
+    if start and "engine.bsfc" in out.fits:
+        _start_fuel(out, rec, specs)
     if willans:
         try:
             w = fit_engine_willans(pts.speed_rpm, pts.torque_nm, pts.fuel_gps, lhv_j_per_kg=specs.fuel_lhv_j_per_kg,
@@ -490,3 +496,15 @@ def _cold_fuel(out: IdentificationResult, rec: Recording, specs: VehicleSpecs, p
         out.fits[WARMUP_KEY] = fit_warmup(rec, specs)
     except IdentificationError as exc:
         out.errors[WARMUP_KEY] = f"{type(exc).__name__}: {exc}"
+
+
+def _start_fuel(out: IdentificationResult, rec: Recording, specs: VehicleSpecs) -> None:
+    """``engine.start_fuel`` into ``out``: beyond ``engine.bsfc`` x ``engine.cold_fuel`` (when used)."""
+    cf = out.fits.get(COLD_KEY)
+    cold = None
+    if cf is not None and cf.status == "ok" and bool(np.all(np.asarray(cf.data.get("use", [False])))):
+        cold = (cf.value("k"), float(np.asarray(cf.data["T_warm_degc"]).ravel()[0]))
+    try:
+        out.fits[START_KEY] = identify_start_fuel(rec, specs, out.fits["engine.bsfc"].data, cold=cold)
+    except IdentificationError as exc:
+        out.errors[START_KEY] = f"{type(exc).__name__}: {exc}"

@@ -16,8 +16,9 @@ import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.engine_cold import COLD_KEY, WARMUP_KEY
+from benchtwin.identification.engine_start import START_KEY
 
-__all__ = ["ColdStart", "cold_start_model"]
+__all__ = ["ColdStart", "cold_start_model", "start_fuel_model"]
 
 
 @dataclass(frozen=True)
@@ -79,3 +80,19 @@ def cold_start_model(result: IdentificationResult) -> tuple[ColdStart | None, st
                f"a coolant temperature predicted by the identified warm-up ({WARMUP_KEY}: T_env "
                f"{wu.value('T_env_degc'):.1f} degC, regulated at {m.t_reg_degc:.1f} degC) from the drive's first "
                "coolant reading")
+
+
+def start_fuel_model(result: IdentificationResult) -> tuple[float | None, str]:
+    """The fuel of one engine start (g) when ``engine.start_fuel`` is used (enough starts, significant), and a
+    note saying which."""
+    sf = result.fits.get(START_KEY)
+    if sf is None or sf.status != "ok" or not bool(np.all(np.asarray(sf.data.get("use", [False])))):
+        why = "not identified" if sf is None else ("; ".join(sf.reasons) or "not significant")
+        return None, f"no engine-start fuel ({START_KEY}: {why}): an engine start burns no more than the map"
+    m = sf.value("m_g")
+    if not (math.isfinite(m) and m > 0):
+        return None, f"no engine-start fuel: {START_KEY} = {m} g"
+    se = sf.params["m_g"].std_error
+    n = int(np.asarray(sf.data.get("n_starts", [0])).ravel()[0])
+    return m, (f"engine-start fuel {m:.3f} +- {se:.3f} g per start of the replayed strategy ({START_KEY}, the mean "
+               f"over {n} starts of the campaign)")

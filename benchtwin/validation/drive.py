@@ -113,6 +113,9 @@ class Prediction:
         ``battery_voltage_v``, ``soc_pct``, ``motor_elec_power_w``).
     notes:
         What the model replayed, assumed or could not know.
+    engine_starts, start_fuel_g:
+        The replayed strategy's engine starts in the drive and the fuel they add (``engine.start_fuel`` per
+        start, when identified; included in ``fuel_g``).
     """
 
     fuel_g: float
@@ -122,6 +125,8 @@ class Prediction:
     distance_km: float
     series: dict[str, np.ndarray] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    engine_starts: int = 0
+    start_fuel_g: float = 0.0
 
     @property
     def fuel_l(self) -> float:

@@ -126,8 +126,9 @@ def _prediction_section(pred: dict[str, Any]) -> str:
             firing = m.get("fuel_firing_g")
             rows = [("fuel (g)", p["fuel_g"], m["fuel_g"], f"{100 * e['fuel']:+.2f} %")]
             if firing is not None:
-                rows.append((f"fuel without {m.get('engine_starts', 0):.0f} engine starts (g)", p["fuel_g"], firing,
-                             f"{100 * (p['fuel_g'] / firing - 1) if firing > 0 else float('nan'):+.2f} %"))
+                pf = p.get("fuel_firing_g", p["fuel_g"])
+                rows.append((f"fuel without {m.get('engine_starts', 0):.0f} engine starts (g)", pf, firing,
+                             f"{100 * (pf / firing - 1) if firing > 0 else float('nan'):+.2f} %"))
             dist = max(m.get("distance_km", 0.0), 1e-9)
             rows += [("CO2 (g/km)", p["co2_g"] / dist, m["co2_g"] / dist, f"{100 * e['co2']:+.2f} %"),
                      ("battery electric energy (Wh)", p["electric_wh"], m["electric_wh"],

@@ -34,15 +34,16 @@ trace of a drive the model computes, per time step and backwards from the wheels
 7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
    literature maps, ``soc_per_ah``);
 8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
-   linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), and CO2.
+   linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), plus the
+   identified fuel of an engine start (``engine.start_fuel``, when used) per start of the replayed strategy; CO2.
 
 It reads nothing but an :class:`~benchtwin.identification._fit.IdentificationResult`, the public
 :class:`~benchtwin.config.specs.VehicleSpecs` and the measured inputs of the drive
 (:class:`DriveInputs`); the vehicle file's parameters never enter. What the maps cannot know is left
 out and said so in :attr:`Prediction.notes`: the engine's rotating inertia when K0 closes it onto the pump
 side and the energy of an engine start (neither identified), the motor's and pump's when the converter fit
-did not identify ``J_pump_kgm2``, the fuel of an engine start, the converter's idle-speed holding at crawling
-speed.
+did not identify ``J_pump_kgm2``, the fuel of an engine start when ``engine.start_fuel`` is not used, the
+converter's idle-speed holding at crawling speed.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
-from benchtwin.validation.cold_start import cold_start_model
+from benchtwin.validation.cold_start import cold_start_model, start_fuel_model
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
 from benchtwin.validation.gearbox import GearboxModel
 from benchtwin.validation.shift_lines import shift_line_gears
@@ -185,6 +186,8 @@ class MapVehicle:
             raise IdentificationError("prediction needs " + ", ".join(missing))
         self._engine_map(result)
         self.cold, note = cold_start_model(result)
+        self.notes.append(note)
+        self.start_g, note = start_fuel_model(result)
         self.notes.append(note)
         et = _fit(result, ENGINE_TORQUE_KEY, "gain", "offset")
         self.engine_torque_corr: tuple[float, float] | None = None
@@ -465,10 +468,13 @@ class MapVehicle:
         fuel = np.where(on, self.fuel_gps(w_e / _RPM, t_e), 0.0)
         if self.cold is not None and drive.initial_coolant_degc is not None:  # the factor on the predicted coolant
             fuel, _coolant = self.cold.run(fuel, t_e * w_e, on, dt, drive.initial_coolant_degc, sp.fuel_lhv_j_per_kg)
-        fuel_g = float(np.sum(fuel) * dt)
+        n_starts = int(np.count_nonzero(np.diff(on.astype(int)) == 1))  # the replayed strategy's starts
+        start_g = n_starts * self.start_g if self.start_g is not None else 0.0
+        fuel_g = float(np.sum(fuel) * dt) + start_g
         notes.append("engine on/off, K0 and engine torque replayed from the recording (the strategy's split)")
-        notes.append("not modelled (not in the public specs): the engine's rotating inertia and start energy; "
-                     "fuel of engine starts" + ("" if self.j_pump > 0 else "; the motor's and pump's inertia"))
+        notes.append("not modelled (not in the public specs): the engine's rotating inertia and start energy"
+                     + ("" if self.start_g is not None else "; fuel of engine starts")
+                     + ("" if self.j_pump > 0 else "; the motor's and pump's inertia"))
         series = {"t_s": drive.t_s, "gear": gear.astype(float), "motor_torque_nm": t_m, "motor_speed_rpm": w_m / _RPM,
                   "engine_torque_nm": t_e, "engine_torque_split_nm": t_e_split, "engine_speed_rpm": w_e / _RPM,
                   "fuel_gps": fuel,
@@ -478,4 +484,5 @@ class MapVehicle:
         series.update(turbine_torque_nm=t_t, turbine_speed_radps=w_t, pump_inertia_power_w=t_j * w_p)
         return Prediction(fuel_g=fuel_g, co2_g=fuel_g * CO2_G_PER_G_DIESEL,
                           electric_wh=float(np.sum(v_b * i_b) * dt / 3600.0), final_soc_pct=float(soc[-1]),
-                          distance_km=float(np.sum(v) * dt / 1000.0), series=series, notes=notes)
+                          distance_km=float(np.sum(v) * dt / 1000.0), series=series, notes=notes,
+                          engine_starts=n_starts, start_fuel_g=start_g)

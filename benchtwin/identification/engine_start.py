@@ -1,0 +1,218 @@
+"""Engine: the fuel of one engine start (``engine.start_fuel``), from the campaign's starts.
+
+An engine start burns a fuel mass beyond the firing engine's map (cranking, the first firing cycles' enrichment).
+The plant burns it within one plant step; the vehicle CAN's fuel signal is a point sample of the flow at its
+frame rate (20 Hz), so one start's impulse is seen only when a frame falls within that step. A point sample,
+summed by the rectangle rule (each sample weighted by the frame period ``dt_f``), is still unbiased: the frame
+hits the impulse with probability ``dt_p / dt_f`` and then reads ``m / dt_p``, weighted ``dt_f``, so its mean is
+``m`` (a sensor's low-pass or linear interpolation spreads the impulse but keeps its area: the same mean). Per
+start it is noisy (``m dt_f / dt_p`` or nothing), so the estimate is a mean over the campaign's starts:
+
+- starts: the rises of ``engine_on`` (else of engine speed above 300 rpm);
+- per start, in a window ``[t - pre_s, t + post_s]``: the measured fuel mass (the fuel samples' sum times their
+  median period) minus the mass the warm map predicts at the same samples (from the engine speed and torque,
+  zero while the engine is off; times the cold-start factor ``engine.cold_fuel`` when it is used and the coolant
+  is recorded);
+- ``engine.start_fuel``: the mean of those excesses, ``m_g`` (g per start), with the standard error over starts
+  (a one-column least-squares fit). ``data['use']`` is True only when at least ``min_starts`` starts were found
+  and ``m_g``'s 95 % interval lies above zero (as for ``engine.cold_fuel``); otherwise the fit is flagged.
+
+A window holding another start, or a gap in the fuel signal (fewer than 80 % of its expected samples), is left
+out. Reads only the Recording and the public specs (no truth).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from benchtwin.config.specs import VehicleSpecs
+from benchtwin.errors import IdentificationError, InsufficientDataError
+from benchtwin.identification._fit import FitResult, linear_fit
+from benchtwin.identification._signals import time_ordered
+from benchtwin.identification._state_changes import state_changes
+from benchtwin.identification.engine_cold import COOLANT_ROLE, cold_factor
+from benchtwin.identification.fuel_map import fuel_map_gps, map_pmf
+from benchtwin.recording import Channel, Flag, Recording
+
+__all__ = ["START_KEY", "fit_start_fuel", "identify_start_fuel", "start_excess", "start_times"]
+
+START_KEY = "engine.start_fuel"
+
+#: engine speed above which an engine without ``engine_on`` counts as running
+RUNNING_RPM = 300.0
+
+
+def start_times(rec: Recording) -> np.ndarray:
+    """Times of the engine's starts: rises of ``engine_on`` (0 -> 1), else of engine speed above 300 rpm.
+
+    Raises
+    ------
+    IdentificationError
+        When neither channel is recorded.
+    """
+    if "engine_on" in rec:
+        ch = rec["engine_on"]
+        sc = state_changes(ch.with_values(np.asarray(ch.values, float) > 0.5))
+    elif "engine_speed_rpm" in rec:
+        ch = rec["engine_speed_rpm"]
+        sc = state_changes(ch.with_values(np.asarray(ch.values, float) > RUNNING_RPM))
+    else:
+        raise IdentificationError(f"{START_KEY}: neither engine_on nor engine_speed_rpm recorded")
+    return np.asarray(sc.t_new, float)[(np.asarray(sc.old) == 0) & (np.asarray(sc.new) == 1)]
+
+
+def start_excess(t_fuel: np.ndarray, fuel_gps: np.ndarray, predicted_gps: np.ndarray, starts: np.ndarray, *,
+                 pre_s: float = 0.5, post_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Measured fuel mass less the predicted one (g) in a window around each start (rectangle rule).
+
+    Parameters
+    ----------
+    t_fuel, fuel_gps:
+        The fuel signal's sample times (increasing) and values (g/s).
+    predicted_gps:
+        The model's flow at the same times (g/s; zero while the engine is off).
+    starts:
+        Start times (s).
+    pre_s, post_s:
+        The window ``[t - pre_s, t + post_s)`` around each start.
+
+    Returns
+    -------
+    excess, kept
+        Per kept start the excess (g), and the kept starts' times. A start is left out when its window holds
+        another start or fewer than 80 % of the samples the median period expects, or a non-finite value.
+    """
+    t = np.asarray(t_fuel, float)
+    d = np.asarray(fuel_gps, float) - np.asarray(predicted_gps, float)
+    s = np.sort(np.asarray(starts, float))
+    if t.size < 2 or s.size == 0:
+        return np.zeros(0), np.zeros(0)
+    dt = float(np.median(np.diff(t)))
+    expected = (pre_s + post_s) / dt
+    a = np.searchsorted(t, s - pre_s, side="left")
+    b = np.searchsorted(t, s + post_s, side="left")
+    csum = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(d), d, 0.0))])
+    cbad = np.concatenate([[0], np.cumsum(~np.isfinite(d))])
+    gap_prev = np.diff(s, prepend=-np.inf)
+    gap_next = np.diff(s, append=np.inf)
+    alone = (gap_prev > pre_s + post_s) & (gap_next > pre_s + post_s)
+    ok = alone & ((b - a) >= 0.8 * expected) & ((cbad[b] - cbad[a]) == 0)
+    return (csum[b] - csum[a])[ok] * dt, s[ok]
+
+
+def fit_start_fuel(excess_g: np.ndarray, *, min_starts: int = 20, segments: list[str] | None = None) -> FitResult:
+    """``engine.start_fuel``: the mean excess per start, its standard error over starts and the use flag.
+
+    Parameters
+    ----------
+    excess_g:
+        Per start, the measured fuel less the map's around the start (:func:`start_excess`).
+    min_starts:
+        Fewer starts flag the fit ("too few starts"): one start's reading is ``m dt_f / dt_p`` or nothing, so
+        the mean needs many.
+
+    Returns
+    -------
+    FitResult
+        Parameter ``m_g`` (g per start); data ``use`` (True only with enough starts and ``m_g``'s 95 % interval
+        above zero), ``n_starts``, ``excess_g``.
+
+    Raises
+    ------
+    InsufficientDataError
+        When fewer than 3 finite excesses are given.
+    """
+    x = np.asarray(excess_g, float)
+    x = x[np.isfinite(x)]
+    if x.size < 3:
+        raise InsufficientDataError(f"{START_KEY}: {x.size} engine start(s) with a whole fuel window; need 3")
+    fit = linear_fit(np.ones((x.size, 1)), x, ["m_g"], units=["g"], segments=segments or [], what=START_KEY)
+    lo = fit.params["m_g"].ci95[0]
+    use = bool(x.size >= min_starts and math.isfinite(lo) and lo > 0)
+    fit.data.update(use=np.array([use]), n_starts=np.array([x.size]), excess_g=x)
+    if x.size < min_starts:
+        fit.flag(f"too few starts: {x.size} engine start(s) (need {min_starts}: one start's 20 Hz reading is the "
+                 "impulse scaled by the frame period over the plant step, or nothing); the start fuel is not used")
+    elif not use:
+        fit.flag(f"not significant: m = {fit.value('m_g'):.3f} g per start, its 95 % interval reaches zero or below; "
+                 "the start fuel is not used")
+    return fit
+
+
+def _predictor(rec: Recording, specs: VehicleSpecs, bsfc_data: dict,
+               cold: tuple[float, float] | None) -> Callable[[np.ndarray], np.ndarray]:
+    """The warm map's (x the cold factor's) fuel flow at given times, zero while the engine is off."""
+    m = map_pmf(bsfc_data, specs.fuel_lhv_j_per_kg)
+    if m is None:
+        raise IdentificationError(f"{START_KEY}: the BSFC map cannot be read")
+    speed, torque = rec["engine_speed_rpm"], rec["engine_torque_nm"]
+    on_ch: Channel | None = None
+    if "engine_on" in rec:  # a Recording has no get()
+        on_ch = rec["engine_on"]
+    cool: Channel | None = rec[COOLANT_ROLE] if cold is not None and COOLANT_ROLE in rec else None
+
+    def predict(t: np.ndarray) -> np.ndarray:
+        n = speed.at(t)
+        tq = torque.at(t)
+        on = (on_ch.at(t, hold=True) > 0.5) if on_ch is not None else (n > RUNNING_RPM)
+        on &= np.isfinite(n) & np.isfinite(tq)
+        out = np.zeros(t.size)
+        if on.any():
+            out[on] = fuel_map_gps(*m, specs.engine_displacement_m3, specs.engine_strokes, specs.fuel_lhv_j_per_kg,
+                                   n[on], tq[on])
+            if cool is not None and cold is not None:
+                c = cool.at(t[on])
+                out[on] *= np.where(np.isfinite(c), cold_factor(cold[0], cold[1], c), 1.0)
+        return out
+
+    return predict
+
+
+def identify_start_fuel(rec: Recording, specs: VehicleSpecs, bsfc_data: dict, *,
+                        cold: tuple[float, float] | None = None, pre_s: float = 0.5, post_s: float = 2.0,
+                        min_starts: int = 20) -> FitResult:
+    """``engine.start_fuel`` from a Recording (see the module).
+
+    Parameters
+    ----------
+    rec:
+        The Recording: ``fuel_mass_flow_gps``, ``engine_speed_rpm``, ``engine_torque_nm`` (``engine_on`` and the
+        coolant used when present).
+    specs:
+        Displacement, strokes, the fuel's lower heating value.
+    bsfc_data:
+        The warm map (``engine.bsfc``'s data).
+    cold:
+        ``(k per K, T_warm degC)`` of the cold-start factor when it is used, else None.
+    pre_s, post_s, min_starts:
+        As :func:`start_excess` and :func:`fit_start_fuel`.
+
+    Raises
+    ------
+    IdentificationError
+        When channels are missing, the map cannot be read or fewer than 3 starts have a whole window.
+    """
+    need = ["fuel_mass_flow_gps", "engine_speed_rpm", "engine_torque_nm"]
+    missing = [c for c in need if c not in rec]
+    if missing:
+        raise IdentificationError(f"{START_KEY}: missing channel(s) {', '.join(missing)}")
+    kept = rec.loaded()
+    try:
+        starts = start_times(rec)
+        predict = _predictor(rec, specs, bsfc_data, cold)
+        ts, vs, fl = time_ordered(rec["fuel_mass_flow_gps"])
+        good = ((fl & int(Flag.bad())) == 0) & np.isfinite(vs)
+        # only the samples near a start are predicted (the map is read there only)
+        near = np.zeros(ts.size, bool)
+        a = np.searchsorted(ts, starts - pre_s - 1.0)
+        b = np.searchsorted(ts, starts + post_s + 1.0)
+        for i, j in zip(a, b, strict=True):
+            near[i:j] = True
+        t_n, v_n = ts[near], np.where(good[near], vs[near], np.nan)
+        excess, _t = start_excess(t_n, v_n, predict(t_n), starts, pre_s=pre_s, post_s=post_s)
+    finally:
+        rec.drop([c for c in [*need, "engine_on", COOLANT_ROLE] if c in rec and c not in kept])
+    return fit_start_fuel(excess, min_starts=min_starts)

@@ -1,0 +1,84 @@
+"""The fuel of an engine start (identification.engine_start) from impulses seen by a 20 Hz point-sampled signal."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchtwin.config import load_vehicle
+from benchtwin.identification.engine_start import START_KEY, fit_start_fuel, identify_start_fuel
+from benchtwin.identification.fuel_map import fuel_map_gps, map_pmf
+from benchtwin.recording import Channel, Recording
+
+DT_P = 0.01  # plant step: the start's impulse lasts one step
+DT_F = 0.05  # the CAN fuel frame's period (20 Hz)
+BSFC = {"map_speed_rpm": np.array([800.0, 4000.0]), "map_bmep_bar": np.array([2.0, 20.0]),
+        "map_bsfc": np.full((2, 2), 230.0)}
+
+
+def _campaign(n_starts: int, start_g: float, seed: int = 11) -> tuple[Recording, float]:
+    """Engine off 3 s, on 3 s (2000 rpm, 200 Nm), ``n_starts`` times; each start a random plant step into its cycle.
+
+    The true flow is held over each plant step (the map's flow while on, plus ``start_g / DT_P`` in the start's
+    step); the fuel signal reads it at 20 Hz (the step holding each frame's time), with 0.01 g/s of noise.
+    """
+    rng = np.random.default_rng(seed)
+    specs = load_vehicle().specs
+    cycle = 600  # plant steps
+    n = n_starts * cycle
+    t = np.arange(n) * DT_P
+    on = np.zeros(n, bool)
+    first = np.arange(n_starts) * cycle + 50 + rng.integers(0, 100, n_starts)  # random phase to the frames
+    for s in first:
+        on[s:s + 300] = True
+    speed, torque = np.where(on, 2000.0, 0.0), np.where(on, 200.0, 0.0)
+    firing = float(fuel_map_gps(*map_pmf(BSFC, specs.fuel_lhv_j_per_kg), specs.engine_displacement_m3,
+                                specs.engine_strokes, specs.fuel_lhv_j_per_kg, np.array([2000.0]),
+                                np.array([200.0]))[0])
+    flow = np.where(on, firing, 0.0)
+    flow[first] += start_g / DT_P
+    tf = np.arange(0.0123, t[-1], DT_F)
+    fuel = flow[np.floor(tf / DT_P + 1e-9).astype(int)] + rng.normal(0.0, 0.01, tf.size)
+    rec = Recording()
+    for name, unit, tt, v in [("engine_on", "", t, on.astype(float)), ("engine_speed_rpm", "rpm", t, speed),
+                              ("engine_torque_nm", "Nm", t, torque), ("fuel_mass_flow_gps", "g/s", tf, fuel)]:
+        rec.add(Channel(name, unit, tt, v, source="vehicle_can"))
+    return rec, firing
+
+
+def test_start_fuel_recovered_within_the_binomial_spread() -> None:
+    # One start's reading: a frame hits the impulse's step with probability p = DT_P / DT_F = 0.2 and then reads
+    # m / DT_P over DT_F, i.e. X = 5 m B, B ~ Bernoulli(0.2): mean m, standard deviation 5 m sqrt(0.2 * 0.8) = 2 m.
+    # Over N = 1500 starts the mean's standard error is 2 m / sqrt(N) = 0.052 m; the bound is 4 of them.
+    m, n = 0.6, 1500
+    rec, firing = _campaign(n, m)
+    assert firing > 2.5  # 42 kW at 230 g/kWh: the map's ~6 g in a window, ten times the start's, is subtracted
+    fit = identify_start_fuel(rec, load_vehicle().specs, BSFC)
+    se = 2.0 * m / np.sqrt(n)
+    assert int(fit.data["n_starts"][0]) == n
+    assert abs(fit.value("m_g") - m) < 4.0 * se
+    # the fit's standard error is the spread over starts: the binomial one (the noise adds 0.4 %)
+    assert fit.params["m_g"].std_error == pytest.approx(se, rel=0.15)
+    assert fit.status == "ok" and bool(fit.data["use"][0])
+
+
+def test_too_few_starts_flagged() -> None:
+    # 10 starts: 2 of them hit on average; the mean is not used below 20 starts whatever it reads
+    rec, _ = _campaign(10, 0.6, seed=12)
+    fit = identify_start_fuel(rec, load_vehicle().specs, BSFC)
+    assert int(fit.data["n_starts"][0]) == 10
+    assert fit.status == "flagged" and any("too few starts" in r for r in fit.reasons)
+    assert not bool(fit.data["use"][0])
+
+
+def test_no_start_fuel_not_significant() -> None:
+    # no impulse: the excess is the noise only, its 95 % interval holds zero (a 5 % chance it would not, seed fixed)
+    rec, _ = _campaign(200, 0.0, seed=13)
+    fit = identify_start_fuel(rec, load_vehicle().specs, BSFC)
+    assert abs(fit.value("m_g")) < 0.01
+    assert fit.status == "flagged" and not bool(fit.data["use"][0])
+
+
+def test_fewer_than_three_starts_is_a_clear_error() -> None:
+    with pytest.raises(Exception, match=START_KEY):
+        fit_start_fuel(np.array([0.5, np.nan]))
