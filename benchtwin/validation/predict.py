@@ -13,7 +13,7 @@ trace of a drive the model computes, per time step and backwards from the wheels
    ``transmission.drag`` was identified and is supported by the data
    (:mod:`benchtwin.identification.transmission_drag`), its ``eta_m`` and ``C0(T_oil)`` at the drive's measured
    oil temperature (a measured boundary input, as the ambient temperature); a gear without a drag group keeps
-   its eq. 14 constants (optionally its ``C0`` moved by the drag's shared factor from its own points' mean oil
+   its eq. 14 constants (by default its ``C0`` moved by the drag's shared factor from its own points' mean oil
    temperature and speed, :mod:`benchtwin.validation.gearbox`);
 4. the torque converter when the lock-up clutch is open (the identified eq. 35-36 curves, solved for the
    pump speed that carries the turbine torque), rigid when it is closed; plus the pump side's inertia torque
