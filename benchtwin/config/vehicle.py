@@ -83,6 +83,8 @@ class EngineConfig(StrictModel):
     friction_torque_nm: float = Field(ge=0, description="motoring drag at 0 rpm")
     friction_torque_nm_per_krpm: float = Field(ge=0)
     start_fuel_g: float = Field(ge=0)
+    start_fuel_duration_s: float = Field(default=0.5, ge=0, le=5.0, description="an engine start's fuel is injected "
+                                         "at a constant rate over this time (cranking and run-up); 0: one plant step")
     spin_rate_radps2: float = Field(default=600.0, gt=0, description="free run-up/spin-down rate with K0 open")
     idle_gain_nm_per_radps: float = Field(default=8.0, gt=0, description="conventional layout: the idle "
                                           "controller's gain (the P2 car's is [motor] idle_gain_nm_per_radps)")

@@ -129,7 +129,8 @@ P_CONVENTIONAL = 103  # 1: conventional layout (no motor, no HV pack: the 12 V l
 P_BMS_DISCHARGE_BAND_PCT = 104  # displayed-SOC points above 0 % over which the discharge power derates to 0
 P_BMS_CHARGE_BAND_PCT = 105  # displayed-SOC points below 100 % over which the charge power derates to 0
 P_BMS_ENGINE_START_PCT = 106  # displayed SOC below which the BMS starts the engine (-1: never, no HV pack)
-NP = 107
+P_ENGINE_START_FUEL_S = 107  # an engine start's fuel is burnt at a constant rate over this time (0: one step)
+NP = 108
 
 # ---- command rows (one value per plant step) ----
 C_DYNO_MODE = 0  # 0 road-load, 1 speed-controlled
@@ -329,6 +330,7 @@ def build_tables(vehicle: VehicleConfig, campaign: CampaignConfig) -> PlantTable
     p[P_ENGINE_FRICTION_NM] = en.friction_torque_nm
     p[P_ENGINE_FRICTION_NM_PER_RADPS] = en.friction_torque_nm_per_krpm / (1000.0 * RPM)
     p[P_ENGINE_START_FUEL_KG] = en.start_fuel_g * 1e-3
+    p[P_ENGINE_START_FUEL_S] = en.start_fuel_duration_s
     p[P_ENGINE_SPIN_RADPS2] = en.spin_rate_radps2
     p[P_DISPLACEMENT_M3] = s.engine_displacement_m3
     p[P_FUEL_LHV_J_PER_KG] = s.fuel_lhv_j_per_kg

@@ -157,7 +157,8 @@ S_BATTERY_DEGC = 31
 S_COOLANT_DEGC = 32
 S_OIL_DEGC = 33
 S_TYRE_SLIP = 34  # driven tyres' slip on the rollers, from the previous step's force
-N_STATE = 35
+S_START_LEFT_KG = 35  # engine-start fuel still to burn (the start's pulse)
+N_STATE = 36
 
 
 @njit(cache=True)
@@ -179,9 +180,8 @@ def kinetic_energy(p: np.ndarray, st: np.ndarray) -> float:
     k0 = st[S_K0_CLOSED] > 0.5
     jp = p[P_MOTOR_INERTIA_KGM2] + (p[P_ENGINE_INERTIA_KGM2] if k0 else 0.0)
     ke = 0.5 * st[S_EFF_MASS_KG] * st[S_SPEED_MPS] ** 2 + 0.5 * jp * st[S_PUMP_SPEED_RADPS] ** 2
-    if st[S_K0_CLOSED] < 0.5:
-        ke += 0.5 * p[P_ENGINE_INERTIA_KGM2] * st[S_ENGINE_SPEED_RADPS] ** 2
-    return ke
+    free = 0.0 if k0 else 0.5 * p[P_ENGINE_INERTIA_KGM2] * st[S_ENGINE_SPEED_RADPS] ** 2  # the free engine
+    return ke + free
 
 
 @njit(cache=True)
@@ -272,7 +272,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     latch_time_s = st[S_LATCH_TIME_S]
     latch_speed_mps = st[S_LATCH_SPEED_MPS]
     segment = st[S_SEGMENT]
-    engine_on_time_s = st[S_ENGINE_ON_TIME_S]
+    engine_on_time_s, start_left_kg = st[S_ENGINE_ON_TIME_S], st[S_START_LEFT_KG]
     esave_soc_pct = st[S_ESAVE_SOC_PCT]
     eff_mass_kg = st[S_EFF_MASS_KG]
     kstep = int(st[S_STEP])
@@ -316,9 +316,9 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
                       gear, lockup_closed, displayed_soc_pct)
 
     # ---- hybrid strategy: engine on/off ----
-    engine_on, engine_on_time_s, start_fuel_kg = engine_on_off(
+    engine_on, engine_on_time_s, start_fuel_kg, start_left_kg = engine_on_off(
         p, engine_cmd, hybrid_mode, engine_on, engine_on_time_s, pedal_pct, displayed_soc_pct, power_demand_w,
-        speed_mps, esave_soc_pct)
+        speed_mps, esave_soc_pct, start_left_kg)
 
     # ---- K0 clutch ----
     k0_closed, engine_speed_radps, pump_speed_radps, speed_mps, turbine_speed_radps, engine_self_energy_j = k0_step(
@@ -508,7 +508,7 @@ def plant_step(tab: PlantTables, cmd: np.ndarray, i: int, st: np.ndarray, led: n
     st[S_LATCH_TIME_S] = latch_time_s
     st[S_LATCH_SPEED_MPS] = latch_speed_mps
     st[S_SEGMENT] = segment
-    st[S_ENGINE_ON_TIME_S] = engine_on_time_s
+    st[S_ENGINE_ON_TIME_S], st[S_START_LEFT_KG] = engine_on_time_s, start_left_kg
     st[S_ESAVE_SOC_PCT] = esave_soc_pct
     st[S_EFF_MASS_KG] = eff_mass_kg
     st[S_TIME_S] = time_s

@@ -33,6 +33,7 @@ from benchtwin.emulator.params import (
     P_DT_S,
     P_ENGINE_IDLE_RADPS,
     P_ENGINE_START_FUEL_KG,
+    P_ENGINE_START_FUEL_S,
     P_F0_N,
     P_F1_N_PER_MPS,
     P_F2_N_PER_MPS2,
@@ -320,16 +321,19 @@ def bms_commands(p: np.ndarray, displayed_soc_pct: float, engine_on: bool, engin
 @njit(cache=True, _nrt=False)
 def engine_on_off(p: np.ndarray, engine_cmd: int, hybrid_mode: int, engine_on: bool, engine_on_time_s: float,
                   pedal_pct: float, displayed_soc_pct: float, power_demand_w: float, speed_mps: float,
-                  esave_soc_pct: float) -> tuple[bool, float, float]:
+                  esave_soc_pct: float, start_left_kg: float) -> tuple[bool, float, float, float]:
     """Hybrid strategy, engine on/off: forced by the protocol, or by the mode's power / speed / SOC thresholds.
 
     Modes: 0 charge-depleting hybrid with a sustain floor, 1 electric (kick-down starts the engine),
-    2 e-save (holds the SOC at entry), 3 charge. An engine start costs ``P_ENGINE_START_FUEL_KG``.
+    2 e-save (holds the SOC at entry), 3 charge. An engine start costs ``P_ENGINE_START_FUEL_KG``, burnt as a
+    pulse over ``P_ENGINE_START_FUEL_S`` (:func:`start_fuel_pulse`); ``start_left_kg`` is what earlier starts
+    have still to burn.
 
     Returns
     -------
     tuple
-        ``(engine_on, engine_on_time_s, start_fuel_kg)``.
+        ``(engine_on, engine_on_time_s, start_fuel_kg, start_left_kg)``: the start fuel burnt in this step and
+        the rest still to burn.
     """
     eon = engine_on
     eon_t = engine_on_time_s
@@ -371,5 +375,42 @@ def engine_on_off(p: np.ndarray, engine_cmd: int, hybrid_mode: int, engine_on: b
         eon = False
     if eon:
         eon_t += p[P_DT_S]
-    return eon, eon_t, fuel_start
+    burn, left = start_fuel_pulse(p, start_left_kg, fuel_start)
+    return eon, eon_t, burn, left
+
+
+@njit(cache=True, _nrt=False)
+def start_fuel_pulse(p: np.ndarray, left_kg: float, added_kg: float) -> tuple[float, float]:
+    """The engine-start fuel burnt in this step, and the rest still to burn.
+
+    Each start's ``P_ENGINE_START_FUEL_KG`` (m) is injected at the constant rate m / ``P_ENGINE_START_FUEL_S``
+    (cranking and run-up), so over ``ceil(duration / dt)`` steps, the last one taking the remainder; a duration
+    no longer than the plant step burns it in the start's step. The rest is burnt even when the engine stops
+    before the pulse ends (the start's injection sequence is completed), so every start costs exactly m; a start
+    within an unfinished pulse adds its m to the rest, which burns on at the same rate.
+
+    Parameters
+    ----------
+    p:
+        Plant scalars.
+    left_kg:
+        Start fuel still to burn from earlier steps.
+    added_kg:
+        The fuel of a start in this step (0 or m).
+
+    Returns
+    -------
+    tuple of float
+        ``(burn_kg, left_kg)``.
+    """
+    left = left_kg + added_kg
+    if left <= 0.0:
+        return 0.0, 0.0
+    dt, dur = p[P_DT_S], p[P_ENGINE_START_FUEL_S]
+    burn = left
+    if dur > dt:
+        per_step = p[P_ENGINE_START_FUEL_KG] * dt / dur
+        if left > per_step * (1.0 + 1e-9):  # else the remainder (a rounding crumb is not left for a step more)
+            burn = per_step
+    return burn, left - burn
 

@@ -289,8 +289,8 @@ def prediction_checks(res: DriveResult, profile: str, budget: dict[str, float] |
                      f"{pr.get('engine_starts', 0.0):.0f} starts ({pr.get('start_fuel_g', 0.0):.1f} g; true "
                      f"{me['engine_starts']:.0f} starts, {me['start_fuel_g']:.1f} g); info, {firing}")
         else:
-            note += (f"; FIRING fuel judged (engine.start_fuel not used): {res.measured['engine_starts']:.0f} start "
-                     f"impulses ({res.measured['start_fuel_g']:.1f} g) left out of the measurement "
+            note += (f"; FIRING fuel judged (engine.start_fuel not used): {res.measured['engine_starts']:.0f} "
+                     f"starts ({res.measured['start_fuel_g']:.1f} g) left out of the measurement "
                      f"(total with starts: {100 * e['fuel']:+.2f} %)")
     work = res.predicted.get("engine_work_wh", 0.0)
     torque_wh = (budget.get("engine_torque_gain", 0.0) * work

@@ -407,9 +407,9 @@ def _quietly(future: Any) -> None:
 def _starts(res: Any, trace: Trace, vehicle: VehicleConfig) -> None:
     """Put the engine starts of the measured drive and their true fuel beside the measurement.
 
-    An engine start costs a fuel impulse of one plant step; the 20 Hz CAN fuel signal shows it only when a frame
-    falls within a plant step of it, so identification does not recover it and the model does not predict it.
-    The measured fuel of the firing engine (starts excluded, from the truth) is what the maps are judged on.
+    An engine start costs ``start_fuel_g``, burnt as a pulse over ``start_fuel_duration_s``; the model adds it only
+    when ``engine.start_fuel`` is identified and used. The measured fuel of the firing engine (starts excluded, from
+    the truth: n starts x ``start_fuel_g``) is what the maps are judged on otherwise.
     """
     tr = trace.slice_time(res.start_s, res.end_s)
     n = int(np.count_nonzero(np.diff((tr["engine_on"] > 0.5).astype(int)) == 1))

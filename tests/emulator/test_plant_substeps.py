@@ -336,10 +336,11 @@ def test_engine_on_off_thresholds() -> None:
 
     p[P_HYB_ENGINE_ON_W], p[P_HYB_ENGINE_ON_MPS], p[P_ENGINE_START_FUEL_KG] = 25_000.0, 30.0, 2e-4
     # hybrid mode 0, engine off: starts above the power threshold, paying the start fuel
-    assert engine_on_off(p, -1, 0, False, 0.0, 40.0, 50.0, 25_001.0, 10.0, 50.0) == (True, 0.01, 2e-4)
-    assert engine_on_off(p, -1, 0, False, 0.0, 40.0, 50.0, 24_999.0, 10.0, 50.0) == (False, 0.0, 0.0)
+    # (no start-fuel duration set: the start's fuel is burnt in its step, nothing left)
+    assert engine_on_off(p, -1, 0, False, 0.0, 40.0, 50.0, 25_001.0, 10.0, 50.0, 0.0) == (True, 0.01, 2e-4, 0.0)
+    assert engine_on_off(p, -1, 0, False, 0.0, 40.0, 50.0, 24_999.0, 10.0, 50.0, 0.0) == (False, 0.0, 0.0, 0.0)
     # forced off by the protocol
-    assert engine_on_off(p, 0, 0, True, 5.0, 40.0, 50.0, 1e6, 40.0, 50.0)[0] is False
+    assert engine_on_off(p, 0, 0, True, 5.0, 40.0, 50.0, 1e6, 40.0, 50.0, 0.0)[0] is False
 
 
 # ---- brakes ----
