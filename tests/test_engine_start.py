@@ -1,4 +1,4 @@
-"""The fuel of an engine start (identification.engine_start) from impulses seen by a 20 Hz point-sampled signal."""
+"""The fuel of an engine start (identification.engine_start) from impulses and pulses seen by a 20 Hz point sample."""
 
 from __future__ import annotations
 
@@ -16,11 +16,12 @@ BSFC = {"map_speed_rpm": np.array([800.0, 4000.0]), "map_bmep_bar": np.array([2.
         "map_bsfc": np.full((2, 2), 230.0)}
 
 
-def _campaign(n_starts: int, start_g: float, seed: int = 11) -> tuple[Recording, float]:
+def _campaign(n_starts: int, start_g: float, seed: int = 11, pulse_steps: int = 1) -> tuple[Recording, float]:
     """Engine off 3 s, on 3 s (2000 rpm, 200 Nm), ``n_starts`` times; each start a random plant step into its cycle.
 
-    The true flow is held over each plant step (the map's flow while on, plus ``start_g / DT_P`` in the start's
-    step); the fuel signal reads it at 20 Hz (the step holding each frame's time), with 0.01 g/s of noise.
+    The true flow is held over each plant step (the map's flow while on, plus ``start_g / (pulse_steps DT_P)`` over
+    the start's first ``pulse_steps`` steps: the plant's flat pulse); the fuel signal reads it at 20 Hz (the step
+    holding each frame's time), with 0.01 g/s of noise.
     """
     rng = np.random.default_rng(seed)
     specs = load_vehicle().specs
@@ -36,7 +37,8 @@ def _campaign(n_starts: int, start_g: float, seed: int = 11) -> tuple[Recording,
                                 specs.engine_strokes, specs.fuel_lhv_j_per_kg, np.array([2000.0]),
                                 np.array([200.0]))[0])
     flow = np.where(on, firing, 0.0)
-    flow[first] += start_g / DT_P
+    for k in range(pulse_steps):
+        flow[first + k] += start_g / (pulse_steps * DT_P)
     tf = np.arange(0.0123, t[-1], DT_F)
     fuel = flow[np.floor(tf / DT_P + 1e-9).astype(int)] + rng.normal(0.0, 0.01, tf.size)
     rec = Recording()
@@ -59,6 +61,26 @@ def test_start_fuel_recovered_within_the_binomial_spread() -> None:
     assert abs(fit.value("m_g") - m) < 4.0 * se
     # the fit's standard error is the spread over starts: the binomial one (the noise adds 0.4 %)
     assert fit.params["m_g"].std_error == pytest.approx(se, rel=0.15)
+    assert fit.status == "ok" and bool(fit.data["use"][0])
+
+
+def test_start_fuel_pulse_recovered_within_the_frame_count_spread() -> None:
+    # A flat pulse of D = 0.33 s (33 plant steps): a frame period of 0.05 s fits D / DT_F = 6.6 times, so the
+    # 20 Hz signal sees 6 or 7 of its frames (7 with probability 0.6 over the five phases a start can take to the
+    # frames), each worth m DT_F / D: one start's reading has mean m and standard deviation
+    # m (DT_F / D) sqrt(0.6 * 0.4) = 0.0742 m; the noise adds 0.01 g/s x DT_F x sqrt(50 samples) = 0.0035 g.
+    # Over N = 300 starts the bound is 4 standard errors; the reported SE is that spread over sqrt(N) within 15 %,
+    # and a tiny fraction of the one-step impulse's 2 m / sqrt(N) (0.037 of it).
+    m, n, steps = 0.6, 300, 33
+    rec, _ = _campaign(n, m, seed=21, pulse_steps=steps)
+    fit = identify_start_fuel(rec, load_vehicle().specs, BSFC)
+    d = steps * DT_P
+    f = d / DT_F - np.floor(d / DT_F)
+    se = np.hypot(m * DT_F / d * np.sqrt(f * (1.0 - f)), 0.01 * DT_F * np.sqrt(2.5 / DT_F)) / np.sqrt(n)
+    assert int(fit.data["n_starts"][0]) == n
+    assert abs(fit.value("m_g") - m) < 4.0 * se
+    assert fit.params["m_g"].std_error == pytest.approx(se, rel=0.15)
+    assert fit.params["m_g"].std_error < 0.1 * 2.0 * m / np.sqrt(n)
     assert fit.status == "ok" and bool(fit.data["use"][0])
 
 

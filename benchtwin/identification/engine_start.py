@@ -1,12 +1,22 @@
 """Engine: the fuel of one engine start (``engine.start_fuel``), from the campaign's starts.
 
-An engine start burns a fuel mass beyond the firing engine's map (cranking, the first firing cycles' enrichment).
-The plant burns it within one plant step; the vehicle CAN's fuel signal is a point sample of the flow at its
-frame rate (20 Hz), so one start's impulse is seen only when a frame falls within that step. A point sample,
-summed by the rectangle rule (each sample weighted by the frame period ``dt_f``), is still unbiased: the frame
-hits the impulse with probability ``dt_p / dt_f`` and then reads ``m / dt_p``, weighted ``dt_f``, so its mean is
-``m`` (a sensor's low-pass or linear interpolation spreads the impulse but keeps its area: the same mean). Per
-start it is noisy (``m dt_f / dt_p`` or nothing), so the estimate is a mean over the campaign's starts:
+An engine start burns a fuel mass ``m`` beyond the firing engine's map (cranking, the first firing cycles'
+enrichment), as a pulse of some duration ``D`` (the plant's: flat over ``start_fuel_duration_s``, 0.5 s by default).
+The vehicle CAN's fuel signal is a point sample of the flow at its frame rate (20 Hz, period ``dt_f``). Summed by
+the rectangle rule (each sample weighted by ``dt_f``), point samples at a phase uniform to the pulse are unbiased
+for any shape: each frame position's mean reading is the pulse's mean over a frame period, so the weighted sum's
+mean is the pulse's area ``m`` (a sensor's low-pass or linear interpolation spreads the pulse but keeps its area:
+the same mean). Per start the reading scatters with the phase:
+
+- a flat pulse of ``D >= dt_f`` is seen by ``floor(D / dt_f)`` or one more frame, each worth ``m dt_f / D``: one
+  start's error is at most ``m dt_f / D`` (a tenth of ``m`` at 0.5 s), its standard deviation
+  ``m (dt_f / D) sqrt(f (1 - f))`` with ``f`` the fractional part of ``D / dt_f`` (zero when ``D`` is a whole
+  number of frames);
+- a pulse shorter than a frame (a one-step impulse, ``D = dt_p``) is seen by a frame with probability
+  ``dt_p / dt_f`` and then reads ``m dt_f / dt_p``, or nothing: a standard deviation of ``m sqrt(dt_f / dt_p - 1)``,
+  twice ``m`` at 100 Hz against 20 Hz.
+
+So the estimate is a mean over the campaign's starts, whatever the pulse:
 
 - starts: the rises of ``engine_on`` (else of engine speed above 300 rpm);
 - per start, in a window ``[t - pre_s, t + post_s]``: the measured fuel mass (the fuel samples' sum times their
@@ -111,8 +121,8 @@ def fit_start_fuel(excess_g: np.ndarray, *, min_starts: int = 20, segments: list
     excess_g:
         Per start, the measured fuel less the map's around the start (:func:`start_excess`).
     min_starts:
-        Fewer starts flag the fit ("too few starts"): one start's reading is ``m dt_f / dt_p`` or nothing, so
-        the mean needs many.
+        Fewer starts flag the fit ("too few starts"): one start's reading scatters with the frames' phase to the
+        start's pulse (a pulse shorter than a frame is seen or missed whole), so the mean needs many.
 
     Returns
     -------
@@ -134,8 +144,8 @@ def fit_start_fuel(excess_g: np.ndarray, *, min_starts: int = 20, segments: list
     use = bool(x.size >= min_starts and math.isfinite(lo) and lo > 0)
     fit.data.update(use=np.array([use]), n_starts=np.array([x.size]), excess_g=x)
     if x.size < min_starts:
-        fit.flag(f"too few starts: {x.size} engine start(s) (need {min_starts}: one start's 20 Hz reading is the "
-                 "impulse scaled by the frame period over the plant step, or nothing); the start fuel is not used")
+        fit.flag(f"too few starts: {x.size} engine start(s) (need {min_starts}: one start's 20 Hz reading scatters "
+                 "with the frames' phase to the start's fuel pulse); the start fuel is not used")
     elif not use:
         fit.flag(f"not significant: m = {fit.value('m_g'):.3f} g per start, its 95 % interval reaches zero or below; "
                  "the start fuel is not used")
