@@ -6,22 +6,25 @@ import numpy as np
 import pytest
 
 from benchtwin.config import load_vehicle
-from benchtwin.identification.engine_start import START_KEY, fit_start_fuel, identify_start_fuel
+from benchtwin.identification.engine_start import START_KEY, fit_start_fuel, identify_start_fuel, start_excess
 from benchtwin.identification.fuel_map import fuel_map_gps, map_pmf
 from benchtwin.recording import Channel, Recording
 
 DT_P = 0.01  # plant step: the start's impulse lasts one step
 DT_F = 0.05  # the CAN fuel frame's period (20 Hz)
+PRE, POST, REF = 0.5, 1.0, 1.0  # identify_start_fuel's window and reference (s)
 BSFC = {"map_speed_rpm": np.array([800.0, 4000.0]), "map_bmep_bar": np.array([2.0, 20.0]),
         "map_bsfc": np.full((2, 2), 230.0)}
 
 
-def _campaign(n_starts: int, start_g: float, seed: int = 11, pulse_steps: int = 1) -> tuple[Recording, float]:
+def _campaign(n_starts: int, start_g: float, seed: int = 11, pulse_steps: int = 1,
+              map_error: float = 0.0) -> tuple[Recording, float]:
     """Engine off 3 s, on 3 s (2000 rpm, 200 Nm), ``n_starts`` times; each start a random plant step into its cycle.
 
     The true flow is held over each plant step (the map's flow while on, plus ``start_g / (pulse_steps DT_P)`` over
     the start's first ``pulse_steps`` steps: the plant's flat pulse); the fuel signal reads it at 20 Hz (the step
-    holding each frame's time), with 0.01 g/s of noise.
+    holding each frame's time), with 0.01 g/s of noise. ``map_error``: the true firing flow is that much above the
+    map's (a fitted map's local error near the starts).
     """
     rng = np.random.default_rng(seed)
     specs = load_vehicle().specs
@@ -36,7 +39,7 @@ def _campaign(n_starts: int, start_g: float, seed: int = 11, pulse_steps: int = 
     firing = float(fuel_map_gps(*map_pmf(BSFC, specs.fuel_lhv_j_per_kg), specs.engine_displacement_m3,
                                 specs.engine_strokes, specs.fuel_lhv_j_per_kg, np.array([2000.0]),
                                 np.array([200.0]))[0])
-    flow = np.where(on, firing, 0.0)
+    flow = np.where(on, firing * (1.0 + map_error), 0.0)
     for k in range(pulse_steps):
         flow[first + k] += start_g / (pulse_steps * DT_P)
     tf = np.arange(0.0123, t[-1], DT_F)
@@ -64,24 +67,57 @@ def test_start_fuel_recovered_within_the_binomial_spread() -> None:
     assert fit.status == "ok" and bool(fit.data["use"][0])
 
 
+def _pulse_se(m: float, n: int, steps: int) -> float:
+    """The mean's standard error for ``n`` flat pulses of ``steps`` plant steps sampled at 20 Hz.
+
+    One start: the frame count's scatter m (DT_F / D) sqrt(f (1 - f)), f the fractional part of D / DT_F; the
+    0.01 g/s noise over the window's (PRE + POST) / DT_F samples, each weighted DT_F, and over the reference's
+    mean (REF / DT_F samples) taken POST times.
+    """
+    d = steps * DT_P
+    f = d / DT_F - np.floor(d / DT_F)
+    noise = np.hypot(0.01 * DT_F * np.sqrt((PRE + POST) / DT_F), POST * 0.01 / np.sqrt(REF / DT_F))
+    return float(np.hypot(m * DT_F / d * np.sqrt(f * (1.0 - f)), noise) / np.sqrt(n))
+
+
 def test_start_fuel_pulse_recovered_within_the_frame_count_spread() -> None:
     # A flat pulse of D = 0.33 s (33 plant steps): a frame period of 0.05 s fits D / DT_F = 6.6 times, so the
     # 20 Hz signal sees 6 or 7 of its frames (7 with probability 0.6 over the five phases a start can take to the
     # frames), each worth m DT_F / D: one start's reading has mean m and standard deviation
-    # m (DT_F / D) sqrt(0.6 * 0.4) = 0.0742 m; the noise adds 0.01 g/s x DT_F x sqrt(50 samples) = 0.0035 g.
+    # m (DT_F / D) sqrt(0.6 * 0.4) = 0.0742 m; the noise adds 0.0035 g (see _pulse_se).
     # Over N = 300 starts the bound is 4 standard errors; the reported SE is that spread over sqrt(N) within 15 %,
     # and a tiny fraction of the one-step impulse's 2 m / sqrt(N) (0.037 of it).
     m, n, steps = 0.6, 300, 33
     rec, _ = _campaign(n, m, seed=21, pulse_steps=steps)
     fit = identify_start_fuel(rec, load_vehicle().specs, BSFC)
-    d = steps * DT_P
-    f = d / DT_F - np.floor(d / DT_F)
-    se = np.hypot(m * DT_F / d * np.sqrt(f * (1.0 - f)), 0.01 * DT_F * np.sqrt(2.5 / DT_F)) / np.sqrt(n)
+    se = _pulse_se(m, n, steps)
     assert int(fit.data["n_starts"][0]) == n
     assert abs(fit.value("m_g") - m) < 4.0 * se
     assert fit.params["m_g"].std_error == pytest.approx(se, rel=0.15)
     assert fit.params["m_g"].std_error < 0.1 * 2.0 * m / np.sqrt(n)
     assert fit.status == "ok" and bool(fit.data["use"][0])
+
+
+def test_map_error_near_the_starts_taken_off_by_the_reference() -> None:
+    # The true firing flow 3 % above the map (2.7 g/s): over the window's running second the map under-predicts
+    # 0.03 x 2.7 g/s x 1 s = 0.08 g per start, about 8 bounds (4 SE). The reference after the window measures that error
+    # and takes it off: the estimate stays within the frame-count bound of the exact map's test.
+    m, n, steps = 0.6, 300, 33
+    rec, firing = _campaign(n, m, seed=22, pulse_steps=steps, map_error=0.03)
+    assert 0.03 * firing * POST > 5 * 4.0 * _pulse_se(m, n, steps)
+    fit = identify_start_fuel(rec, load_vehicle().specs, BSFC)
+    assert abs(fit.value("m_g") - m) < 4.0 * _pulse_se(m, n, steps)
+    # without the reference (ref_s = 0) the same data read high by that error
+    fit0 = identify_start_fuel(rec, load_vehicle().specs, BSFC, ref_s=0.0)
+    assert fit0.value("m_g") - m == pytest.approx(0.03 * firing * POST, rel=0.2)
+
+
+def test_window_durations_checked() -> None:
+    t = np.arange(0.0, 10.0, DT_F)
+    with pytest.raises(ValueError, match="window durations"):
+        start_excess(t, np.zeros(t.size), np.zeros(t.size), np.array([5.0]), post_s=0.0)
+    with pytest.raises(ValueError, match="window durations"):
+        start_excess(t, np.zeros(t.size), np.zeros(t.size), np.array([5.0]), ref_s=-1.0)
 
 
 def test_too_few_starts_flagged() -> None:
