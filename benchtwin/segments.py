@@ -127,8 +127,11 @@ class SegmentIndex:
     """Which segment a time falls in, by bisection: ``next((s.name for s in segments if s.start_s <= t < s.end_s),
     "")`` per time, the same names, without a pass over the table per time (a campaign's windows against its tests).
 
-    A table in start order whose segments do not overlap (each ends at or before the next starts: a campaign's)
-    holds at most one segment per time, found by bisecting the starts; any other table is searched in its order.
+    In a table in start order (a campaign's, whose tests may overlap by a rounding: an end a ulp past the next
+    start), the segments starting at or before ``t`` are those up to the last start <= ``t`` (a bisection of the
+    starts), and the first of them ending after ``t`` is the first whose running maximum of ends passes ``t`` (a
+    bisection of that running maximum): the first segment containing ``t``. A table out of start order or with a
+    NaN bound is searched in its order.
 
     Parameters
     ----------
@@ -138,10 +141,10 @@ class SegmentIndex:
 
     def __init__(self, segments: Sequence[Segment]) -> None:
         self.segments = list(segments)
-        self._starts, self._ends, _ok = _bounds(self.segments)
-        s, e = self._starts, self._ends
-        # NaN fails these comparisons: such a table is searched in order
-        self._sorted = bool(np.all(s[1:] >= s[:-1]) and np.all(e[:-1] <= s[1:]) and np.all(e >= s)) if len(s) else True
+        self._starts, ends, ok = _bounds(self.segments)
+        s = self._starts
+        self._sorted = bool(np.all(s[1:] >= s[:-1]) and ok.all())  # NaN fails both
+        self._reach = np.maximum.accumulate(ends) if self._sorted else ends  # non-decreasing: bisectable
 
     def names_at(self, times: Any) -> list[str]:
         """The name of the first segment containing each time, ``""`` where none does.
@@ -161,10 +164,10 @@ class SegmentIndex:
             return [""] * tm.size
         if not self._sorted:
             return [next((s.name for s in self.segments if s.start_s <= t < s.end_s), "") for t in tm]
-        k = np.searchsorted(self._starts, tm, side="right") - 1  # the last start <= t (NaN: the table's end)
-        kk = np.maximum(k, 0)
-        hit = (k >= 0) & (tm < self._ends[kk])
-        return [self.segments[j].name if h else "" for j, h in zip(kk.tolist(), hit.tolist(), strict=True)]
+        k = np.searchsorted(self._starts, tm, side="right") - 1  # the last segment starting at or before t
+        j = np.searchsorted(self._reach, tm, side="right")  # the first whose end (or an earlier one's) is after t
+        hit = j <= k  # NaN t: j is the table's length
+        return [self.segments[i].name if h else "" for i, h in zip(j.tolist(), hit.tolist(), strict=True)]
 
 
 def segments_to_json(segments: list[Segment]) -> str:

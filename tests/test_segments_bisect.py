@@ -74,17 +74,23 @@ def test_segment_index_equals_the_first_match_in_order() -> None:
     segs = [Segment(float(x), float(y), "k", f"t{k}") for k, (x, y) in enumerate(pairwise(a))]
     gaps = [s for k, s in enumerate(segs) if k % 3]  # with gaps between tests
     times = np.concatenate([a, a - 1e-9, rng.uniform(-5, a[-1] + 5, 2000), [np.nan, np.inf, -np.inf]])
-    for table in (segs, gaps):
+    # a campaign's: a test ending a rounding past the next one's start (5041.320000000001 then 5041.32)
+    ulp = [Segment(s.start_s, float(np.nextafter(s.end_s, np.inf)), s.kind, s.name) for s in segs]
+    times = np.concatenate([times, [s.end_s for s in ulp]])
+    wide = Segment(segs[50].start_s, segs[60].end_s, "k", "wide")  # in start order, over the next ten
+    assert wide.end_s > segs[55].start_s
+    rev = [Segment(s.end_s, s.start_s, s.kind, s.name) if k % 7 == 0 else s for k, s in enumerate(segs)]
+    for table in (segs, gaps, ulp, [*segs[:50], wide, *segs[51:]], sorted([*gaps, wide], key=lambda s: s.start_s),
+                  rev):
         idx = SegmentIndex(table)
         assert idx._sorted
         assert idx.names_at(times) == _first_name(table, times)
     names = SegmentIndex(gaps).names_at(times)
     assert "" in names and len(set(names)) > 100
     # overlapping, out of order or NaN tables are searched in order: the same first match
-    wide = Segment(segs[50].start_s, segs[60].end_s, "k", "wide")  # in start order, over the next ten
-    assert wide.end_s > segs[55].start_s
-    for table in ([*segs[:50], Segment(3.0, 500.0, "k", "wide"), *segs[50:]], [*segs[:50], wide, *segs[51:]],
-                  segs[::-1], [*gaps[:10], Segment(float("nan"), 1.0, "k", "nan"), *gaps[10:]], []):
+    for table in ([*segs[:50], Segment(3.0, 500.0, "k", "wide"), *segs[50:]], segs[::-1],
+                  [*gaps[:10], Segment(float("nan"), 1.0, "k", "nan"), *gaps[10:]],
+                  [*gaps[:10], Segment(gaps[9].end_s, float("nan"), "k", "nan_end"), *gaps[10:]], []):
         idx = SegmentIndex(table)
         assert idx.names_at(times) == _first_name(table, times)
     assert not SegmentIndex(segs[::-1])._sorted or len(segs) < 2
