@@ -7,7 +7,9 @@ windows (:meth:`~benchtwin.identification.steady.SteadyWindows.raw_average`) are
 re-run. Inside :func:`reusing` they are computed once and handed out again (as copies: callers may write into them),
 keyed by the identity of the source arrays and by everything else the result depends on. The source arrays are held
 weakly: the entries of a re-run's moved channel go with it, so the store holds results of channels that are alive
-only. Outside it nothing is kept. A result is the same with or without the store: it only skips recomputing it.
+only (each weak reference's callback names its entry, dropped at the next insertion: not a scan of the whole store
+per insertion, which made a campaign's identification grow with the square of its windows). Outside it nothing is
+kept. A result is the same with or without the store: it only skips recomputing it.
 
 The store assumes the channels' arrays are not changed in place while it is open (the re-runs only read them: a
 perturbed channel is a new array, :func:`~benchtwin.identification.uncertainty.perturbed`).
@@ -29,22 +31,25 @@ T = TypeVar("T")
 
 _lock = threading.Lock()
 _store: dict[Hashable, tuple[tuple[weakref.ref[np.ndarray], ...], Any]] | None = None
+#: keys of the store's entries one of whose arrays has gone (appended by the weak references' callbacks, which take
+#: no lock: an array may go while this thread holds it)
+_dead: list[Hashable] = []
 
 
 @contextmanager
 def reusing() -> Iterator[None]:
     """Keep shared results for the duration of the block (re-entrant: an inner block uses the outer store)."""
-    global _store
+    global _store, _dead
     with _lock:
         outer = _store is not None
         if not outer:
-            _store = {}
+            _store, _dead = {}, []
     try:
         yield
     finally:
         if not outer:
             with _lock:
-                _store = None
+                _store, _dead = None, []
 
 
 def _copy(x: Any) -> Any:
@@ -69,7 +74,7 @@ def reused(kind: str, arrays: tuple[np.ndarray, ...], key: Hashable, compute: Ca
     compute:
         Computes the result (arrays, or tuples of arrays and plain values).
     """
-    store = _store
+    store, dead = _store, _dead
     if store is None:
         return compute()
     full = (kind, tuple(id(a) for a in arrays), key)
@@ -79,8 +84,11 @@ def reused(kind: str, arrays: tuple[np.ndarray, ...], key: Hashable, compute: Ca
     out = compute()
     with _lock:
         if _store is store:
-            # entries of arrays that are gone (a finished re-run's moved channel) go too
-            for k in [k for k, (refs, _) in store.items() if any(r() is None for r in refs)]:
-                del store[k]
-            store[full] = (tuple(weakref.ref(a) for a in arrays), _copy(out))
+            # entries of arrays that are gone (a finished re-run's moved channel) go too: those the callbacks named
+            while dead:
+                k = dead.pop()
+                entry = store.get(k)
+                if entry is not None and any(r() is None for r in entry[0]):
+                    del store[k]
+            store[full] = (tuple(weakref.ref(a, lambda _r, k=full: dead.append(k)) for a in arrays), _copy(out))
     return out

@@ -27,6 +27,7 @@ from benchtwin.identification._clock import ClockShift, Shift, source_shifts, to
 from benchtwin.identification._derivative import runs, smooth_derivative
 from benchtwin.identification._reuse import reused
 from benchtwin.recording import Channel, Flag, Recording
+from benchtwin.segments import inside_any, touched
 
 __all__ = [
     "BAD_FLAGS",
@@ -317,10 +318,7 @@ def segment_mask(rec: Recording, t: np.ndarray, kinds: Iterable[str] | None) -> 
     segs = [s for s in rec.segments if s.kind in kinds]
     if not segs:
         return None
-    mask = np.zeros(t.shape, dtype=bool)
-    for s in segs:
-        mask |= s.contains(t)
-    return mask
+    return inside_any(segs, t)
 
 
 def segments_span(rec: Recording, kinds: Iterable[str] | None) -> tuple[float, float] | None:
@@ -337,11 +335,7 @@ def segments_span(rec: Recording, kinds: Iterable[str] | None) -> tuple[float, f
 def segment_names(rec: Recording, times: Iterable[float]) -> list[str]:
     """Names of the segments containing any of ``times`` (sorted, unique)."""
     times = np.asarray(list(times), dtype=float)
-    out = set()
-    for s in rec.segments:
-        if times.size and np.any(s.contains(times)):
-            out.add(s.name)
-    return sorted(out)
+    return sorted({s.name for s, hit in zip(rec.segments, touched(rec.segments, times), strict=True) if hit})
 
 
 def check_spread(x: np.ndarray, min_spread: float, what: str, name: str, unit: str = "") -> None:

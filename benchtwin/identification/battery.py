@@ -36,6 +36,7 @@ from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_f
 from benchtwin.identification._resample_blocks import rate_of, resample_strict
 from benchtwin.identification._signals import segment_mask
 from benchtwin.recording import Recording
+from benchtwin.segments import touched
 
 __all__ = [
     "CellMaps",
@@ -154,7 +155,8 @@ def _native_rate(rec: Recording, name: str, cap_hz: float = 10.0) -> float:
 def _segment_mask(rec: Recording, t: np.ndarray, kinds: tuple[str, ...] | None) -> tuple[np.ndarray, list[str]]:
     """Mask of samples inside segments of the given kinds; all samples when none match or no table."""
     mask = segment_mask(rec, t, kinds) if kinds else None
-    names = [s.name for s in rec.segments if s.kind in kinds and s.contains(t).any()] if mask is not None else []
+    searched = [s for s in rec.segments if s.kind in kinds] if mask is not None else []
+    names = [s.name for s, hit in zip(searched, touched(searched, t), strict=True) if hit]
     if not names:
         return np.ones(t.shape, dtype=bool), []
     return mask, names

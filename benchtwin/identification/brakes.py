@@ -36,6 +36,7 @@ from benchtwin.identification._signals import (
 from benchtwin.identification._windows import piece_grids
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
 from benchtwin.recording import Recording
+from benchtwin.segments import touched
 
 __all__ = ["brake_gain_windows", "brake_gains_from", "fit_brake_gain", "identify_brake_blending",
            "identify_brake_gains", "identify_brakes"]
@@ -299,7 +300,8 @@ def identify_brake_blending(rec: Recording, specs: VehicleSpecs, gains: Identifi
     maps = {}
     for name, z in (("regen", regen_share), ("hydraulic", hyd_share), ("front", front_share)):
         maps[f"map_{name}_share"], cnt = _binned_mean(vb, db, z, se, de, min_count)
-    segs = sorted({s.name for s in rec.segments if s.kind in set(kinds or ()) and np.any(s.contains(t_brk))})
+    searched = [s for s in rec.segments if s.kind in set(kinds or ())]
+    segs = sorted({s.name for s, hit in zip(searched, touched(searched, t_brk), strict=True) if hit})
 
     # consecutive samples are correlated (smoothing, slow manoeuvres): a moving-block bootstrap over
     # blocks of one smoothing window gives the standard errors and percentile intervals

@@ -34,6 +34,7 @@ from benchtwin.identification._signals import (
 )
 from benchtwin.identification._windows import gather_at, grid_bounds, segment_pieces
 from benchtwin.recording import Recording
+from benchtwin.segments import inside_any
 
 __all__ = ["BLOCK", "coastdown_runs", "fit_road_load", "identify_road_load"]
 
@@ -79,9 +80,7 @@ def _grid_blocks(rec: Recording, ch: str, rate_hz: float, kinds: Iterable[str] |
             if kb <= ka:
                 continue
             t_all = lo + np.arange(ka, kb) / rate_hz
-            inside = np.zeros(t_all.shape, dtype=bool)
-            for s in segs:
-                inside |= s.contains(t_all)
+            inside = inside_any(segs, t_all)  # by bisection: not a pass over the piece per test of the campaign
             for j0, j1 in runs(inside):
                 yield ka + j0, ka + j1
 

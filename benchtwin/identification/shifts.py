@@ -30,6 +30,7 @@ from benchtwin.identification._state_changes import state_changes
 from benchtwin.identification._windows import at_times
 from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Recording
+from benchtwin.segments import inside_any, touched
 
 __all__ = ["find_shift_events", "identify_shift_thresholds"]
 
@@ -79,9 +80,7 @@ def find_shift_events(rec: Recording, *, segment_kinds: tuple[str, ...] | None =
     if segment_kinds and rec.segments:
         segs = [sg for sg in rec.segments if sg.kind in segment_kinds]
         if segs:
-            inside = np.zeros(t_ev.shape, dtype=bool)
-            for sg in segs:
-                inside |= sg.contains(t_ev)
+            inside = inside_any(segs, t_ev)
             g_old, g_new, t_ev = g_old[inside], g_new[inside], t_ev[inside]
     sp, pd = rec["vehicle_speed_kmh"], rec["pedal_pct"]
     # read around the events only when the channels are read by blocks (see _windows.at_times)
@@ -168,7 +167,8 @@ def identify_shift_thresholds(
             n_bad = int((m & ~(ev["good"] & ev["crossing"])).sum())
             m &= ev["good"] & ev["crossing"]
             v, p = ev["speed_kmh"][m], ev["pedal_pct"][m]
-            segs = sorted({s.name for s in rec.segments if np.any(s.contains(ev["t"][m]))}) if rec.segments else []
+            hits = touched(rec.segments, ev["t"][m])
+            segs = sorted({s.name for s, hit in zip(rec.segments, hits, strict=True) if hit})
             spread = float(p.max() - p.min()) if p.size else 0.0
             if v.size < min_events:
                 fit = _flagged(name, v, p, f"{v.size} target-gear change event(s), need {min_events}", segs)

@@ -35,6 +35,7 @@ from benchtwin.identification._windows import MARGIN_S, reads_by_block, window_o
 from benchtwin.identification.steady_windowed import find_steady_windows_by_piece, window_stats
 from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
+from benchtwin.segments import SegmentIndex
 
 __all__ = [
     "SteadyWindow",
@@ -440,12 +441,12 @@ def find_steady_windows(rec: Recording, channels: Sequence[str], *, states: Iter
     mids = [grid.t[(a + b - 1) // 2] for a, b in spans]
     stats_ = window_stats(grid, spans)
     windows = []
-    for k, ((a, b), tm) in enumerate(zip(spans, mids)):
+    segnames = SegmentIndex(rec.segments).names_at(mids)
+    for k, (a, b) in enumerate(spans):
         means = {name: float(v[0][k]) for name, v in stats_.items() if np.isfinite(v[0][k])}
         stds = {name: float(v[1][k]) for name, v in stats_.items() if np.isfinite(v[0][k])}
         states_v = {s: float(grid[s][a]) for s in st}
-        segname = next((s.name for s in rec.segments if s.start_s <= tm < s.end_s), "")
         windows.append(SteadyWindow(float(grid.t[a]), float(grid.t[b - 1] + grid.dt), a, b, means, stds, states_v,
-                                    segname))
+                                    segnames[k]))
     n_excl = int((grid.flagged & searched).sum())
     return SteadyWindows(windows, grid, n_excl, float(searched.sum() * grid.dt), reasons)

@@ -17,6 +17,7 @@ import numpy as np
 from benchtwin.identification._signals import Grid, source_shifts
 from benchtwin.identification._windows import piece_grids
 from benchtwin.recording import Recording
+from benchtwin.segments import SegmentIndex
 
 __all__ = ["find_steady_windows_by_piece", "window_stats"]
 
@@ -79,6 +80,7 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
     names = dict.fromkeys([*required, *present])  # the channels the whole grid would hold
     shifts = source_shifts(rec)  # what the grids carry (none may come)
     dt = 1.0 / rate_hz
+    index = SegmentIndex(rec.segments)
     for g in grids:
         t = g.t
         st = {s: g[s] for s in state_names if s in g}
@@ -88,15 +90,14 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
         searched += t.size
         if spans:
             stats = window_stats(g, spans)
+            segnames = index.names_at([t[(a + b - 1) // 2] for a, b in spans])
             for k, (a, b) in enumerate(spans):
-                tm = t[(a + b - 1) // 2]
                 means = {nm: float(v[0][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
                 stds = {nm: float(v[1][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
                 states_v = {s: float(g[s][a]) for s in st}
-                segname = next((s.name for s in rec.segments if s.start_s <= tm < s.end_s), "")
                 off = g.first_index
                 found.append(window(float(t[a]), float(t[b - 1] + dt), off + a, off + b, means, stds, states_v,
-                                    segname))
+                                    segnames[k]))
         del g
     rec.drop(rec.loaded() - kept)  # a lazy Recording read whole here (no windowed reads): it goes again
     empty = np.zeros(0)

@@ -28,6 +28,7 @@ from benchtwin.identification._resample_blocks import GRID_BLOCK, StrictGrid
 from benchtwin.identification._signals import source_shifts
 from benchtwin.identification.transmission_drag import drag_c0
 from benchtwin.recording import Recording
+from benchtwin.segments import touched
 
 __all__ = ["RPM_PER_RADS", "ConverterPoints", "TorqueCalibration", "converter_points", "turbine_torque_scale",
            "unsettled"]
@@ -297,7 +298,7 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
                      calibrate_turbine_speed=calibrate_turbine_speed, lockup_slip_tol=lockup_slip_tol)
     p = sel.points  # the candidates: points (use) and torque-calibration samples (tcal) before the torque model
     use, g, gear, ig, w_t = p["use"], p["g"], p["gear"], p["ig"], p["w_t"]
-    segs = sorted({s.name for s in rec.segments if np.any(s.contains(p["t"][use]))}) if rec.segments else []
+    segs = sorted({s.name for s, hit in zip(rec.segments, touched(rec.segments, p["t"][use]), strict=True) if hit})
     scale, scale_se, n_cal = 1.0, float("nan"), 0
     if calibrate_turbine_speed:
         n_cal = int(sel.ratio.size)
