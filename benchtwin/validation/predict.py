@@ -32,7 +32,7 @@ trace of a drive the model computes, per time step and backwards from the wheels
    :mod:`benchtwin.identification.motor_loss`) when it was identified, else from the Willans lines, plus the
    measured 12 V load through the identified DC/DC efficiency;
 7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
-   literature maps, ``soc_per_ah``);
+   literature maps, ``soc_per_ah``), with the RC branches of ``battery.rc`` when that fit kept one;
 8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
    linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), plus the
    identified fuel of an engine start (``engine.start_fuel``, when used) per start of the replayed strategy; CO2.
@@ -61,6 +61,8 @@ from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
+from benchtwin.validation._pack_steps import battery_steps_rc as _battery_steps_rc
+from benchtwin.validation._pack_steps import rc_model, rc_model_note
 from benchtwin.validation.cold_start import cold_start_model, start_fuel_model
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
 from benchtwin.validation.gearbox import GearboxModel
@@ -182,6 +184,7 @@ class MapVehicle:
             if not (math.isfinite(k) and k > 0):
                 raise IdentificationError("prediction: battery.soc_per_ah (the usable capacity) not identified")
             self.soc_per_ah = k
+            self._battery_rc(result)
         if missing:
             raise IdentificationError("prediction needs " + ", ".join(missing))
         self._engine_map(result)
@@ -374,9 +377,27 @@ class MapVehicle:
                                 drive.gear)
 
     # ------------------------------------------------------------------ battery
+    def _battery_rc(self, result: IdentificationResult) -> None:
+        """Use ``battery.rc`` (eq. 30 with R_0 and RC branches) when its fit kept a branch, else eq. 30."""
+        rc = rc_model(result.fits.get("battery.rc"))
+        self.r_rc, self.tau_rc = (rc[k] if rc is not None else np.zeros(0) for k in ("r_rc", "tau_rc"))
+        if rc is not None:
+            self.ocv_cell, self.r_dch, self.r_ch = rc["ocv"], rc["r_dch"], rc["r_ch"]
+        self.notes.append(rc["note"] if rc is not None else rc_model_note(result.fits.get("battery.rc")))
+
     def battery(self, p_w: np.ndarray, dt_s: float, soc0_pct: float
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Current, terminal voltage and displayed SOC for the battery power ``p_w`` (eq. 30, coulomb counting)."""
+        """Current, terminal voltage and displayed SOC for the battery power ``p_w`` (eq. 30, or with RC branches
+        when ``battery.rc`` kept one, coulomb counting)."""
+        if self.r_rc.size:
+            return _battery_steps_rc(np.ascontiguousarray(p_w, dtype=np.float64), float(dt_s), float(soc0_pct),
+                                     np.ascontiguousarray(self.soc_nodes, dtype=np.float64),
+                                     np.ascontiguousarray(self.ocv_cell, dtype=np.float64),
+                                     np.ascontiguousarray(self.r_dch, dtype=np.float64),
+                                     np.ascontiguousarray(self.r_ch, dtype=np.float64),
+                                     float(self.specs.n_cells_series), float(self.soc_per_ah),
+                                     np.ascontiguousarray(self.r_rc, dtype=np.float64),
+                                     np.ascontiguousarray(self.tau_rc, dtype=np.float64))
         return _battery_steps(np.ascontiguousarray(p_w, dtype=np.float64), float(dt_s), float(soc0_pct),
                               np.ascontiguousarray(self.soc_nodes, dtype=np.float64),
                               np.ascontiguousarray(self.ocv_cell, dtype=np.float64),
