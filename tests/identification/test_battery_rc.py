@@ -194,3 +194,14 @@ def _rec_of(arr: dict) -> Recording:
     rec.add(Channel("battery_current_a", "A", arr["t"], arr["i"], source="ivt_battery"))
     rec.add(Channel("displayed_soc_pct", "%", arr["t"], arr["s"], source="vehicle_can"))
     return rec
+
+
+def test_a_branch_below_the_scatter_is_not_kept():
+    """A branch the data resolve (tiny interval) but that moves the pack voltage by ~5 mV against 30 mV of noise
+    is not material: no branch is kept (mutant: without the materiality rule a 1-uohm branch is kept)."""
+    truth = dict(TRUTH, r1_ohm=1.2e-6, r2_ohm=0.0)
+    rec, _arr = rc_recording(truth, noise_v=0.03, seed=7)
+    eq30 = identify_battery(rec, SPECS, refine_displayed_soc=False)
+    rc = identify_battery_rc(eq30, SPECS.n_cells_series)
+    assert int(rc.data["n_branches"]) == 0, rc.reasons
+    assert any("not material" in r for r in rc.reasons)
