@@ -31,11 +31,13 @@ import math
 
 import numpy as np
 
+from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
-from benchtwin.identification.battery import CellMaps, eq30_design, load_literature_maps
+from benchtwin.identification.battery import CellMaps, eq30_design, identify_battery, load_literature_maps
+from benchtwin.recording import Recording
 
-__all__ = ["filtered_current", "identify_battery_rc"]
+__all__ = ["filtered_current", "fit_battery_rc", "identify_battery_rc"]
 
 #: a gap in the samples longer than this restarts the RC states (the current in the gap is unknown)
 _MAX_GAP_S = 1.0
@@ -99,6 +101,53 @@ def _sse(A: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
 
 
 def identify_battery_rc(
+    rec: Recording,
+    specs: VehicleSpecs | None = None,
+    *,
+    n_cells: int | None = None,
+    maps: CellMaps | None = None,
+    rate_hz: float = 2.0,
+    segment_kinds: tuple[str, ...] | None = None,
+    n_branches: int = 2,
+) -> FitResult:
+    """``battery.rc`` from a Recording: eq. 30 with RC branches over every usable sample (:func:`fit_battery_rc`).
+
+    The RC branches need current changes (steps, accelerations, regenerative braking), which the paper's two
+    constant-speed tests hardly have; so, unlike eq. 30 (fitted on the constant drives), this fit takes every
+    usable sample of the Recording by default (a driving cycle held out of identification is not in it). The
+    samples and the refined SOC are those of :func:`benchtwin.identification.battery.identify_battery` on the
+    same samples.
+
+    Parameters
+    ----------
+    rec:
+        Recording with ``battery_voltage_v``, ``battery_current_a`` and ``displayed_soc_pct``.
+    specs, n_cells:
+        Cells in series: ``n_cells`` or the specs' ``n_cells_series``.
+    maps:
+        Literature cell maps (default: the shipped NMC maps).
+    rate_hz:
+        Common time base; 2 Hz resolves time constants from about 1 s (the fast search range's lower end) and
+        keeps a campaign's hours of samples to tens of thousands of rows.
+    segment_kinds:
+        Segment kinds whose samples are used; None: every usable sample.
+    n_branches:
+        1 or 2 RC branches to try.
+
+    Raises
+    ------
+    MissingChannelError, InsufficientDataError, NoExcitationError
+        As :func:`benchtwin.identification.battery.identify_battery`.
+    """
+    if n_cells is None:
+        if specs is None:
+            raise DataError("identify_battery_rc needs specs (n_cells_series) or n_cells")
+        n_cells = specs.n_cells_series
+    eq30 = identify_battery(rec, specs, n_cells=n_cells, maps=maps, rate_hz=rate_hz, segment_kinds=segment_kinds)
+    return fit_battery_rc(eq30, n_cells, maps=maps, n_branches=n_branches)
+
+
+def fit_battery_rc(
     eq30: FitResult,
     n_cells: int,
     *,
@@ -148,7 +197,7 @@ def identify_battery_rc(
         raise DataError(f"n_branches must be 1 or 2, got {n_branches}")
     need = ("t", "v_meas", "current", "soc")
     if not all(k in eq30.data for k in need):
-        raise DataError("identify_battery_rc needs the eq. 30 fit's samples (t, v_meas, current, soc)")
+        raise DataError("fit_battery_rc needs the eq. 30 fit's samples (t, v_meas, current, soc)")
     maps = maps or load_literature_maps()
     t = np.asarray(eq30.data["t"], float)
     i = np.asarray(eq30.data["current"], float)

@@ -139,14 +139,13 @@ def _direct(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def _battery(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
-    """Eq. 30 (``battery``) and, on its samples, the extension with RC branches (``battery.rc``)."""
+    """Eq. 30 on the constant drives (``battery``) and, on every usable sample, eq. 30 with RC branches
+    (``battery.rc``)."""
     o = dict(opts)
     out = IdentificationResult()
-    fit = identify_battery(rec, specs, **o)
-    out.fits["battery"] = fit
-    n_cells = o.get("n_cells") or (specs.n_cells_series if specs is not None else None)
+    out.fits["battery"] = identify_battery(rec, specs, **o)
     try:
-        out.fits["battery.rc"] = identify_battery_rc(fit, int(n_cells), maps=o.get("maps"))
+        out.fits["battery.rc"] = identify_battery_rc(rec, specs, n_cells=o.get("n_cells"), maps=o.get("maps"))
     except (IdentificationError, DataError) as exc:
         out.errors["battery.rc"] = f"{type(exc).__name__}: {exc}"
     return out

@@ -14,7 +14,7 @@ import pytest
 from _synth_b import SPECS, battery_recording
 
 from benchtwin.identification.battery import identify_battery, load_literature_maps
-from benchtwin.identification.battery_rc import filtered_current, identify_battery_rc
+from benchtwin.identification.battery_rc import filtered_current, fit_battery_rc
 from benchtwin.recording import Channel, Recording
 from benchtwin.segments import Segment
 from benchtwin.validation._pack_steps import battery_steps, battery_steps_rc, rc_model
@@ -105,7 +105,7 @@ def _theory_se(arr: dict, truth: dict[str, float], noise_v: float) -> dict[str, 
 def noisy():
     rec, arr = rc_recording(TRUTH, noise_v=0.2, seed=1)
     eq30 = identify_battery(rec, SPECS, refine_displayed_soc=False)
-    return rec, arr, eq30, identify_battery_rc(eq30, SPECS.n_cells_series)
+    return rec, arr, eq30, fit_battery_rc(eq30, SPECS.n_cells_series)
 
 
 def test_filtered_current_is_the_exact_branch_response():
@@ -140,7 +140,7 @@ def test_two_branches_recovered_within_the_noise_bound(noisy):
 def test_one_branch_is_not_enough(noisy):
     """Mutant 'drop a branch': one RC branch leaves a residual far above the noise and a wrong voltage."""
     _rec, _arr, eq30, _rc = noisy
-    one = identify_battery_rc(eq30, SPECS.n_cells_series, n_branches=1)
+    one = fit_battery_rc(eq30, SPECS.n_cells_series, n_branches=1)
     n = eq30.n_points
     # the two-branch fit's residual is the noise within 4 sigma of the chi-square band; one branch is far outside
     assert one.rmse / 0.2 - 1.0 > 10 * (4.0 * math.sqrt(0.5 / n) + 1e-3)
@@ -150,7 +150,7 @@ def test_the_pack_without_branches_keeps_eq30():
     """On the paper-form pack (no RC branch) the extension finds no branch and the prediction keeps eq. 30."""
     rec, truth = battery_recording(noise_v=0.2, seed=5)
     eq30 = identify_battery(rec, SPECS)
-    rc = identify_battery_rc(eq30, SPECS.n_cells_series)
+    rc = fit_battery_rc(eq30, SPECS.n_cells_series)
     assert int(rc.data["n_branches"]) == 0
     assert rc.status == "flagged"
     assert rc_model(rc) is None
@@ -202,6 +202,6 @@ def test_a_branch_below_the_scatter_is_not_kept():
     truth = dict(TRUTH, r1_ohm=1.2e-6, r2_ohm=0.0)
     rec, _arr = rc_recording(truth, noise_v=0.03, seed=7)
     eq30 = identify_battery(rec, SPECS, refine_displayed_soc=False)
-    rc = identify_battery_rc(eq30, SPECS.n_cells_series)
+    rc = fit_battery_rc(eq30, SPECS.n_cells_series)
     assert int(rc.data["n_branches"]) == 0, rc.reasons
     assert any("not material" in r for r in rc.reasons)
