@@ -63,7 +63,7 @@ def test_hold_fit_uses_only_the_holds_and_beats_the_all_samples_fit():
     rec, vehicle = _recording()
     hold = battery_hold_fit(rec, vehicle)
     every = identify_battery(rec, vehicle.specs)
-    n_hold = sum(int(round((b - a) * RATE)) for a, b, _ in battery_hold_windows(rec))
+    n_hold = sum(round((b - a) * RATE) for a, b, _ in battery_hold_windows(rec))
     assert abs(hold.n_points - n_hold) <= 4
     # the approach's 150 A burst and its relaxation are outside the holds: eq. 30 fits the holds far better
     assert hold.adj_r2 > every.adj_r2

@@ -6,7 +6,9 @@ drive's voltage is predicted with the wrong dynamics. The extension is a Theveni
 
 ``V/n = alpha OCV_lit(s) - I beta R_lit(s) - u_1 - u_2``,  ``tau_k du_k/dt = R_k I - u_k``
 
-(``beta_discharge`` for ``I > 0``, ``beta_charge`` for ``I < 0``, as eq. 30). For given time constants the
+(``beta_discharge`` for ``I > 0``, ``beta_charge`` for ``I < 0``, as eq. 30; with the pack temperature logged,
+``beta`` becomes ``beta + beta_temp_per_k (25 degC - T)``: a pack's ``R_0`` falls a few % per K as it warms,
+and a campaign warms the pack by 10-20 K). For given time constants the
 model is linear in ``(alpha, beta_dch, beta_ch, R_1, R_2)``: ``u_k = R_k x_k`` with ``x_k`` the current
 through a first-order filter (exact discretisation of a held current, ``x_k[j] = a x_k[j-1] + (1 - a) I[j]``,
 ``a = exp(-dt / tau_k)``). The time constants are found by a grid search over ``log tau`` (the sum of
@@ -39,6 +41,13 @@ from benchtwin.recording import Recording
 
 __all__ = ["filtered_current", "fit_battery_rc", "identify_battery_rc"]
 
+#: the pack temperature channel (optional)
+TEMP_ROLE = "battery_temp_degc"
+#: reference temperature of the linear temperature term of R_0, degC
+T_REF_DEGC = 25.0
+#: smallest span of the pack temperature over the data for a temperature term (below it the term is not separable
+#: from beta: a 1 K span moves an Arrhenius-like R_0 by ~2.5 %)
+MIN_TEMP_SPAN_K = 1.0
 #: a gap in the samples longer than this restarts the RC states (the current in the gap is unknown)
 _MAX_GAP_S = 1.0
 
@@ -144,7 +153,13 @@ def identify_battery_rc(
             raise DataError("identify_battery_rc needs specs (n_cells_series) or n_cells")
         n_cells = specs.n_cells_series
     eq30 = identify_battery(rec, specs, n_cells=n_cells, maps=maps, rate_hz=rate_hz, segment_kinds=segment_kinds)
-    return fit_battery_rc(eq30, n_cells, maps=maps, n_branches=n_branches)
+    temp = None
+    if TEMP_ROLE in rec:
+        ch = rec[TEMP_ROLE]
+        ok = np.isfinite(ch.values) & (ch.flags == 0)
+        if ok.sum() >= 2:
+            temp = np.interp(eq30.data["t"], ch.timestamps[ok], ch.values[ok])
+    return fit_battery_rc(eq30, n_cells, maps=maps, n_branches=n_branches, temp_degc=temp)
 
 
 def fit_battery_rc(
@@ -152,6 +167,7 @@ def fit_battery_rc(
     n_cells: int,
     *,
     maps: CellMaps | None = None,
+    temp_degc: np.ndarray | None = None,
     n_branches: int = 2,
     tau_fast_s: tuple[float, float] = (1.0, 40.0),
     tau_slow_s: tuple[float, float] = (40.0, 1500.0),
@@ -169,6 +185,10 @@ def fit_battery_rc(
         Cells in series.
     maps:
         The literature cell maps eq. 30 was fitted with (default: the shipped NMC maps).
+    temp_degc:
+        The pack temperature at the samples, or None. When it moves by :data:`MIN_TEMP_SPAN_K` or more,
+        ``R_0`` takes a linear temperature term, ``R_0 = (beta + beta_temp_per_k (T_ref - T)) R_lit(s)``
+        (``T_ref`` = :data:`T_REF_DEGC`; an Arrhenius-like resistance to first order).
     n_branches:
         1 or 2 RC branches to try (fewer are kept when the data do not support them).
     tau_fast_s, tau_slow_s:
@@ -181,7 +201,8 @@ def fit_battery_rc(
     -------
     FitResult
         ``alpha``, ``beta_discharge``, ``beta_charge`` (beta now scales ``R_0``, the instantaneous resistance),
-        ``r1_ohm``/``tau1_s`` and, with two branches kept, ``r2_ohm``/``tau2_s`` (per cell), ``soc_per_ah``
+        ``beta_temp_per_k`` with a temperature term, ``r1_ohm``/``tau1_s`` and, with two branches kept,
+        ``r2_ohm``/``tau2_s`` (per cell), ``soc_per_ah``
         copied from ``eq30``; ``data`` holds ``v_model``, ``map_soc``, ``map_ocv``, ``map_r_dch``, ``map_r_ch``
         (``R_0`` maps, per cell) and ``n_branches``. Flagged, with ``n_branches`` 0, when no RC branch is
         supported by the data.
@@ -208,6 +229,15 @@ def fit_battery_rc(
     base = eq30_design(s, i, maps)
     base = {k: v for k, v in base.items() if k in eq30.params}  # a direction eq. 30 could not identify stays out
     reasons: list[str] = []
+    temp = np.asarray(temp_degc, float) if temp_degc is not None else None
+    if temp is not None and (temp.shape != t.shape or not np.all(np.isfinite(temp))):
+        raise DataError(f"temp_degc must be finite with shape {t.shape}")
+    if temp is not None and np.ptp(temp) < MIN_TEMP_SPAN_K:
+        reasons.append(f"pack temperature spans {np.ptp(temp):.2g} K (< {MIN_TEMP_SPAN_K:g} K): no temperature term")
+        temp = None
+    if temp is not None:
+        r_lit = np.where(i > 0, maps.r_discharge(s), maps.r_charge(s))
+        base["beta_temp_per_k"] = -i * r_lit * (T_REF_DEGC - temp)
     for nb in range(n_branches, 0, -1):
         fit = _fit_taus(t, i, y, base, nb, tau_fast_s, tau_slow_s, grid, eq30.segments)
         i_rms = float(np.sqrt(np.mean(i * i)))
@@ -224,7 +254,7 @@ def fit_battery_rc(
         weak = sorted(why)
         reasons.append(f"{nb} RC branch(es): {why[weak[-1]]}")
     else:
-        fit = linear_fit(np.column_stack(list(base.values())), y, list(base), units=[""] * len(base),
+        fit = linear_fit(np.column_stack(list(base.values())), y, list(base), units=_units(base),
                          segments=eq30.segments, what="battery eq. 30 (no RC branch supported)", serial=True)
         fit.flag("no RC branch is supported by the data: the pack behaves as eq. 30 (static)")
         nb = 0
@@ -238,9 +268,15 @@ def fit_battery_rc(
     fit.data.update({
         "t": t, "v_meas": y * n_cells, "v_model": fit.data["y_fit"] * n_cells, "current": i, "soc": s,
         "map_soc": maps.soc_pct, "map_ocv": alpha * maps.ocv_v, "map_r_dch": b_d * maps.r_discharge_ohm,
-        "map_r_ch": b_c * maps.r_charge_ohm, "n_branches": np.array(nb),
+        "map_r_ch": b_c * maps.r_charge_ohm, "n_branches": np.array(nb), "lit_r_dch": maps.r_discharge_ohm,
+        "lit_r_ch": maps.r_charge_ohm, "t_ref_degc": np.array(T_REF_DEGC),
+        "temp_mean_degc": np.array(float(np.mean(temp)) if temp is not None else T_REF_DEGC),
     })
     return fit
+
+
+def _units(base: dict[str, np.ndarray]) -> list[str]:
+    return ["1/K" if k == "beta_temp_per_k" else "" for k in base]
 
 
 def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.ndarray], nb: int,
@@ -253,8 +289,20 @@ def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.nd
     def design(taus: tuple[float, ...]) -> np.ndarray:
         return np.column_stack([B] + [-_filtered_blocks(t, i, tau) for tau in taus])
 
+    # the base columns are the same for every pair of time constants: project them out once (QR), so that each
+    # evaluation solves only for the branches' columns
+    q, _r = np.linalg.qr(B)
+    y_r = y - q @ (q.T @ y)
+    yy = float(y_r @ y_r)
+
     def sse(taus: tuple[float, ...]) -> float:
-        return _sse(design(taus), y)[0]
+        c = np.column_stack([-_filtered_blocks(t, i, tau) for tau in taus])
+        c_r = c - q @ (q.T @ c)
+        g, h = c_r.T @ c_r, c_r.T @ y_r
+        try:
+            return yy - float(h @ np.linalg.solve(g, h))
+        except np.linalg.LinAlgError:
+            return _sse(design(taus), y)[0]
 
     gf, gs = np.geomspace(*fast, grid), np.geomspace(*slow, grid)
     pts = [(float(a),) for a in np.r_[gf, gs]] if nb == 1 else \
@@ -263,11 +311,11 @@ def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.nd
     lo, hi = np.log([fast[0]] + ([slow[0]] if nb == 2 else [])), np.log([fast[1] if nb == 2 else slow[1]]
                                                                        + ([slow[1]] if nb == 2 else []))
     opt = minimize(lambda z: sse(tuple(np.exp(np.clip(z, lo, hi)))), np.log(best), method="Nelder-Mead",
-                   options={"xatol": 1e-4, "fatol": 0.0, "maxiter": 400})
+                   options={"xatol": 1e-3, "fatol": 0.0, "maxiter": 300})
     taus = tuple(float(v) for v in np.exp(np.clip(opt.x, lo, hi)))
     names = list(base) + [f"r{k + 1}_ohm" for k in range(nb)]
     A = design(taus)
-    fit = linear_fit(A, y, names, units=[""] * len(base) + ["ohm"] * nb, segments=segments,
+    fit = linear_fit(A, y, names, units=_units(base) + ["ohm"] * nb, segments=segments,
                      what=f"battery eq. 30 + {nb} RC", serial=True)
     x = np.array([fit.value(n) for n in names])
     # joint intervals: the model linearised in all parameters (time constants included) at the optimum; the
@@ -281,7 +329,7 @@ def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.nd
     J = np.column_stack([A, *dcols])
     y_lin = y - A @ x + J @ np.r_[x, taus]
     tnames = [f"tau{k + 1}_s" for k in range(nb)]
-    joint = linear_fit(J, y_lin, names + tnames, units=[""] * len(base) + ["ohm"] * nb + ["s"] * nb,
+    joint = linear_fit(J, y_lin, names + tnames, units=_units(base) + ["ohm"] * nb + ["s"] * nb,
                        segments=segments, what=f"battery eq. 30 + {nb} RC (linearised)", serial=True, cond_max=1e9)
     for n in names:
         p, q = fit.params[n], joint.params[n]

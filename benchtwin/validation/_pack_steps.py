@@ -43,8 +43,12 @@ def battery_steps(p_w: np.ndarray, dt_s: float, soc0_pct: float, nodes: np.ndarr
 @numba.njit(cache=True, nogil=True)
 def battery_steps_rc(p_w: np.ndarray, dt_s: float, soc0_pct: float, nodes: np.ndarray, ocv_cell: np.ndarray,
                      r_dch: np.ndarray, r_ch: np.ndarray, n_cells: float, soc_per_ah: float, r_rc: np.ndarray,
-                     tau_rc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     tau_rc: np.ndarray, r_lit_dch: np.ndarray, r_lit_ch: np.ndarray, beta_temp_per_k: float,
+                     t_ref_degc: float, temp_degc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`battery_steps` with RC branches (``battery.rc``): ``V/n = OCV - I R_0 - sum u_k``.
+
+    ``R_0 = R(s) + beta_temp_per_k (t_ref - T) R_lit(s)`` per direction, ``T`` the pack temperature per step
+    (``beta_temp_per_k`` 0: no temperature term).
 
     Each branch's state is the current through a first-order filter, ``x_k = a x_k' + (1 - a) I``,
     ``a = exp(-dt / tau_k)``, ``u_k = R_k x_k`` (the discretisation the fit used); the step's current solves
@@ -65,6 +69,9 @@ def battery_steps_rc(p_w: np.ndarray, dt_s: float, soc0_pct: float, nodes: np.nd
         p = p_w[k]
         ocv = np.interp(s, nodes, ocv_cell)
         r = np.interp(s, nodes, r_dch) if p > 0 else np.interp(s, nodes, r_ch)
+        if beta_temp_per_k != 0.0:
+            r_lit = np.interp(s, nodes, r_lit_dch) if p > 0 else np.interp(s, nodes, r_lit_ch)
+            r += beta_temp_per_k * (t_ref_degc - temp_degc[k]) * r_lit
         off = 0.0
         r_eff = r
         for b in range(nb):
@@ -97,10 +104,17 @@ def rc_model(rc: Any) -> dict[str, Any] | None:
     r_d, r_c = (np.asarray(rc.data[k], float) for k in ("map_r_dch", "map_r_ch"))
     r_rc = np.array([rc.value(f"r{k + 1}_ohm") for k in range(nb)])
     tau_rc = np.array([rc.value(f"tau{k + 1}_s") for k in range(nb)])
-    note = "battery: battery.rc, R_0 and " + ", ".join(
+    k_t = rc.value("beta_temp_per_k") if "beta_temp_per_k" in rc.params else 0.0
+    note = "battery: battery.rc, R_0" + (f" (with {k_t:.3g}/K x (25 degC - T) on beta, T the drive's pack temperature)"
+                                         if k_t else "") + " and " + ", ".join(
         f"R {r * 1e3:.3g} mohm / tau {tau:.3g} s" for r, tau in zip(r_rc, tau_rc, strict=True)) + " per cell"
-    return {"ocv": np.asarray(rc.data["map_ocv"], float), "r_dch": r_d if np.all(np.isfinite(r_d)) else r_c,
-            "r_ch": r_c if np.all(np.isfinite(r_c)) else r_d, "r_rc": r_rc, "tau_rc": tau_rc, "note": note}
+    ok_d = np.all(np.isfinite(r_d))
+    ok_c = np.all(np.isfinite(r_c))
+    lit_d, lit_c = (np.asarray(rc.data[k], float) for k in ("lit_r_dch", "lit_r_ch"))
+    return {"ocv": np.asarray(rc.data["map_ocv"], float), "r_dch": r_d if ok_d else r_c, "r_ch": r_c if ok_c else r_d,
+            "r_rc": r_rc, "tau_rc": tau_rc, "note": note, "r_lit_dch": lit_d if ok_d else lit_c,
+            "r_lit_ch": lit_c if ok_c else lit_d, "beta_temp_per_k": float(k_t),
+            "t_ref_degc": float(rc.data["t_ref_degc"]), "temp_mean_degc": float(rc.data["temp_mean_degc"])}
 
 
 def rc_model_note(rc: Any) -> str:

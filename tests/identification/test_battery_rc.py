@@ -49,8 +49,13 @@ def _current(duration_s: float, sign: int, mean_a: float, seed: int) -> np.ndarr
     return sign * np.abs(i)
 
 
-def rc_recording(truth: dict[str, float], *, noise_v: float, seed: int = 0) -> tuple[Recording, dict]:
-    """A depletion (SOC 95 -> ~20 %) and a charge drive (20 -> ~35 %) of a two-RC pack; the arrays too."""
+def rc_recording(truth: dict[str, float], *, noise_v: float, seed: int = 0, temp_rise_k: float = 0.0
+                 ) -> tuple[Recording, dict]:
+    """A depletion (SOC 95 -> ~20 %) and a charge drive (20 -> ~35 %) of a two-RC pack; the arrays too.
+
+    With ``temp_rise_k`` the pack warms linearly from 23 degC by that much over the two tests, logged as
+    ``battery_temp_degc``, and ``R_0 = (beta + beta_temp_per_k (25 - T)) R_lit`` (``truth["beta_temp_per_k"]``).
+    """
     maps = load_literature_maps()
     n = SPECS.n_cells_series
     parts = []
@@ -70,7 +75,10 @@ def rc_recording(truth: dict[str, float], *, noise_v: float, seed: int = 0) -> t
     # both by starting each test from 0, as the fit's gap rule does)
     x1 = np.concatenate([_branch(p[0], p[1], truth["tau1_s"]) for p in parts])
     x2 = np.concatenate([_branch(p[0], p[1], truth["tau2_s"]) for p in parts])
-    r0 = np.where(i > 0, truth["beta_discharge"] * maps.r_discharge(s), truth["beta_charge"] * maps.r_charge(s))
+    temp = 23.0 + temp_rise_k * (t - t[0]) / (t[-1] - t[0])
+    k_t = truth.get("beta_temp_per_k", 0.0) * (25.0 - temp)
+    r0 = np.where(i > 0, (truth["beta_discharge"] + k_t) * maps.r_discharge(s),
+                  (truth["beta_charge"] + k_t) * maps.r_charge(s))
     v_cell = truth["alpha"] * maps.ocv(s) - i * r0 - truth["r1_ohm"] * x1 - truth["r2_ohm"] * x2
     rng = np.random.default_rng(seed + 100)
     v = v_cell * n + noise_v * rng.standard_normal(t.size)
@@ -78,7 +86,9 @@ def rc_recording(truth: dict[str, float], *, noise_v: float, seed: int = 0) -> t
     rec.add(Channel("battery_voltage_v", "V", t, v, source="ivt_battery"))
     rec.add(Channel("battery_current_a", "A", t, i, source="ivt_battery"))
     rec.add(Channel("displayed_soc_pct", "%", t, s, source="vehicle_can"))
-    return rec, {"t": t, "i": i, "s": s, "x1": x1, "x2": x2, "v": v, "v_cell": v_cell}
+    if temp_rise_k:
+        rec.add(Channel("battery_temp_degc", "degC", t, temp, source="thermo"))
+    return rec, {"t": t, "i": i, "s": s, "x1": x1, "x2": x2, "v": v, "v_cell": v_cell, "temp": temp}
 
 
 def _theory_se(arr: dict, truth: dict[str, float], noise_v: float) -> dict[str, float]:
@@ -168,16 +178,17 @@ def test_prediction_pack_follows_the_branches(noisy):
     p = v_cell * n * i
     maps = load_literature_maps()
     # the true pack (truth's maps and branches) gives back the current and voltage to rounding
+    no_temp = (maps.r_discharge_ohm, maps.r_charge_ohm, 0.0, 25.0, np.zeros(p.size - 1))
     _i, v_t, _s = battery_steps_rc(p[1:], 0.1, float(arr["s"][0]), maps.soc_pct,
-                                    TRUTH["alpha"] * maps.ocv_v, TRUTH["beta_discharge"] * maps.r_discharge_ohm,
-                                    TRUTH["beta_charge"] * maps.r_charge_ohm, float(n), SOC_PER_AH,
-                                    np.array([TRUTH["r1_ohm"], TRUTH["r2_ohm"]]),
-                                    np.array([TRUTH["tau1_s"], TRUTH["tau2_s"]]))
+                                   TRUTH["alpha"] * maps.ocv_v, TRUTH["beta_discharge"] * maps.r_discharge_ohm,
+                                   TRUTH["beta_charge"] * maps.r_charge_ohm, float(n), SOC_PER_AH,
+                                   np.array([TRUTH["r1_ohm"], TRUTH["r2_ohm"]]),
+                                   np.array([TRUTH["tau1_s"], TRUTH["tau2_s"]]), *no_temp)
     v_true = v_cell[1:] * n
     assert np.sqrt(np.mean((v_t - v_true) ** 2)) < 0.05  # SOC counted per step vs trapezoid: a few mV
     # the identified pack: within the noise-propagated bound of a few tenths of a volt
     _i, v_id, _s = battery_steps_rc(p[1:], 0.1, float(arr["s"][0]), maps.soc_pct, m["ocv"], m["r_dch"], m["r_ch"],
-                                    float(n), SOC_PER_AH, m["r_rc"], m["tau_rc"])
+                                    float(n), SOC_PER_AH, m["r_rc"], m["tau_rc"], *no_temp)
     rms_rc = float(np.sqrt(np.mean((v_id - v_true) ** 2)))
     # eq. 30 refitted on the same data (the betas absorb the branches) misses the relaxation
     eq = identify_battery(_rec_of(arr), SPECS, refine_displayed_soc=False)
@@ -205,3 +216,42 @@ def test_a_branch_below_the_scatter_is_not_kept():
     rc = fit_battery_rc(eq30, SPECS.n_cells_series)
     assert int(rc.data["n_branches"]) == 0, rc.reasons
     assert any("not material" in r for r in rc.reasons)
+
+
+def test_from_a_recording_on_every_sample(noisy):
+    """identify_battery_rc takes every usable sample (both tests here) and gives the fit on the eq. 30 samples."""
+    rec, _arr, _eq30, rc = noisy
+    from benchtwin.identification.battery_rc import identify_battery_rc
+
+    got = identify_battery_rc(rec, SPECS, rate_hz=RATE)
+    assert got.n_points == rc.n_points  # the 60 s between the tests holds no sample
+    for name in TRUTH:
+        np.testing.assert_allclose(got.value(name), rc.value(name), rtol=1e-3, err_msg=name)
+
+
+def test_temperature_term_recovered_and_used_by_the_prediction():
+    """A pack whose R_0 falls 2.5 %/K as it warms 15 K: the term is recovered within its interval, and the prediction
+    at the logged temperature follows the voltage where the mean temperature does not (mutant: the prediction
+    ignoring the temperature term fails the last assertion)."""
+    truth = dict(TRUTH, beta_temp_per_k=0.025 * TRUTH["beta_discharge"])
+    rec, arr = rc_recording(truth, noise_v=0.2, seed=11, temp_rise_k=15.0)
+    from benchtwin.identification.battery_rc import identify_battery_rc
+
+    rc = identify_battery_rc(rec, SPECS, rate_hz=RATE)
+    p = rc.params["beta_temp_per_k"]
+    assert p.ci95[0] < truth["beta_temp_per_k"] < p.ci95[1], (p.value, p.ci95)
+    assert abs(rc.value("beta_discharge") / truth["beta_discharge"] - 1.0) < 0.02
+    m = rc_model(rc)
+    n = SPECS.n_cells_series
+    sl = slice(0, int(1800 * RATE))
+    pw = arr["v_cell"][sl] * n * arr["i"][sl]
+    maps = load_literature_maps()
+    args = (pw[1:], 0.1, float(arr["s"][0]), maps.soc_pct, m["ocv"], m["r_dch"], m["r_ch"], float(n), SOC_PER_AH,
+            m["r_rc"], m["tau_rc"], m["r_lit_dch"], m["r_lit_ch"], m["beta_temp_per_k"], m["t_ref_degc"])
+    _i, v_logged, _s = battery_steps_rc(*args, arr["temp"][sl][1:])
+    _i, v_mean, _s = battery_steps_rc(*args, np.full(pw.size - 1, m["temp_mean_degc"]))
+    v_true = arr["v_cell"][sl][1:] * n
+    rms_logged = float(np.sqrt(np.mean((v_logged - v_true) ** 2)))
+    rms_mean = float(np.sqrt(np.mean((v_mean - v_true) ** 2)))
+    assert rms_logged < 0.2
+    assert rms_mean > 2 * rms_logged
