@@ -53,6 +53,7 @@ from benchtwin.identification.battery_map_free import (
     identify_battery_ocv_rest,
     identify_battery_r0_steps,
 )
+from benchtwin.identification.battery_rc import identify_battery_rc
 from benchtwin.identification.brakes import identify_brakes
 from benchtwin.identification.engine import identify_engine
 from benchtwin.identification.engine_cold import COOLANT_ROLE
@@ -137,6 +138,19 @@ def _direct(fn: Callable[..., Any]) -> Callable[..., Any]:
     return run
 
 
+def _battery(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
+    """Eq. 30 on the constant drives (``battery``) and, on every usable sample, eq. 30 with RC branches
+    (``battery.rc``)."""
+    o = dict(opts)
+    out = IdentificationResult()
+    out.fits["battery"] = identify_battery(rec, specs, **o)
+    try:
+        out.fits["battery.rc"] = identify_battery_rc(rec, specs, n_cells=o.get("n_cells"), maps=o.get("maps"))
+    except (IdentificationError, DataError) as exc:
+        out.errors["battery.rc"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
 def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult,
                       opts: Mapping[str, Any]) -> Any:
     o = dict(opts)
@@ -204,7 +218,7 @@ METHODS: tuple[Method, ...] = (
            any_roles=("dyno_speed_kmh", "dyno_force_front_n"), spec_keys=("test_mass_kg",)),
     Method("brakes", ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",
                       "brake_pressure_rr_bar"), _direct(identify_brakes), spec_keys=("wheel_radius_m",)),
-    Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _direct(identify_battery),
+    Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _battery,
            spec_keys=("n_cells_series",)),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
     Method("torque_converter", ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual"), _torque_converter,

@@ -46,6 +46,8 @@ class DriveInputs:
         reading).
     initial_coolant_degc:
         The engine coolant's first reading (the cold-start model's initial state), or None when not logged.
+    battery_degc:
+        Measured HV pack temperature (degC), or None when not logged (gaps filled as ``oil_degc``'s).
     """
 
     t_s: np.ndarray
@@ -64,6 +66,7 @@ class DriveInputs:
     name: str = "drive"
     oil_degc: np.ndarray | None = None
     initial_coolant_degc: float | None = None
+    battery_degc: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.t_s).size
@@ -75,22 +78,28 @@ class DriveInputs:
             setattr(self, k, np.nan_to_num(arr, nan=0.0))
         if n < 3:
             raise ValueError("DriveInputs: a drive needs at least 3 samples")
-        if self.oil_degc is not None:
-            oil = np.asarray(self.oil_degc, dtype=float)
-            if oil.shape != (n,):
-                raise ValueError(f"DriveInputs.oil_degc has shape {oil.shape}, expected ({n},)")
-            ok = np.isfinite(oil)
-            if not ok.any():
-                self.oil_degc = None
-            else:
-                idx = np.flatnonzero(ok)
-                near = idx[np.clip(np.searchsorted(idx, np.arange(n)), 0, idx.size - 1)]
-                self.oil_degc = np.where(ok, oil, oil[near])
+        self.oil_degc = _filled(self.oil_degc, n, "oil_degc")
+        self.battery_degc = _filled(self.battery_degc, n, "battery_degc")
 
     @property
     def dt_s(self) -> float:
         """Time step."""
         return float(np.median(np.diff(self.t_s)))
+
+
+def _filled(x: np.ndarray | None, n: int, name: str) -> np.ndarray | None:
+    """A measured temperature with its gaps filled from the nearest reading; None when it has no reading."""
+    if x is None:
+        return None
+    arr = np.asarray(x, dtype=float)
+    if arr.shape != (n,):
+        raise ValueError(f"DriveInputs.{name} has shape {arr.shape}, expected ({n},)")
+    ok = np.isfinite(arr)
+    if not ok.any():
+        return None
+    idx = np.flatnonzero(ok)
+    near = idx[np.clip(np.searchsorted(idx, np.arange(n)), 0, idx.size - 1)]
+    return np.where(ok, arr, arr[near])
 
 
 @dataclass

@@ -179,7 +179,7 @@ def drive_inputs(rec: Recording, start_s: float, end_s: float, *, name: str = "d
     req = ["vehicle_speed_kmh", "gear_actual", "lockup_closed", "k0_closed", "engine_on", "engine_torque_nm",
            "engine_speed_rpm", "pedal_pct"]
     opt = ["brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar", "brake_pressure_rr_bar",
-           "dcdc_lv_current_a", "dcdc_lv_voltage_v", "gearbox_oil_degc", COOLANT_ROLE]
+           "dcdc_lv_current_a", "dcdc_lv_voltage_v", "gearbox_oil_degc", COOLANT_ROLE, "battery_temp_degc"]
     g = gather(rec, req, rate_hz, optional=opt, span=(start_s, end_s), what="prediction")
 
     def mean(*names: str) -> np.ndarray:
@@ -199,7 +199,8 @@ def drive_inputs(rec: Recording, start_s: float, end_s: float, *, name: str = "d
                        brake_rear_bar=mean("brake_pressure_rl_bar", "brake_pressure_rr_bar"), p_lv_w=p_lv,
                        initial_soc_pct=_initial_soc(rec, start_s, soc_per_ah), name=name,
                        oil_degc=g["gearbox_oil_degc"] if "gearbox_oil_degc" in g.present else None,
-                       initial_coolant_degc=_first(g[COOLANT_ROLE]) if COOLANT_ROLE in g.present else None)
+                       initial_coolant_degc=_first(g[COOLANT_ROLE]) if COOLANT_ROLE in g.present else None,
+                       battery_degc=g["battery_temp_degc"] if "battery_temp_degc" in g.present else None)
 
 
 def _first(x: np.ndarray) -> float | None:
@@ -449,7 +450,7 @@ def _battery_checks(pred: Prediction | None, trace: Trace, drive: DriveInputs | 
     rms = float(np.sqrt(np.mean((pred.series["battery_voltage_v"] - v_true) ** 2)))
     tol = {"ideal": 1.0, "realistic": 3.0}[profile]
     return [Check("prediction", "submodel.battery_voltage_rms", rms, 0.0, rms, tol, "abs", "V", bool(rms <= tol),
-                  "terminal voltage of the model (eq. 30 identified, driven by the predicted current and SOC) against "
+                  "model terminal voltage (eq. 30 or battery.rc, driven by the predicted current and SOC) against "
                   "the true voltage over the held-out drive; the pack is ~350 V with ~20-40 V drop at peak current: "
                   "1 V ideal (0.3 %, the identified alpha/beta to 0.1 % and the SOC to a few tenths), 3 V realistic "
                   "(the shunt's voltage and current gain errors)")]

@@ -32,7 +32,7 @@ trace of a drive the model computes, per time step and backwards from the wheels
    :mod:`benchtwin.identification.motor_loss`) when it was identified, else from the Willans lines, plus the
    measured 12 V load through the identified DC/DC efficiency;
 7. the battery current, terminal voltage and SOC from the identified eq. 30 (alpha, beta, the scaled
-   literature maps, ``soc_per_ah``);
+   literature maps, ``soc_per_ah``), with the RC branches of ``battery.rc`` when that fit kept one;
 8. the fuel flow from the identified BSFC map (as a fuel mean effective pressure over speed x BMEP,
    linear towards zero load) with the cold-start factor on a predicted coolant (:mod:`.cold_start`), plus the
    identified fuel of an engine start (``engine.start_fuel``, when used) per start of the replayed strategy; CO2.
@@ -61,6 +61,8 @@ from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
+from benchtwin.validation._pack_steps import battery_steps_rc as _battery_steps_rc
+from benchtwin.validation._pack_steps import rc_model, rc_model_note
 from benchtwin.validation.cold_start import cold_start_model, start_fuel_model
 from benchtwin.validation.drive import CO2_G_PER_G_DIESEL, DIESEL_DENSITY_KG_PER_L, DriveInputs, Prediction
 from benchtwin.validation.gearbox import GearboxModel
@@ -182,6 +184,7 @@ class MapVehicle:
             if not (math.isfinite(k) and k > 0):
                 raise IdentificationError("prediction: battery.soc_per_ah (the usable capacity) not identified")
             self.soc_per_ah = k
+            self._battery_rc(result)
         if missing:
             raise IdentificationError("prediction needs " + ", ".join(missing))
         self._engine_map(result)
@@ -374,15 +377,29 @@ class MapVehicle:
                                 drive.gear)
 
     # ------------------------------------------------------------------ battery
-    def battery(self, p_w: np.ndarray, dt_s: float, soc0_pct: float
+    def _battery_rc(self, result: IdentificationResult) -> None:
+        """Use ``battery.rc`` (eq. 30 with R_0 and RC branches) when its fit kept a branch, else eq. 30."""
+        self.rc = rc_model(result.fits.get("battery.rc"))
+        if self.rc is not None:
+            self.ocv_cell, self.r_dch, self.r_ch = self.rc["ocv"], self.rc["r_dch"], self.rc["r_ch"]
+        self.notes.append(self.rc["note"] if self.rc is not None else rc_model_note(result.fits.get("battery.rc")))
+
+    def battery(self, p_w: np.ndarray, dt_s: float, soc0_pct: float, temp_degc: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Current, terminal voltage and displayed SOC for the battery power ``p_w`` (eq. 30, coulomb counting)."""
-        return _battery_steps(np.ascontiguousarray(p_w, dtype=np.float64), float(dt_s), float(soc0_pct),
-                              np.ascontiguousarray(self.soc_nodes, dtype=np.float64),
-                              np.ascontiguousarray(self.ocv_cell, dtype=np.float64),
-                              np.ascontiguousarray(self.r_dch, dtype=np.float64),
-                              np.ascontiguousarray(self.r_ch, dtype=np.float64),
-                              float(self.specs.n_cells_series), float(self.soc_per_ah))
+        """Current, terminal voltage and displayed SOC for the battery power ``p_w`` (eq. 30, or with RC branches
+        when ``battery.rc`` kept one, at the pack temperature ``temp_degc`` (default the fit's mean); coulomb
+        counting)."""
+        f8 = np.float64
+        arrs = [np.ascontiguousarray(a, dtype=f8) for a in (p_w, self.soc_nodes, self.ocv_cell, self.r_dch, self.r_ch)]
+        if self.rc is None:
+            return _battery_steps(arrs[0], float(dt_s), float(soc0_pct), *arrs[1:], float(self.specs.n_cells_series),
+                                  float(self.soc_per_ah))
+        rc = self.rc
+        temp = np.full(arrs[0].size, rc["temp_mean_degc"]) if temp_degc is None else temp_degc
+        return _battery_steps_rc(arrs[0], float(dt_s), float(soc0_pct), *arrs[1:], float(self.specs.n_cells_series),
+                                 float(self.soc_per_ah), *(np.ascontiguousarray(rc[k], dtype=f8) for k in (
+                                     "r_rc", "tau_rc", "r_lit_dch", "r_lit_ch")), rc["beta_temp_per_k"],
+                                 rc["t_ref_degc"], np.ascontiguousarray(temp, dtype=f8))
 
     # ------------------------------------------------------------------ motor
     def motor_power_w(self, torque_nm: np.ndarray, speed_radps: np.ndarray) -> np.ndarray:
@@ -464,7 +481,7 @@ class MapVehicle:
         p_el = self.motor_power_w(t_m, w_m)
         p_el = np.where((w_m < 1.0) & (np.abs(t_m) < 0.5), 0.0, p_el)
         p_bat = p_el + drive.p_lv_w / self.eta_dcdc
-        i_b, v_b, soc = self.battery(p_bat, dt, drive.initial_soc_pct)
+        i_b, v_b, soc = self.battery(p_bat, dt, drive.initial_soc_pct, drive.battery_degc)
         fuel = np.where(on, self.fuel_gps(w_e / _RPM, t_e), 0.0)
         if self.cold is not None and drive.initial_coolant_degc is not None:  # the factor on the predicted coolant
             fuel, _coolant = self.cold.run(fuel, t_e * w_e, on, dt, drive.initial_coolant_degc, sp.fuel_lhv_j_per_kg)
