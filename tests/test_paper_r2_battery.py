@@ -68,3 +68,24 @@ def test_hold_fit_uses_only_the_holds_and_beats_the_all_samples_fit():
     # the approach's 150 A burst and its relaxation are outside the holds: eq. 30 fits the holds far better
     assert hold.adj_r2 > every.adj_r2
     assert hold.rmse < 0.5 * every.rmse
+
+
+#: the paper's R^2 as its text writes them, and the lowest value that rounds to each at the written digits
+_QUOTED = {"transmission.gear5": 0.945, "motor.motoring": 0.845, "battery": 0.9945,
+           "torque_converter.torque_ratio": 0.805, "torque_converter.capacity_factor": 0.885,
+           "torque_converter.capacity_factor_coupling": 0.745}
+
+
+def test_a_value_equal_to_the_paper_at_its_quoted_digits_reaches_it() -> None:
+    from benchtwin.validation.paper_r2 import PAPER_R2, reaches_paper
+
+    assert set(_QUOTED) == set(PAPER_R2)
+    for key, (_, quoted, _) in PAPER_R2.items():
+        edge = _QUOTED[key]
+        ok, threshold = reaches_paper(edge, quoted)
+        assert ok and abs(threshold - edge) < 1e-12, key
+        assert not reaches_paper(edge - 1e-6, quoted)[0], key  # below half the last digit: not reached
+        assert reaches_paper(quoted, quoted)[0] and reaches_paper(1.0, quoted)[0], key
+    assert reaches_paper(0.99499, 0.995)[0]  # "around 0.995"
+    for bad in (float("nan"), float("inf"), float("-inf")):
+        assert not reaches_paper(bad, 0.995)[0]

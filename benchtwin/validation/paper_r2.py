@@ -6,6 +6,7 @@ chosen test (e.g. Figure 8: one 5th-gear Hybrid ramp-up), so their R^2 is compar
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,8 @@ from benchtwin.recording import Channel, Recording
 from benchtwin.segments import Segment
 from benchtwin.trace import Trace
 
-__all__ = ["HOLD_SPEED_BAND_KMH", "PAPER_R2", "battery_hold_fit", "battery_hold_windows", "paper_estimation_fits"]
+__all__ = ["HOLD_SPEED_BAND_KMH", "PAPER_R2", "battery_hold_fit", "battery_hold_windows", "paper_estimation_fits",
+           "reaches_paper"]
 
 #: the paper's coefficients of determination, which the realistic profile must reach or beat
 PAPER_R2: dict[str, tuple[str, float, str]] = {
@@ -30,6 +32,22 @@ PAPER_R2: dict[str, tuple[str, float, str]] = {
     "torque_converter.capacity_factor": ("r2", 0.89, "capacity factor, converter mode (Figure 19)"),
     "torque_converter.capacity_factor_coupling": ("r2", 0.75, "capacity factor, coupling mode"),
 }
+
+
+def reaches_paper(value: float, quoted: float) -> tuple[bool, float]:
+    """Whether an R^2 reaches the paper's, which the paper quotes to the digits written in :data:`PAPER_R2`.
+
+    The paper gives each coefficient rounded ("around 0.995", "R^2 = 0.81"), so a value equal to it at those
+    digits reaches it: ``value >= quoted - 0.5 ulp`` of the quoted last digit (0.995 -> 0.9945, 0.85 -> 0.845).
+
+    Returns
+    -------
+    tuple
+        ``(reached, threshold)``; a NaN or infinite value never reaches it.
+    """
+    digits = len(repr(float(quoted)).partition(".")[2])
+    threshold = round(quoted - 0.5 * 10.0 ** -digits, digits + 1)
+    return bool(math.isfinite(value) and value >= threshold), threshold
 
 
 #: samples of a channel read at a time to cut a window out of it
