@@ -116,9 +116,9 @@ RARE_ROWS = 0.0
 #: sensor's declared gain and offset (also the same every seed), so the derivatives are taken where a run is
 CONVERTER_RECORDED = ("em_speed_rpm", "em_torque_nm", "vehicle_speed_kmh")
 
-#: draws of the turbine-torque scale (the calibration alone, a few ms each): its spread over the paper campaign's
-#: draws is heavy-tailed (excess kurtosis about 19: a gear's median now and then jumps a quantisation level), so
-#: the std of K draws is known to about sqrt((kurtosis + 2) / (4 K)): 26 % at 80, 11 % at 400
+#: draws of the turbine-torque scale (the calibration alone, a few ms each): over the paper campaign's draws its
+#: spread is heavy-tailed (excess kurtosis 16 over 400: a gear's median now and then jumps a quantisation level), so
+#: the std of K draws is known to about sqrt((kurtosis + 2) / (4 K)): 24 % at 80, 11 % at 400
 SCALE_DRAWS = 400
 #: the normal's std over its median absolute deviation: the robust width of a spread is ROBUST_MAD * MAD
 ROBUST_MAD = 1.4826
@@ -388,8 +388,9 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         ts_why = (f"one gear's median torque ratio: its spread over {len(tscales)} draws of the readings"
                   if cal_gears == 1 else
                   f"a median over {cal_gears} gears' median torque ratios: its spread over {len(tscales)} draws of "
-                  f"the readings; {HEAVY_TAILED} (robust width {robust:.3g}, std {ts_se / robust:.2g} times it): a "
-                  "gear's median now and then jumps a quantisation level")
+                  f"the readings; {HEAVY_TAILED} (robust width {robust:.3g}"
+                  + (f", std {ts_se / robust:.2g} times it" if robust > 0 else "")
+                  + "): a gear's median now and then jumps a quantisation level")
     out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale, ts_se, True,
                                 ts_why, "", pts.n_tcal))
     if "a6" not in names:
