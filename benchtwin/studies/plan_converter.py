@@ -38,10 +38,12 @@ The readings are drawn around their noise-free values as the sensor gives them
 (:func:`~benchtwin.studies.plan_noise.sensor_response`: its filter, clock and latency): with the truth lagged by one
 delay instead, the first grid sample after the paper campaign's first pedal step fell on the other side of the
 calibration's ``shaft_torque_nm > 0`` rule (gear 2: 474 samples against the bench's 475 in that test), and the
-median of an even count averaged two ranks. With one calibrated gear the scale's spread over the draws is its
-standard error (the quick campaign: 1.35e-5 against 1.39e-5 over 20 seeds); the median over several gears' medians
-is still not predicted (flagged with the draws' spread): over the paper campaign's draws (8 gears) it scatters 2.7
-times its spread over 20 seeds (1.9e-4 against 7.0e-5).
+median of an even count averaged two ranks. The scale's spread over :data:`SCALE_DRAWS` draws is its standard
+error: with one calibrated gear (quick campaign: 1.35e-5 against 1.39e-5 over 20 seeds) as with several, where the
+calibration's samples take the readings on the telemetry's clock map (:data:`MAPPED_SETS`): on their own timestamps
+(64 ms away on the paper campaign) they carried errors not of their noise-free values, and over 8 gears the draws
+scattered 2.7 times the seeds. Mapping the converter's points as well put a0 / a1 out of the factor 1.5 (0.35 /
+0.63 over 20 seeds), so they stay on their own timestamps. The spread over several gears is heavy-tailed.
 
 The rows themselves change with the seed: the 5-sigma outlier rejection scales its bound with the residuals'
 spread, and the split at the refined coupling point moves with it. So the rows are decided by the
@@ -95,7 +97,8 @@ from benchtwin.studies.plan_fits import PlannedParameter
 from benchtwin.studies.plan_noise import ChannelNoise, grid_error_sampler, grid_variance
 from benchtwin.studies.plan_windows import reading_lag_line
 
-__all__ = ["CONVERTER_DRAWS", "CONVERTER_RECORDED", "plan_converter"]
+__all__ = ["CONVERTER_DRAWS", "CONVERTER_RECORDED", "HEAVY_TAILED", "MAPPED_SETS", "ROBUST_MAD", "SCALE_DRAWS",
+           "plan_converter"]
 
 #: draws of the noise that decide the rows: the selection term's std is known to about 1 / sqrt(2 (K - 1)) (8 % at
 #: 80); one draw is one fit at the planned points (a few ms)
@@ -112,6 +115,20 @@ RARE_ROWS = 0.0
 #: ``k_at_gamma`` along the coupling point) move with them; a noisy channel it reads keeps its truth with the
 #: sensor's declared gain and offset (also the same every seed), so the derivatives are taken where a run is
 CONVERTER_RECORDED = ("em_speed_rpm", "em_torque_nm", "vehicle_speed_kmh")
+
+#: draws of the turbine-torque scale (the calibration alone, a few ms each): over the paper campaign's draws its
+#: spread is heavy-tailed (excess kurtosis 16 over 400: a gear's median now and then jumps a quantisation level), so
+#: the std of K draws is known to about sqrt((kurtosis + 2) / (4 K)): 24 % at 80, 11 % at 400
+SCALE_DRAWS = 400
+#: the normal's std over its median absolute deviation: the robust width of a spread is ROBUST_MAD * MAD
+ROBUST_MAD = 1.4826
+#: the words the turbine-torque scale's reason carries when its spread over the draws is heavy-tailed (several
+#: calibrated gears): a std over tens of seeds then scatters far more than a normal's (benchmarks/bench_plan.py
+#: also sets the robust widths side by side)
+HEAVY_TAILED = "heavy-tailed"
+#: which sets of grid times the shared shaft-torque draws read on the telemetry's clock map: (the converter's
+#: points, the turbine-torque calibration's samples); see the module docstring
+MAPPED_SETS = (False, True)
 
 nan = float("nan")
 _HINT = "add [[tests]] kind = \"acceleration\" (converter mode at the launch)"
@@ -176,7 +193,8 @@ def _delta(func: Callable[[np.ndarray], float], z: np.ndarray, cov: np.ndarray) 
 
 def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
                    segments: list[Segment], tx: Sequence[PlannedParameter], *, seed: int = 0,
-                   draws: int = CONVERTER_DRAWS, recorded: Mapping[str, Channel] | None = None,
+                   draws: int = CONVERTER_DRAWS, scale_draws: int = SCALE_DRAWS,
+                   recorded: Mapping[str, Channel] | None = None,
                    sensed: Mapping[str, Channel] | None = None) -> list[PlannedParameter]:
     """Predicted standard errors of ``a0..a8``, ``J_pump_kgm2``, the coupling point and its derived values.
 
@@ -203,6 +221,9 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         reading_lag_line`.
     seed, draws:
         Seed and number of the draws of the noise that decide the rows the fits keep (module docstring).
+    scale_draws:
+        Draws of the turbine-torque calibration's readings whose spread gives the scale's standard error (the
+        first ``draws`` of them are those of the fits).
 
     Returns
     -------
@@ -260,22 +281,28 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
         cal = pts.torque_calibration
         cal_gear = _model_gears(cal.gear, table) if cal is not None else None
         shaft = noise.get("shaft_torque_nm")
-        # one error per shaft-torque reading, shared by the points, the calibration and the table's fit
+        # one error per shaft-torque reading, shared by the points, the calibration and the table's fit; the
+        # calibration's samples take the readings on the clock map, as its grid does (module docstring)
         shared = (shared_shaft_draws(rec, specs, ChannelNoise(shaft.sigma, shaft.q), [pts.t] + (
-            [cal.t] if cal is not None else []), table) if shaft is not None else None)
+            [cal.t] if cal is not None else []), table, mapped=MAPPED_SETS) if shaft is not None else None)
         e_tp_cal = grid_error_sampler(truth, noise, "em_torque_nm", cal.t) if cal is not None else None
-        for _ in range(draws):
+        # the first ``draws`` draws decide the converter's rows; the turbine-torque scale, cheap to redraw alone,
+        # takes SCALE_DRAWS draws (its spread is heavy-tailed: module docstring)
+        for k in range(max(draws, scale_draws if cal is not None else 0)):
+            fit = k < draws
             # the readings as the bench quantises them: the rounding's bias decides rows as it does on a bench
             sd = shared(rng) if shared is not None else None
-            t_t = pts.t_t + (sd.grid[0] / pts.k_out if sd is not None else 0.0)
-            t_p = pts.t_p + (e_tp(rng) if e_tp is not None else 0.0)
+            if fit:
+                t_t = pts.t_t + (sd.grid[0] / pts.k_out if sd is not None else 0.0)
+                t_p = pts.t_p + (e_tp(rng) if e_tp is not None else 0.0)
             if cal is not None:
                 ct = cal.t_t + (sd.grid[1] / cal.k_out if sd is not None else 0.0)
                 cp = cal.t_p + (e_tp_cal(rng) if e_tp_cal is not None else 0.0)
             for gear, (eta, c0, se_eta, se_c0) in table.items():
-                sel = model_gear == gear
                 d_eta, d_c0 = sd.table[gear] if sd is not None else (rng.normal(0.0, se_eta), rng.normal(0.0, se_c0))
-                t_t[sel] += -(pts.t_t[sel] - c0) / eta * d_eta + d_c0
+                if fit:
+                    sel = model_gear == gear
+                    t_t[sel] += -(pts.t_t[sel] - c0) / eta * d_eta + d_c0
                 if cal is not None:
                     cs = cal_gear == gear
                     ct[cs] += -(cal.t_t[cs] - c0) / eta * d_eta + d_c0
@@ -284,8 +311,11 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
                 # the noise-free one)
                 s_draw, _, n_s = turbine_torque_scale(cal.gear, cp, ct, cal.min_points)
                 if n_s:
-                    t_t *= s_draw / pts.tscale
                     tscales.append(s_draw)
+                    if fit:
+                        t_t *= s_draw / pts.tscale
+            if not fit:
+                continue
             try:
                 rows = fit_torque_converter(pts.w_p, pts.w_t, t_p, t_t,
                                             dw_p=pts.dw_p, **{k: opts[k] for k in _FIT_OPTS})  # type: ignore[arg-type]
@@ -343,24 +373,24 @@ def plan_converter(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, C
                                 float("nan") if calib_noisy else 0.0, True,
                                 "SE not predicted (a median of noisy speed ratios)" if calib_noisy else
                                 "the speeds it reads are free of random error on this setup", "", pts.n_cal))
-    # one calibrated gear: the scale is that gear's median, and its spread over the draws is its standard error
-    # (quick campaign, gear 4: 1.35e-5 over 80 draws against 1.39e-5 over 20 seeds); over several gears the
-    # median of the gear medians is not predicted: on the paper campaign (8 gears), with the readings drawn around
-    # the sensor's own response, the draws scatter 2.7 times the spread over 20 seeds (1.9e-4 against 7.0e-5)
+    # the scale's spread over the draws is its standard error, with one calibrated gear (quick campaign, gear 4:
+    # 1.35e-5 over 80 draws against 1.39e-5 over 20 seeds) as with several (paper campaign, 8 gears, the
+    # calibration's samples on the clock map: module docstring)
     ts_noisy = len(tscales) > 1 and float(np.ptp(tscales)) > 0
     tcal = pts.torque_calibration
     cal_gears = 0 if tcal is None else sum(int((tcal.gear == k).sum() >= tcal.min_points) for k in np.unique(tcal.gear))
     if not ts_noisy:
         ts_se, ts_why = 0.0, "the torques it reads are free of random error on this setup"
-    elif cal_gears == 1:
-        ts_se = float(np.std(tscales, ddof=1))
-        ts_why = f"one gear's median torque ratio: its spread over {len(tscales)} draws of the readings"
     else:
-        ts_se = float("nan")
-        ts_why = (f"SE not predicted: a median over {cal_gears} gears' medians of noisy torque ratios, whose "
-                  f"spread over {len(tscales)} draws ({float(np.std(tscales, ddof=1)):.2g}) is not its standard "
-                  "error (paper campaign: 2.7 times the spread over seeds; the draws take each calibration sample's "
-                  "error from readings on the telemetry's own clock, 64 ms off the grid's clock map)")
+        ts_se = float(np.std(tscales, ddof=1))
+        ts = np.asarray(tscales)
+        robust = ROBUST_MAD * float(np.median(np.abs(ts - np.median(ts))))
+        ts_why = (f"one gear's median torque ratio: its spread over {len(tscales)} draws of the readings"
+                  if cal_gears == 1 else
+                  f"a median over {cal_gears} gears' median torque ratios: its spread over {len(tscales)} draws of "
+                  f"the readings; {HEAVY_TAILED} (robust width {robust:.3g}"
+                  + (f", std {ts_se / robust:.2g} times it" if robust > 0 else "")
+                  + "): a gear's median now and then jumps a quantisation level")
     out.append(PlannedParameter("torque_converter.converter.turbine_torque_scale", "", pts.tscale, ts_se, True,
                                 ts_why, "", pts.n_tcal))
     if "a6" not in names:

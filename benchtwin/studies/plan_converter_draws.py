@@ -12,7 +12,13 @@ So one draw here is one error per shaft-torque reading (the quantised noisy read
 the truth with the sensor's gain and offset, lagged as the bench reads it), from which follow, together:
 
 - the error of each grid sample (the converter's points and the calibration's), interpolated between the two
-  readings around it;
+  readings around it: on the shaft torque's own (telemetry) timestamps, or for the sets of times named in
+  ``mapped`` on the reference clock (the telemetry's clock map, as the identification's grid takes them). The
+  turbine-torque calibration's samples are taken mapped: its scale is a median over several gears' medians of
+  ratios whose readings sit on quantisation levels (2.1 Nm steps, 0.3 Nm noise on the paper bench), so a sample
+  must carry the error of the very reading whose noise-free value it holds; on the telemetry's own timestamps the
+  paper campaign's samples took readings 64 ms away and the gears' medians moved (gear 9: 0.98380 over the draws
+  against 0.98358 over 20 seeds; 0.98360 mapped);
 - the error of each gear's ``(eta_m, C0)``: the drive fit (eq. 14) linearised in its windows' mean shaft
   torque, ``d eta_i = eta_i / T_out,i d T_out,i``, at the windows the identification finds on the plan's
   Recording. What the table's planned variance holds beyond the shaft torque's noise in those windows (other
@@ -21,13 +27,14 @@ the truth with the sensor's gain and offset, lagged as the bench reads it), from
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError
+from benchtwin.identification._clock import source_shifts, to_ref
 from benchtwin.identification.transmission import transmission_points
 from benchtwin.identification.transmission_eq14 import direction_points, efficiency_design
 from benchtwin.recording import Recording
@@ -65,7 +72,7 @@ def _grid_index(ts: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def shared_shaft_draws(view: Recording, specs: VehicleSpecs, cn: ChannelNoise, times: list[np.ndarray],
-                       table: Mapping[int, tuple[float, float, float, float]]
+                       table: Mapping[int, tuple[float, float, float, float]], mapped: Sequence[bool] = ()
                        ) -> Callable[[np.random.Generator], SharedDraw] | None:
     """A sampler of shared shaft-torque draws (module docstring); None when the view has no shaft torque.
 
@@ -83,12 +90,20 @@ def shared_shaft_draws(view: Recording, specs: VehicleSpecs, cn: ChannelNoise, t
     table:
         Gear -> ``(eta_m, C0, se eta_m, se C0)``: the table and its planned standard errors; a gear whose
         windows are not found keeps independent draws of its planned errors.
+    mapped:
+        Per set of ``times``: True to interpolate between the readings on the reference clock (their timestamps
+        through the view's clock map, :func:`~benchtwin.identification._clock.source_shifts`, as the
+        identification's grid reads them), False (and for sets beyond its length) on their own timestamps.
     """
     if SHAFT not in view or len(view[SHAFT]) < 2:
         return None
     ch = view[SHAFT]
     ts, y, good = ch.timestamps, ch.values, ch.good
-    idx = [_grid_index(ts, np.asarray(t, dtype=float)) for t in times]
+    flags = [bool(m) for m in mapped][:len(times)] + [False] * max(len(times) - len(mapped), 0)
+    ref = np.asarray(to_ref(ts, source_shifts(view).get(ch.source, 0.0)), dtype=float) if any(flags) else ts
+    if any(flags) and np.any(np.diff(ref) < 0):
+        raise BenchtwinError(f"{SHAFT}: the clock map reorders its readings")
+    idx = [_grid_index(ref if m else ts, np.asarray(t, dtype=float)) for t, m in zip(times, flags, strict=True)]
     try:
         tp = transmission_points(view, specs)
     except BenchtwinError:
