@@ -445,7 +445,7 @@ def _battery_checks(pred: Prediction | None, trace: Trace, drive: DriveInputs | 
     if pred is None or drive is None:
         return []
     t = drive.t_s
-    v_true = np.interp(t, trace.time_s, trace["battery_voltage_v"])
+    v_true = trace.interp("battery_voltage_v", t)  # the drive's window of the Trace only
     rms = float(np.sqrt(np.mean((pred.series["battery_voltage_v"] - v_true) ** 2)))
     tol = {"ideal": 1.0, "realistic": 3.0}[profile]
     return [Check("prediction", "submodel.battery_voltage_rms", rms, 0.0, rms, tol, "abs", "V", bool(rms <= tol),
