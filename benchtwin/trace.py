@@ -133,6 +133,25 @@ class Trace:
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
 
+    def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Samples ``start:stop`` of channel ``name``."""
+        return self[name][start:stop]
+
+    def interp(self, name: str, t: np.ndarray) -> np.ndarray:
+        """``np.interp(t, self.time_s, self[name])``, reading only the samples from the last at or before ``min(t)``
+        to the first after ``max(t)`` (a spooled Trace reads that window of its file): the same numbers."""
+        t = np.asarray(t, dtype=np.float64)
+        tt = self.time_s
+        n = len(tt)
+        if not t.size:
+            a, b = 0, min(n, 1)
+        elif np.isfinite(t).all():
+            a = max(int(np.searchsorted(tt, t.min(), side="right")) - 1, 0)
+            b = min(int(np.searchsorted(tt, t.max(), side="right")) + 1, n)
+        else:
+            a, b = 0, n
+        return np.interp(t, tt[a:b], self.read(name, a, b))
+
     @property
     def dt_s(self) -> float:
         """The plant step (median spacing of ``time_s``)."""

@@ -16,7 +16,7 @@ from benchtwin.recording import Flag, LazyChannel, Recording
 from benchtwin.sensors.imperfections import hold_sample
 from benchtwin.sensors.synthetic import synthetic_trace
 from benchtwin.trace import SpooledTrace, Trace
-from benchtwin.validation.chain import _chain_truth, _error_budget, _kth, _median_step, chain_checks
+from benchtwin.validation.chain import _chain_truth, _error_budget, _kth, _median_step, _plant_step, chain_checks
 
 PAPER = load_setup("paper")
 IDEAL = load_setup("ideal")
@@ -156,6 +156,7 @@ def test_selected_order_statistics_and_median_equal_numpy(n: int, kind: str, mon
 
     ch.add(Channel("c", "", t, np.zeros_like(t)))
     assert _median_step(ch["c"]) == float(np.median(np.diff(t)))
+    assert _plant_step(Trace(t, {})) == Trace(t, {}).dt_s  # the Trace's plant step by blocks: the same
 
 
 def test_the_paper_estimation_window_is_cut_without_reading_a_channel_whole(bench, monkeypatch) -> None:

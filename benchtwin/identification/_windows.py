@@ -34,7 +34,7 @@ from benchtwin.identification._signals import (
 from benchtwin.recording import Channel, LazyChannel, Recording
 from benchtwin.segments import inside_any
 
-__all__ = ["at_times", "channel_bounds", "gather_at", "grid_bounds", "ordered_by_blocks", "piece_grids",
+__all__ = ["at_times", "channel_bounds", "gather_at", "gather_span", "grid_bounds", "ordered_by_blocks", "piece_grids",
            "reads_by_block", "segment_pieces", "window_of"]
 
 #: seconds read beyond each end of a window (clock shifts are applied after the read: the margin absorbs the
@@ -290,6 +290,19 @@ def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: floa
             values[n] = v
             present.add(n)
     return Grid(t, values, bad, flagged, rate_hz, present, shifts)
+
+
+def gather_span(rec: Recording, names: Sequence[str], rate_hz: float, *, span: tuple[float, float],
+                optional: Iterable[str] = (), hold: Iterable[str] = (), what: str = "identification") -> Grid:
+    """``gather(rec, names, rate_hz, optional=optional, hold=hold, what=what, span=span)``: the same grid and numbers,
+    each channel read around the span only (a lazy channel read by blocks is never loaded whole; one loaded here
+    goes again)."""
+    kept = rec.loaded()
+    try:
+        lo, n, shifts = grid_bounds(rec, names, rate_hz, what=what, span=span)
+        return gather_at(rec, names, lo + np.arange(n) / rate_hz, rate_hz, shifts, optional=optional, hold=hold)
+    finally:
+        rec.drop(rec.loaded() - kept)
 
 
 def segment_pieces(rec: Recording, kinds: Iterable[str] | None) -> list[tuple[float, float]] | None:

@@ -49,9 +49,10 @@ from benchtwin.errors import IdentificationError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, linear_fit
 from benchtwin.identification._signals import time_ordered
 from benchtwin.identification._state_changes import state_changes
+from benchtwin.identification._windows import at_times, ordered_by_blocks, reads_by_block
 from benchtwin.identification.engine_cold import COOLANT_ROLE, cold_factor
 from benchtwin.identification.fuel_map import fuel_map_gps, map_pmf
-from benchtwin.recording import Channel, Flag, Recording
+from benchtwin.recording import Channel, Flag, LazyChannel, Recording
 
 __all__ = ["START_KEY", "fit_start_fuel", "identify_start_fuel", "start_excess", "start_times"]
 
@@ -70,14 +71,62 @@ def start_times(rec: Recording) -> np.ndarray:
         When neither channel is recorded.
     """
     if "engine_on" in rec:
-        ch = rec["engine_on"]
-        sc = state_changes(ch.with_values(np.asarray(ch.values, float) > 0.5))
+        sc = state_changes(_above(rec["engine_on"], 0.5))
     elif "engine_speed_rpm" in rec:
-        ch = rec["engine_speed_rpm"]
-        sc = state_changes(ch.with_values(np.asarray(ch.values, float) > RUNNING_RPM))
+        sc = state_changes(_above(rec["engine_speed_rpm"], RUNNING_RPM))
     else:
         raise IdentificationError(f"{START_KEY}: neither engine_on nor engine_speed_rpm recorded")
     return np.asarray(sc.t_new, float)[(np.asarray(sc.old) == 0) & (np.asarray(sc.new) == 1)]
+
+
+def _above(ch: Channel, level: float) -> Channel:
+    """``ch.with_values(ch.values > level)`` (1.0 above, else 0.0), read a block at a time when ``ch`` is: a lazy
+    channel is never loaded whole for it."""
+    def block(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t, v, f = ch.block(a, b)
+        return t, (np.asarray(v, float) > level).astype(np.float64), f
+
+    if not reads_by_block(ch):
+        return ch.with_values(np.asarray(ch.values, float) > level)
+    return LazyChannel(ch.name, ch.unit, ch.source, len(ch), lambda: block(0, len(ch)), ch.value_texts,
+                       block_loader=block)
+
+
+#: samples of the fuel channel read at a time (a lazy channel read by blocks)
+FUEL_BLOCK = 1 << 20
+
+
+def _near(ch: Channel, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Timestamps, values and flags of the samples of ``ch`` (in time order) with ``lo[k] <= t < hi[k]`` for some
+    ``k``; a time-ordered lazy channel read by blocks is read ``FUEL_BLOCK`` samples at a time, never whole."""
+    if not (reads_by_block(ch) and ordered_by_blocks(ch)):
+        ts, vs, fl = time_ordered(ch)
+        near = np.zeros(ts.size, bool)
+        for i, j in zip(np.searchsorted(ts, lo), np.searchsorted(ts, hi), strict=True):
+            near[i:j] = True
+        return ts[near], vs[near], fl[near]
+    # the intervals merged into disjoint ones in time order: a sample is near when it lies in the one before it
+    order = np.argsort(lo, kind="stable")
+    m_lo: list[float] = []
+    m_hi: list[float] = []
+    for a, b in zip(lo[order], hi[order], strict=True):
+        if not a < b:
+            continue
+        if m_lo and a <= m_hi[-1]:
+            m_hi[-1] = max(m_hi[-1], float(b))
+        else:
+            m_lo.append(float(a))
+            m_hi.append(float(b))
+    los, his = np.array(m_lo), np.array(m_hi)
+    parts = []
+    for a in range(0, len(ch), FUEL_BLOCK):
+        t, v, f = ch.block(a, a + FUEL_BLOCK)
+        k = np.searchsorted(los, t, side="right") - 1
+        keep = (k >= 0) & (t < his[np.maximum(k, 0)]) if los.size else np.zeros(t.shape, bool)
+        parts.append((t[keep], v[keep], f[keep]))
+    dtypes = (np.float64, np.float64, np.uint16)
+    t, v, f = (np.concatenate([p[i] for p in parts]) if parts else np.zeros(0, dtypes[i]) for i in range(3))
+    return t, v, f
 
 
 def start_excess(t_fuel: np.ndarray, fuel_gps: np.ndarray, predicted_gps: np.ndarray, starts: np.ndarray, *,
@@ -189,16 +238,16 @@ def _predictor(rec: Recording, specs: VehicleSpecs, bsfc_data: dict,
     cool: Channel | None = rec[COOLANT_ROLE] if cold is not None and COOLANT_ROLE in rec else None
 
     def predict(t: np.ndarray) -> np.ndarray:
-        n = speed.at(t)
-        tq = torque.at(t)
-        on = (on_ch.at(t, hold=True) > 0.5) if on_ch is not None else (n > RUNNING_RPM)
+        n = at_times(speed, t)[0]  # a channel read by blocks: around the times only
+        tq = at_times(torque, t)[0]
+        on = (at_times(on_ch, t, hold=True)[0] > 0.5) if on_ch is not None else (n > RUNNING_RPM)
         on &= np.isfinite(n) & np.isfinite(tq)
         out = np.zeros(t.size)
         if on.any():
             out[on] = fuel_map_gps(*m, specs.engine_displacement_m3, specs.engine_strokes, specs.fuel_lhv_j_per_kg,
                                    n[on], tq[on])
             if cool is not None and cold is not None:
-                c = cool.at(t[on])
+                c = at_times(cool, t[on])[0]
                 out[on] *= np.where(np.isfinite(c), cold_factor(cold[0], cold[1], c), 1.0)
         return out
 
@@ -237,15 +286,9 @@ def identify_start_fuel(rec: Recording, specs: VehicleSpecs, bsfc_data: dict, *,
     try:
         starts = start_times(rec)
         predict = _predictor(rec, specs, bsfc_data, cold)
-        ts, vs, fl = time_ordered(rec["fuel_mass_flow_gps"])
-        good = ((fl & int(Flag.bad())) == 0) & np.isfinite(vs)
-        # only the samples near a start are predicted (the map is read there only)
-        near = np.zeros(ts.size, bool)
-        a = np.searchsorted(ts, starts - pre_s - 1.0)
-        b = np.searchsorted(ts, starts + post_s + ref_s + 1.0)
-        for i, j in zip(a, b, strict=True):
-            near[i:j] = True
-        t_n, v_n = ts[near], np.where(good[near], vs[near], np.nan)
+        # only the samples near a start are read and predicted (the map is read there only)
+        t_n, vs, fl = _near(rec["fuel_mass_flow_gps"], starts - pre_s - 1.0, starts + post_s + ref_s + 1.0)
+        v_n = np.where(((fl & int(Flag.bad())) == 0) & np.isfinite(vs), vs, np.nan)
         excess, _t = start_excess(t_n, v_n, predict(t_n), starts, pre_s=pre_s, post_s=post_s, ref_s=ref_s)
     finally:
         rec.drop([c for c in [*need, "engine_on", COOLANT_ROLE] if c in rec and c not in kept])

@@ -66,7 +66,7 @@ from benchtwin.identification.torque_converter import identify_torque_converter
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission
 from benchtwin.identification.transmission_drag import DRAG_KEY
 from benchtwin.identification.uncertainty import propagate_type_b
-from benchtwin.recording import Recording
+from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
 
 __all__ = ["METHODS", "Method", "identify_all", "method_option_defaults", "method_options", "transmission_table"]
@@ -445,16 +445,40 @@ def stuck_channels(recording: Recording) -> dict[str, float]:
     for name, ch in recording.channels.items():
         if name in STATE_ROLES or unit_of_role(name) == "" or len(ch) < STUCK_MIN_SAMPLES:
             continue
-        head = ch.values[:STUCK_HEAD]
+        head = ch.block(0, STUCK_HEAD)[1]
         head = head[np.isfinite(head)]
         # two different readings among the first ones settle it without a pass over the whole channel
         if not (head.size and bool(np.any(head != head[0]))):
-            v = ch.values[np.isfinite(ch.values)]
-            if v.size >= STUCK_MIN_SAMPLES and v[0] != 0.0 and np.all(v == v[0]):
-                out[name] = float(v[0])
+            value = _stuck_value(ch, STUCK_BLOCK)
+            if value is not None:
+                out[name] = value
         if name not in kept:
             recording.drop([name])  # a lazy Recording: one channel in memory at a time
     return out
+
+
+#: samples of a channel read at a time by :func:`stuck_channels` (a lazy channel read by blocks is never whole)
+STUCK_BLOCK = 1 << 20
+
+
+def _stuck_value(ch: Channel, block: int) -> float | None:
+    """The value every finite sample of ``ch`` holds when there are at least :data:`STUCK_MIN_SAMPLES` of them and it
+    is not zero, else None (read ``block`` samples at a time: a channel that changes is left at its first change)."""
+    first: float | None = None
+    n = 0
+    for a in range(0, len(ch), block):
+        v = ch.block(a, a + block)[1]
+        v = v[np.isfinite(v)]
+        if not v.size:
+            continue
+        if first is None:
+            first = float(v[0])
+        if bool(np.any(v != first)):
+            return None
+        n += int(v.size)
+    if first is None or n < STUCK_MIN_SAMPLES or first == 0.0:
+        return None
+    return first
 
 
 def _run_method(m: Method, recording: Recording, specs: VehicleSpecs | None, result: IdentificationResult,

@@ -79,7 +79,7 @@ def _chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, profil
     """The checks of :func:`chain_checks`, one per role, as they are made (each a block of the channel at a time)."""
     budget = _error_budget(setup) if profile != "ideal" else {}
     wanted = set(roles) if roles is not None else None
-    dt_s = trace.dt_s  # the median plant step: once (a median over the whole time base)
+    dt_s = _plant_step(trace)  # the median plant step: once (a median over the whole time base, by blocks)
     for role, tc in sorted(_chain_truth(setup).items()):
         if wanted is not None and role not in wanted:
             continue
@@ -222,6 +222,25 @@ def _median_step(ch: Channel) -> float:
     n = len(ch) - 1
     if n <= MEDIAN_CAP:
         return float(np.median(np.concatenate(list(diffs()))))
+    if n % 2:
+        return float(_kth(diffs, n // 2))
+    return float(np.mean([_kth(diffs, n // 2 - 1), _kth(diffs, n // 2)]))
+
+
+def _plant_step(trace: Trace) -> float:
+    """``trace.dt_s`` (the median step of the time base), the steps taken a block at a time (exact: selected in
+    passes when they are too many to gather, as :func:`_median_step`)."""
+    tt = trace.time_s
+    n = len(tt) - 1
+    if n < 1:
+        return float("nan")
+    if n <= MEDIAN_CAP:
+        return float(np.median(np.diff(tt)))
+
+    def diffs() -> Iterator[np.ndarray]:
+        for a in range(0, n, CHECK_BLOCK_SAMPLES):
+            yield np.diff(tt[a:a + CHECK_BLOCK_SAMPLES + 1])
+
     if n % 2:
         return float(_kth(diffs, n // 2))
     return float(np.mean([_kth(diffs, n // 2 - 1), _kth(diffs, n // 2)]))

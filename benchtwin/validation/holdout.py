@@ -21,7 +21,7 @@ import numpy as np
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.models import torque_converter_curves_nm
 from benchtwin.identification._fit import IdentificationResult
-from benchtwin.identification._signals import gather
+from benchtwin.identification._windows import gather_span
 from benchtwin.identification.engine_cold import COOLANT_ROLE
 from benchtwin.identification.keys import FitKey
 from benchtwin.recording import Channel, LazyChannel, Recording
@@ -159,8 +159,8 @@ def _initial_soc(rec: Recording, start_s: float, soc_per_ah: float) -> float:
     if not np.any(ch.timestamps < start_s - 1.0):  # nothing before the drive: the display at its start
         after = ch.values[ch.timestamps >= start_s]
         return float(after[0]) if after.size else float("nan")
-    g = gather(rec, ["displayed_soc_pct"], 10.0, optional=["battery_current_a"], span=(start_s - 300.0, start_s),
-               what="prediction")
+    g = gather_span(rec, ["displayed_soc_pct"], 10.0, optional=["battery_current_a"], span=(start_s - 300.0, start_s),
+                    what="prediction")
     s = g["displayed_soc_pct"]
     if "battery_current_a" not in g.present or not np.isfinite(soc_per_ah):
         return float(s[-1])
@@ -180,7 +180,7 @@ def drive_inputs(rec: Recording, start_s: float, end_s: float, *, name: str = "d
            "engine_speed_rpm", "pedal_pct"]
     opt = ["brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar", "brake_pressure_rr_bar",
            "dcdc_lv_current_a", "dcdc_lv_voltage_v", "gearbox_oil_degc", COOLANT_ROLE, "battery_temp_degc"]
-    g = gather(rec, req, rate_hz, optional=opt, span=(start_s, end_s), what="prediction")
+    g = gather_span(rec, req, rate_hz, optional=opt, span=(start_s, end_s), what="prediction")
 
     def mean(*names: str) -> np.ndarray:
         cols = [g[n] for n in names if n in g.present]
@@ -446,7 +446,7 @@ def _battery_checks(pred: Prediction | None, trace: Trace, drive: DriveInputs | 
     if pred is None or drive is None:
         return []
     t = drive.t_s
-    v_true = np.interp(t, trace.time_s, trace["battery_voltage_v"])
+    v_true = trace.interp("battery_voltage_v", t)  # the drive's window of the Trace only
     rms = float(np.sqrt(np.mean((pred.series["battery_voltage_v"] - v_true) ** 2)))
     tol = {"ideal": 1.0, "realistic": 3.0}[profile]
     return [Check("prediction", "submodel.battery_voltage_rms", rms, 0.0, rms, tol, "abs", "V", bool(rms <= tol),

@@ -354,7 +354,8 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
         ser = first[1].series
         pred["series"] = {"t_s": ser["t_s"], "soc_pct": ser["soc_pct"], "battery_voltage_v": ser["battery_voltage_v"],
                           "fuel_g": np.cumsum(ser["fuel_gps"]) * first[2].dt_s}
-        tr = trace.slice_time(held.start_s, held.end_s)
+        tr = _trace_window(trace, held.start_s, held.end_s, ["fuel_mass_flow_kgps", "displayed_soc_pct",
+                                                               "battery_voltage_v"])
         fuel_g = np.cumsum(1e3 * tr["fuel_mass_flow_kgps"] * np.diff(tr.time_s, append=tr.time_s[-1]))
         pred["series_measured"] = {"t_s": tr.time_s[::10], "soc_pct": tr["displayed_soc_pct"][::10],
                                    "battery_voltage_v": tr["battery_voltage_v"][::10], "fuel_g": fuel_g[::10]}
@@ -411,12 +412,19 @@ def _starts(res: Any, trace: Trace, vehicle: VehicleConfig) -> None:
     when ``engine.start_fuel`` is identified and used. The measured fuel of the firing engine (starts excluded, from
     the truth: n starts x ``start_fuel_g``) is what the maps are judged on otherwise.
     """
-    tr = trace.slice_time(res.start_s, res.end_s)
+    tr = _trace_window(trace, res.start_s, res.end_s, ["engine_on"])
     n = int(np.count_nonzero(np.diff((tr["engine_on"] > 0.5).astype(int)) == 1))
     start_g = n * vehicle.engine.start_fuel_g
     res.measured["engine_starts"] = float(n)
     res.measured["start_fuel_g"] = start_g
     res.measured["fuel_firing_g"] = res.measured["fuel_g"] - start_g
+
+
+def _trace_window(trace: Trace, start_s: float, end_s: float, names: list[str]) -> Trace:
+    """``trace.slice_time(start_s, end_s)`` with only the channels ``names`` (a spooled Trace reads those only)."""
+    t = trace.time_s
+    a, b = int(np.searchsorted(t, start_s, side="left")), int(np.searchsorted(t, end_s, side="left"))
+    return Trace(t[a:b], {k: trace.read(k, a, b) for k in names}, [], dict(trace.meta))
 
 
 def _setup_is_ideal(setup: SetupConfig) -> bool:

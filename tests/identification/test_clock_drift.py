@@ -102,3 +102,39 @@ def test_the_converter_points_resample_puts_the_shaft_torque_on_the_can_clock() 
         np.testing.assert_allclose(v["shaft_torque_nm"][1:-1], v["em_torque_nm"][1:-1], atol=TOL, rtol=0)
     t, v, _bad = resample_strict(rec, names, 10.0)
     assert np.nanmax(np.abs(v["shaft_torque_nm"] - v["em_torque_nm"])) > 100 * TOL
+
+
+@pytest.mark.parametrize("span", [(1000.0, 1300.0), (-50.0, 20.0), (7150.0, 9000.0), (0.0, 7200.0)])
+def test_gather_span_equals_gather_without_a_whole_read(span: tuple[float, float]) -> None:
+    """``gather_span`` (the held-out drives' inputs) is ``gather(..., span=...)`` bit for bit on a drifting clock
+    with a held state, an optional channel with flagged samples and one that ends early, the channels read by blocks
+    only (a whole read fails the test); the Recording keeps nothing loaded."""
+    from benchtwin.identification._windows import gather_span
+    from benchtwin.recording import Flag, LazyChannel
+
+    rec = _recording(se_ppm=1.0)
+    t = np.arange(0.0, 7200.0, 0.5)
+    rec.add(Channel("gear_actual", "", t, np.floor(t / 97.0) % 9, source="vehicle_can"))
+    flags = np.where(np.arange(t.size) % 13 == 0, int(Flag.TIMEOUT), 0).astype(np.uint16)
+    rec.add(Channel("battery_current_a", "A", t + 0.01, _f(t) * 50, flags, source="telemetry"))
+    rec.add(Channel("pedal_pct", "%", t[:5000], _f(t[:5000]), source="vehicle_can"))
+
+    def whole() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        raise AssertionError("read whole")
+
+    blocked = Recording(meta=rec.meta)
+    for ch in rec.channels.values():
+        def part(a: int, b: int, ch: Channel = ch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            return ch.timestamps[a:b].copy(), ch.values[a:b].copy(), ch.flags[a:b].copy()
+
+        blocked.add(LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, ch.value_texts, block_loader=part))
+    names, opt = ["em_torque_nm", "shaft_torque_nm", "gear_actual"], ["battery_current_a", "pedal_pct", "absent"]
+    want = gather(rec, names, 10.0, optional=opt, span=span)
+    got = gather_span(blocked, names, 10.0, optional=opt, span=span)
+    np.testing.assert_array_equal(got.t, want.t)
+    assert got.present == want.present and set(got.values) == set(want.values) and got.shifts == want.shifts
+    for k in want.values:
+        np.testing.assert_array_equal(got[k], want[k])
+    np.testing.assert_array_equal(got.bad, want.bad)
+    np.testing.assert_array_equal(got.flagged, want.flagged)
+    assert not blocked.loaded()
