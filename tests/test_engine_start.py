@@ -177,7 +177,12 @@ def test_start_fuel_by_blocks_equals_the_whole_channels(monkeypatch, with_on: bo
     specs = load_vehicle().specs
     want = identify_start_fuel(rec, specs, BSFC, cold=(0.01, 80.0), post_s=post_s)
     got = identify_start_fuel(lazy, specs, BSFC, cold=(0.01, 80.0), post_s=post_s)
-    assert 250 < int(want.data["n_starts"][0]) < 300  # the bad samples leave a few starts out
+    # the bad samples leave a few starts out (a window of 0.5 + post_s + 1 s at 20 Hz meets one of the 1/1999 +
+    # 1/2503 bad samples with p ~ 6 % at post_s 2, ~9 % at 4); at post_s 4 a start also needs both neighbours more
+    # than 5.5 s away, while they are 6 s +- a phase difference triangular on (-1, 1) s: each side fails with p 1/8,
+    # so about 300 x 0.77 x 0.91 ~ 210 are kept (binomial sd ~8)
+    low = 250 if post_s <= 2.0 else 150
+    assert low < int(want.data["n_starts"][0]) < 300
     assert np.array_equal(got.data["excess_g"], want.data["excess_g"])
     assert got.value("m_g") == want.value("m_g")
     assert got.params["m_g"].std_error == want.params["m_g"].std_error
