@@ -53,6 +53,7 @@ from benchtwin.identification.battery_map_free import (
     identify_battery_ocv_rest,
     identify_battery_r0_steps,
 )
+from benchtwin.identification.battery_rc import TEMP_ROLE as BATTERY_TEMP_ROLE
 from benchtwin.identification.battery_rc import identify_battery_rc
 from benchtwin.identification.brakes import identify_brakes
 from benchtwin.identification.engine import identify_engine
@@ -139,13 +140,11 @@ def _direct(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def _battery(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
-    """Eq. 30 on the constant drives (``battery``) and, on every usable sample, eq. 30 with RC branches
-    (``battery.rc``)."""
-    o = dict(opts)
+    """Eq. 30 on the constant drives (``battery``) and, on every usable sample, with RC branches (``battery.rc``)."""
     out = IdentificationResult()
-    out.fits["battery"] = identify_battery(rec, specs, **o)
+    out.fits["battery"] = identify_battery(rec, specs, **opts)
     try:
-        out.fits["battery.rc"] = identify_battery_rc(rec, specs, n_cells=o.get("n_cells"), maps=o.get("maps"))
+        out.fits["battery.rc"] = identify_battery_rc(rec, specs, n_cells=opts.get("n_cells"), maps=opts.get("maps"))
     except (IdentificationError, DataError) as exc:
         out.errors["battery.rc"] = f"{type(exc).__name__}: {exc}"
     return out
@@ -219,7 +218,7 @@ METHODS: tuple[Method, ...] = (
     Method("brakes", ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",
                       "brake_pressure_rr_bar"), _direct(identify_brakes), spec_keys=("wheel_radius_m",)),
     Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _battery,
-           spec_keys=("n_cells_series",)),
+           spec_keys=("n_cells_series",), optional_roles=(BATTERY_TEMP_ROLE,)),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
     Method("torque_converter", ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual"), _torque_converter,
            spec_keys=_RATIOS, alternatives=_TC_PUMP),
@@ -469,11 +468,9 @@ def _stuck_value(ch: Channel, block: int) -> float | None:
     for a in range(0, len(ch), block):
         v = ch.block(a, a + block)[1]
         v = v[np.isfinite(v)]
-        if not v.size:
-            continue
-        if first is None:
+        if v.size and first is None:
             first = float(v[0])
-        if bool(np.any(v != first)):
+        if bool(np.any(v != first)):  # False on an empty block
             return None
         n += int(v.size)
     if first is None or n < STUCK_MIN_SAMPLES or first == 0.0:
