@@ -135,7 +135,7 @@ def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int)
     assert not bad, "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g}" for c in bad)
 
 
-@profile(max_examples=2)
+@profile()
 @given(vehicles(), setups(), seeds)
 @example(*pinned("converter_coupling_pump_inertia"))
 def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
