@@ -46,8 +46,8 @@ def main() -> None:
 
     def example(family: str, vehicle: object, seed: int) -> tuple[float, float, float, dict[str, float]]:
         w0, c0 = time.perf_counter(), time.process_time()
-        kinds = strategies.TC_KINDS if family == "torque_converter" else FAMILIES[family].kinds
-        camp = strategies.campaign_for(vehicle, kinds, seed=seed, **strategies.FAMILY_PICKS.get(family, {}))
+        camp = strategies.campaign_for(vehicle, FAMILIES[family].kinds, seed=seed,
+                                       **strategies.FAMILY_PICKS.get(family, {}))
         trace = simulate_campaign(vehicle, camp)
         t_sim = time.perf_counter() - w0
         rep = run.validate(vehicle, setup, camp, trace=trace, families=[family], profile="realistic")

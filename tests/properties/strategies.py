@@ -269,14 +269,16 @@ def vehicle_gear(paper_gear: int, n_gears: int) -> int:
 
 def campaign_for(vehicle: VehicleConfig, kinds: tuple[str, ...], *, seed: int, gears: set[int] | None = None,
                  modes: set[str] | None = None, max_ramp_ups: int | None = None,
-                 max_drive_s: float | None = None) -> CampaignConfig:
+                 max_drive_s: float | None = None,
+                 caps: dict[str, dict[str, float]] | None = None) -> CampaignConfig:
     """The paper campaign's tests of ``kinds``, moved to ``vehicle``: ramp-ups follow its gears and ratios.
 
     A paper ramp-up in gear g becomes one in gear :func:`vehicle_gear` of the vehicle, at the speed where the
     motor turns as fast as on the paper vehicle (capped at 180 km/h), so the campaign follows the gear count.
     ``gears`` (the vehicle's) and ``modes`` keep only those ramp-ups; ``max_ramp_ups`` then keeps that many,
     spread over the list. ``max_drive_s`` caps the duration of each constant drive (the paper's run until a
-    displayed SOC, 40-60 minutes).
+    displayed SOC, 40-60 minutes). ``caps`` shortens the tests of a kind: kind -> {field: upper bound} (e.g.
+    ``{"coastdown": {"max_duration_s": 10.0}}``), each field set to the lower of its value and the bound.
     """
     pv = PAPER_VEHICLE.specs
     sp = vehicle.specs
@@ -303,6 +305,10 @@ def campaign_for(vehicle: VehicleConfig, kinds: tuple[str, ...], *, seed: int, g
         elif t.kind in kinds:
             if t.kind == "constant_drive" and max_drive_s is not None:
                 t = t.model_copy(update={"max_duration_s": min(t.max_duration_s, max_drive_s)})
+            if caps and t.kind in caps:
+                # validated again (a cap below a field's bound is an error, not a silently odd test)
+                t = type(t).model_validate({**t.model_dump(), **{k: min(getattr(t, k), v)
+                                                                 for k, v in caps[t.kind].items()}})
             tests.append(t)
     return PAPER_CAMPAIGN.model_copy(update={"tests": tests, "seed": int(seed),
                                              "name": f"paper {'+'.join(kinds)}"})
@@ -318,11 +324,21 @@ FAMILY_PICKS: dict[str, dict[str, Any]] = {
     "motor": {"modes": {"electric", "charge"}, "max_ramp_ups": 4},
     "engine": {"modes": {"hybrid"}, "max_ramp_ups": 6},
     "battery": {"max_drive_s": 400.0},
+    # the converter's own tests (FAMILIES["torque_converter"].kinds, about 5,800 s of plant) cut to where its
+    # points are: ramp-ups of gears 1-3 only (the gears whose transmission models eq. 32 reads: the lock-up is
+    # open in 1st and below ~18 km/h in 2nd, where the converter-mode points lie; gear 3 for the low-speed
+    # shifts), the accelerations to 40 km/h and the ramp-downs from 40 km/h (the lock-up is closed above), the
+    # coastdown's coast in neutral cut to 10 s (its run-up to 135 km/h, where coupling mode is reached, is
+    # kept): about 1,700 s of plant. Cut further (one ramp-up per gear, or the decelerations from 50 km/h
+    # as well) the loose 10-bit converter's coupling curve fails (6.9 % > 6 %, or not identified)
+    "torque_converter": {"gears": {1, 2, 3}, "caps": {"acceleration": {"end_speed_kmh": 40.0},
+                                                      "ramp_down": {"start_speed_kmh": 40.0},
+                                                      "coastdown": {"max_duration_s": 10.0}}},
 }
 
-#: the torque converter's example runs every test of the paper campaign but the cycle and the constant drives
-#: (about 7,000 s of plant, 5 s an example), so the decelerations start from the state the paper campaign
-#: leaves them in; the family's own kinds in a row are checked on the paper vehicle (see test_recovery)
+#: every test of the paper campaign but the cycle and the constant drives (about 6,000 s of plant): what the
+#: converter's property example ran while the family's own tests were not enough (now FAMILY_PICKS); the pinned
+#: converter findings of test_recovery still run it, as when they were found
 TC_KINDS: tuple[str, ...] = ("ramp_up", "acceleration", "ramp_down", "deceleration", "neutral_braking",
                              "coastdown")
 

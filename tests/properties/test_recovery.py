@@ -18,6 +18,7 @@ from _profiles import profile
 from _tolerance import property_checks
 from hypothesis import example, given
 from hypothesis import strategies as st
+from pydantic import ValidationError
 from strategies import (
     FAMILY_PICKS,
     IDEAL_SETUP,
@@ -126,7 +127,7 @@ def test_shift_lines_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: 
 
 def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
     fam = FAMILIES["torque_converter"]
-    campaign = campaign_for(vehicle, TC_KINDS, seed=seed)
+    campaign = campaign_for(vehicle, fam.kinds, seed=seed, **FAMILY_PICKS[fam.name])
     trace = simulate_campaign(vehicle, campaign)
     report = validate(vehicle, drawn.setup, campaign, trace=trace, families=[fam.name], profile="realistic")
     checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, None, {fam.name})
@@ -134,7 +135,7 @@ def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int)
     assert not bad, "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g}" for c in bad)
 
 
-@profile(max_examples=2)
+@profile()
 @given(vehicles(), setups(), seeds)
 @example(*pinned("converter_coupling_pump_inertia"))
 def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
@@ -143,6 +144,26 @@ def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnS
     # torque (the pinned example: coupling CF curve 10.4 % off at SR 0.95, now 0.9 %) and coupling points over
     # SR 0.847-0.861 only, where a6 and a8 are collinear (test_torque_converter_b: now a8 = 0 and flagged)
     _converter_checks_pass(vehicle, drawn, seed)
+
+
+def test_converter_example_runs_its_family_tests_cut_to_the_converter_points() -> None:
+    # what the converter's property example runs (FAMILY_PICKS): the family's own kinds only, ramp-ups in gears
+    # 1-3, accelerations to 40 km/h, ramp-downs from 40 km/h, a 10 s coast; a cap is an upper bound (the
+    # decelerations keep 100 km/h under a 150 km/h cap) and is validated like a user's test (a zero end speed
+    # is refused, not run)
+    fam = FAMILIES["torque_converter"]
+    campaign = campaign_for(PAPER_VEHICLE, fam.kinds, seed=0, **FAMILY_PICKS[fam.name])
+    kinds = {t.kind for t in campaign.tests}
+    assert kinds == set(fam.kinds), kinds
+    assert {t.gear for t in campaign.tests if t.kind == "ramp_up"} == {1, 2, 3}
+    assert all(t.end_speed_kmh == 40.0 for t in campaign.tests if t.kind == "acceleration")
+    assert all(t.start_speed_kmh == 40.0 for t in campaign.tests if t.kind == "ramp_down")
+    assert [t.max_duration_s for t in campaign.tests if t.kind == "coastdown"] == [10.0]
+    assert all(t.start_speed_kmh == 100.0 for t in campaign.tests if t.kind == "deceleration")
+    loose = campaign_for(PAPER_VEHICLE, ("deceleration",), seed=0, caps={"deceleration": {"start_speed_kmh": 150.0}})
+    assert [t.start_speed_kmh for t in loose.tests] == [100.0] * 6
+    with pytest.raises(ValidationError):
+        campaign_for(PAPER_VEHICLE, ("acceleration",), seed=0, caps={"acceleration": {"end_speed_kmh": 0.0}})
 
 
 def test_converter_with_gear_1_on_a_borrowed_transmission_model() -> None:
