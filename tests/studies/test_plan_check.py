@@ -32,3 +32,14 @@ def test_a_new_fit_without_a_plan_is_named_not_planned() -> None:
     assert unplanned_keys(NAMES, []) == []
     # a generator of names is read once per key as well as a list is
     assert unplanned_keys(iter(NAMES), keys) == ["battery.rc.R0", "battery.rc.tau1_s"]
+
+
+def test_another_familys_estimates_are_planned_there_by_name_only() -> None:
+    own = ["torque_converter.converter.a0"]
+    others = ["transmission.gear1.eta_m", "engine.*"]
+    keys = ["torque_converter.converter.a0", "transmission.gear1.eta_m", "transmission.gear1.eta_m_C0",
+            "engine.can_torque.gain"]
+    # the transmission's gear row is planned in the transmission family; engine.* covers only the engine family's
+    assert unplanned_keys(own, keys, others) == ["engine.can_torque.gain", "transmission.gear1.eta_m_C0"]
+    assert unplanned_keys(own, keys) == ["engine.can_torque.gain", "transmission.gear1.eta_m",
+                                         "transmission.gear1.eta_m_C0"]
