@@ -50,6 +50,7 @@ _POLL_FLAGS = int(Flag.TIMEOUT | Flag.PROTOCOL_ERROR)
 
 _NAMES = [("brakes.front.m_f", "Nm/bar"), ("brakes.front.c_f", "Nm"), ("brakes.rear.m_r", "Nm/bar"),
           ("brakes.rear.c_r", "Nm"), ("brakes.distribution.k_f", "-")]
+_K_R = "brakes.distribution.k_r"
 
 
 def redraw_poll_faults(rec: Recording, roles: Sequence[str], faults: PollFaults, rng: np.random.Generator
@@ -212,11 +213,13 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
         if len(draw_k) >= 2:
             ks = np.array(draw_k)
             var_k = float(np.mean(ks[:, 1]) + np.var(ks[:, 0], ddof=1))
-        out.append(PlannedParameter(_NAMES[4][0], "-", k0, math.sqrt(max(var_k, 0.0)), True, "from both gains", "",
-                                    0))
+        se_k = math.sqrt(max(var_k, 0.0))
+        out.append(PlannedParameter(_NAMES[4][0], "-", k0, se_k, True, "from both gains", "", 0))
+        # k_r = 1 - k_f as the identification reports it: the same standard error
+        out.append(PlannedParameter(_K_R, "-", 1.0 - k0, se_k, True, "1 - k_f", "", 0))
     else:
-        out.append(PlannedParameter(_NAMES[4][0], "-", float("nan"), float("nan"), False, "needs both axle gains",
-                                    test))
+        out += [PlannedParameter(n, "-", float("nan"), float("nan"), False, "needs both axle gains", test)
+                for n in (_NAMES[4][0], _K_R)]
     return out
 
 

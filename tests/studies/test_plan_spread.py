@@ -98,7 +98,7 @@ def test_brake_gains_under_poll_faults_agree_with_the_spread_over_seeds(tmp_path
     plan = plan_campaign(vehicle, setup, campaign, trace=trace, families=["brakes"])
     est = _spread(vehicle, setup, campaign, trace, "brakes", n)
     for name in ("brakes.front.m_f", "brakes.front.c_f", "brakes.rear.m_r", "brakes.rear.c_r",
-                 "brakes.distribution.k_f"):
+                 "brakes.distribution.k_f", "brakes.distribution.k_r"):
         p = plan.get(name)
         v = est[name]
         assert p.identifiable and p.se > 0 and v.size == n
