@@ -102,15 +102,34 @@ def test_the_model_engages_the_lines_gear_after_the_delay() -> None:
         res.fits[f"shifts.up_{g}_{g + 1}"] = _fit({"c0_kmh": float(up), "c1_kmh_per_pct": 0.0})
         res.fits[f"shifts.down_{g + 1}_{g}"] = _fit({"c0_kmh": float(down), "c1_kmh_per_pct": 0.0})
     drive = cruise(n=300, gear=1)
-    drive.speed_kmh = np.linspace(0.0, 29.9, 300)  # crosses 15 km/h (up 1-2) and 25 km/h (up 2-3)
+    drive.speed_kmh = 0.1 * np.arange(300) + 0.03  # crosses 15 km/h (up 1-2) and 25 km/h (up 2-3)
     no_delay = MapVehicle(res, SPECS).shift_gears(drive)
     res.fits[SHIFT_DELAY_KEY] = _fit({"delay_s": DELAY})
     model = MapVehicle(res, SPECS)
     assert model.shift_delay_s == DELAY
     gears = model.shift_gears(drive)
-    # the lines' target: 2 from the first sample at or past 15 km/h, 3 from 25 km/h
-    k2, k3 = int(np.argmax(drive.speed_kmh >= 15.0)), int(np.argmax(drive.speed_kmh >= 25.0))
-    assert np.flatnonzero(no_delay == 2)[0] == k2 and np.flatnonzero(no_delay == 3)[0] == k3
-    # engaged 0.34 s after the change (half a sample before the first sample showing it): 3 samples later at 10 Hz
-    assert np.flatnonzero(gears == 2)[0] == k2 + 3 and np.flatnonzero(gears == 3)[0] == k3 + 3
+    # the lines' target: 2 from sample 150 (15.03 km/h), 3 from sample 250 (25.03 km/h)
+    assert np.flatnonzero(no_delay == 2)[0] == 150 and np.flatnonzero(no_delay == 3)[0] == 250
+    # the speed, linear between samples, crossed 15 km/h at 14.97 s (0.03 s before sample 150): engaged at the first
+    # sample at or past 14.97 + 0.34 = 15.31 s, sample 154; 25 km/h likewise at sample 254 (half a sample before
+    # the first sample showing the target would give 153 and 253)
+    assert np.flatnonzero(gears == 2)[0] == 154 and np.flatnonzero(gears == 3)[0] == 254
     assert any("shifts.actuation" in n for n in model.notes)
+
+
+def test_actuated_gears_from_the_crossing_time() -> None:
+    tgt = np.array([1] * 10 + [2] * 20)
+    late = np.full(tgt.size, np.nan)
+    late[10] = -0.01  # the change 0.01 s before sample 10: engaged at >= 0.99 + 0.34 = 1.33 s, sample 14
+    assert np.flatnonzero(actuated_gears(tgt, 0.1, DELAY, late) == 2)[0] == 14
+    late[10] = -0.09  # at 0.91 s: >= 1.25 s, sample 13
+    assert np.flatnonzero(actuated_gears(tgt, 0.1, DELAY, late) == 2)[0] == 13
+
+
+def test_the_delay_counts_from_the_line_crossing_between_samples() -> None:
+    lines = {(1, "up"): (15.0, 0.0), (2, "down"): (8.0, 0.0), (2, "up"): (25.05, 0.0), (3, "down"): (17.0, 0.0)}
+    v = 0.1 * np.arange(300) + 0.03
+    g = shift_line_gears(lines, 3, v, np.full(300, 20.0), np.ones(300), delay_s=DELAY, dt_s=0.1)
+    # 15 km/h between samples 149 (14.93) and 150 (15.03), at 14.97 s: engaged at >= 15.31 s, sample 154;
+    # 25.05 km/h between samples 250 (25.03) and 251 (25.13), at 25.02 s: engaged at >= 25.36 s, sample 254
+    assert np.flatnonzero(g == 2)[0] == 154 and np.flatnonzero(g == 3)[0] == 254

@@ -14,13 +14,14 @@ import numpy as np
 __all__ = ["actuated_gears", "shift_line_gears"]
 
 
-def actuated_gears(target: np.ndarray, dt_s: float, delay_s: float) -> np.ndarray:
+def actuated_gears(target: np.ndarray, dt_s: float, delay_s: float, change_s: np.ndarray | None = None) -> np.ndarray:
     """The engaged gear that follows a target gear one gear at a time, each step ``delay_s`` after the last.
 
-    A target change is taken to happen half a sample before the sample that first shows it (it happened
-    somewhere in the interval); the gear steps at the first sample at or past that time plus ``delay_s``, and
-    again ``delay_s`` after each step while the target is still elsewhere. Neutral (0) in the target is engaged at
-    once and the gear leaving it is the target's (a recorded neutral is replayed, with its own timing).
+    A target change happens at ``change_s`` (s, from -dt to 0) relative to the sample that first shows it; by
+    default half a sample before it (somewhere in the interval). The gear steps at the first sample at or past that
+    time plus ``delay_s``, and again ``delay_s`` after each step while the target is still elsewhere. Neutral (0)
+    in the target is engaged at once and the gear leaving it is the target's (a recorded neutral is replayed, with
+    its own timing).
 
     Parameters
     ----------
@@ -30,6 +31,9 @@ def actuated_gears(target: np.ndarray, dt_s: float, delay_s: float) -> np.ndarra
         Sample interval, s (> 0).
     delay_s:
         Actuation delay, s (>= 0; 0: the target itself).
+    change_s:
+        Per sample, when the target's change it first shows happened, relative to the sample (s, clipped to
+        ``[-dt_s, 0]``; NaN or None: ``-dt_s / 2``).
 
     Returns
     -------
@@ -59,7 +63,8 @@ def actuated_gears(target: np.ndarray, dt_s: float, delay_s: float) -> np.ndarra
             due = float("nan")
         else:
             if not np.isfinite(due):
-                due = t - 0.5 * dt_s + delay_s
+                c = float(change_s[k]) if change_s is not None and np.isfinite(change_s[k]) else -0.5 * dt_s
+                due = t + min(max(c, -dt_s), 0.0) + delay_s
             if t >= due - 1e-9:
                 g += 1 if tg[k] > g else -1
                 due = due + delay_s if tg[k] != g else float("nan")
@@ -86,7 +91,8 @@ def shift_line_gears(shift_lines: dict[tuple[int, str], tuple[float, float]], n_
         The gearbox's actuation delay (s): the engaged gear follows the lines' target gear by
         :func:`actuated_gears`; 0 (default): the target gear itself.
     dt_s:
-        Sample interval (s); needed when ``delay_s > 0``.
+        Sample interval (s); needed when ``delay_s > 0``. A line crossed between two samples is crossed at the
+        time the speed and pedal, linear between them, reach it; the delay counts from there.
 
     Returns
     -------
@@ -101,11 +107,14 @@ def shift_line_gears(shift_lines: dict[tuple[int, str], tuple[float, float]], n_
     rec = np.asarray(recorded_gear).astype(int)
     g = max(int(rec[0]), 1)
     out = np.zeros(rec.size, dtype=int)
+    change = np.full(rec.size, np.nan)  # when a line was crossed, relative to the sample that shows the new target
     for k in range(rec.size):
         v, p = speed_kmh[k], pedal_pct[k]
         if rec[k] == 0:
             out[k] = 0
             continue
+        if k > 0 and dt_s is not None:
+            change[k] = _crossing_s(shift_lines, g, n_gears, speed_kmh[k - 1:k + 1], pedal_pct[k - 1:k + 1], dt_s)
         for _ in range(n_gears):
             up = shift_lines.get((g, "up"))
             down = shift_lines.get((g, "down"))
@@ -121,5 +130,21 @@ def shift_line_gears(shift_lines: dict[tuple[int, str], tuple[float, float]], n_
     if delay_s > 0:
         if dt_s is None:
             raise ValueError("shift_line_gears: delay_s > 0 needs the sample interval dt_s")
-        out = actuated_gears(out, dt_s, delay_s)
+        out = actuated_gears(out, dt_s, delay_s, change)
     return out
+
+
+def _crossing_s(shift_lines: dict[tuple[int, str], tuple[float, float]], g: int, n_gears: int, v: np.ndarray,
+                p: np.ndarray, dt_s: float) -> float:
+    """When, relative to the second of two samples, the speed crossed gear ``g``'s up or down line (linear
+    between the samples: the lines are identified at the crossing's time, :mod:`~benchtwin.identification.shifts`);
+    NaN when neither line was crossed from the first sample to the second."""
+    for direction, sign in (("up", 1.0), ("down", -1.0)):
+        line = shift_lines.get((g, direction))
+        if line is None or (direction == "up" and g >= n_gears) or (direction == "down" and g <= 1):
+            continue
+        s0 = sign * (v[0] - line[0] - line[1] * p[0])
+        s1 = sign * (v[1] - line[0] - line[1] * p[1])
+        if s0 < 0.0 <= s1:
+            return -dt_s * s1 / (s1 - s0)
+    return float("nan")
