@@ -18,7 +18,7 @@ battery_map_free   battery V/I (OCV/R without maps, R0 steps,   ``battery_map_fr
                    OCV at the end of long rests)                ``battery_ocv_rest``
 torque_converter   speeds, torques, gear, lock-up (uses the     ``torque_converter.*``
                    transmission result of each gear)
-shifts             target gear, speed, pedal                    ``shifts.up_1_2`` ...
+shifts             target and actual gear, speed, pedal         ``shifts.up_1_2`` ..., ``shifts.actuation``
 reduction_gear     motor speed/torque, speed, dyno forces (a    ``reduction_gear``
                    BEV's one fixed ratio; run by default for
                    the ``bev`` layout only)
@@ -62,7 +62,7 @@ from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor import identify_motor
 from benchtwin.identification.reduction_gear import identify_reduction_gear
 from benchtwin.identification.road_load import identify_road_load
-from benchtwin.identification.shifts import identify_shift_thresholds
+from benchtwin.identification.shifts import identify_shift_thresholds, shift_fits
 from benchtwin.identification.torque_converter import identify_torque_converter
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission
 from benchtwin.identification.transmission_drag import DRAG_KEY
@@ -194,7 +194,7 @@ def _shifts(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResu
     o = dict(opts)
     if specs is not None and specs.gear_ratios is not None:
         o.setdefault("n_gears", len(specs.gear_ratios))
-    return identify_shift_thresholds(rec, **o)
+    return shift_fits(rec, **o)
 
 
 _TX = ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual")

@@ -22,6 +22,8 @@ every downshift of a cycle happened while coasting).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from benchtwin.errors import MissingChannelError
@@ -29,10 +31,11 @@ from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_f
 from benchtwin.identification._state_changes import state_changes
 from benchtwin.identification._windows import at_times
 from benchtwin.identification.keys import FitKey
+from benchtwin.identification.shift_delay import SHIFT_DELAY_KEY, identify_shift_delay
 from benchtwin.recording import Recording
 from benchtwin.segments import inside_any, touched
 
-__all__ = ["find_shift_events", "identify_shift_thresholds"]
+__all__ = ["find_shift_events", "identify_shift_thresholds", "shift_fits"]
 
 
 #: segment kinds in which the gearbox's own schedule chooses the gear
@@ -182,4 +185,14 @@ def identify_shift_thresholds(
                 fit.data.update({"pedal": p, "speed": v})
             fit.n_excluded += n_bad
             out[name] = fit
+    return out
+
+
+def shift_fits(rec: Recording, **opts: Any) -> dict[str, FitResult]:
+    """The ``shifts`` method: :func:`identify_shift_thresholds` (``opts``) and, when ``gear_actual`` was recorded,
+    the actuation delay from target to actual gear under ``actuation``
+    (:func:`~benchtwin.identification.shift_delay.identify_shift_delay`)."""
+    out = identify_shift_thresholds(rec, **opts)
+    if "gear_actual" in rec:
+        out[SHIFT_DELAY_KEY.partition(".")[2]] = identify_shift_delay(rec)
     return out

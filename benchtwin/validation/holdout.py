@@ -494,9 +494,9 @@ def _shift_checks(result: IdentificationResult, drive: DriveInputs | None, model
     tol = 0.9
     return [Check("prediction", "submodel.shift_lines_gear_agreement", agree, 1.0, agree, tol, "min", "-",
                   bool(agree >= tol),
-                  "share of the held-out drive's moving time in which the identified shift lines (with hysteresis, "
-                  "driven by the recorded pedal) select the gear the gearbox engaged; the actuation delay (~0.35 s per "
-                  "shift) and the lines of gear pairs the campaign did not reach cost a few %")]
+                  "share of the held-out drive's moving time in which the identified shift lines (hysteresis, the "
+                  "recorded pedal, shifts.actuation's delay) select the gear the gearbox engaged; the 10 Hz grid and "
+                  "the lines of gear pairs the campaign did not reach cost a few %")]
 
 
 def submodel_checks(result: IdentificationResult, vehicle: VehicleConfig, trace: Trace, model: MapVehicle,

@@ -7,7 +7,8 @@ trace of a drive the model computes, per time step and backwards from the wheels
 1. the wheel force, ``F0 + F1 v + F2 v^2 + m_test dv/dt`` (the dyno's road load identified from the
    coastdown, the test mass from the public specs), plus the hydraulic brake force the recorded caliper
    pressures give through the identified brake gains;
-2. the gear: the recorded gear (a replay) or the identified shift lines driven by the recorded pedal;
+2. the gear: the recorded gear (a replay) or the identified shift lines driven by the recorded pedal, the gear
+   engaged one at a time after the identified actuation delay (``shifts.actuation``);
 3. the gearbox input torque by eq. 14 with that gear's identified ``eta_m`` and ``C0`` (drive fit when
    the output torque is positive, coast fit when negative); when the temperature-dependent drag
    ``transmission.drag`` was identified and is supported by the data
@@ -59,6 +60,7 @@ from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, corrected_
 from benchtwin.identification.fuel_map import fuel_map_gps
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.motor_loss import LOSS_TERMS, loss_w
+from benchtwin.identification.shift_delay import SHIFT_DELAY_KEY
 from benchtwin.identification.torque_converter_table import table_pump, table_torques
 from benchtwin.validation._pack_steps import battery_steps as _battery_steps
 from benchtwin.validation._pack_steps import battery_steps_rc as _battery_steps_rc
@@ -242,6 +244,12 @@ class MapVehicle:
                 continue
             key = FitKey.parse(name)
             self.shift_lines[(int(key.gear), str(key.direction))] = (f.value("c0_kmh"), f.value("c1_kmh_per_pct"))
+        sd = _fit(result, SHIFT_DELAY_KEY, "delay_s")
+        ok = sd is not None and sd.status == "ok"
+        self.shift_delay_s = sd.value("delay_s") if ok else 0.0
+        self.notes.append(f"shift lines: the gear engaged {self.shift_delay_s:.2f} s after the lines' target, one gear "
+                          "at a time (shifts.actuation)" if ok else
+                          "shift lines: actuation delay (shifts.actuation) not identified, the target gear engaged")
 
     def _coupling_a678(self, coup: FitResult) -> list[float]:
         """a6..a8 as the pump side pays them (``data["pump_side_a678"]``, the fit on the pump rows) when identified.
@@ -372,9 +380,10 @@ class MapVehicle:
 
     # ------------------------------------------------------------------ shift lines
     def shift_gears(self, drive: DriveInputs) -> np.ndarray:
-        """Gears from the identified shift lines (hysteresis between up and down lines), the recorded pedal."""
+        """Gears from the identified shift lines (hysteresis between up and down lines), the recorded pedal, engaged
+        after the identified actuation delay (``shifts.actuation``, when identified)."""
         return shift_line_gears(self.shift_lines, len(self.specs.gear_ratios), drive.speed_kmh, drive.pedal_pct,
-                                drive.gear)
+                                drive.gear, delay_s=self.shift_delay_s, dt_s=drive.dt_s)
 
     # ------------------------------------------------------------------ battery
     def _battery_rc(self, result: IdentificationResult) -> None:
