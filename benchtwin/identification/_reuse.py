@@ -13,10 +13,19 @@ kept. A result is the same with or without the store: it only skips recomputing 
 
 The store assumes the channels' arrays are not changed in place while it is open (the re-runs only read them: a
 perturbed channel is a new array, :func:`~benchtwin.identification.uncertainty.perturbed`).
+
+The store is bounded: it holds at most :data:`STORE_BYTES` of results (their arrays and the bytes of their keys). The
+methods read a long Recording block by block, and each re-run walks the blocks in order, so the store would
+otherwise keep a result per block of the whole campaign while a method's re-runs last (memory that grows with the
+campaign). Once full, a new result is not kept (it is computed again by each re-run that needs it, as without the
+store) and the first blocks' results stay: with re-runs that walk the blocks in the same order, dropping the oldest
+instead would drop each block's result just before the next re-run asks for it. Arrays in a key (grid times, window
+edges) go in as :func:`fingerprint`, a digest of their bytes, not as the bytes themselves.
 """
 
 from __future__ import annotations
 
+import hashlib
 import threading
 import weakref
 from collections.abc import Callable, Hashable, Iterator
@@ -25,31 +34,88 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["reused", "reusing"]
+__all__ = ["STORE_BYTES", "fingerprint", "reused", "reusing", "stored_bytes"]
 
 T = TypeVar("T")
 
+#: most bytes of results (arrays and key bytes) the store holds at once; the paper campaign's re-runs keep about
+#: 13 MB per method at most, so its results are all kept, and a campaign ten times as long keeps this much
+STORE_BYTES = 32 * 2**20
+
 _lock = threading.Lock()
-_store: dict[Hashable, tuple[tuple[weakref.ref[np.ndarray], ...], Any]] | None = None
-#: keys of the store's entries one of whose arrays has gone (appended by the weak references' callbacks, which take
-#: no lock: an array may go while this thread holds it)
-_dead: list[Hashable] = []
+
+
+class _Store:
+    """The entries (key -> weak references to the source arrays, result, bytes) and their total bytes."""
+
+    def __init__(self) -> None:
+        self.entries: dict[Hashable, tuple[tuple[weakref.ref[np.ndarray], ...], Any, int]] = {}
+        #: keys of entries one of whose arrays has gone (appended by the weak references' callbacks, which take no
+        #: lock: an array may go while this thread holds it)
+        self.dead: list[Hashable] = []
+        self.nbytes = 0
+
+    def drop_dead(self) -> None:
+        """Remove the entries the callbacks named whose arrays are gone (with the lock held)."""
+        while self.dead:
+            k = self.dead.pop()
+            entry = self.entries.get(k)
+            if entry is not None and any(r() is None for r in entry[0]):
+                del self.entries[k]
+                self.nbytes -= entry[2]
+
+
+_store: _Store | None = None
 
 
 @contextmanager
 def reusing() -> Iterator[None]:
     """Keep shared results for the duration of the block (re-entrant: an inner block uses the outer store)."""
-    global _store, _dead
+    global _store
     with _lock:
         outer = _store is not None
         if not outer:
-            _store, _dead = {}, []
+            _store = _Store()
     try:
         yield
     finally:
         if not outer:
             with _lock:
-                _store, _dead = None, []
+                _store = None
+
+
+def stored_bytes() -> int:
+    """Bytes of results the open store holds (0 outside :func:`reusing`)."""
+    store = _store
+    return 0 if store is None else store.nbytes
+
+
+def fingerprint(a: np.ndarray) -> tuple[tuple[int, ...], str, bytes]:
+    """A key for an array's contents: its shape, dtype and a 256-bit digest of its bytes.
+
+    Parameters
+    ----------
+    a:
+        The array (e.g. a block's grid times).
+
+    Returns
+    -------
+    tuple
+        ``(shape, dtype.str, digest)``; two arrays with the same fingerprint hold the same numbers (but with
+        probability about 2**-256).
+    """
+    a = np.ascontiguousarray(a)
+    return a.shape, a.dtype.str, hashlib.blake2b(a.data, digest_size=32).digest()
+
+
+def _nbytes(x: Any) -> int:
+    if isinstance(x, np.ndarray):
+        return x.nbytes
+    if isinstance(x, tuple):
+        return sum(_nbytes(v) for v in x)
+    if isinstance(x, bytes | bytearray):
+        return len(x)
+    return 0
 
 
 def _copy(x: Any) -> Any:
@@ -74,21 +140,26 @@ def reused(kind: str, arrays: tuple[np.ndarray, ...], key: Hashable, compute: Ca
     compute:
         Computes the result (arrays, or tuples of arrays and plain values).
     """
-    store, dead = _store, _dead
+    store = _store
     if store is None:
         return compute()
     full = (kind, tuple(id(a) for a in arrays), key)
-    hit = store.get(full)
+    hit = store.entries.get(full)
     if hit is not None and all(r() is a for r, a in zip(hit[0], arrays, strict=True)):
         return _copy(hit[1])
     out = compute()
     with _lock:
         if _store is store:
             # entries of arrays that are gone (a finished re-run's moved channel) go too: those the callbacks named
-            while dead:
-                k = dead.pop()
-                entry = store.get(k)
-                if entry is not None and any(r() is None for r in entry[0]):
-                    del store[k]
-            store[full] = (tuple(weakref.ref(a, lambda _r, k=full: dead.append(k)) for a in arrays), _copy(out))
+            store.drop_dead()
+            size = _nbytes(out) + _nbytes(key)
+            old = store.entries.get(full)
+            if old is not None:  # the same key of arrays that went (their ids used again): replaced
+                del store.entries[full]
+                store.nbytes -= old[2]
+            if store.nbytes + size <= STORE_BYTES:
+                dead = store.dead
+                refs = tuple(weakref.ref(a, lambda _r, k=full: dead.append(k)) for a in arrays)
+                store.entries[full] = (refs, _copy(out), size)
+                store.nbytes += size
     return out

@@ -25,7 +25,7 @@ from benchtwin.errors import (
 )
 from benchtwin.identification._clock import ClockShift, Shift, source_shifts, to_ref, to_source
 from benchtwin.identification._derivative import runs, smooth_derivative
-from benchtwin.identification._reuse import reused
+from benchtwin.identification._reuse import fingerprint, reused
 from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.segments import inside_any, touched
 
@@ -171,7 +171,7 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
 
     # the type B re-runs sample the channels they do not move on the same grid again (see _reuse)
     return reused("sample", (ch.timestamps, ch.values, ch.flags),
-                  (t.size, float(t[0]) if t.size else 0.0, t.tobytes(), hold, shift_s), compute)
+                  (t.size, float(t[0]) if t.size else 0.0, fingerprint(t), hold, shift_s), compute)
 
 
 def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray, fidx: np.ndarray, hold: bool,

@@ -19,7 +19,7 @@ from collections.abc import Iterable, Iterator, Sequence
 import numpy as np
 
 from benchtwin.identification._derivative import runs
-from benchtwin.identification._reuse import reused
+from benchtwin.identification._reuse import fingerprint, reused
 from benchtwin.identification._signals import (
     SAMPLE_BLOCK,
     STATE_ROLES,
@@ -240,7 +240,7 @@ def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift
         return v, flagged
 
     # keyed by the channel object: the type B re-runs keep every channel they do not move (see _reuse)
-    return reused("sample_at", (ch,), (t.size, float(t[0]), t.tobytes(), hold, shift_s), compute)  # type: ignore[arg-type]
+    return reused("sample_at", (ch,), (t.size, float(t[0]), fingerprint(t), hold, shift_s), compute)  # type: ignore[arg-type]
 
 
 def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: float, shifts: dict[str, Shift], *,

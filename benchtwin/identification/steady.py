@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from benchtwin.errors import DataError
-from benchtwin.identification._reuse import reused
+from benchtwin.identification._reuse import fingerprint, reused
 from benchtwin.identification._signals import (
     Grid,
     gather,
@@ -189,7 +189,7 @@ class SteadyWindows:
         arrays = (ch.timestamps, ch.values, ch.flags) + (() if ch2 is None else (ch2.timestamps, ch2.values, ch2.flags))
         edges = np.array([(w.start_s, w.end_s) for w in self.windows])
         shifts = self.grid.shifts
-        key = (edges.tobytes(), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
+        key = (fingerprint(edges), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
         # the type B re-runs average the channels they do not move over the same windows again (see _reuse)
         return reused("raw_average", arrays, key, lambda: self._raw_average_of(rec, name, other))
 
@@ -206,7 +206,7 @@ class SteadyWindows:
             return self._raw_average(rec, name, other)
         edges = np.array([(w.start_s, w.end_s) for w in self.windows])
         shifts = self.grid.shifts
-        key = (edges.tobytes(), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
+        key = (fingerprint(edges), shifts.get(ch.source, 0.0), None if ch2 is None else shifts.get(ch2.source, 0.0))
         objs = (ch,) if ch2 is None else (ch, ch2)
         # keyed by the channel objects: the type B re-runs keep every channel they do not move (see _reuse)
         return reused("raw_average_windowed", objs, key,  # type: ignore[arg-type]

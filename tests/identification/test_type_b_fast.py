@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from benchtwin.identification import uncertainty
+from benchtwin.identification import _reuse, uncertainty
 from benchtwin.identification.run import DEFAULT_METHODS, METHODS, _reads, _rerun, identify_all
 from benchtwin.identification.uncertainty import RESOLUTION_DRAWS, RESOLUTION_SEED, Component, components
 from benchtwin.recording import Recording
@@ -104,13 +104,15 @@ def test_type_b_of_a_recording_read_by_blocks_is_the_same_on_two_threads_and_one
     with rec:
         assert all(isinstance(c, LazyChannel) for c in rec.channels.values())
         runs = {}
-        for workers in (2, 1):
-            monkeypatch.setattr(uncertainty, "WORKERS", workers)
+        # the store's bound biting (64 KB: a few blocks' results kept, the rest computed again) changes nothing
+        for workers, bound in ((2, _reuse.STORE_BYTES), (1, _reuse.STORE_BYTES), ("2, bounded", 64 * 2**10)):
+            monkeypatch.setattr(uncertainty, "WORKERS", 2 if workers == "2, bounded" else workers)
+            monkeypatch.setattr(_reuse, "STORE_BYTES", bound)
             res = identify_all(rec, vehicle.specs, type_b=True)
             assert res.meta["type_b"]["failed"] == [] and res.meta["type_b"]["reruns"] > 60
             assert rec.loaded() == set()  # each method's channels went before the next's
             runs[workers] = repr({k: (p.value, p.type_b, p.ci95_total) for k, p in res.parameters().items()})
-        assert "resolution" in runs[2] and runs[2] == runs[1]
+        assert "resolution" in runs[2] and runs[2] == runs[1] == runs["2, bounded"]
     # and the same as the in-memory Recording's (the batch chain's: the same samples)
     monkeypatch.setattr(uncertainty, "WORKERS", 2)
     res = identify_all(in_memory, vehicle.specs, type_b=True)
