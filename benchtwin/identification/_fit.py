@@ -68,6 +68,9 @@ class ParameterEstimate:
     type_b:
         The type B budget: source (``shaft_torque_nm.gain``, ``em_torque_nm.offset`` ...) -> its
         contribution to the parameter's standard uncertainty, in the parameter's unit.
+    type_b_dof:
+        Degrees of freedom of the components that are not exactly known (missing: infinite); kept so that a
+        later :meth:`combine_type_b` with ``keep=True`` weighs them alike (not written by :meth:`to_dict`).
     """
 
     name: str
@@ -84,6 +87,7 @@ class ParameterEstimate:
     u_total: float = float("nan")
     ci95_total: tuple[float, float] | None = None
     type_b: dict[str, float] = field(default_factory=dict)
+    type_b_dof: dict[str, float] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         if self.ci95_total is None:
@@ -91,7 +95,8 @@ class ParameterEstimate:
         if not math.isfinite(self.u_total) and self.u_type_b == 0.0:
             self.u_total = self.std_error
 
-    def combine_type_b(self, contributions: dict[str, float], dof: dict[str, float] | None = None) -> None:
+    def combine_type_b(self, contributions: dict[str, float], dof: dict[str, float] | None = None, *,
+                       keep: bool = False) -> None:
         """Combine the type B contributions with the statistical uncertainty (GUM, JCGM 100 sections 5 and G).
 
         The statistical degrees of freedom are read back from ``ci95`` (its half-width is ``t(nu_A)``
@@ -105,8 +110,15 @@ class ParameterEstimate:
             Source -> standard uncertainty of the parameter from that source (sign ignored).
         dof:
             Source -> degrees of freedom of that contribution (missing: infinite).
+        keep:
+            Keep the components already in the budget that ``contributions`` does not name (e.g. a method's own
+            calibration term, set when the parameter was estimated), with their degrees of freedom.
         """
+        if keep:
+            contributions = {**self.type_b, **contributions}
+            dof = {**self.type_b_dof, **(dof or {})}
         self.type_b = {k: abs(float(v)) for k, v in contributions.items() if math.isfinite(v)}
+        self.type_b_dof = {k: float(v) for k, v in (dof or {}).items() if k in self.type_b}
         u_b = math.sqrt(sum(v * v for v in self.type_b.values()))
         self.u_type_b = u_b
         se = self.std_error
@@ -126,6 +138,7 @@ class ParameterEstimate:
         d["ci95"] = list(self.ci95)
         d["ci95_total"] = list(self.ci95_total) if self.ci95_total is not None else None
         d["type_b"] = {k: v for k, v in self.type_b.items() if math.isfinite(v)}
+        d.pop("type_b_dof", None)
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 

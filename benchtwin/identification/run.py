@@ -340,7 +340,9 @@ def identify_all(
     type_b:
         Propagate the systematic uncertainties the Recording declares into every parameter
         (:mod:`benchtwin.identification.uncertainty`): each method runs again once per declared component
-        of the roles it reads. False: the total intervals equal the statistical ones.
+        of the roles it reads. False: the total intervals equal the statistical ones, but for the converter's
+        parameters, which carry the standard errors of the method's own calibrations whatever the setup declares
+        (:mod:`~benchtwin.identification.torque_converter_calibration`).
 
     Returns
     -------

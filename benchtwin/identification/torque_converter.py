@@ -29,6 +29,7 @@ of the model curve against the data points.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 
@@ -36,7 +37,10 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import ConfigError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
 from benchtwin.identification.torque_converter_borrowed import borrowed_gear_offsets
+from benchtwin.identification.torque_converter_calibration import calibration_budget
 from benchtwin.identification.torque_converter_model import (
+    _gamma_from_data,
+    _robust_z,
     _zero_torque_sr,
     converter_design,
     coupling_coefficients,
@@ -72,29 +76,6 @@ __all__ = [
 
 #: converter-mode points must reach below this SR for the stall end of the curves to be measured, not extrapolated
 STALL_END_SR = 0.3
-
-
-def _robust_z(r: np.ndarray, floor: float) -> np.ndarray:
-    """``|r - median|`` in units of 1.4826 x MAD, the scale floored at ``floor`` (exact data: no outliers)."""
-    med = float(np.median(r))
-    mad = 1.4826 * float(np.median(np.abs(r - med)))
-    return np.abs(r - med) / max(mad, floor)
-
-
-def _gamma_from_data(sr: np.ndarray, tr: np.ndarray, tr_tol: float, bin_width: float = 0.02,
-                     min_bin: int = 3) -> float:
-    """First SR bin whose median TR is within ``tr_tol`` of 1 (or below) and stays so in the next bins."""
-    edges = np.arange(0.0, max(1.0, float(sr.max())) + bin_width, bin_width)
-    idx = np.digitize(sr, edges) - 1
-    meds = []
-    for k in range(edges.size - 1):
-        m = idx == k
-        if m.sum() >= min_bin:
-            meds.append((edges[k], float(np.median(tr[m]))))
-    for j, (lo, med) in enumerate(meds):
-        if med <= 1.0 + tr_tol and all(m2 <= 1.0 + 2 * tr_tol for _, m2 in meds[j:j + 3]):
-            return float(lo)
-    return float("nan")
 
 
 def fit_torque_converter(
@@ -385,6 +366,7 @@ def identify_torque_converter(
     coupling_torque: str = "turbine",
     min_coupling_span: float = 0.03,
     drag: FitResult | None = None,
+    calibration_uncertainty: bool = True,
 ) -> dict[str, FitResult]:
     """Identify the torque converter from a Recording (module docstring).
 
@@ -452,6 +434,9 @@ def identify_torque_converter(
         lock-up closed (flagged: the converter's own near-1 speed ratios are then cut off).
     drag:
         ``transmission.drag`` when used: eq. 32's eta_m and C0 per point at the logged oil temperature.
+    calibration_uncertainty:
+        Carry the standard errors of the turbine speed and torque calibrations into every parameter's budget
+        (:mod:`~benchtwin.identification.torque_converter_calibration`: the method re-run once per scale).
 
     Returns
     -------
@@ -469,33 +454,43 @@ def identify_torque_converter(
                            min_calibration_points=min_calibration_points, lockup_slip_tol=lockup_slip_tol,
                            calibrate_turbine_torque=calibrate_turbine_torque, drag=drag)
 
-    def fit(t_t: np.ndarray) -> dict[str, FitResult]:
-        return fit_torque_converter(pts.w_p, pts.w_t, pts.t_p, t_t, gamma=gamma, min_points=min_points,
-                                    segments=pts.segments, n_excluded=pts.n_excluded,
-                                    dw_p=pts.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma,
-                                    coupling_zero_slip=coupling_zero_slip, coupling_torque=coupling_torque,
-                                    min_coupling_span=min_coupling_span)
+    def solve(w_t: np.ndarray, t_t: np.ndarray) -> tuple[dict[str, FitResult], dict, dict[int, str]]:
+        """The fits on the points with these turbine speeds and torques (the calibrations' re-runs move them)."""
+        p = pts if w_t is pts.w_t and t_t is pts.t_t else replace(pts, w_t=w_t, t_t=t_t)
 
-    res = fit(pts.t_t)
-    offsets: dict[int, tuple[float, float, int]] = {}
-    off_reasons: dict[int, str] = {}
-    # a gear on a borrowed transmission model: its turbine torque offset to meet the pump torque on its own
-    # coupling points; the coupling point moves with the offset, so both are iterated to a fixed point
-    for it in range(8 if pts.borrowed else 0):
-        conv = res["converter"]
-        j = conv.value("J_pump_kgm2") if "J_pump_kgm2" in conv.params else 0.0
-        new, off_reasons = borrowed_gear_offsets(pts, conv.value("gamma_coupling"), j,
-                                                 0.1 * max_pump_accel_rpm_s / RPM_PER_RADS, min_points, start=it == 0)
-        # a gear calibrated in an earlier round keeps its offset if the moved coupling point leaves it too few points
-        off_reasons = {k: r for k, r in off_reasons.items() if k not in offsets}
-        new = {**{k: v for k, v in offsets.items() if k not in new}, **new}
-        moved = max((abs(new[k][0] - offsets.get(k, (0.0,))[0]) for k in new), default=0.0)
-        if moved < 1e-12:
-            break
-        offsets = new
-        res = fit(pts.t_t - sum(o * (pts.gear == k) for k, (o, _se, _n) in offsets.items()))
-        if moved < 0.02:
-            break
+        def fit(t_t: np.ndarray) -> dict[str, FitResult]:
+            return fit_torque_converter(p.w_p, p.w_t, p.t_p, t_t, gamma=gamma, min_points=min_points,
+                                        segments=p.segments, n_excluded=p.n_excluded,
+                                        dw_p=p.dw_p if pump_inertia else None, outlier_sigma=outlier_sigma,
+                                        coupling_zero_slip=coupling_zero_slip, coupling_torque=coupling_torque,
+                                        min_coupling_span=min_coupling_span)
+
+        res = fit(p.t_t)
+        offsets: dict[int, tuple[float, float, int]] = {}
+        off_reasons: dict[int, str] = {}
+        # a gear on a borrowed transmission model: its turbine torque offset to meet the pump torque on its own
+        # coupling points; the coupling point moves with the offset, so both are iterated to a fixed point
+        for it in range(8 if p.borrowed else 0):
+            conv = res["converter"]
+            j = conv.value("J_pump_kgm2") if "J_pump_kgm2" in conv.params else 0.0
+            new, off_reasons = borrowed_gear_offsets(p, conv.value("gamma_coupling"), j,
+                                                     0.1 * max_pump_accel_rpm_s / RPM_PER_RADS, min_points,
+                                                     start=it == 0)
+            # a gear calibrated in an earlier round keeps its offset if the moved coupling point leaves it too few
+            off_reasons = {k: r for k, r in off_reasons.items() if k not in offsets}
+            new = {**{k: v for k, v in offsets.items() if k not in new}, **new}
+            moved = max((abs(new[k][0] - offsets.get(k, (0.0,))[0]) for k in new), default=0.0)
+            if moved < 1e-12:
+                break
+            offsets = new
+            res = fit(p.t_t - sum(o * (p.gear == k) for k, (o, _se, _n) in offsets.items()))
+            if moved < 0.02:
+                break
+        return res, offsets, off_reasons
+
+    res, offsets, off_reasons = solve(pts.w_t, pts.t_t)
+    if calibration_uncertainty:  # the scales' standard errors into every parameter's budget
+        calibration_budget(res, pts, lambda w_t, t_t: solve(w_t, t_t)[0], min_calibration_points)
     scale, scale_se, segs = pts.scale, pts.scale_se, pts.segments
     res["converter"].add(ParameterEstimate(
         "turbine_speed_scale", scale, scale_se, (scale - 1.96 * scale_se, scale + 1.96 * scale_se), float("nan"),

@@ -141,3 +141,26 @@ def _zero_torque_sr(x: np.ndarray) -> float:
     roots = np.roots([x[2], x[1], x[0]]) if abs(x[2]) > 1e-30 else np.array([-x[0] / x[1]])
     real = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-9 and 0.5 < r.real < 1.5]
     return float(min(real, key=lambda r: abs(r - 1.0))) if real else float("nan")
+
+
+def _robust_z(r: np.ndarray, floor: float) -> np.ndarray:
+    """``|r - median|`` in units of 1.4826 x MAD, the scale floored at ``floor`` (exact data: no outliers)."""
+    med = float(np.median(r))
+    mad = 1.4826 * float(np.median(np.abs(r - med)))
+    return np.abs(r - med) / max(mad, floor)
+
+
+def _gamma_from_data(sr: np.ndarray, tr: np.ndarray, tr_tol: float, bin_width: float = 0.02,
+                     min_bin: int = 3) -> float:
+    """First SR bin whose median TR is within ``tr_tol`` of 1 (or below) and stays so in the next bins."""
+    edges = np.arange(0.0, max(1.0, float(sr.max())) + bin_width, bin_width)
+    idx = np.digitize(sr, edges) - 1
+    meds = []
+    for k in range(edges.size - 1):
+        m = idx == k
+        if m.sum() >= min_bin:
+            meds.append((edges[k], float(np.median(tr[m]))))
+    for j, (lo, med) in enumerate(meds):
+        if med <= 1.0 + tr_tol and all(m2 <= 1.0 + 2 * tr_tol for _, m2 in meds[j:j + 3]):
+            return float(lo)
+    return float("nan")

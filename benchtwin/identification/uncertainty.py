@@ -407,6 +407,6 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         for pk, p in fit.params.items():
             c = contrib.get(f"{fk}.{pk}")
             if c:
-                p.combine_type_b(c, dof.get(f"{fk}.{pk}"))
+                p.combine_type_b(c, dof.get(f"{fk}.{pk}"), keep=True)
     return {"declared": True, "roles": sorted(table), "reruns": reruns, "resolution_draws": RESOLUTION_DRAWS,
             "failed": failed}
