@@ -45,6 +45,7 @@ from threadpoolctl import threadpool_limits
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError, DataError, IdentificationError
+from benchtwin.identification import battery_rc
 from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification._signals import STATE_ROLES
 from benchtwin.identification.battery import identify_battery
@@ -53,8 +54,6 @@ from benchtwin.identification.battery_map_free import (
     identify_battery_ocv_rest,
     identify_battery_r0_steps,
 )
-from benchtwin.identification.battery_rc import TEMP_ROLE as BATTERY_TEMP_ROLE
-from benchtwin.identification.battery_rc import identify_battery_rc
 from benchtwin.identification.brakes import identify_brakes
 from benchtwin.identification.engine import identify_engine
 from benchtwin.identification.engine_cold import COOLANT_ROLE
@@ -141,10 +140,10 @@ def _direct(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 def _battery(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
     """Eq. 30 on the constant drives (``battery``) and, on every usable sample, with RC branches (``battery.rc``)."""
-    out = IdentificationResult()
-    out.fits["battery"] = identify_battery(rec, specs, **opts)
+    out = IdentificationResult(fits={"battery": identify_battery(rec, specs, **opts)})
     try:
-        out.fits["battery.rc"] = identify_battery_rc(rec, specs, n_cells=opts.get("n_cells"), maps=opts.get("maps"))
+        out.fits["battery.rc"] = battery_rc.identify_battery_rc(rec, specs, n_cells=opts.get("n_cells"),
+                                                                maps=opts.get("maps"))
     except (IdentificationError, DataError) as exc:
         out.errors["battery.rc"] = f"{type(exc).__name__}: {exc}"
     return out
@@ -218,7 +217,7 @@ METHODS: tuple[Method, ...] = (
     Method("brakes", ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",
                       "brake_pressure_rr_bar"), _direct(identify_brakes), spec_keys=("wheel_radius_m",)),
     Method("battery", ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"), _battery,
-           spec_keys=("n_cells_series",), optional_roles=(BATTERY_TEMP_ROLE,)),
+           spec_keys=("n_cells_series",), optional_roles=(battery_rc.TEMP_ROLE,)),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
     Method("torque_converter", ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual"), _torque_converter,
            spec_keys=_RATIOS, alternatives=_TC_PUMP),
@@ -340,9 +339,8 @@ def identify_all(
     type_b:
         Propagate the systematic uncertainties the Recording declares into every parameter
         (:mod:`benchtwin.identification.uncertainty`): each method runs again once per declared component
-        of the roles it reads. False: the total intervals equal the statistical ones, but for the converter's
-        parameters, which carry the standard errors of the method's own calibrations whatever the setup declares
-        (:mod:`~benchtwin.identification.torque_converter_calibration`).
+        of the roles it reads. False: the total intervals equal the statistical ones (but the converter's, which keep
+        its own calibrations' components: :mod:`~benchtwin.identification.torque_converter_calibration`).
 
     Returns
     -------
