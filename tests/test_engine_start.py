@@ -10,7 +10,7 @@ from benchtwin.identification import engine_start
 from benchtwin.identification.engine_cold import COOLANT_ROLE
 from benchtwin.identification.engine_start import START_KEY, fit_start_fuel, identify_start_fuel, start_excess
 from benchtwin.identification.fuel_map import fuel_map_gps, map_pmf
-from benchtwin.recording import Channel, Flag, LazyChannel, Recording
+from benchtwin.recording import Channel, Flag, Recording
 
 DT_P = 0.01  # plant step: the start's impulse lasts one step
 DT_F = 0.05  # the CAN fuel frame's period (20 Hz)
@@ -144,19 +144,8 @@ def test_fewer_than_three_starts_is_a_clear_error() -> None:
         fit_start_fuel(np.array([0.5, np.nan]))
 
 
-def _lazy(ch: Channel) -> LazyChannel:
-    """``ch`` read by blocks only (a whole read fails the test)."""
-    def whole():
-        raise AssertionError(f"{ch.name} read whole")
-
-    def part(a: int, b: int):
-        return ch.timestamps[a:b].copy(), ch.values[a:b].copy(), ch.flags[a:b].copy()
-
-    return LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, ch.value_texts, block_loader=part)
-
-
 @pytest.mark.parametrize(("with_on", "post_s"), [(True, 2.0), (False, 2.0), (True, 4.0)])
-def test_start_fuel_by_blocks_equals_the_whole_channels(monkeypatch, with_on: bool, post_s: float) -> None:
+def test_start_fuel_by_blocks_equals_the_whole_channels(blocks_only, monkeypatch, with_on: bool, post_s: float) -> None:
     """A Recording read by blocks (a lazy channel that fails a whole read) gives the in-memory Recording's fit bit
     for bit: starts from ``engine_on`` (or the speed), the fuel samples near them, the map's flow at their times,
     the cold factor from the coolant; fuel blocks far smaller than the campaign (997 samples), bad samples in it.
@@ -173,7 +162,7 @@ def test_start_fuel_by_blocks_equals_the_whole_channels(monkeypatch, with_on: bo
     rec.add(Channel(COOLANT_ROLE, "degC", t[::10], np.linspace(20.0, 90.0, t[::10].size), source="vehicle_can"))
     if not with_on:
         del rec.channels["engine_on"]
-    lazy = Recording({k: _lazy(c) for k, c in rec.channels.items()}, list(rec.segments), dict(rec.meta))
+    lazy = Recording({k: blocks_only(c) for k, c in rec.channels.items()}, list(rec.segments), dict(rec.meta))
     specs = load_vehicle().specs
     want = identify_start_fuel(rec, specs, BSFC, cold=(0.01, 80.0), post_s=post_s)
     got = identify_start_fuel(lazy, specs, BSFC, cold=(0.01, 80.0), post_s=post_s)

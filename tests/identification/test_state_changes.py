@@ -10,7 +10,7 @@ import pytest
 
 from benchtwin.identification._state_changes import good_step_median, state_changes
 from benchtwin.identification.shifts import find_shift_events
-from benchtwin.recording import Channel, Flag, LazyChannel, Recording
+from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.segments import Segment
 
 
@@ -24,17 +24,6 @@ def _whole(ch: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
         med = float(np.median(dt))
         periodic = med > 0 and float(np.mean(np.abs(dt - med) <= 0.1 * med)) > 0.8
     return ts[k], ts[k - 1], g[k - 1], g[k], periodic
-
-
-def _lazy(ch: Channel) -> LazyChannel:
-    """``ch`` read by blocks only (a whole read fails)."""
-    def whole():
-        raise AssertionError(f"{ch.name} read whole")
-
-    def part(a: int, b: int):
-        return ch.timestamps[a:b].copy(), ch.values[a:b].copy(), ch.flags[a:b].copy()
-
-    return LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, ch.value_texts, block_loader=part)
 
 
 def _gear(kind: str, n: int = 20000, seed: int = 2) -> Channel:
@@ -55,15 +44,15 @@ def _gear(kind: str, n: int = 20000, seed: int = 2) -> Channel:
 
 @pytest.mark.parametrize("kind", ["periodic", "sparse", "events"])
 @pytest.mark.parametrize("block", [61, 997, 1 << 16])
-def test_block_changes_equal_the_whole_channel(kind: str, block: int) -> None:
+def test_block_changes_equal_the_whole_channel(blocks_only, kind: str, block: int) -> None:
     ch = _gear(kind)
     ref = _whole(ch)
-    got = state_changes(_lazy(ch), block)
+    got = state_changes(blocks_only(ch), block)
     for a, b in zip(ref[:4], (got.t_new, got.t_old, got.old, got.new)):
         assert a.dtype.kind == b.dtype.kind and a.tobytes() == b.tobytes()
     assert got.periodic == ref[4]
     ts = ch.timestamps[ch.good]
-    assert good_step_median(_lazy(ch), ts.size - 1, block) == float(np.median(np.diff(ts)))
+    assert good_step_median(blocks_only(ch), ts.size - 1, block) == float(np.median(np.diff(ts)))
     assert got.t_new.size > 1000  # many changes, some at block edges
 
 
@@ -72,7 +61,7 @@ def test_the_periodicity_verdicts_both_ways() -> None:
     assert not state_changes(_gear("sparse")).periodic
 
 
-def test_shift_events_read_the_gear_by_blocks() -> None:
+def test_shift_events_read_the_gear_by_blocks(blocks_only) -> None:
     """find_shift_events on a Recording whose channels are read by blocks only: the events of the whole channel."""
     ch = _gear("periodic", 5000)
     t = np.arange(0.0, 101.0, 0.01)
@@ -83,7 +72,7 @@ def test_shift_events_read_the_gear_by_blocks() -> None:
                     np.zeros(t.size, np.uint16), "vehicle_can")
     rec = Recording(segments=[Segment(0.0, 60.0, "cycle", "cycle_1")])
     for c in (ch, speed, pedal):
-        rec.add(_lazy(c))
+        rec.add(blocks_only(c))
     ev = find_shift_events(rec)
     t_new, t_old, old, new, periodic = _whole(ch)
     assert periodic

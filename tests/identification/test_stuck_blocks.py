@@ -11,7 +11,7 @@ import pytest
 
 from benchtwin.identification import run as idrun
 from benchtwin.identification.run import STUCK_MIN_SAMPLES, stuck_channels
-from benchtwin.recording import Channel, LazyChannel, Recording
+from benchtwin.recording import Channel, Recording
 
 
 def _whole(values: np.ndarray) -> float | None:
@@ -19,17 +19,6 @@ def _whole(values: np.ndarray) -> float | None:
     if v.size >= STUCK_MIN_SAMPLES and v[0] != 0.0 and np.all(v == v[0]):
         return float(v[0])
     return None
-
-
-def _lazy(ch: Channel) -> LazyChannel:
-    """``ch`` read by blocks only (a whole read fails the test)."""
-    def whole():
-        raise AssertionError(f"{ch.name} read whole")
-
-    def part(a: int, b: int):
-        return ch.timestamps[a:b].copy(), ch.values[a:b].copy(), ch.flags[a:b].copy()
-
-    return LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, ch.value_texts, block_loader=part)
 
 
 def _cases(n: int = 30_000) -> dict[str, np.ndarray]:
@@ -53,7 +42,7 @@ def _cases(n: int = 30_000) -> dict[str, np.ndarray]:
 
 @pytest.mark.parametrize("block", [97, 4096, 1 << 20])
 @pytest.mark.parametrize("case", list(_cases()))
-def test_stuck_by_blocks_equals_the_whole_rule(monkeypatch, case: str, block: int) -> None:
+def test_stuck_by_blocks_equals_the_whole_rule(blocks_only, monkeypatch, case: str, block: int) -> None:
     values = _cases()[case]
     monkeypatch.setattr(idrun, "STUCK_BLOCK", block)
     monkeypatch.setattr(idrun, "STUCK_HEAD", 64)  # the head settles nothing here: the blocks decide
@@ -61,7 +50,7 @@ def test_stuck_by_blocks_equals_the_whole_rule(monkeypatch, case: str, block: in
     ch = Channel("em_torque_nm", "Nm", np.arange(n) * 0.01, values, np.zeros(n, np.uint16), "motor")
     want = _whole(values)
     expected = {} if want is None else {"em_torque_nm": want}
-    assert stuck_channels(Recording({"em_torque_nm": _lazy(ch)})) == expected
+    assert stuck_channels(Recording({"em_torque_nm": blocks_only(ch)})) == expected
     assert stuck_channels(Recording({"em_torque_nm": ch})) == expected  # in memory: the same
     # the cases cover both verdicts
     assert {c: _whole(v) is not None for c, v in _cases().items()} == {
