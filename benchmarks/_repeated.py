@@ -22,6 +22,17 @@ from benchtwin.emulator import simulate_campaign
 from benchtwin.recording import Recording
 
 
+def size_parser(doc: str, campaign: str) -> argparse.ArgumentParser:
+    """A parser with ``--sizes``, ``--campaign`` (default ``campaign``), ``--setup`` and ``--vehicle``, its
+    description the first paragraph of ``doc``; a script adds its own arguments."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--sizes", default="1,3", help="campaign repeats (default 1,3)")
+    ap.add_argument("--campaign", default=campaign, help=f"shipped campaign name (default {campaign})")
+    ap.add_argument("--setup", default="paper", help="shipped setup name (default paper)")
+    ap.add_argument("--vehicle", default="p2_phev_9at", help="shipped vehicle name")
+    return ap
+
+
 def size_arguments(doc: str, campaign: str, json_help: str) -> argparse.Namespace:
     """Parse ``--sizes``, ``--campaign`` (default ``campaign``), ``--setup``, ``--vehicle`` and ``--json``.
 
@@ -39,11 +50,7 @@ def size_arguments(doc: str, campaign: str, json_help: str) -> argparse.Namespac
     argparse.Namespace
         The arguments, ``sizes`` as a list of ints.
     """
-    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
-    ap.add_argument("--sizes", default="1,3", help="campaign repeats (default 1,3)")
-    ap.add_argument("--campaign", default=campaign, help=f"shipped campaign name (default {campaign})")
-    ap.add_argument("--setup", default="paper", help="shipped setup name (default paper)")
-    ap.add_argument("--vehicle", default="p2_phev_9at", help="shipped vehicle name")
+    ap = size_parser(doc, campaign)
     ap.add_argument("--json", type=Path, help=json_help)
     args = ap.parse_args()
     args.sizes = [int(s) for s in args.sizes.split(",")]

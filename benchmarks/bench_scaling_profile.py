@@ -115,11 +115,9 @@ def _table(a: Path, b: Path, ratio: float, top: int) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sizes", default="1,3", help="campaign repeats (default 1,3)")
-    ap.add_argument("--campaign", default="quick", help="shipped campaign name (default quick)")
-    ap.add_argument("--setup", default="paper", help="shipped setup name (default paper)")
-    ap.add_argument("--vehicle", default="p2_phev_9at", help="shipped vehicle name")
+    from _repeated import size_parser
+
+    ap = size_parser(__doc__, "quick")
     ap.add_argument("--dir", type=Path, default=Path(tempfile.gettempdir()) / "bench_scaling_profile",
                     help="where the .prof files go")
     ap.add_argument("--stages", default="chain,identify", help="stages profiled (chain always runs)")

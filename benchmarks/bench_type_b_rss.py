@@ -133,11 +133,9 @@ def _trim_after(entry, libc):  # type: ignore[no-untyped-def]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sizes", default="1,3", help="campaign repeats (default 1,3)")
-    ap.add_argument("--campaign", default="quick", help="shipped campaign name (default quick)")
-    ap.add_argument("--setup", default="paper", help="shipped setup name (default paper)")
-    ap.add_argument("--vehicle", default="p2_phev_9at", help="shipped vehicle name")
+    from _repeated import size_parser
+
+    ap = size_parser(__doc__, "quick")
     ap.add_argument("--trace", action="store_true", help="also run tracemalloc (the traced peak)")
     ap.add_argument("--trim", action="store_true", help="malloc_trim(0) after the nominal run and every re-run")
     ap.add_argument("--json", type=Path, help="write the rows (with every fit's value and interval) as JSON")
