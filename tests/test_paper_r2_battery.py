@@ -89,3 +89,34 @@ def test_a_value_equal_to_the_paper_at_its_quoted_digits_reaches_it() -> None:
     assert reaches_paper(0.99499, 0.995)[0]  # "around 0.995"
     for bad in (float("nan"), float("inf"), float("-inf")):
         assert not reaches_paper(bad, 0.995)[0]
+
+
+def test_the_hold_fit_keeps_only_the_holds_samples_and_fits_as_the_whole_slice(monkeypatch) -> None:
+    # the holds of a long campaign lie far apart (each repeat of the campaign has its own): the slice the fit reads
+    # keeps the holds' samples only, not everything between the first hold and the last, and fits the same numbers
+    import benchtwin.validation.paper_r2 as pr
+
+    rec, vehicle = _recording()
+    wins = battery_hold_windows(rec)
+    seen = {}
+    real = pr.identify_battery
+
+    def spy(sub, specs, **kw):
+        seen["n"] = len(sub["battery_current_a"])
+        return real(sub, specs, **kw)
+
+    monkeypatch.setattr(pr, "identify_battery", spy)
+    fit = battery_hold_fit(rec, vehicle)
+    t = rec["battery_current_a"].timestamps
+    inside = sum(int(np.count_nonzero((t >= a - 1.0) & (t < b + 1.0))) for a, b, _ in wins)
+    assert seen["n"] == inside < np.count_nonzero((t >= wins[0][0]) & (t < wins[-1][1]))
+    whole = pr._slice_recording(rec, wins[0][0] - 1.0, wins[-1][1] + 1.0, ("battery_voltage_v", "battery_current_a",
+                                                                            "displayed_soc_pct"))
+    whole.segments = [Segment(a, b, "constant_drive", name, {}) for a, b, name in wins]
+    ref = real(whole, vehicle.specs)
+    # the same points and the same least squares: equal to the sums' rounding (1e-12 relative); a slice without the
+    # holds' edge second moves alpha by 2e-5 relative here (the grid's edge samples interpolate across the edges)
+    for k, p in ref.params.items():
+        np.testing.assert_allclose([fit.params[k].value, fit.params[k].std_error], [p.value, p.std_error],
+                                   rtol=1e-12, atol=1e-12 * abs(p.value), err_msg=k)  # an SE that is 0 but rounding
+    np.testing.assert_allclose(fit.adj_r2, ref.adj_r2, rtol=1e-12)

@@ -54,12 +54,15 @@ def reaches_paper(value: float, quoted: float) -> tuple[bool, float]:
 _BLOCK = 1 << 20
 
 
-def _slice_recording(rec: Recording, start_s: float, end_s: float, names: tuple[str, ...] | None = None
-                     ) -> Recording:
-    """The samples of every channel (or of ``names``) with ``start_s <= t < end_s``, in memory; each channel is read
-    a block at a time (a lazy channel with a block reader is never read whole, nor kept)."""
+def _slice_recording(rec: Recording, start_s: float, end_s: float, names: tuple[str, ...] | None = None,
+                     spans: list[tuple[float, float]] | None = None) -> Recording:
+    """The samples of every channel (or of ``names``) with ``start_s <= t < end_s`` (and, given ``spans``, inside
+    one of those disjoint ``(start, end)`` spans), in memory; each channel is read a block at a time (a lazy channel
+    with a block reader is never read whole, nor kept), so what is kept is the spans' samples only."""
     out = Recording(segments=[s for s in rec.segments if s.end_s > start_s and s.start_s < end_s],
                     meta=dict(rec.meta))
+    order = sorted(spans or [(start_s, end_s)])
+    los, his = np.array([a for a, _ in order], float), np.array([b for _, b in order], float)
     kept = rec.loaded()
     for ch in rec.channels.values():
         if names is not None and ch.name not in names:
@@ -67,7 +70,8 @@ def _slice_recording(rec: Recording, start_s: float, end_s: float, names: tuple[
         parts = []
         for a in range(0, len(ch), _BLOCK):
             t, v, f = ch.block(a, a + _BLOCK)
-            m = (t >= start_s) & (t < end_s)
+            k = np.searchsorted(los, t, side="right") - 1
+            m = (t >= start_s) & (t < end_s) & (k >= 0) & (t < his[np.maximum(k, 0)])
             parts.append((t[m], v[m], f[m]))
         t, v, f = (np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in range(3))
         out.add(Channel(ch.name, ch.unit, t, v, f, ch.source))
@@ -137,7 +141,10 @@ def battery_hold_fit(rec: Recording, vehicle: VehicleConfig) -> Any:
     names = ("battery_voltage_v", "battery_current_a", "displayed_soc_pct")
     if not wins or any(n not in rec for n in names):
         return None
-    sub = _slice_recording(rec, min(w[0] for w in wins), max(w[1] for w in wins), names)
+    # each hold's samples with a second either side (the fit's grid interpolates at the holds' edges), not the
+    # samples between the holds: a long campaign's holds lie far apart
+    sub = _slice_recording(rec, min(w[0] for w in wins) - 1.0, max(w[1] for w in wins) + 1.0, names,
+                           spans=[(a - 1.0, b + 1.0) for a, b, _ in wins])
     sub.segments = [Segment(a, b, "constant_drive", name, {}) for a, b, name in wins]
     try:
         return identify_battery(sub, vehicle.specs)
