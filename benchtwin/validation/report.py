@@ -129,7 +129,7 @@ class ValidationReport:
             elif c.mode == "abs":
                 err, tol = f"{c.error:+.4g}", f"{c.tolerance:.3g} {c.unit}".strip()
             else:
-                err, tol = f"{c.error:.4f}", f">= {c.tolerance:.3f}"
+                err, tol = f"{c.error:.4f}", f">= {c.tolerance:g}"
             out.append(f"  {c.name:42s} {_fmt(c.identified):>12s} {_fmt(c.truth):>12s} {err:>10s} {tol:>11s}  "
                        f"{'pass' if c.passed else 'FAIL'}")
             if not c.passed and c.note:
