@@ -263,10 +263,8 @@ class ThermoConfig(StrictModel):
     pdo_period_ms: int = Field(100, ge=1, le=65535, description="TPDO event timer")
     places: list[str] = Field(default_factory=lambda: list(THERMO_PLACES),
                               description="trace channel of each input, in input order (max 10)")
-    not_recorded: list[str] = Field(default_factory=list,
-                                    description="places wired but not read (a family run's bench): their inputs "
-                                                "are not converted (open circuit on the wire) nor decoded; the "
-                                                "other inputs read the same, draw for draw")
+    not_recorded: list[str] = Field(default_factory=list, description="places not read (a family run's bench): "
+                                    "left open on the wire, not decoded; the others read the same, draw for draw")
     cold_junction_degc: float = Field(25.0, ge=-40, le=125, description="terminal temperature")
     cold_junction_error_degc: float = Field(0.0, ge=-50, le=50, description="error of the module's cold-junction "
                                                                             "sensor")
