@@ -263,6 +263,8 @@ class ThermoConfig(StrictModel):
     pdo_period_ms: int = Field(100, ge=1, le=65535, description="TPDO event timer")
     places: list[str] = Field(default_factory=lambda: list(THERMO_PLACES),
                               description="trace channel of each input, in input order (max 10)")
+    not_recorded: list[str] = Field(default_factory=list, description="places not read (a family run's bench): "
+                                    "left open on the wire, not decoded; the others read the same, draw for draw")
     cold_junction_degc: float = Field(25.0, ge=-40, le=125, description="terminal temperature")
     cold_junction_error_degc: float = Field(0.0, ge=-50, le=50, description="error of the module's cold-junction "
                                                                             "sensor")
@@ -274,6 +276,8 @@ class ThermoConfig(StrictModel):
 
     @model_validator(mode="after")
     def _places(self) -> ThermoConfig:
+        if any(p not in self.places for p in self.not_recorded):
+            raise ValueError(f"not_recorded must name places of the module ({self.places}); got {self.not_recorded}")
         bad = [p for p in self.places if p not in THERMO_PLACES]
         if bad or len(self.places) > 10 or len(set(self.places)) != len(self.places):
             raise ValueError(f"places must be up to 10 distinct of {list(THERMO_PLACES)}; got {self.places}")

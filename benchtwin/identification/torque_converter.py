@@ -294,7 +294,8 @@ def fit_torque_converter(
         derived(coup, "sr_zero_torque", lambda x: _zero_torque_sr(coupling_coefficients(x, zs, one)), unit="")
         out["coupling"] = coup
     else:
-        reasons.append(f"{int(cm.sum())} coupling-mode points (SR >= {g:.3f}): a6..a8 not identified")
+        reasons.append(f"{int(cm.sum())} coupling-mode points (SR >= {g:.3f}; need {min_points}): a6..a8 not "
+                       "identified")
     # the stall end: without converter-mode points near SR 0 the curves there are an extrapolation
     conv_pts = (sr < g) & inlier
     lo = float(sr[conv_pts].min()) if conv_pts.any() else float("nan")

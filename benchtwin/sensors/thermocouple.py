@@ -91,6 +91,12 @@ def temperature_type_k(emf_mv: np.ndarray, newton_steps: int = 3) -> np.ndarray:
     return t
 
 
+def _draw_as_measured(errors: ChannelErrors, rng: np.random.Generator, n: int) -> None:
+    """The draws :func:`~benchtwin.sensors.imperfections.measure` takes for ``n`` readings (its noise only)."""
+    if errors.noise_std > 0:
+        rng.normal(0.0, errors.noise_std, (n,))
+
+
 def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
                   faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> ProcessImage:
     """The thermo module's object-dictionary values at each TPDO event (its own clock).
@@ -115,17 +121,25 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
     e_cj_meas = float(emf_type_k(np.array([t_cj + cfg.cold_junction_error_degc]))[0])
     # every input's reading first (each draws from the block's generator in input order), then the type K
     # conversions of all inputs at once: elementwise, the same numbers as input by input, a tenth of the calls
-    temps = np.empty((len(cfg.places), n))
-    for k, place in enumerate(cfg.places):
-        temps[k] = measure(trace.time_s, trace[place], t, with_stuck(cfg.errors, faults, place), rng,
+    # an input not recorded (``not_recorded``) is left open; its noise is still drawn, so the other inputs'
+    # readings are the same draw for draw
+    read = [(k, place) for k, place in enumerate(cfg.places) if place not in cfg.not_recorded]
+    temps = np.empty((len(read), n))
+    j = 0
+    for place in cfg.places:
+        if place in cfg.not_recorded:
+            _draw_as_measured(cfg.errors, rng, n)
+            continue
+        temps[j] = measure(trace.time_s, trace[place], t, with_stuck(cfg.errors, faults, place), rng,
                            latency_s=cfg.link.latency_s, blk=blk, key=place)
+        j += 1
     v_term = emf_type_k(np.clip(temps, _T_MIN, _T_MAX)) - e_cj_true
     if cfg.emf_resolution_uv > 0:
         step = cfg.emf_resolution_uv * 1e-3
         v_term = np.rint(v_term / step) * step
     t_all = temperature_type_k(v_term + e_cj_meas)
-    for k, place in enumerate(cfg.places):
-        t_meas = t_all[k]
+    for j, (k, place) in enumerate(read):
+        t_meas = t_all[j]
         col = entries.index((0x9130, k + 1))
         dec = 10.0 ** layout.decimals.get(k + 1, 1)
         raw = np.rint(t_meas * dec)
@@ -186,7 +200,7 @@ class ThermoModule(Device):
             vals = layout.unpack_words(tp, s.words[good])
             for (index, sub), raw in vals.items():
                 if index == 0x9130:
-                    if sub > len(th.places):
+                    if sub > len(th.places) or th.places[sub - 1] in th.not_recorded:
                         continue
                     name = th.places[sub - 1]
                 elif index == 0x2100:
@@ -206,16 +220,19 @@ class ThermoModule(Device):
 
     def truth_channels(self) -> dict[str, TruthChannel]:
         """Every place, to the 0.1 degC step of object 0x9130."""
-        return {place: TruthChannel(place, 1.0, False, 0.1) for place in self.cfg.places}
+        return {place: TruthChannel(place, 1.0, False, 0.1) for place in self._recorded()}
+
+    def _recorded(self) -> list[str]:
+        return [p for p in self.cfg.places if p not in self.cfg.not_recorded]
 
     def error_budget(self) -> dict[str, tuple[ChannelErrors | None, LinkErrors, float]]:
         """The probes' errors plus the cold-junction sensor's error."""
         return {place: (self.cfg.errors, self.cfg.link, abs(self.cfg.cold_junction_error_degc))
-                for place in self.cfg.places}
+                for place in self._recorded()}
 
     def saturation(self) -> dict[str, ChannelErrors]:
         """Every place."""
-        return {place: self.cfg.errors for place in self.cfg.places}
+        return {place: self.cfg.errors for place in self._recorded()}
 
     def canopen_endpoint(self) -> CanopenEndpoint:
         """The module as a CANopen node on its bus."""

@@ -21,7 +21,9 @@ shifts             acceleration, deceleration, ramp_down                      sh
 
 The bench of a family run carries only the devices whose channels the family reads (:func:`family_setup`):
 each device draws from its own random stream, so what the kept devices deliver is unchanged, and the chain
-costs a fraction of the whole bench's (the report's bus load is that of the kept devices). A setup with faults
+costs a fraction of the whole bench's (the report's bus load is that of the kept devices); a kept thermo module
+converts only the inputs the family reads (``not_recorded``: the others still take their noise draws, so the read
+ones are the same). A setup with faults
 injected on a whole bus keeps every device, since those faults draw over all the bus's frames.
 
 The paper campaign's ramp-downs are tests of kind ``deceleration``. The identified values differ
@@ -159,6 +161,11 @@ def family_setup(setup: SetupConfig, roles: Iterable[str]) -> SetupConfig:
     for sec in ("pressure", "telemetry", "thermo", "vehicle_can", "dyno"):
         if sec not in sections:
             update[sec] = None
+    if "thermo" in sections and setup.thermo is not None:
+        # the module's inputs no kept role reads are left open (the read ones draw as on the whole bench)
+        unread = [p for p in setup.thermo.places if p not in roles]
+        update["thermo"] = setup.thermo.model_copy(update={"not_recorded": sorted(set(setup.thermo.not_recorded)
+                                                                                   | set(unread))})
     return setup.model_copy(update=update)
 
 

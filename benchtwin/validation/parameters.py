@@ -485,7 +485,9 @@ def _tc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: st
                                 err, tol, "rel", "-", err <= tol,
                                 note + f" (worst at SR {sr[k]:.2f})"))
     if coup is None or not all(f"a{i}" in coup.params for i in (6, 7, 8)):
-        why = result.errors.get("torque_converter", "not identified")
+        # the converter fit's own flag says why (e.g. no coupling-mode point above its Gamma), not a bare NaN
+        said = [r for r in (conv.reasons if conv is not None else []) if "a6..a8 not identified" in r]
+        why = result.errors.get("torque_converter", "not identified" + "".join(f": {r}" for r in said[:1]))
         checks.append(Check("torque_converter", "torque_converter.coupling_cf_curve", float("nan"), float("nan"),
                             float("nan"), tol_coup, "rel", "-", False, why))
     else:

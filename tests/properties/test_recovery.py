@@ -11,6 +11,7 @@ R^2 against the paper's is left out: it falls with the noise by construction.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -36,12 +37,17 @@ from strategies import (
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator import simulate_campaign
 from benchtwin.validation.families import FAMILIES
+from benchtwin.validation.report import Check
 from benchtwin.validation.run import validate
 
 
 def _says_too_little(note: str) -> bool:
+    # the reason names the error, or the points it lacks with their count below the count it needs ("0
+    # coupling-mode points (SR >= 0.933; need 10): a6..a8 not identified"); a bare "not identified" does not say
+    # why, and a count at or above the need does not excuse it: both stay failures
+    lacking = [int(n) < int(need) for n, need in re.findall(r"(\d+) [\w-]+ points \([^)]*need (\d+)\)", note)]
     return any(w in note for w in ("NoExcitationError", "InsufficientDataError", "CollinearError",
-                                   "not identifiable"))
+                                   "not identifiable")) or (bool(lacking) and all(lacking))
 
 
 def _run(family: str, vehicle: VehicleConfig, drawn: DrawnSetup, seed: int, **pick: object) -> None:
@@ -51,6 +57,10 @@ def _run(family: str, vehicle: VehicleConfig, drawn: DrawnSetup, seed: int, **pi
     report = validate(vehicle, drawn.setup, campaign, trace=trace, families=[family], profile="realistic")
     gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up"}) or None
     checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, gears, {family})
+    _judge(family, checks, vehicle, drawn)
+
+
+def _judge(family: str, checks: list[Check], vehicle: VehicleConfig, drawn: DrawnSetup) -> None:
     assert checks, f"no check of family {family}"
     # "every identified parameter": a fit the campaign does not excite enough is not identified, and says so
     # (its reason names the spread or the points it lacks); that is the guards' property, not a recovery
@@ -131,19 +141,52 @@ def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int)
     trace = simulate_campaign(vehicle, campaign)
     report = validate(vehicle, drawn.setup, campaign, trace=trace, families=[fam.name], profile="realistic")
     checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, None, {fam.name})
-    bad = [c for c in checks if not c.passed]
-    assert not bad, "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g}" for c in bad)
+    _judge(fam.name, checks, vehicle, drawn)
 
 
 @profile()
 @given(vehicles(), setups(), seeds)
 @example(*pinned("converter_coupling_pump_inertia"))
+@example(*pinned("converter_coupling_unexcited"))
 def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
     # found here: the loose converter's coupling curve, the family's tests alone, the loose converter on a 10-bit
     # telemetry (tests below), the coupling mode fitted on a pump torque that kept part of the pump's inertia
     # torque (the pinned example: coupling CF curve 10.4 % off at SR 0.95, now 0.9 %) and coupling points over
-    # SR 0.847-0.861 only, where a6 and a8 are collinear (test_torque_converter_b: now a8 = 0 and flagged)
+    # SR 0.847-0.861 only, where a6 and a8 are collinear (test_torque_converter_b: now a8 = 0 and flagged); a
+    # 9-speed petrol whose fit finds no coupling-mode point above its Gamma 0.933 (the second pinned example:
+    # a6..a8 flagged as not identified, which was counted as a failure; now judged as in the other families)
     _converter_checks_pass(vehicle, drawn, seed)
+
+
+def test_only_a_reasoned_lack_of_excitation_is_excused() -> None:
+    # what the property lets pass as "not excited": the reason must say why; a count of points at or above the
+    # need, or no reason at all, stays a failure
+    assert _says_too_little("not identified: 0 coupling-mode points (SR >= 0.933; need 10): a6..a8 not identified")
+    assert _says_too_little("InsufficientDataError: 3 points")
+    assert not _says_too_little("not identified")
+    assert not _says_too_little("not identified: 95 coupling-mode points (SR >= 0.850; need 10): a6..a8 not "
+                                "identified")
+    assert not _says_too_little("not identified: 0 coupling-mode points (SR >= 0.933): a6..a8 not identified")
+
+
+@pytest.mark.parametrize("setup_name", ["ideal", "paper"])
+def test_converter_identifies_every_curve_on_the_paper_vehicle(setup_name: str) -> None:
+    # the property lets a flagged, reasoned "not identified" pass (above); a converter fit that flagged everything
+    # so would then pass it too. The paper vehicle reaches coupling mode in its 1st-gear ramp-ups and the
+    # coastdown's run-up on the property's own cut campaign: every converter check there must be a finite
+    # estimate within the property's tolerance, none excused (about 2 s)
+    from strategies import PAPER_SETUP
+
+    drawn = DrawnSetup(IDEAL_SETUP, 0.0, False) if setup_name == "ideal" else DrawnSetup(PAPER_SETUP, 1.0, False)
+    fam = FAMILIES["torque_converter"]
+    campaign = campaign_for(PAPER_VEHICLE, fam.kinds, seed=0, **FAMILY_PICKS[fam.name])
+    report = validate(PAPER_VEHICLE, drawn.setup, campaign, trace=simulate_campaign(PAPER_VEHICLE, campaign),
+                      families=[fam.name], profile="realistic")
+    checks = property_checks(report.identification, PAPER_VEHICLE, drawn.setup, drawn.noise, None, {fam.name})
+    assert {c.name for c in checks} >= {"torque_converter.coupling_cf_curve", "torque_converter.torque_ratio_curve"}
+    bad = [(c.name, c.identified, c.error, c.tolerance, c.note[:80]) for c in checks
+           if not (c.passed and math.isfinite(c.identified))]
+    assert not bad, bad
 
 
 def test_converter_example_runs_its_family_tests_cut_to_the_converter_points() -> None:
