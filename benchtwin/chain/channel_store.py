@@ -6,7 +6,8 @@ chunks were appended to, mapped when used and unmapped when dropped (the flags m
 whole-recording passes flag them in place and drop them again: one channel mapped at a time). Once those passes
 are done, :meth:`ChannelStore.reader` gives each channel read from its files through a file handle (plain
 sequential reads of raw samples: the pages of a memory map would count as resident while the channel is used).
-The files stay open while the store is (one descriptor per file, up to :data:`MAX_OPEN_FILES`): a chunk's appends
+The files stay open while the store is (one descriptor per file, up to :data:`MAX_OPEN_FILES` in all the process's
+stores): a chunk's appends
 and a block's reads are a system call each, with no open and close around them (positional reads: safe on threads).
 """
 
@@ -30,9 +31,12 @@ __all__ = ["ChannelStore"]
 
 _DTYPES = (np.dtype(np.float64), np.dtype(np.float64), np.dtype(np.uint16))  # timestamps, values, flags
 
-#: files a store keeps open (three per channel; the others are opened for each read or append, as before); at most a
-#: quarter of the process's limit on open files
-MAX_OPEN_FILES = max(0, min(512, resource.getrlimit(resource.RLIMIT_NOFILE)[0] // 4))
+#: files the stores of a process keep open together (three per channel; the others are opened for each read or append,
+#: as before): at most a quarter of the process's limit on open files
+MAX_OPEN_FILES = max(0, min(1024, resource.getrlimit(resource.RLIMIT_NOFILE)[0] // 4))
+
+_open_lock = threading.Lock()
+_open_count = 0  # files kept open by every store of the process
 
 
 def _write_all(fd: int, a: np.ndarray) -> None:
@@ -83,7 +87,6 @@ class ChannelStore:
             self._dir = Path(tempfile.mkdtemp(prefix=".acquisition-", suffix=".chunks", dir=directory))
         self._index: dict[str, int] = {}
         self._fds: dict[tuple[int, int], int] = {}  # (channel, column) -> its open file
-        self._fd_lock = threading.Lock()
 
     def append(self, name: str, unit: str, source: str, texts: dict[int, str] | None, order: tuple[Any, ...],
                t: np.ndarray, v: np.ndarray, f: np.ndarray) -> None:
@@ -111,14 +114,16 @@ class ChannelStore:
 
     def _fd(self, name: str, k: int) -> int | None:
         """The open file of column ``k`` of ``name`` (opened for appending and reading on first use; None beyond
-        :data:`MAX_OPEN_FILES`: the caller opens the file itself)."""
+        :data:`MAX_OPEN_FILES` open in all stores: the caller opens the file itself)."""
+        global _open_count
         key = (self._index[name], k)
         fd = self._fds.get(key)
         if fd is None:
-            with self._fd_lock:
+            with _open_lock:
                 fd = self._fds.get(key)
-                if fd is None and len(self._fds) < MAX_OPEN_FILES:
+                if fd is None and _open_count < MAX_OPEN_FILES:
                     fd = self._fds[key] = os.open(self._file(name, k), os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o600)
+                    _open_count += 1
         return fd
 
     def _read(self, name: str, k: int, start: int, count: int) -> np.ndarray:
@@ -130,8 +135,10 @@ class ChannelStore:
         return _read_at(fd, _DTYPES[k], count, start * _DTYPES[k].itemsize)
 
     def _close_files(self) -> None:
-        with self._fd_lock:
+        global _open_count
+        with _open_lock:
             fds, self._fds = list(self._fds.values()), {}
+            _open_count -= len(fds)
         for fd in fds:
             os.close(fd)
 

@@ -102,3 +102,19 @@ def test_cleanup_closes_the_files(tmp_path: Path) -> None:
     assert len(os.listdir(fd_dir)) == before
     with pytest.raises(OSError):
         store.read_block("x", 0, 3)  # the files are gone
+
+
+def test_the_limit_of_open_files_is_shared_by_the_stores(tmp_path: Path, monkeypatch) -> None:
+    # the limit holds for every store of the process together: a second store opens what the first leaves
+    monkeypatch.setattr(channel_store, "MAX_OPEN_FILES", channel_store._open_count + 4)
+    one, two = ChannelStore(tmp_path), ChannelStore(tmp_path)
+    for store in (one, two):
+        for n in ("x", "y"):
+            store.append(n, "", "", None, (0,), np.arange(3.0), np.ones(3), np.zeros(3, np.uint16))
+    assert len(one._fds) == 4 and len(two._fds) == 0
+    np.testing.assert_array_equal(two.read_block("y", 1, 3)[0], [1.0, 2.0])  # its files opened at each call
+    one.cleanup()
+    two.append("x", "", "", None, (0,), np.arange(2.0), np.ones(2), np.zeros(2, np.uint16))
+    assert len(two._fds) == 3  # x's three files, now that the first store's are closed
+    np.testing.assert_array_equal(two.reader("x").timestamps, [0.0, 1.0, 2.0, 0.0, 1.0])
+    two.cleanup()
