@@ -6,12 +6,18 @@ chunks were appended to, mapped when used and unmapped when dropped (the flags m
 whole-recording passes flag them in place and drop them again: one channel mapped at a time). Once those passes
 are done, :meth:`ChannelStore.reader` gives each channel read from its files through a file handle (plain
 sequential reads of raw samples: the pages of a memory map would count as resident while the channel is used).
+The files stay open while the store is (one descriptor per file, up to :data:`MAX_OPEN_FILES` in all the process's
+stores): a chunk's appends
+and a block's reads are a system call each, with no open and close around them (positional reads: safe on threads).
 """
 
 from __future__ import annotations
 
+import os
+import resource
 import shutil
 import tempfile
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +30,33 @@ from benchtwin.recording import Channel, LazyChannel
 __all__ = ["ChannelStore"]
 
 _DTYPES = (np.dtype(np.float64), np.dtype(np.float64), np.dtype(np.uint16))  # timestamps, values, flags
+
+#: files the stores of a process keep open together (three per channel; the others are opened for each read or append,
+#: as before): at most a quarter of the process's limit on open files
+MAX_OPEN_FILES = max(0, min(1024, resource.getrlimit(resource.RLIMIT_NOFILE)[0] // 4))
+
+_open_lock = threading.Lock()
+_open_count = 0  # files kept open by every store of the process
+
+
+def _write_all(fd: int, a: np.ndarray) -> None:
+    """Append the bytes of ``a`` (contiguous) through ``fd`` (opened for appending), however many writes it takes."""
+    buf = memoryview(a).cast("B")
+    while buf.nbytes:
+        buf = buf[os.write(fd, buf):]
+
+
+def _read_at(fd: int, dtype: np.dtype, count: int, offset: int) -> np.ndarray:
+    """``count`` items of ``dtype`` at byte ``offset`` of ``fd`` (fewer at the end of the file, as ``np.fromfile``)."""
+    out = np.empty(count, dtype)
+    buf = memoryview(out).cast("B")
+    got = 0
+    while got < buf.nbytes:
+        n = os.preadv(fd, [buf[got:]], offset + got)
+        if n == 0:
+            break
+        got += n
+    return out if got == buf.nbytes else out[:got // dtype.itemsize].copy()
 
 
 @dataclass
@@ -53,6 +86,7 @@ class ChannelStore:
             Path(directory).mkdir(parents=True, exist_ok=True)
             self._dir = Path(tempfile.mkdtemp(prefix=".acquisition-", suffix=".chunks", dir=directory))
         self._index: dict[str, int] = {}
+        self._fds: dict[tuple[int, int], int] = {}  # (channel, column) -> its open file
 
     def append(self, name: str, unit: str, source: str, texts: dict[int, str] | None, order: tuple[Any, ...],
                t: np.ndarray, v: np.ndarray, f: np.ndarray) -> None:
@@ -67,12 +101,50 @@ class ChannelStore:
             e.parts.append(arrays)
             return
         for k, a in enumerate(arrays):
-            with self._file(name, k).open("ab") as fh:
-                np.ascontiguousarray(a).tofile(fh)
+            fd = self._fd(name, k)
+            if fd is None:
+                with self._file(name, k).open("ab") as fh:
+                    np.ascontiguousarray(a).tofile(fh)
+            else:
+                _write_all(fd, np.ascontiguousarray(a))
 
     def _file(self, name: str, k: int) -> Path:
         assert self._dir is not None
         return self._dir / f"{self._index[name]}.{'tvf'[k]}"
+
+    def _fd(self, name: str, k: int) -> int | None:
+        """The open file of column ``k`` of ``name`` (opened for appending and reading on first use; None beyond
+        :data:`MAX_OPEN_FILES` open in all stores: the caller opens the file itself)."""
+        global _open_count
+        key = (self._index[name], k)
+        fd = self._fds.get(key)
+        if fd is None:
+            with _open_lock:
+                fd = self._fds.get(key)
+                if fd is None and _open_count < MAX_OPEN_FILES:
+                    fd = self._fds[key] = os.open(self._file(name, k), os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o600)
+                    _open_count += 1
+        return fd
+
+    def _read(self, name: str, k: int, start: int, count: int) -> np.ndarray:
+        """``count`` samples of column ``k`` of ``name`` from sample ``start`` (``np.fromfile``'s numbers)."""
+        fd = self._fd(name, k) if count >= 0 else None
+        if fd is None:
+            with self._file(name, k).open("rb") as fh:
+                return np.fromfile(fh, dtype=_DTYPES[k], count=count, offset=start * _DTYPES[k].itemsize)
+        return _read_at(fd, _DTYPES[k], count, start * _DTYPES[k].itemsize)
+
+    def _close_files(self) -> None:
+        global _open_count
+        with _open_lock:
+            fds, self._fds = list(self._fds.values()), {}
+            _open_count -= len(fds)
+        for fd in fds:
+            os.close(fd)
+
+    def __del__(self) -> None:  # a store never cleaned up: its files stay, its descriptors go
+        if getattr(self, "_fds", None):
+            self._close_files()
 
     def names(self) -> list[str]:
         """Channel names in their order (by the ``order`` keys, then first appearance)."""
@@ -109,29 +181,18 @@ class ChannelStore:
         e = self._entries[name]
         if self._dir is None or e.n == 0:
             return self.channel(name)
-        files = [self._file(name, k) for k in range(3)]
         n = e.n
 
         def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            out = []
-            for k in range(3):
-                with files[k].open("rb") as fh:
-                    out.append(np.fromfile(fh, dtype=_DTYPES[k], count=n))
-            return out[0], out[1], out[2]
+            return self._read(name, 0, 0, n), self._read(name, 1, 0, n), self._read(name, 2, 0, n)
 
         return LazyChannel(name, e.unit, e.source, n, load, e.texts, block_loader=self._block_reader(name))
 
     def _block_reader(self, name: str) -> Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """``(start, stop) -> (timestamps, values, flags)`` of those samples of ``name``, read from its files."""
-        files = [self._file(name, k) for k in range(3)]
-
         def read(start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            out = []
-            for k in range(3):
-                with files[k].open("rb") as fh:
-                    out.append(np.fromfile(fh, dtype=_DTYPES[k], count=stop - start,
-                                           offset=start * _DTYPES[k].itemsize))
-            return out[0], out[1], out[2]
+            return (self._read(name, 0, start, stop - start), self._read(name, 1, start, stop - start),
+                    self._read(name, 2, start, stop - start))
 
         return read
 
@@ -174,5 +235,6 @@ class ChannelStore:
 
     def cleanup(self) -> None:
         """Remove the files (channels mapped from them must no longer be used)."""
+        self._close_files()
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)

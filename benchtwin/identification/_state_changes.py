@@ -3,16 +3,19 @@ whole channel (its good samples' changes and whether they are periodic), holding
 
 Of a campaign's target gear only the changes are kept (a few thousand), and whether the good samples come
 periodically: the median of their time steps, found exactly by a radix selection over the blocks (16 bits a pass),
-then the share of steps within 10 % of it.
+then the share of steps within 10 % of it. Inside the type B re-runs' store
+(:func:`~benchtwin.identification._reuse.reusing`) the result for a channel a re-run does not move is worked out once
+and handed out again (keyed by the channel object).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Hashable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
+from benchtwin.identification._reuse import reused
 from benchtwin.recording import Channel, Flag
 
 __all__ = ["StateChanges", "good_step_median", "state_changes"]
@@ -87,9 +90,25 @@ def good_step_median(ch: Channel, n: int, block: int = BLOCK) -> float:
     return a if a == b else float(np.mean(np.array([a, b])))
 
 
-def state_changes(ch: Channel, block: int = BLOCK) -> StateChanges:
+def state_changes(ch: Channel, block: int = BLOCK, *, of: tuple[Channel, Hashable] | None = None) -> StateChanges:
     """The changes of the rounded good values of ``ch`` and whether its good samples are periodic, read ``block``
-    samples at a time (:meth:`~benchtwin.recording.Channel.block`): the whole channel's numbers, bit for bit."""
+    samples at a time (:meth:`~benchtwin.recording.Channel.block`): the whole channel's numbers, bit for bit.
+
+    ``of``: for a ``ch`` derived from another channel (e.g. its values above a level), that channel and what else
+    ``ch`` depends on (e.g. the level). Inside :func:`~benchtwin.identification._reuse.reusing` the result is computed
+    once per channel object (``ch``, or the channel ``of`` names, with that key) and handed out again (copies): the
+    type B re-runs that do not move the channel find the nominal run's.
+    """
+    src, key = (ch, None) if of is None else of
+    def compute() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+        r = _changes(ch, block)
+        return r.t_new, r.t_old, r.old, r.new, r.periodic
+
+    return StateChanges(*reused("state_changes", (src,), (block, key), compute))  # type: ignore[arg-type]
+
+
+def _changes(ch: Channel, block: int) -> StateChanges:
+    """:func:`state_changes` computed."""
     t_new, t_old, old, new = [], [], [], []
     n_good = 0
     last: tuple[float, int] | None = None

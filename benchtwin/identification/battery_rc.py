@@ -86,7 +86,8 @@ def filtered_current(t_s: np.ndarray, current_a: np.ndarray, tau_s: float, *, ma
 
 
 def _filtered_blocks(t: np.ndarray, i: np.ndarray, tau: float) -> np.ndarray:
-    """:func:`filtered_current` vectorised with scipy's ``lfilter`` on uniform blocks (the grid search's inner loop)."""
+    """:func:`filtered_current` vectorised with scipy's ``lfilter`` on uniform blocks, for one time constant (the
+    search uses :class:`_BranchFilter`, the same numbers with what does not depend on ``tau`` worked out once)."""
     from scipy.signal import lfilter
 
     dt = np.diff(t)
@@ -101,6 +102,36 @@ def _filtered_blocks(t: np.ndarray, i: np.ndarray, tau: float) -> np.ndarray:
             out[s:e] = lfilter([1.0 - a], [1.0, -a], seg)
         return out
     return filtered_current(t, i, tau)
+
+
+class _BranchFilter:
+    """:func:`_filtered_blocks` of one ``(t, i)`` for many time constants: the grid's uniformity check, its step, the
+    gap cuts and each block's zero-started input are worked out once, not at every evaluation of the search (the
+    same numbers: only ``a = exp(-h / tau)`` and the filter depend on ``tau``)."""
+
+    def __init__(self, t: np.ndarray, i: np.ndarray) -> None:
+        self.t, self.i = t, i
+        self.h: float | None = None
+        self.blocks: list[tuple[int, int, np.ndarray]] = []
+        dt = np.diff(t)
+        if dt.size and np.allclose(dt[dt <= _MAX_GAP_S], np.median(dt), rtol=1e-6, atol=1e-9):
+            self.h = float(np.median(dt))
+            cuts = np.r_[0, np.flatnonzero(dt > _MAX_GAP_S) + 1, t.size]
+            for s, e in itertools.pairwise(cuts):
+                seg = i[s:e].copy()
+                seg[0] = 0.0  # the state starts at 0: x[0] = 0, then x[j] = a x[j-1] + (1 - a) I[j]
+                self.blocks.append((int(s), int(e), seg))
+
+    def __call__(self, tau: float) -> np.ndarray:
+        if self.h is None:
+            return filtered_current(self.t, self.i, tau)
+        from scipy.signal import lfilter
+
+        a = math.exp(-self.h / tau)
+        out = np.empty_like(self.i)
+        for s, e, seg in self.blocks:
+            out[s:e] = lfilter([1.0 - a], [1.0, -a], seg)
+        return out
 
 
 def _sse(A: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
@@ -285,9 +316,10 @@ def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.nd
     from scipy.optimize import minimize
 
     B = np.column_stack(list(base.values()))
+    filtered = _BranchFilter(t, i)  # what does not depend on the time constants, once for the whole search
 
     def design(taus: tuple[float, ...]) -> np.ndarray:
-        return np.column_stack([B] + [-_filtered_blocks(t, i, tau) for tau in taus])
+        return np.column_stack([B] + [-filtered(tau) for tau in taus])
 
     # the base columns are the same for every pair of time constants: project them out once (QR), so that each
     # evaluation solves only for the branches' columns
@@ -296,7 +328,7 @@ def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.nd
     yy = float(y_r @ y_r)
 
     def sse(taus: tuple[float, ...]) -> float:
-        c = np.column_stack([-_filtered_blocks(t, i, tau) for tau in taus])
+        c = np.column_stack([-filtered(tau) for tau in taus])
         c_r = c - q @ (q.T @ c)
         g, h = c_r.T @ c_r, c_r.T @ y_r
         try:
@@ -324,7 +356,7 @@ def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.nd
     dcols = []
     for k, tau in enumerate(taus):
         h = 1e-4 * tau
-        d = (-_filtered_blocks(t, i, tau + h) + _filtered_blocks(t, i, tau - h)) / (2.0 * h)
+        d = (-filtered(tau + h) + filtered(tau - h)) / (2.0 * h)
         dcols.append(x[len(base) + k] * d)
     J = np.column_stack([A, *dcols])
     y_lin = y - A @ x + J @ np.r_[x, taus]

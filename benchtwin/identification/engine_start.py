@@ -71,9 +71,10 @@ def start_times(rec: Recording) -> np.ndarray:
         When neither channel is recorded.
     """
     if "engine_on" in rec:
-        sc = state_changes(_above(rec["engine_on"], 0.5))
+        sc = state_changes(_above(rec["engine_on"], 0.5), of=(rec["engine_on"], ("above", 0.5)))
     elif "engine_speed_rpm" in rec:
-        sc = state_changes(_above(rec["engine_speed_rpm"], RUNNING_RPM))
+        sc = state_changes(_above(rec["engine_speed_rpm"], RUNNING_RPM),
+                           of=(rec["engine_speed_rpm"], ("above", RUNNING_RPM)))
     else:
         raise IdentificationError(f"{START_KEY}: neither engine_on nor engine_speed_rpm recorded")
     return np.asarray(sc.t_new, float)[(np.asarray(sc.old) == 0) & (np.asarray(sc.new) == 1)]

@@ -255,3 +255,23 @@ def test_temperature_term_recovered_and_used_by_the_prediction():
     rms_mean = float(np.sqrt(np.mean((v_mean - v_true) ** 2)))
     assert rms_logged < 0.2
     assert rms_mean > 2 * rms_logged
+
+
+def test_branch_filter_reused_over_taus_equals_the_one_shot_filter():
+    """The search's filter keeps the grid's step, cuts and zero-started blocks across time constants; every value
+    must be the one-shot ``_filtered_blocks``'s, bit for bit (uniform grid with gaps; a non-uniform grid falls back
+    to the exact loop), for taus in any order (a value cached from the previous tau would differ)."""
+    from benchtwin.identification.battery_rc import _BranchFilter, _filtered_blocks
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 600.0, 0.1)
+    t = np.r_[t[:2000], t[2100:4000] + 0.0, t[4500:]]  # two gaps longer than 1 s: three blocks
+    i = rng.normal(0.0, 40.0, t.size)
+    uneven = np.cumsum(rng.uniform(0.05, 0.2, 3000))
+    i2 = rng.normal(0.0, 40.0, uneven.size)
+    for tt, ii in ((t, i), (uneven, i2)):
+        f = _BranchFilter(tt, ii)
+        for tau in (8.0, 400.0, 1.5, 8.0, 39.99):
+            np.testing.assert_array_equal(f(tau), _filtered_blocks(tt, ii, tau))
+    assert _BranchFilter(t, i).h is not None and len(_BranchFilter(t, i).blocks) == 3
+    assert _BranchFilter(uneven, i2).h is None

@@ -80,3 +80,47 @@ def test_shift_events_read_the_gear_by_blocks(blocks_only) -> None:
     inside = (t_ev >= 0.0) & (t_ev < 60.0)
     assert ev["t"].tobytes() == t_ev[inside].tobytes()
     assert np.array_equal(ev["from_gear"], old[inside]) and np.array_equal(ev["to_gear"], new[inside])
+
+
+def _counted(ch: Channel) -> tuple[Channel, list[int]]:
+    """``ch`` read by blocks, counting the blocks read."""
+    from benchtwin.recording import LazyChannel
+
+    reads = [0]
+
+    def block(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        reads[0] += 1
+        return ch.timestamps[a:b], ch.values[a:b], ch.flags[a:b]
+
+    return LazyChannel(ch.name, ch.unit, ch.source, len(ch), lambda: block(0, len(ch)), None,
+                       block_loader=block), reads
+
+
+def test_the_type_b_store_hands_out_an_unmoved_channels_changes_once() -> None:
+    """Inside the re-runs' store the same channel object is worked out once and its result handed out again (copies);
+    a moved copy of the channel (another object, other values) and another level of a derived channel are worked out
+    for themselves, and equal what they give outside the store."""
+    from benchtwin.identification._reuse import reusing
+    from benchtwin.identification.engine_start import _above
+
+    ch, reads = _counted(_gear("periodic"))
+    ref = state_changes(ch, 997)
+    per_run = reads[0]
+    assert per_run > 0
+    moved = _gear("periodic", seed=5)  # a re-run's moved channel: the same name, other values
+    with reusing():
+        first = state_changes(ch, 997)
+        again = state_changes(ch, 997)
+        assert reads[0] == 2 * per_run  # the run above, then once inside the store
+        for a, b in zip((ref.t_new, ref.old), (again.t_new, again.old)):
+            assert a.tobytes() == b.tobytes()
+        again.t_new[:] = -1.0  # a caller writing into its copy does not change what the next one gets
+        assert state_changes(ch, 997).t_new.tobytes() == first.t_new.tobytes()
+        other = state_changes(moved, 997)
+        assert other.t_new.tobytes() == state_changes(moved, 997).t_new.tobytes()
+        assert other.t_new.tobytes() != ref.t_new.tobytes()
+        lo = state_changes(_above(ch, 2.5), 997, of=(ch, ("above", 2.5)))
+        hi = state_changes(_above(ch, 6.5), 997, of=(ch, ("above", 6.5)))
+    assert lo.t_new.tobytes() == state_changes(_above(ch, 2.5), 997).t_new.tobytes()
+    assert hi.t_new.tobytes() == state_changes(_above(ch, 6.5), 997).t_new.tobytes()
+    assert lo.t_new.tobytes() != hi.t_new.tobytes()
