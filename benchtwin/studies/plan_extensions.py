@@ -61,6 +61,8 @@ BATTERY_RC_DRAWS = 40
 CAN_TORQUE_DRAWS = 200
 #: the channels the battery fits read
 _BATTERY_ROLES = ("battery_voltage_v", "battery_current_a", "displayed_soc_pct", "battery_temp_degc")
+_HIDDEN = ("a branch that moves the pack voltage less than the fit's noisy residual: a quieter pack-voltage sensor, "
+           "or tests with larger current steps")
 #: the grid of battery.rc's samples (identify_battery_rc's default rate; every usable sample)
 RC_RATE_HZ = 2.0
 _RC_TEST = ("add [[tests]] kind = \"constant_drive\" tests that discharge and charge the pack (battery.rc fits every "
@@ -206,7 +208,7 @@ def plan_battery_rc(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, 
         if v.size == 0:
             out.append(PlannedParameter(f"battery.rc.{k}", unit, value, float("nan"), False,
                                         "the noise-free data report it but no draw does: the noise hides it; " + why,
-                                        _RC_TEST, int(clean.data["t"].size)))
+                                        _HIDDEN, int(clean.data["t"].size)))
             continue
         if v.size < 2 or v.size < n_ok:
             out.append(PlannedParameter(f"battery.rc.{k}", unit, value, float("nan"), True,
