@@ -44,6 +44,7 @@ from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY
 from benchtwin.identification.motor import MotorPoints, identify_motor, motor_points
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission, transmission_points
 from benchtwin.recording import Channel, Recording
+from benchtwin.segments import Segment
 from benchtwin.studies.plan_fits import PlannedParameter
 from benchtwin.studies.plan_noise import (
     ChannelNoise,
@@ -135,7 +136,7 @@ def soc_slope_variance(rec: Recording, noise: Mapping[str, ChannelNoise], t: np.
     return k, float(c @ (c * sv))
 
 
-def plan_soc_slope(rec: Recording, noise: Mapping[str, ChannelNoise], segments: list[str] | list,
+def plan_soc_slope(rec: Recording, noise: Mapping[str, ChannelNoise], segments: list[Segment],
                    name: str = "battery.soc_per_ah", rate_hz: float | None = None,
                    kinds: tuple[str, ...] | None = BATTERY_SEGMENT_KINDS) -> PlannedParameter:
     """``soc_per_ah`` of the eq. 30 fit on its grid (:func:`soc_slope_variance`), or why it is not identifiable.
@@ -161,7 +162,7 @@ def plan_soc_slope(rec: Recording, noise: Mapping[str, ChannelNoise], segments: 
                             "count (linear)", "", int(use.sum()))
 
 
-def plan_battery_rc(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise], segments: list,
+def plan_battery_rc(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise], segments: list[Segment],
                     draws: int = BATTERY_RC_DRAWS, seed: int = 0) -> list[PlannedParameter]:
     """``battery.rc``: the std of each estimate over draws of the readings through the identification's fit.
 
