@@ -4,8 +4,10 @@ From the planned tests and the setup's noise model, without identifying anything
 predicts the standard error of every parameter (the linearised covariance of each fit at the operating
 points the campaign reaches on the emulated plant), flags the parameters no planned test excites and
 names the test to add in the campaign's TOML terms. Predicted standard errors are those of the
-transmission (eta_m and C0 per gear, drive and coast) and battery (eq. 30) fits; the shift lines and the
-other families are checked for excitation only. The campaign's Trace comes from the disk cache
+transmission (eta_m and C0 per gear, drive and coast), battery (eq. 30), brake, motor and torque-converter fits
+and of the extension fits (battery.rc, soc_per_ah, motor.loss, engine.can_torque; some by draws of the readings
+through the identification's own fit, see benchtwin.studies.plan_extensions); the shift lines and the other
+families are checked for excitation only. The campaign's Trace comes from the disk cache
 (simulated on a miss). ``--json`` prints the plan as one JSON document.
 """
 

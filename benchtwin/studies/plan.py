@@ -36,6 +36,9 @@ parameter the identification fits, without identifying anything from measured da
    random, so the brake gains add the variance of the noise-free estimate over draws of those faults
    (:mod:`benchtwin.studies.plan_brakes`). The torque converter's two linear fits are propagated at the
    identification's own points and kept rows (:mod:`benchtwin.studies.plan_converter`).
+6. The extension fits (``battery.rc``, ``soc_per_ah``, ``motor.loss``, ``engine.can_torque``) are planned in
+   :mod:`benchtwin.studies.plan_extensions`: linearised where the estimator is linear or smooth, by draws of the
+   readings through the identification's own fit where it searches (the RC time constants, the drag's terms).
 
 The prediction is the spread of the estimates over seeds of the sensor noise on one plant run, the
 figure a sweep over seeds measures; it holds no bias (gain and offset errors, model error) and no
@@ -63,6 +66,7 @@ from benchtwin.emulator.cache import cached_campaign
 from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan_brakes import plan_brakes
 from benchtwin.studies.plan_converter import CONVERTER_RECORDED, plan_converter
+from benchtwin.studies.plan_extensions import plan_battery_rc, plan_can_torque, plan_motor_loss, plan_soc_slope
 from benchtwin.studies.plan_fits import (
     PlannedParameter,
     plan_battery,
@@ -205,12 +209,15 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
     for fam in fams:
         if fam.name == "transmission":
             plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed)
+            plan.parameters += plan_can_torque(rec, vehicle, noise)
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
+            plan.parameters += [plan_soc_slope(rec, noise, segments), *plan_battery_rc(rec, vehicle, noise, segments)]
         elif fam.name == "brakes":
             plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_fault_model(setup))
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
+            plan.parameters += plan_motor_loss(rec, vehicle, noise)
         elif fam.name == "torque_converter":
             planned = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
                 plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed)
