@@ -12,7 +12,7 @@ import numpy as np
 
 from benchtwin.identification._signals import BAD_FLAGS, Shift, to_ref, to_source
 
-__all__ = ["GROUP_S", "running_sums", "window_groups"]
+__all__ = ["GROUP_S", "cut_windows", "running_sums", "window_groups"]
 
 
 #: longest span of a group of steady windows averaged from one read of a channel (a channel at 500 Hz: 150 k samples)
@@ -31,6 +31,30 @@ def window_groups(starts: np.ndarray, ends: np.ndarray, span_s: float = GROUP_S)
         out.append((i, j))
         i = j
     return out
+
+
+def cut_windows(starts: np.ndarray, ends: np.ndarray, span_s: float = GROUP_S
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The windows ``[start, end)`` cut into pieces of at most ``span_s`` each (a window no longer stays whole), in
+    order: ``(piece starts, piece ends, index of each window's first piece)``.
+
+    A window's pieces hold its samples one after the other, split at the cut times (each sample in exactly one
+    piece: the same edge search on both sides of a cut), so running sums over the pieces laid end to end are the
+    very numbers of those over the windows (:func:`running_sums` adds the samples in the same order): a steady hold
+    of half an hour is read in pieces, not at once."""
+    starts = np.asarray(starts, dtype=float)
+    ends = np.asarray(ends, dtype=float)
+    # pieces per window: 1 when it fits (or is empty or not finite), else as many as cover it
+    with np.errstate(invalid="ignore"):
+        span = ends - starts
+        count = np.where(np.isfinite(span) & (span > span_s), np.ceil(span / span_s), 1.0).astype(np.int64)
+    first = np.concatenate(([0], np.cumsum(count)[:-1])).astype(np.int64)
+    k = np.arange(int(count.sum())) - np.repeat(first, count)  # piece number within its window
+    w = np.repeat(np.arange(starts.size), count)
+    ps = np.where(k == 0, starts[w], starts[w] + k * span_s)
+    last = k == count[w] - 1
+    pe = np.where(last, ends[w], starts[w] + (k + 1) * span_s)
+    return ps, pe, first
 
 
 def running_sums(ts: np.ndarray, vals: np.ndarray, fl: np.ndarray, pair: tuple[np.ndarray, np.ndarray] | None,

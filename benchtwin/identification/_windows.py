@@ -35,7 +35,7 @@ from benchtwin.recording import Channel, LazyChannel, Recording
 from benchtwin.segments import inside_any
 
 __all__ = ["at_times", "channel_bounds", "gather_at", "gather_span", "grid_bounds", "ordered_by_blocks", "piece_grids",
-           "reads_by_block", "segment_pieces", "window_of"]
+           "read_parts", "reads_by_block", "segment_pieces", "window_of"]
 
 #: seconds read beyond each end of a window (clock shifts are applied after the read: the margin absorbs the
 #: rounding of ``t - shift``; more samples than needed change nothing, the interpolation looks at its neighbours)
@@ -225,18 +225,50 @@ def grid_bounds(rec: Recording, names: Sequence[str], rate_hz: float, *, what: s
     return lo, n, shifts
 
 
+#: longest span of grid time sampled from one read of a channel read by blocks (:func:`gather_at`): a run of grid
+#: points inside segments that touch one another can last as long as the campaign, and a 500 Hz channel read over it
+#: whole held 24 MB (paper campaign) to 66 MB (three times as long) at once; 300 s of it are 2.7 MB
+READ_SPAN_S = 300.0
+
+
+def read_parts(t: np.ndarray, span_s: float | None = None) -> list[tuple[int, int]]:
+    """Runs ``[i, j)`` of the increasing times ``t`` each spanning at most ``span_s`` (default
+    :data:`READ_SPAN_S`; at least one time each), in order and covering ``t``."""
+    if span_s is None:
+        span_s = READ_SPAN_S
+    if not span_s > 0:
+        raise ValueError(f"read_parts: span_s must be positive, got {span_s}")
+    out = []
+    i = 0
+    while i < t.size:
+        j = max(int(np.searchsorted(t, t[i] + span_s, side="right")), i + 1)
+        out.append((i, j))
+        i = j
+    return out
+
+
 def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift_s: Shift,
-               ordered: dict[int, bool] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``_sample`` of the channel's samples around ``t`` only."""
+               ordered: dict[int, bool] | None = None,
+               parts: Sequence[tuple[tuple[int, int], _IndexCache]] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """``_sample`` of the channel's samples around ``t`` only. A channel read by blocks is read around each of
+    ``parts`` (runs of ``t`` with their index caches) in turn, one read let go before the next: the same bracketing
+    samples and whole-channel indices, so the same numbers as from one read around ``t``."""
+    if not parts or not reads_by_block(ch):
+        parts = (((0, t.size), cache),)
+
     def compute() -> tuple[np.ndarray, np.ndarray]:
-        k0, ts, vs, fl = window_of(ch, float(to_source(float(t[0]), shift_s)) - MARGIN_S,
-                                   float(to_source(float(t[-1]), shift_s)) + MARGIN_S, ordered)
-        fidx = cache.fidx(ts, shift_s, k0)
         v = np.empty(t.shape, dtype=float)
         flagged = np.empty(t.shape, dtype=bool)
-        for k in range(0, t.size, SAMPLE_BLOCK):
-            part = slice(k, k + SAMPLE_BLOCK)
-            v[part], flagged[part] = _sample_block(ts, vs, fl, t[part], fidx[part], hold, shift_s, k0)
+        for (i, j), part_cache in parts:
+            tp = t[i:j]
+            k0, ts, vs, fl = window_of(ch, float(to_source(float(tp[0]), shift_s)) - MARGIN_S,
+                                       float(to_source(float(tp[-1]), shift_s)) + MARGIN_S, ordered)
+            fidx = part_cache.fidx(ts, shift_s, k0)
+            for k in range(0, tp.size, SAMPLE_BLOCK):
+                blk = slice(k, k + SAMPLE_BLOCK)
+                out = slice(i + k, min(i + k + SAMPLE_BLOCK, j))
+                v[out], flagged[out] = _sample_block(ts, vs, fl, tp[blk], fidx[blk], hold, shift_s, k0)
+            del ts, vs, fl, fidx  # this part's read goes before the next is read
         return v, flagged
 
     # keyed by the channel object: the type B re-runs keep every channel they do not move (see _reuse)
@@ -274,9 +306,11 @@ def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: floa
     bad = np.zeros(t.shape, dtype=bool)
     flagged = np.zeros(t.shape, dtype=bool)
     cache = _IndexCache(t)
+    # runs of at most READ_SPAN_S for the channels read by blocks (their index caches shared by the channels)
+    parts = [((i, j), _IndexCache(t[i:j])) for i, j in read_parts(t)]
     for n in names:
         c = rec[n]
-        v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0), ordered)
+        v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0), ordered, parts)
         values[n] = v
         flagged |= fl
         bad |= fl | ~np.isfinite(v)
@@ -284,7 +318,7 @@ def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: floa
     for n in optional:
         if n in rec and len(rec[n]) and n not in values:
             c = rec[n]
-            v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0), ordered)
+            v, fl = _sample_at(c, t, n in held, cache, shifts.get(c.source, 0.0), ordered, parts)
             v = v.copy()
             v[fl] = np.nan
             values[n] = v

@@ -30,7 +30,7 @@ from benchtwin.identification._signals import (
     time_ordered,
     to_source,
 )
-from benchtwin.identification._window_sums import running_sums, window_groups
+from benchtwin.identification._window_sums import cut_windows, running_sums, window_groups
 from benchtwin.identification._windows import MARGIN_S, reads_by_block, window_of
 from benchtwin.identification.steady_windowed import find_steady_windows_by_piece, window_stats
 from benchtwin.recording import Channel, Recording
@@ -215,10 +215,11 @@ class SteadyWindows:
     def _grouped_average(self, rec: Recording, ch: Channel, ch2: Channel | None) -> np.ndarray:
         shift = self.grid.shifts.get(ch.source, 0.0)
         shift2 = shift if ch2 is None else self.grid.shifts.get(ch2.source, 0.0)
-        starts = np.array([w.start_s for w in self.windows])
-        ends = np.array([w.end_s for w in self.windows])
-        cs = np.zeros(len(self.windows) + 1)
-        cn = np.zeros(len(self.windows) + 1, dtype=np.int64)
+        # a window longer than a group is read in pieces (the same sums: see cut_windows)
+        starts, ends, first = cut_windows(np.array([w.start_s for w in self.windows]),
+                                          np.array([w.end_s for w in self.windows]))
+        cs = np.zeros(starts.size + 1)
+        cn = np.zeros(starts.size + 1, dtype=np.int64)
         for i, j in window_groups(starts, ends):
             lo_s, hi_s = float(starts[i:j].min()), float(ends[i:j].max())
             k0, ts, vals, fl = window_of(ch, float(to_source(lo_s, shift)) - MARGIN_S,
@@ -232,8 +233,12 @@ class SteadyWindows:
                     return (self._raw_average_windowed(rec, ch.name, None)
                             * self._raw_average_windowed(rec, ch2.name, None))
                 pair = (vals2, fl2)
+                del ts2, vals2, fl2
             cs[i:j + 1], cn[i:j + 1] = running_sums(ts, vals, fl, pair, shift, starts[i:j], ends[i:j],
                                                      float(cs[i]), int(cn[i]))
+            del ts, vals, fl, pair  # this group's read goes before the next is read
+        at = np.append(first, starts.size)  # each window's first piece, and the end of the last
+        cs, cn = cs[at], cn[at]
         cnt = cn[1:] - cn[:-1]
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(cnt > 0, (cs[1:] - cs[:-1]) / np.maximum(cnt, 1), np.nan)
