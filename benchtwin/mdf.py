@@ -133,7 +133,7 @@ WRITE_BLOCK_SAMPLES = 1 << 20
 #: bytes of a channel group's columns (its times, each channel's float64 values and uint16 flags) written at a time,
 #: at most: asammdf makes a record block as large again and compresses it, so a block is about three times this in
 #: memory. A sample count alone let the block grow with the group's width up to 1 Mi records (88 B each for the
-#: 17-channel IVT groups: 92 MB of columns and as much again of records once a campaign is over 1 Mi samples long).
+#: IVT groups of 8 channels: 92 MB of columns and as much again of records once a group is over 1 Mi samples long).
 WRITE_BLOCK_BYTES = 16 << 20
 
 
