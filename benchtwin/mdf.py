@@ -18,8 +18,9 @@ import numpy as np
 
 from benchtwin.errors import DataError
 
-__all__ = ["DEFAULT_COMPRESSION", "WRITE_BLOCK_SAMPLES", "ChannelFile", "append_in_blocks", "check_compression",
-           "open_mdf", "texts_of", "value_text_conversion", "write_channel_groups"]
+__all__ = ["DEFAULT_COMPRESSION", "WRITE_BLOCK_BYTES", "WRITE_BLOCK_SAMPLES", "ChannelFile", "append_in_blocks",
+           "check_compression", "group_block_samples", "open_mdf", "texts_of", "value_text_conversion",
+           "write_channel_groups"]
 
 
 def _is_mdf_del(unraisable: Any) -> bool:
@@ -125,9 +126,33 @@ def check_compression(compression: int) -> int:
     return int(compression)
 
 
-#: samples per block when a channel group is written in blocks (:func:`append_in_blocks`): 1 Mi samples of a
-#: group of a few float64 channels and their flags is some tens of MB with asammdf's record copies
+#: samples per block when a channel group is written in blocks (:func:`append_in_blocks`), at most (a wide group
+#: gets fewer: :data:`WRITE_BLOCK_BYTES`)
 WRITE_BLOCK_SAMPLES = 1 << 20
+
+#: bytes of a channel group's columns (its times, each channel's float64 values and uint16 flags) written at a time,
+#: at most: asammdf makes a record block as large again and compresses it, so a block is about three times this in
+#: memory. A sample count alone let the block grow with the group's width up to 1 Mi records (88 B each for the
+#: IVT groups of 8 channels: 92 MB of columns and as much again of records once a group is over 1 Mi samples long).
+WRITE_BLOCK_BYTES = 16 << 20
+
+
+def group_block_samples(n_channels: int, size: int | None = None, budget: int | None = None) -> int:
+    """Samples of a group of ``n_channels`` channels (and their flags) written at a time: ``size`` (default
+    :data:`WRITE_BLOCK_SAMPLES`), fewer when the group's columns would exceed ``budget`` bytes (default
+    :data:`WRITE_BLOCK_BYTES`); at least one.
+
+    Raises
+    ------
+    ValueError
+        If ``n_channels`` is negative or ``size``/``budget`` is not positive.
+    """
+    size = WRITE_BLOCK_SAMPLES if size is None else int(size)
+    budget = WRITE_BLOCK_BYTES if budget is None else int(budget)
+    if n_channels < 0 or size < 1 or budget < 1:
+        raise ValueError(f"group_block_samples: channels {n_channels}, size {size}, budget {budget} (want >= 0, > 0, "
+                         "> 0)")
+    return max(1, min(size, budget // (8 + n_channels * (8 + 2))))
 
 
 def append_in_blocks(mdf: Any, blocks: Iterable[tuple[np.ndarray, list[np.ndarray]]],
@@ -155,6 +180,7 @@ def append_in_blocks(mdf: Any, blocks: Iterable[tuple[np.ndarray, list[np.ndarra
             index = len(mdf.groups) - 1
         elif len(t):
             mdf.extend(index, [(t, None)] + [(c, None) for c in columns])
+        del t, columns  # not held while the next block is read
 
 
 def write_channel_groups(mdf: Any, channels: Iterable[Any], flag_conversion: dict[str, Any],
@@ -163,7 +189,8 @@ def write_channel_groups(mdf: Any, channels: Iterable[Any], flag_conversion: dic
     by its ``<name>.flags`` channel (with ``flag_conversion``), block by block (:func:`append_in_blocks`).
 
     ``channels`` are :class:`~benchtwin.recording.Channel` objects (read through ``block(start, stop)``, so a lazy
-    one with a block reader is never read whole), ``size`` samples at a time (default :data:`WRITE_BLOCK_SAMPLES`);
+    one with a block reader is never read whole), ``size`` samples at a time (default :data:`WRITE_BLOCK_SAMPLES`;
+    fewer for a wide group, :func:`group_block_samples`: what is in memory does not grow with the group's width);
     ``release(names)`` is called after each group is written.
     Channels of one source may have different time bases (two streams of one device lose different frames: same
     length and start, other times): they are compared block by block.
@@ -194,14 +221,17 @@ def write_channel_groups(mdf: Any, channels: Iterable[Any], flag_conversion: dic
                                       conversion=flag_conversion))
                 return out
 
-            append_in_blocks(mdf, _group_blocks(group, size), signals, comment=source, acq_name=source)
+            append_in_blocks(mdf, _group_blocks(group, group_block_samples(len(group), size)), signals,
+                             comment=source, acq_name=source)
             release([ch.name for ch in group])
 
 
 def _same_times(a: Any, b: Any, size: int) -> bool:
-    """Whether two channels have the same timestamps, compared block by block."""
+    """Whether two channels have the same timestamps, compared block by block (within :data:`WRITE_BLOCK_BYTES` of
+    reads each)."""
     if len(a) != len(b):
         return False
+    size = group_block_samples(1, size)
     return all(np.array_equal(a.block(k, k + size)[0], b.block(k, k + size)[0]) for k in range(0, len(a), size))
 
 
