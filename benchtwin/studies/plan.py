@@ -63,6 +63,7 @@ from benchtwin.emulator.cache import cached_campaign
 from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan_brakes import BRAKES_SEARCHED, plan_brakes
 from benchtwin.studies.plan_converter import CONVERTER_RECORDED, plan_converter
+from benchtwin.studies.plan_drag import plan_drag
 from benchtwin.studies.plan_fits import (
     PlannedParameter,
     plan_battery,
@@ -205,7 +206,11 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         if tx else {}
     for fam in fams:
         if fam.name == "transmission":
-            plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed)
+            kept: dict[str, Any] = {}
+            plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed,
+                                                 keep=kept)
+            if kept.get("points") is not None:
+                plan.parameters += plan_drag(rec, vehicle.specs, noise, kept["points"], kept["drawn"])
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
         elif fam.name == "brakes":
