@@ -64,8 +64,9 @@ from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator.cache import cached_campaign
 from benchtwin.recording import Channel, Recording
-from benchtwin.studies.plan_brakes import plan_brakes
+from benchtwin.studies.plan_brakes import BRAKES_SEARCHED, plan_brakes
 from benchtwin.studies.plan_converter import CONVERTER_RECORDED, plan_converter
+from benchtwin.studies.plan_drag import plan_drag
 from benchtwin.studies.plan_extensions import plan_battery_rc, plan_can_torque, plan_motor_loss, plan_soc_slope
 from benchtwin.studies.plan_fits import (
     PlannedParameter,
@@ -202,19 +203,28 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
     conv = any(f.name == "torque_converter" for f in fams)
     tx = any(f.name in ("transmission", "torque_converter") for f in fams)
     rec, raw = planned_recording(setup, campaign, trace, families,
-                                 recorded=(CONVERTER_RECORDED if conv else ()) + (SEARCHED if tx else ()))
+                                 recorded=(CONVERTER_RECORDED if conv else ()) + (SEARCHED if tx else ())
+                                 + (BRAKES_SEARCHED if any(f.name == "brakes" for f in fams) else ()))
     # what each noisy reading the window search and the converter read measures (filter, clock, latency)
     sensed = sensor_response(rec, trace, setup, [n for n in (*SEARCHED, *CONVERTER_RECORDED) if n in noise]) \
         if tx else {}
     for fam in fams:
         if fam.name == "transmission":
-            plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed)
+            kept: dict[str, Any] = {}
+            plan.parameters += plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed,
+                                                 keep=kept)
             plan.parameters += plan_can_torque(rec, vehicle, noise)
+            if kept.get("points") is not None:
+                plan.parameters += plan_drag(rec, vehicle.specs, noise, kept["points"], kept["drawn"])
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
             plan.parameters += [plan_soc_slope(rec, noise, segments), *plan_battery_rc(rec, vehicle, noise, segments)]
         elif fam.name == "brakes":
-            plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_fault_model(setup))
+            # the searched readings as the bench reads them: the sensor's response where noisy, else the bench's
+            # own readings (free of random error: the same on every seed)
+            seen = sensor_response(rec, trace, setup, [n for n in BRAKES_SEARCHED if n in noise])
+            seen.update({n: ch for n, ch in raw.items() if n in BRAKES_SEARCHED and n not in noise})
+            plan.parameters += plan_brakes(rec, vehicle, noise, segments, poll_fault_model(setup), sensed=seen)
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
             plan.parameters += plan_motor_loss(rec, vehicle, noise)

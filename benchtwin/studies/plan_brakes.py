@@ -17,6 +17,18 @@ Recording (:func:`redraw_poll_faults`: the declared per-poll probabilities, the 
 its skipped polls) and running the identification's own window selection and fit on each draw. The
 planned variance is the law of total variance over the draws: the mean of the noise term at each draw's
 windows plus the variance of the noise-free estimates over the draws.
+
+The noise moves the windows too, as it moves the transmission's (:mod:`.plan_windows`): where a hold ends is
+decided by the first noisy pressure reading out of its tolerance while the next step begins, and a noisy
+reading below 0 bar on an unbraked caliper is clipped and flagged by the bench's converter. On 4 seeds of
+the paper campaign the bench's 14-15 windows ended up to 0.45 s apart with the seed, and holds were split at
+places that changed with the seed, beside the poll faults'. So each draw reads the pressures drawn with
+their noise (:func:`~benchtwin.studies.plan_blending.clipped_readings`) around the transducers' noise-free
+response (:func:`~benchtwin.studies.plan_noise.sensor_response`: filter, clock, latency; the truth at the
+readings' timestamps puts every window 0.2 s early against the bench's), with the channels free of random
+error (the rollers' forces and speed) as the plan's bench run read them (the same on every seed); the
+window search runs on those, and the noise-free estimate is taken at the windows found. The same draws give
+the blending statistics' spread (:mod:`.plan_blending`).
 """
 
 from __future__ import annotations
@@ -31,6 +43,7 @@ from benchtwin.errors import BenchtwinError
 from benchtwin.identification.brakes import brake_gain_windows
 from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.segments import Segment
+from benchtwin.studies.plan_blending import blending_rows, blending_values, clipped_readings
 from benchtwin.studies.plan_fits import PlannedParameter
 from benchtwin.studies.plan_noise import (
     ChannelNoise,
@@ -39,12 +52,18 @@ from benchtwin.studies.plan_noise import (
     sandwich_covariance,
     window_mean_variance,
 )
+from benchtwin.studies.plan_windows import sensed_recording
 
-__all__ = ["BRAKE_FAULT_DRAWS", "plan_brakes", "redraw_poll_faults"]
+__all__ = ["BRAKES_SEARCHED", "BRAKE_FAULT_DRAWS", "plan_brakes", "redraw_poll_faults"]
 
 #: draws of the poll faults for the selection term: the std over K draws is known to about 1 / sqrt(2 (K - 1))
 #: (8 % at 80), and one draw costs a steady-window search over the braking tests (~10 ms per 1,000 s of tests)
 BRAKE_FAULT_DRAWS = 80
+
+#: the channels the braking window search reads (:func:`~benchtwin.identification.brakes.brake_gain_windows`)
+BRAKES_SEARCHED: tuple[str, ...] = ("brake_pressure_fl_bar", "brake_pressure_fr_bar", "brake_pressure_rl_bar",
+                                    "brake_pressure_rr_bar", "dyno_force_front_n", "dyno_force_rear_n",
+                                    "dyno_speed_kmh")
 
 _POLL_FLAGS = int(Flag.TIMEOUT | Flag.PROTOCOL_ERROR)
 
@@ -94,10 +113,14 @@ def redraw_poll_faults(rec: Recording, roles: Sequence[str], faults: PollFaults,
     return out
 
 
-def _axle_fits(rec: Recording, r: float, noise: Mapping[str, ChannelNoise]
+def _axle_fits(rec: Recording, r: float, noise: Mapping[str, ChannelNoise], found: Recording | None = None
                ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Axle -> (pressures, estimate ``[m, c]``, noise covariance) on the windows of ``rec`` (empty when too few)."""
-    sw, front, rear = brake_gain_windows(rec)
+    """Axle -> (pressures, estimate ``[m, c]``, noise covariance) on the windows of ``rec`` (empty when too few).
+
+    With ``found`` (the same readings drawn with their noise) the windows are those the search finds on it, and
+    the estimate the noise-free one of ``rec`` at them.
+    """
+    sw, front, rear = brake_gain_windows(rec if found is None else found)
     st = np.array([w.start_s for w in sw.windows])
     en = np.array([w.end_s for w in sw.windows])
     out = {}
@@ -132,6 +155,7 @@ def _k_f(fits: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple
 
 def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
                 segments: list[Segment], faults: Mapping[str, PollFaults] | None = None, *,
+                sensed: Mapping[str, Channel] | None = None, noisy_windows: bool = True, blending: bool = True,
                 draws: int = BRAKE_FAULT_DRAWS, seed: int = 0) -> list[PlannedParameter]:
     """Brake gains ``T = m p + c`` per axle on the steady neutral-braking windows, and ``k_f``.
 
@@ -148,13 +172,21 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
     faults:
         Role -> declared poll faults (:func:`~benchtwin.studies.plan_noise.poll_fault_model`); when the
         pressures' polls can fail, the variance from the windows they leave is added (module docstring).
+    sensed:
+        Role -> the noise-free value each reading measures (:func:`~benchtwin.studies.plan_noise.sensor_response`:
+        filter, clock, latency); the draws read these instead of the truth for the channels found here.
+    noisy_windows:
+        Draw the noise of the searched channels (:data:`BRAKES_SEARCHED`) into the window search (default); False
+        leaves the draws only the poll faults (the plan before the windows' edges were drawn).
+    blending:
+        Also plan the blending statistics (:mod:`.plan_blending`), by the same draws.
     draws, seed:
         Draws of the poll faults, and the seed of their generator (the plan is the same every run).
 
     Returns
     -------
     list of PlannedParameter
-        ``m_f``, ``c_f``, ``m_r``, ``c_r`` and ``k_f``.
+        ``m_f``, ``c_f``, ``m_r``, ``c_r``, ``k_f``, ``k_r`` and (``blending``) ``brakes.blending.*``'s statistics.
     """
     test = "add [[tests]] kind = \"neutral_braking\" with brake_steps_pct = [5.0, 10.0, 20.0, 30.0]"
     r = vehicle.specs.wheel_radius_m
@@ -166,18 +198,31 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
     polled = sorted({k for k in (faults or {}) if k.startswith("brake_pressure_") or k == "master_cylinder_bar"}
                     & set(rec.channels))
     pf = (faults or {}).get(polled[0]) if polled else None
+    pf = pf if pf is not None and pf.prob > 0 else None
+    # the readings each reading measures (filter, clock, latency), and those the window search reads with noise
+    read = sensed_recording(rec, {k: v for k, v in (sensed or {}).items() if k in BRAKES_SEARCHED})
+    searched = tuple(n for n in BRAKES_SEARCHED if n in read and n in noise) if noisy_windows else ()
     # estimates and noise variances per draw of the poll faults: axle -> (estimates [K, 2], noise variances [K, 2])
     draw_x: dict[str, list[np.ndarray]] = {"front": [], "rear": []}
     draw_v: dict[str, list[np.ndarray]] = {"front": [], "rear": []}
     draw_k: list[tuple[float, float]] = []
     n_lost = 0
-    if pf is not None and pf.prob > 0:
+    blend0 = blending_values(read, vehicle.specs, _gains(base)) if blending else None
+    blend_drawn: list[dict[str, float] | None] = []
+    if pf is not None or searched:
         rng = np.random.default_rng(seed)
         for _ in range(draws):
             try:
-                fits = _axle_fits(redraw_poll_faults(rec, polled, pf, rng), r, noise)
+                drawn = redraw_poll_faults(read, polled, pf, rng) if pf is not None else read
+                noisy = clipped_readings(drawn, noise, searched, rng) if searched else None
+                fits = _axle_fits(drawn, r, noise, noisy)
             except BenchtwinError:
-                fits = {}
+                fits, noisy = {}, None
+            if blend0 is not None and noisy is not None:
+                try:  # the bench's own gains on the draw's readings, then its blending
+                    blend_drawn.append(blending_values(noisy, vehicle.specs, _gains(_axle_fits(noisy, r, noise))))
+                except BenchtwinError:
+                    blend_drawn.append(None)
             good = {a: f for a, f in fits.items() if np.all(np.isfinite(f[1]))}
             if len(good) < 2:
                 n_lost += 1
@@ -202,8 +247,11 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
             xs, vs = np.array(draw_x[axle]), np.array(draw_v[axle])
             var_sel = np.var(xs, axis=0, ddof=1)
             var = np.mean(vs, axis=0) + var_sel
-            why += (f"; polls fail with p = {pf.prob:g} (timeouts {pf.timeout_prob:g}): over {draws} draws of the "
-                    f"poll faults the windows left add {_share(var_sel[0], var[0])} of the gain's variance"
+            drew = " and ".join(([f"the noise of {len(searched)} searched channels"] if searched else [])
+                                + (["the poll faults"] if pf is not None else []))
+            why += ((f"; polls fail with p = {pf.prob:g} (timeouts {pf.timeout_prob:g})" if pf is not None else "")
+                    + f": over {draws} draws of {drew} the windows found add {_share(var_sel[0], var[0])} of the "
+                    f"gain's variance, {_share(var_sel[1], var[1])} of the intercept's"
                     + (f"; the fit fails on {n_lost} of the {draws} draws" if n_lost else ""))
         for j, (n, u) in enumerate(names):
             out.append(PlannedParameter(n, u, float(x0[j]), math.sqrt(max(float(var[j]), 0.0)), True, why, "",
@@ -220,7 +268,16 @@ def plan_brakes(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, Chan
     else:
         out += [PlannedParameter(n, "-", float("nan"), float("nan"), False, "needs both axle gains", test)
                 for n in (_NAMES[4][0], _K_R)]
+    if blending:
+        out += blending_rows(blend0, blend_drawn, "" if searched else "no noisy pressure to draw")
     return out
+
+
+def _gains(fits: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[float, float, float, float]:
+    """``(m_f, m_r, c_f, c_r)`` of both axles' fits (NaN where an axle has none)."""
+    nan = np.full(2, np.nan)
+    xf, xr = fits.get("front", (None, nan))[1], fits.get("rear", (None, nan))[1]
+    return float(xf[0]), float(xr[0]), float(xf[1]), float(xr[1])
 
 
 def _share(part: float, total: float) -> str:

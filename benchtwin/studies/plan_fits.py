@@ -89,7 +89,8 @@ class PlannedParameter:
 
 def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str, ChannelNoise],
                       segments: list[Segment], *, recorded: Mapping[str, Any] | None = None,
-                      sensed: Mapping[str, Any] | None = None) -> list[PlannedParameter]:
+                      sensed: Mapping[str, Any] | None = None, keep: dict[str, Any] | None = None
+                      ) -> list[PlannedParameter]:
     """``eta_m`` and ``C0`` of every gear, drive and coast (eq. 15-17), on the identification's steady points.
 
     Each point's efficiency is a ratio of window means of the shaft torque, the input torque and the two
@@ -101,7 +102,10 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
     recorded them, role -> Channel, for the lag of their readings; ``sensed``: role -> the noise-free value
     of each reading, :func:`~benchtwin.studies.plan_noise.sensor_response`, drawn around instead).
     A gear or direction with fewer than 3 points, or one torque level only, is not identifiable: the
-    suggestion is a ramp-up in that gear (with brake steps for the coast side).
+    suggestion is a ramp-up in that gear (with brake steps for the coast side). ``eta_m_C0``, the fit's second
+    coefficient, is planned from the same covariance (its selection term: the product over the draws). ``keep``:
+    when given, gets ``"points"`` (the noise-free points) and ``"drawn"`` (each draw's points found on its noisy
+    readings) for the drag model's plan (:func:`~benchtwin.studies.plan_drag.plan_drag`).
     """
     specs = vehicle.specs
     ratios = np.asarray(specs.gear_ratios, dtype=float)
@@ -111,7 +115,10 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
     except BenchtwinError as exc:  # a campaign without any steady transmission point
         pts, why = None, f"no steady point: {exc}"
     k_w = specs.final_drive_ratio / 3.6 / specs.wheel_radius_m
-    moved = window_draws(rec, specs, noise, recorded=recorded, sensed=sensed) if pts is not None else {}
+    drawn: list[Any] = []
+    moved = window_draws(rec, specs, noise, recorded=recorded, sensed=sensed, keep=drawn) if pts is not None else {}
+    if keep is not None:
+        keep.update(points=pts, drawn=drawn)
     ramp_gears = {int(s.settings.get("gear", 0)) for s in segments if s.kind == "ramp_up"}
     for g in range(1, ratios.size + 1):
         for direction in ("drive", "coast"):
@@ -121,7 +128,7 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
                        else " and pedal_steps_pct over at least three levels, lockup = \"closed\""))
             if g in ramp_gears and direction == "coast":
                 test = f"add brake_steps_pct = [5.0, 10.0, 20.0] to the ramp_up test in gear {g}"
-            names = [(f"{key}.eta_m", "-"), (f"{key}.C0", "Nm")]
+            names = [(f"{key}.eta_m", "-"), (f"{key}.C0", "Nm"), (f"{key}.eta_m_C0", "Nm")]
             if pts is None:
                 out += [PlannedParameter(n, u, float("nan"), float("nan"), False, why, test) for n, u in names]
                 continue
@@ -164,17 +171,24 @@ def plan_transmission(rec: Recording, vehicle: VehicleConfig, noise: Mapping[str
             cov = sandwich_covariance(A, w, s2)
             grad_c0 = np.array([-k / eta_m**2, 1.0 / eta_m])
             v_eta, v_c0 = max(cov[0, 0], 0.0), max(float(grad_c0 @ cov @ grad_c0), 0.0)
+            # eta_m C0 is the fit's second coefficient: its variance is the covariance's own entry (the product of
+            # eta_m and C0 through their joint covariance, d(eta C0) = C0 d eta + eta d C0, to first order)
+            v_k = max(float(cov[1, 1]), 0.0)
             why = f"{c.size} steady windows, C {c.min():.0f}..{c.max():.0f} Nm"
             drawn = moved.get(key)
             if drawn is not None and len(drawn) >= 2:
                 sel = np.var(drawn, axis=0, ddof=1)
                 v_eta, v_c0 = v_eta + float(sel[0]), v_c0 + float(sel[1])
+                v_k += float(np.var(drawn[:, 0] * drawn[:, 1], ddof=1))
                 if sel[0] > 0.1 * cov[0, 0]:
                     why += (f"; the windows move with the noise: {sel[0] / v_eta:.0%} of eta_m's variance "
                             f"over {len(drawn)} draws")
             se_eta, se_c0 = math.sqrt(v_eta), math.sqrt(v_c0)
             out.append(PlannedParameter(names[0][0], "-", eta_m, se_eta, True, why, "", int(c.size)))
             out.append(PlannedParameter(names[1][0], "Nm", k / eta_m, se_c0, True, why, "", int(c.size)))
+            out.append(PlannedParameter(f"{key}.eta_m_C0", "Nm", k, math.sqrt(v_k), True,
+                                        why + "; eta_m_C0: the fit's coefficient (eta_m and C0 with their covariance)",
+                                        "", int(c.size)))
     return out
 
 

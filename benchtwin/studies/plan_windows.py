@@ -43,7 +43,12 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError
 from benchtwin.identification.keys import FitKey
-from benchtwin.identification.transmission import direction_points, efficiency_design, transmission_points
+from benchtwin.identification.transmission import (
+    TransmissionPoints,
+    direction_points,
+    efficiency_design,
+    transmission_points,
+)
 from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan_noise import ChannelNoise
 
@@ -165,7 +170,8 @@ def sensed_recording(rec: Recording, sensed: Mapping[str, Channel]) -> Recording
 
 def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, ChannelNoise], *,
                  recorded: Mapping[str, Channel] | None = None, draws: int = WINDOW_DRAWS,
-                 seed: int = 0, sensed: Mapping[str, Channel] | None = None) -> dict[str, np.ndarray]:
+                 seed: int = 0, sensed: Mapping[str, Channel] | None = None,
+                 keep: list[TransmissionPoints] | None = None) -> dict[str, np.ndarray]:
     """The noise-free ``(eta_m, C0)`` of every transmission fit at the windows each draw of the noise gives.
 
     Parameters
@@ -186,6 +192,9 @@ def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, Channe
         (:func:`sensed_recording`).
     draws, seed:
         Number of draws and the seed of their generator (the same plan gives the same numbers).
+    keep:
+        When given, the points each draw's search found on its noisy readings (their noisy values) are appended
+        to it (the drag model's draws, :mod:`.plan_drag`).
 
     Returns
     -------
@@ -208,6 +217,8 @@ def window_draws(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, Channe
             pts = transmission_points(read, specs, steady=found.windows)
         except BenchtwinError:
             continue
+        if keep is not None:
+            keep.append(found)
         for g in range(1, ratios.size + 1):
             for direction in ("drive", "coast"):
                 _m, dom, c, eta = direction_points(pts, g, direction, ratios[g - 1])

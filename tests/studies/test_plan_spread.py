@@ -175,7 +175,7 @@ def test_transmission_gears_1_2_agree_with_the_spread_over_seeds(tmp_path: Path)
     est = _spread(vehicle, setup, campaign, trace, "transmission", n)
     for g in (1, 2):
         for fit in (f"transmission.gear{g}", f"transmission.gear{g}_coast"):
-            for par in ("eta_m", "C0"):
+            for par in ("eta_m", "C0", "eta_m_C0"):  # eta_m_C0: the fit's coefficient, with its own selection term
                 p = plan.get(f"{fit}.{par}")
                 v = est[f"{fit}.{par}"]
                 assert p.identifiable and p.se > 0 and v.size == n, p.name
