@@ -11,16 +11,20 @@ the end), at ``RATE`` Hz, whatever the length of the channel.
 
 from __future__ import annotations
 
+import dataclasses
 import weakref
 
 import numpy as np
 import pytest
 from test_battery_rc import SPECS, TRUTH, rc_recording
 
+import benchtwin.identification._battery_used as battery_used
 import benchtwin.identification._good_interp as good_interp
 import benchtwin.identification._windows as windows
 from benchtwin.identification._good_interp import count_good, interp_good
+from benchtwin.identification._resample_blocks import StrictGrid
 from benchtwin.identification._windows import MARGIN_S
+from benchtwin.identification.battery import BATTERY_SEGMENT_KINDS, battery_samples, identify_battery, refine_soc
 from benchtwin.identification.battery_rc import identify_battery_rc
 from benchtwin.recording import Channel, Flag, LazyChannel, Recording
 
@@ -145,3 +149,40 @@ def test_battery_rc_reads_the_pack_temperature_by_blocks(small_reads) -> None:
         q = got.params[name]
         assert (q.value, q.std_error, q.ci95) == (p.value, p.std_error, p.ci95), name
     assert 0 < reads.most <= READ_SAMPLES * SAMPLE_BYTES  # rc_recording samples at RATE too
+
+
+@pytest.mark.parametrize("lazy", [False, True])
+def test_eq30_keeps_only_its_samples_walking_the_grid_by_blocks(small_reads, monkeypatch: pytest.MonkeyPatch,
+                                                                 lazy: bool) -> None:
+    """identify_battery walks the common grid 97 points at a time and keeps the constant drives' points: its samples,
+    refined SOC (the charge counted over every grid point, carried from block to block) and fit are those of
+    battery_samples + refine_soc on the whole grid, bit for bit (mutants: the grid in one piece fails the block
+    size; the charge's running sum restarted or added after the block's own sum fails the refined SOC)."""
+    monkeypatch.setattr(battery_used, "BLOCK", 97)
+    sizes: list[int] = []
+    block = StrictGrid.block
+
+    def spy(self, i0: int, i1: int):  # type: ignore[no-untyped-def]
+        sizes.append(i1 - i0)
+        return block(self, i0, i1)
+
+    monkeypatch.setattr(StrictGrid, "block", spy)
+    rec, _arr = rc_recording(TRUTH, noise_v=0.2, seed=5)
+    rec.segments[1] = dataclasses.replace(rec.segments[1], kind="hold")  # the charge drive's points not used
+    d, use, segs, _n_bad = battery_samples(rec, soc=True, rate_hz=None, kinds=BATTERY_SEGMENT_KINDS)
+    soc, k, k_se, n_blocks = refine_soc(d["t"], d["battery_current_a"], d["displayed_soc_pct"], use)
+    assert 0 < use.sum() < 0.8 * use.size and np.isfinite(k)
+    src = rec
+    if lazy:
+        reads = _Reads()
+        src = Recording(segments=rec.segments)
+        for ch in rec.channels.values():
+            src.add(_lazy(ch, reads))
+    fit = identify_battery(src, SPECS)
+    assert sizes and max(sizes) <= 97
+    np.testing.assert_array_equal(fit.data["t"], d["t"][use])
+    np.testing.assert_array_equal(fit.data["soc"], soc[use])
+    np.testing.assert_array_equal(fit.data["current"], d["battery_current_a"][use])
+    np.testing.assert_array_equal(fit.data["soc_displayed"], d["displayed_soc_pct"][use])
+    est = fit.params["soc_per_ah"]
+    assert (est.value, est.std_error, est.n_points, est.segments) == (k, k_se, n_blocks, segs)
