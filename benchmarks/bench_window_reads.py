@@ -10,7 +10,9 @@ with the Recording kept in chunk files (``_repeated.chunked_recording``), then `
 ``_windows._window`` wrapped: every block it reads from a channel read by blocks is held weakly, with the call stack
 (benchtwin frames) that asked for it. A thread sums the bytes of the reads alive every 0.02 s and keeps the largest
 sum with its breakdown by channel and caller; the largest single read is reported too. What grows from one size to the
-next is memory that grows with the campaign. To measure another tree, run this script with ``PYTHONPATH`` set to it.
+next is memory that grows with the campaign. With ``--loads N`` the whole-channel reads (``LazyChannel._load`` of a
+channel not in memory) of more than ``N`` samples are listed too, by channel and caller, with their count and bytes.
+To measure another tree, run this script with ``PYTHONPATH`` set to it.
 """
 
 from __future__ import annotations
@@ -31,7 +33,34 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
-def one(n: int, campaign: str, setup: str, vehicle_name: str) -> dict[str, Any]:
+def _stack(skip: int = 1) -> str:
+    frames = [f for f in traceback.extract_stack()[:-skip] if "benchtwin" in f.filename and "_reuse" not in f.filename
+              and not f.filename.endswith("recording.py")]
+    return " > ".join(f"{Path(f.filename).name}:{f.lineno}:{f.name}" for f in frames[-5:])
+
+
+def _watch_loads(min_samples: int) -> dict[str, list[float]]:
+    """Wrap ``LazyChannel._load``: whole reads of more than ``min_samples`` samples, by channel and caller ->
+    [count, MB]."""
+    from benchtwin.recording import LazyChannel
+
+    loads: dict[str, list[float]] = {}
+    orig = LazyChannel._load
+
+    def load(self):  # type: ignore[no-untyped-def]
+        fresh = self._arrays is None
+        arrays = orig(self)
+        if fresh and len(self) > min_samples:
+            row = loads.setdefault(f"{self.name} ({len(self)} samples): {_stack(2)}", [0, 0.0])
+            row[0] += 1
+            row[1] += round(sum(a.nbytes for a in arrays) / 1e6, 2)
+        return arrays
+
+    LazyChannel._load = load  # type: ignore[method-assign]
+    return loads
+
+
+def one(n: int, campaign: str, setup: str, vehicle_name: str, min_load: int | None = None) -> dict[str, Any]:
     """Measure the window reads on the campaign repeated ``n`` times (in this process)."""
     from _repeated import chunked_recording
 
@@ -83,6 +112,7 @@ def one(n: int, campaign: str, setup: str, vehicle_name: str) -> dict[str, Any]:
         vehicle, rec = chunked_recording(n, Path(tmp), campaign, setup, vehicle_name)
         rec.drop()
         gc.collect()
+        loads = _watch_loads(min_load) if min_load is not None else {}
         th = threading.Thread(target=monitor, daemon=True)
         th.start()
         identify_all(rec, vehicle.specs, type_b=True)
@@ -90,7 +120,8 @@ def one(n: int, campaign: str, setup: str, vehicle_name: str) -> dict[str, Any]:
         th.join()
         rec.close()
     return {"n": n, "alive_max_mb": round(most["bytes"] / 1e6, 2), "alive_arrays": most["arrays"], "by": most["by"],
-            "largest_read_mb": round(largest["bytes"] / 1e6, 2), "largest_read": largest["who"]}
+            "largest_read_mb": round(largest["bytes"] / 1e6, 2), "largest_read": largest["who"],
+            "whole_loads": sorted(([k, *v] for k, v in loads.items()), key=lambda r: -r[2])}
 
 
 def main() -> None:
@@ -98,15 +129,16 @@ def main() -> None:
 
     ap = size_parser(__doc__, "paper")
     ap.add_argument("--json", type=Path, help="write the rows as JSON")
+    ap.add_argument("--loads", type=int, metavar="N", help="also list whole-channel reads of more than N samples")
     ap.add_argument("--one", type=int, help="measure this size in this process (internal)")
     args = ap.parse_args()
     if args.one is not None:
-        print(json.dumps(one(args.one, args.campaign, args.setup, args.vehicle)))
+        print(json.dumps(one(args.one, args.campaign, args.setup, args.vehicle, args.loads)))
         return
     rows = []
     for n in [int(s) for s in args.sizes.split(",")]:
         cmd = [sys.executable, __file__, "--one", str(n), "--campaign", args.campaign, "--setup", args.setup,
-               "--vehicle", args.vehicle]
+               "--vehicle", args.vehicle] + (["--loads", str(args.loads)] if args.loads is not None else [])
         out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=os.environ).stdout
         rows.append(json.loads(out.strip().splitlines()[-1]))
     for r in rows:
@@ -114,6 +146,8 @@ def main() -> None:
               f"largest read {r['largest_read_mb']} MB ({r['largest_read']})")
         for who, mb in r["by"]:
             print(f"    {mb:8.2f} MB  {who}")
+        for who, count, mb in r.get("whole_loads", []):
+            print(f"    whole read x{count}, {mb:.2f} MB: {who}")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError, MissingChannelError, NoExcitationError
+from benchtwin.identification._battery_used import used_samples
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit, serial_inflation
 from benchtwin.identification._resample_blocks import rate_of, resample_strict
 from benchtwin.identification._signals import segment_mask
@@ -274,11 +275,8 @@ def identify_battery(
             raise DataError("identify_battery needs specs (n_cells_series) or n_cells")
         n_cells = specs.n_cells_series
     maps = maps or load_literature_maps()
-    d, use, segs, n_bad = battery_samples(rec, soc=True, rate_hz=rate_hz, kinds=segment_kinds)
-    soc_all, k_soc, k_se, n_blocks = d["displayed_soc_pct"], float("nan"), float("nan"), 0
-    if refine_displayed_soc:
-        soc_all, k_soc, k_se, n_blocks = refine_soc(d["t"], d["battery_current_a"], d["displayed_soc_pct"], use)
-    s, i, v = soc_all[use], d["battery_current_a"][use], d["battery_voltage_v"][use]
+    t_use, v, i, s, soc_disp, (k_soc, k_se, n_blocks), segs, n_bad = _eq30_samples(rec, rate_hz, segment_kinds,
+                                                                                    refine_displayed_soc)
     if s.size < min_points:
         raise InsufficientDataError(f"battery: {s.size} usable samples, need {min_points}")
     v_cell = v / n_cells
@@ -292,7 +290,6 @@ def identify_battery(
         elif np.ptp(i[m]) < min_current_span_a:
             reasons.append(f"{what} current spans {np.ptp(i[m]):.3g} A (< {min_current_span_a:g} A): {name} is not "
                            "separable from the OCV term on these data")
-    t_use = d["t"][use]
     span = float(t_use[-1] - t_use[0]) if t_use.size else 0.0
     if span < min_span_s:
         reasons.append(f"usable data span {span:.3g} s (< {min_span_s:g} s): too short to identify eq. 30")
@@ -308,7 +305,7 @@ def identify_battery(
         est = ParameterEstimate("soc_per_ah", k_soc, k_se, (k_soc - 1.96 * k_se, k_soc + 1.96 * k_se),
                                 float("nan"), n_blocks, "%/Ah", segs)
         fit.add(est)
-        soc_span = float(np.ptp(d["displayed_soc_pct"][use])) if use.any() else 0.0
+        soc_span = float(np.ptp(soc_disp)) if soc_disp.size else 0.0
         if est.status == "ok" and np.isfinite(k_soc) and soc_span < min_soc_span_pct:
             est.status = "flagged"
             est.reason = (f"displayed SOC moved {soc_span:.3g} % (< {min_soc_span_pct:g} %): a few display steps do "
@@ -320,16 +317,42 @@ def identify_battery(
     alpha = fit.value("alpha")
     b_d = fit.value("beta_discharge") if "beta_discharge" in fit.params else float("nan")
     b_c = fit.value("beta_charge") if "beta_charge" in fit.params else float("nan")
-    t = d["t"][use]
+    t = t_use
     lit = (maps.ocv(s) - i * np.where(dch, maps.r_discharge(s), maps.r_charge(s))) * n_cells
     fit.data.update({
         "t": t, "v_meas": v, "v_model": fit.data["y_fit"] * n_cells, "v_lit": lit, "current": i, "soc": s,
-        "soc_displayed": d["displayed_soc_pct"][use],
+        "soc_displayed": soc_disp,
         "map_soc": maps.soc_pct, "map_ocv": alpha * maps.ocv_v, "map_r_dch": b_d * maps.r_discharge_ohm,
         "map_r_ch": b_c * maps.r_charge_ohm, "lit_ocv": maps.ocv_v, "lit_r_dch": maps.r_discharge_ohm,
         "lit_r_ch": maps.r_charge_ohm,
     })
     return fit
+
+
+def _eq30_samples(rec: Recording, rate_hz: float | None, kinds: tuple[str, ...] | None, refine: bool
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, float, int],
+                             list[str], int]:
+    """Eq. 30's usable samples: time, V, I, the (refined) SOC, the displayed SOC, ``refine_soc``'s slope, its
+    standard error and blocks, the segment names and the bad samples in them. The grid is walked a block at a time
+    and only the usable points kept (:func:`~benchtwin.identification._battery_used.used_samples`): the numbers of
+    :func:`battery_samples` and :func:`refine_soc` on the whole grid."""
+    for n in ("battery_voltage_v", "battery_current_a", "displayed_soc_pct"):
+        if n not in rec:
+            raise MissingChannelError(f"battery identification needs channel {n!r}")
+    u = used_samples(rec, rate_hz or _native_rate(rec, "battery_voltage_v"), kinds)
+    if u is None:  # no segment of those kinds holds a point: every sample, on the whole grid
+        d, use, segs, n_bad = battery_samples(rec, soc=True, rate_hz=rate_hz, kinds=kinds)
+        soc_all, stats = d["displayed_soc_pct"], (float("nan"), float("nan"), 0)
+        if refine:
+            soc_all, *rest = refine_soc(d["t"], d["battery_current_a"], d["displayed_soc_pct"], use)
+            stats = (rest[0], rest[1], rest[2])
+        return (d["t"][use], d["battery_voltage_v"][use], d["battery_current_a"][use], soc_all[use],
+                d["displayed_soc_pct"][use], stats, segs, n_bad)
+    s, stats = u.soc, (float("nan"), float("nan"), 0)
+    if refine:
+        s, *rest = _refine_runs(u.q, u.soc, u.runs)
+        stats = (rest[0], rest[1], rest[2])
+    return u.t, u.v, u.i, s, u.soc, stats, u.segs, u.n_bad
 
 
 def refine_soc(t_s: np.ndarray, current_a: np.ndarray, soc_pct: np.ndarray, use: np.ndarray
@@ -360,9 +383,15 @@ def refine_soc(t_s: np.ndarray, current_a: np.ndarray, soc_pct: np.ndarray, use:
     dq = np.r_[0.0, -0.5 * (i[1:] + i[:-1]) * np.diff(t_s)] / 3600.0
     q = np.cumsum(dq)
     edges = np.flatnonzero(np.diff(np.r_[0, use.astype(np.int8), 0]))
+    return _refine_runs(q, soc_pct, list(zip(edges[::2], edges[1::2])))
+
+
+def _refine_runs(q: np.ndarray, soc_pct: np.ndarray, runs: list[tuple[int, int]]
+                 ) -> tuple[np.ndarray, float, float, int]:
+    """:func:`refine_soc` from the counted charge ``q`` and the runs ``(a, b)`` of usable samples."""
     sxy = sxx = 0.0
     blocks = []
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in runs:
         qb, sb = q[a:b], soc_pct[a:b]
         if b - a < 3 or np.ptp(sb) <= 0:
             continue
@@ -377,7 +406,7 @@ def refine_soc(t_s: np.ndarray, current_a: np.ndarray, soc_pct: np.ndarray, use:
         return soc_pct, float("nan"), float("nan"), 0
     out = np.asarray(soc_pct, dtype=float).copy()
     ss_res, n = 0.0, 0
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in runs:
         qb, sb = q[a:b], soc_pct[a:b]
         s0 = float(np.mean(sb - k * qb))
         out[a:b] = s0 + k * qb

@@ -36,6 +36,7 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import DataError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, linear_fit
+from benchtwin.identification._good_interp import count_good, interp_good
 from benchtwin.identification.battery import CellMaps, eq30_design, identify_battery, load_literature_maps
 from benchtwin.recording import Recording
 
@@ -187,9 +188,8 @@ def identify_battery_rc(
     temp = None
     if TEMP_ROLE in rec:
         ch = rec[TEMP_ROLE]
-        ok = np.isfinite(ch.values) & (ch.flags == 0)
-        if ok.sum() >= 2:
-            temp = np.interp(eq30.data["t"], ch.timestamps[ok], ch.values[ok])
+        if count_good(ch, 2) >= 2:  # read around the fit's times only (not the whole channel per type B re-run)
+            temp = interp_good(ch, eq30.data["t"])
     return fit_battery_rc(eq30, n_cells, maps=maps, n_branches=n_branches, temp_degc=temp)
 
 
