@@ -63,8 +63,8 @@ from benchtwin.identification.reduction_gear import identify_reduction_gear
 from benchtwin.identification.road_load import identify_road_load
 from benchtwin.identification.shifts import identify_shift_thresholds, shift_fits
 from benchtwin.identification.torque_converter import identify_torque_converter
+from benchtwin.identification.torque_converter_gearbox import converter_with_gearbox as _torque_converter
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission
-from benchtwin.identification.transmission_drag import DRAG_KEY
 from benchtwin.identification.uncertainty import propagate_type_b
 from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
@@ -177,16 +177,6 @@ def _battery_map_free(rec: Recording, specs: VehicleSpecs | None, _res: Identifi
     if ref is not None:
         out.meta["soc_reference"] = ref
     return out
-
-
-def _torque_converter(rec: Recording, specs: VehicleSpecs | None, res: IdentificationResult,
-                      opts: Mapping[str, Any]) -> Any:
-    o = dict(opts)
-    table = o.pop("transmission", None) or transmission_table(res) or None
-    drag = res.fits.get(DRAG_KEY)  # the drag at the oil temperature where the transmission method uses it
-    use = drag is not None and drag.status == "ok" and bool(np.all(np.asarray(drag.data.get("use", [False]))))
-    o["drag"] = drag if use else None
-    return identify_torque_converter(rec, specs, transmission=table, **o)  # type: ignore[arg-type]
 
 
 def _shifts(rec: Recording, specs: VehicleSpecs | None, _res: IdentificationResult, opts: Mapping[str, Any]) -> Any:

@@ -75,7 +75,7 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.errors import BenchtwinError
-from benchtwin.identification.run import identify_all, transmission_table
+from benchtwin.identification.run import identify_all
 from benchtwin.identification.torque_converter import (
     _zero_torque_sr,
     converter_design,
@@ -85,6 +85,7 @@ from benchtwin.identification.torque_converter import (
     fit_torque_converter,
     identify_torque_converter,
 )
+from benchtwin.identification.torque_converter_gearbox import converter_gearbox_table
 from benchtwin.identification.torque_converter_points import (
     ConverterPoints,
     converter_points,
@@ -162,14 +163,15 @@ def _bench_table(view: Recording, specs: VehicleSpecs, planned: Mapping[int, tup
                  ) -> dict[int, tuple[float, float, float, float]]:
     """The transmission table the bench's turbine torque goes through, with the planned standard errors.
 
-    The values are the identification's own transmission fit on ``view`` (the CAN signals as recorded, the shaft
-    torque with its declared gain and lag), where a bench's estimates are: on the paper bench they differ from the
-    fit on the truth by up to 0.6 % in eta_m and 2 Nm in C0 (the CAN motor torque's own error), which moved the
-    turbine-torque scale by 2.3 % and the coupling point by 0.01. A gear the fit on ``view`` lacks keeps the
-    planned value; the standard errors are the planned ones (0 for a gear the plan lacks).
+    The values are the identification's own table on ``view`` (:func:`~benchtwin.identification.
+    torque_converter_gearbox.converter_gearbox_table`: the CAN signals as recorded, the shaft torque with its
+    declared gain and lag), where a bench's estimates are: on the paper bench they differ from the fit on the
+    truth by up to 0.6 % in eta_m and 2 Nm in C0 (the CAN motor torque's own error), which moved the turbine-torque
+    scale by 2.3 % and the coupling point by 0.01. A gear the fit on ``view`` lacks keeps the planned value; the
+    standard errors are the planned ones (0 for a gear the plan lacks).
     """
     try:
-        found = transmission_table(identify_all(view, specs, methods=["transmission"], type_b=False))
+        found = converter_gearbox_table(identify_all(view, specs, methods=["transmission"], type_b=False))[0]
     except BenchtwinError:
         found = {}
     out = dict(planned)
