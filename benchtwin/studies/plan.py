@@ -215,7 +215,8 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
                                                  keep=kept)
             plan.parameters += plan_can_torque(rec, vehicle, noise)
             if kept.get("points") is not None:
-                plan.parameters += plan_drag(rec, vehicle.specs, noise, kept["points"], kept["drawn"])
+                plan.parameters += plan_drag(rec, vehicle.specs, noise, kept["points"], kept["drawn"],
+                                             recorded=raw, sensed=sensed)
         elif fam.name == "battery":
             plan.parameters += plan_battery(rec, vehicle, noise, segments)
             plan.parameters += [plan_soc_slope(rec, noise, segments), *plan_battery_rc(rec, vehicle, noise, segments)]

@@ -12,8 +12,17 @@ noise (:func:`~benchtwin.studies.plan_windows.noisy_readings`, its own generator
 change), and the identification's own grouping and drag fit
 (:func:`~benchtwin.identification.transmission.identify_transmission` with those points) runs on it. The
 planned standard error of each drag parameter is its standard deviation over the draws (known to about
-``1 / sqrt(2 (K - 1))``: 13 % at the 30 window draws); a parameter the same on every draw (``k_w`` when the
-speed term is dropped on every draw) is planned 0.
+``1 / sqrt(2 (K - 1))``); a parameter the same on every draw (``k_w`` when the speed term is dropped on every
+draw) is planned 0.
+
+The 30 window draws of the transmission plan are too few here: on the paper campaign their own scatter put
+gear 3 coast's ``eta_m`` at 5.5e-6 where 400 draws give 8.1e-6 (and 200 seeds 8.0e-6), gear 5's at 2.0e-5
+against 2.3e-5 / 2.5e-5. The drag's spread is also heavy-tailed: now and then one 2 s window of a hold fails the
+slope test on the shaft torque's noise and the hold gives two overlapping points (gear 6's first electric hold:
+7 of 400 draws, 2 of 200 seeds of the bench), which moves ``T_ref`` (a median) and gear 6's ``eta_m``, ``C0``
+by several times their usual spread. So the drag draws its own windows beyond the transmission plan's
+(:data:`DRAG_DRAWS` in all, :func:`~benchtwin.studies.plan_windows.window_draws` with its own seed: the other
+rows do not move).
 """
 
 from __future__ import annotations
@@ -28,18 +37,23 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError
 from benchtwin.identification.transmission import OIL_ROLE, TransmissionPoints, identify_transmission
 from benchtwin.identification.transmission_drag import DRAG_KEY
-from benchtwin.recording import Recording
+from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan_fits import PlannedParameter
 from benchtwin.studies.plan_noise import ChannelNoise
-from benchtwin.studies.plan_windows import noisy_readings
+from benchtwin.studies.plan_windows import noisy_readings, window_draws
 
-__all__ = ["plan_drag"]
+__all__ = ["DRAG_DRAWS", "plan_drag"]
 
 _UNITS = {"k_T": "1/K", "k_w": "s/rad", "T_ref": "degC"}
+#: draws of the drag fit (the transmission plan's window draws and more): its std over K draws is known to about
+#: 1 / sqrt(2 (K - 1)), 6.5 % at 120; a split hold (about 1 draw in 60 on the paper campaign) then enters about twice
+DRAG_DRAWS = 120
 
 
 def plan_drag(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, ChannelNoise], points: TransmissionPoints,
-              drawn: Sequence[TransmissionPoints], *, seed: int = 1) -> list[PlannedParameter]:
+              drawn: Sequence[TransmissionPoints], *, seed: int = 1, draws: int = DRAG_DRAWS,
+              recorded: Mapping[str, Channel] | None = None,
+              sensed: Mapping[str, Channel] | None = None) -> list[PlannedParameter]:
     """The drag model's parameters: the noise-free fit's values, the spread of the fit over the drawn points.
 
     Parameters
@@ -56,7 +70,12 @@ def plan_drag(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, ChannelNo
     drawn:
         The points each draw of the window search found on the noisy readings (their own noisy values).
     seed:
-        Seed of the oil readings' generator (the same plan gives the same numbers).
+        Seed of the oil readings' generator and of the further window draws (the same plan gives the same numbers).
+    draws:
+        Draws of the drag fit in all: ``drawn`` and as many further window draws as it lacks (none when
+        ``drawn`` has as many, or when no searched channel is noisy).
+    recorded, sensed:
+        As :func:`~benchtwin.studies.plan_windows.window_draws` takes them, for the further draws.
 
     Returns
     -------
@@ -77,6 +96,11 @@ def plan_drag(rec: Recording, specs: VehicleSpecs, noise: Mapping[str, ChannelNo
         why = base.errors.get(DRAG_KEY, "no drag fit")
         return [PlannedParameter(f"{DRAG_KEY}.*", "-", math.nan, math.nan, False, why, test)]
     rng = np.random.default_rng(seed)
+    more: list[TransmissionPoints] = []
+    if draws > len(drawn):
+        window_draws(rec, specs, noise, recorded=recorded, sensed=sensed, draws=draws - len(drawn),
+                     seed=seed + 1000, keep=more)
+    drawn = [*drawn, *more]
     vals: dict[str, list[float]] = {k: [] for k in fit0.params}
     n_lost = 0
     for found in drawn:
