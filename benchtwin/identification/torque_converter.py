@@ -36,7 +36,7 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import ConfigError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
-from benchtwin.identification.torque_converter_borrowed import borrowed_gear_offsets
+from benchtwin.identification.torque_converter_borrowed import borrowed_gear_offsets, uncalibrated_share_reason
 from benchtwin.identification.torque_converter_calibration import calibration_budget
 from benchtwin.identification.torque_converter_model import (
     _gamma_from_data,
@@ -508,6 +508,8 @@ def identify_torque_converter(
                            f"{o:+.2f} Nm off, calibrated against the pump torque on its {n_o} coupling-mode points "
                            f"(the coupling point now {g_fit:.3f})")
     pts.reasons.extend(off_reasons.values())
+    ok = np.isfinite(pts.w_p) & np.isfinite(pts.w_t) & np.isfinite(pts.t_p) & np.isfinite(pts.t_t)
+    pts.reasons.extend(r for r in [uncalibrated_share_reason(pts.gear, ok, pts.borrowed, set(offsets))] if r)
     for r in pts.reasons:
         res["converter"].flag(r)
         if "coupling" in res:

@@ -5,7 +5,8 @@ The second half of the points' calibration of
 its own (:func:`~benchtwin.identification.torque_converter_points.converter_points` lends it the nearest gear's)
 has its eq. 32 turbine torque offset to meet the pump torque on its coupling points
 (:func:`borrowed_gear_offsets`), when the gear's passes through the coupling mode refute the borrowed C0
-(:func:`offset_significance`).
+(:func:`offset_significance`). When most of the points are read through a gear left uncalibrated, the curves
+that read the turbine torque are not identified (:func:`uncalibrated_share_reason`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from scipy import stats
 
 from benchtwin.identification.torque_converter_points import ConverterPoints
 
-__all__ = ["COUPLED_TR_TOL", "OFFSET_CONFIDENCE", "PASS_GAP_S", "borrowed_gear_offsets", "offset_significance"]
+__all__ = ["COUPLED_TR_TOL", "MAX_UNCALIBRATED_SHARE", "OFFSET_CONFIDENCE", "PASS_GAP_S", "TURBINE_UNIDENTIFIED",
+           "borrowed_gear_offsets", "offset_significance", "uncalibrated_share_reason"]
 
 #: a torque ratio this close to 1 counts as the coupling mode seen (:func:`borrowed_gear_offsets`): a few times the
 #: torque ratio's scatter from the telemetry step (about 0.5 Nm at 20-80 Nm), well below a converter's TR - 1 short of
@@ -28,6 +30,14 @@ OFFSET_CONFIDENCE = 0.9973
 #: coupling points further apart than this (s) are separate passes: 2.5 times the 0.4 s pump-acceleration window,
 #: so no two passes share a sample of dw_p/dt, while the points of one pass share its operating point and errors
 PASS_GAP_S = 1.0
+#: the most of the converter's points that may be read through a borrowed gear model left uncalibrated: one half.
+#: Their turbine torque may be off by the two gears' C0 difference (several Nm against 20-60 Nm), an error common to
+#: all of them, not scatter. While the points through calibrated models are the majority, the robust fits (their
+#: median-scaled outlier cut) and the coupling point (where the points' TR reaches 1) follow those; beyond half,
+#: the breakdown point of a median, they follow the borrowed gear's, and nothing in the data says by how much
+MAX_UNCALIBRATED_SHARE = 0.5
+#: the words of the reason :func:`uncalibrated_share_reason` gives, by which the checks know the fit said so
+TURBINE_UNIDENTIFIED = "the turbine torque's curves (TR, Gamma, coupling) not identified"
 
 
 def _plateau_start(sr: np.ndarray, d: np.ndarray, t_p: np.ndarray, min_points: int) -> float:
@@ -200,3 +210,40 @@ def offset_significance(t: np.ndarray, d: np.ndarray, *, dw: np.ndarray | None =
             return float(coef[0]), se, n_pass, float(stats.t.ppf(0.5 + confidence / 2.0, dof)) * se
     se = 1.2533 * float(np.std(meds, ddof=1)) / np.sqrt(n_pass)
     return off, se, n_pass, float(stats.t.ppf(0.5 + confidence / 2.0, n_pass - 1)) * se
+
+
+def uncalibrated_share_reason(gear: np.ndarray, ok: np.ndarray, borrowed: dict[int, int], calibrated: set[int],
+                              max_share: float = MAX_UNCALIBRATED_SHARE) -> str:
+    """Why the converter's turbine-torque curves are not identified, or '' when they are.
+
+    A gear on a borrowed transmission model whose turbine torque was not calibrated against the pump torque
+    (:func:`borrowed_gear_offsets` found too few coupling points, no anchor, or no significant offset) may carry
+    the two gears' C0 difference in every one of its points. When those points are more than ``max_share`` of the
+    converter's points (``MAX_UNCALIBRATED_SHARE``: beyond half the fits follow them), the torque ratio curve, the
+    coupling point and the coupling fit read that error: the reason names the gears and the share, with the count
+    of points through a model of their own against the count it needs (more than ``1 - max_share`` of them).
+
+    Parameters
+    ----------
+    gear, ok:
+        Each point's gear and whether it is a usable point (finite speeds and torques).
+    borrowed:
+        Gear -> the gear whose model it borrowed.
+    calibrated:
+        The borrowed gears whose turbine torque was calibrated (an offset applied).
+    max_share:
+        The largest share of points through uncalibrated borrowed models that still identifies the curves.
+    """
+    gear, ok = np.asarray(gear), np.asarray(ok, dtype=bool)
+    n = int(ok.sum())
+    uncal = sorted(k for k in borrowed if k not in calibrated)
+    if n == 0 or not uncal:
+        return ""
+    n_unc = int((ok & np.isin(gear, uncal)).sum())
+    if not n_unc > max_share * n:
+        return ""
+    need = int(np.floor((1.0 - max_share) * n)) + 1  # strictly more than 1 - max_share of the points
+    gears = ", ".join(f"gear {k} on gear {borrowed[k]}'s" for k in uncal)
+    return (f"{n - n_unc} well-modelled points (of {n}: {n_unc}, {100.0 * n_unc / n:.0f} %, through {gears} "
+            f"transmission model left uncalibrated, more than {100.0 * max_share:g} % allowed; need {need}): "
+            f"{TURBINE_UNIDENTIFIED}, too little excitation of the gears with a model of their own")

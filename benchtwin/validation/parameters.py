@@ -27,6 +27,7 @@ from benchtwin.errors import ConfigError
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey, param_key, split_param
 from benchtwin.identification.torque_converter import STALL_END_SR
+from benchtwin.identification.torque_converter_borrowed import TURBINE_UNIDENTIFIED
 from benchtwin.sensors.telemetry import torque_step_nm
 from benchtwin.validation.hifi import converter_curve_checks, no_truth
 from benchtwin.validation.paper_r2 import PAPER_R2, paper_estimation_fits, reaches_paper
@@ -186,6 +187,14 @@ def _coupling_cf(a678: list[float] | np.ndarray, sr: np.ndarray) -> np.ndarray:
     sr = np.asarray(sr, dtype=float)
     tp, _tt = torque_converter_curves_nm(a9, -np.inf, np.ones_like(sr), sr)
     return 1.0 / np.sqrt(np.where(tp > 0, tp, np.nan))
+
+
+def _turbine_unidentified(result: IdentificationResult) -> str:
+    """'not identified: <reason>' when the converter fit says its turbine torque's curves are not identified (most
+    points through a borrowed gear model left uncalibrated), else ''."""
+    conv = result.fits.get("torque_converter.converter")
+    said = [r for r in (conv.reasons if conv is not None else []) if TURBINE_UNIDENTIFIED in r]
+    return f"not identified: {said[0]}" if said else ""
 
 
 def _rel_check(group: str, name: str, ident: float, truth: float, mode: str, tol: float, unit: str,
@@ -365,9 +374,11 @@ def compare_with_truth(result: IdentificationResult, vehicle: VehicleConfig, *, 
             # Gamma is where the torque ratio reaches 1: a TR error d moves it by d / |dTR/dSR| there
             tol = max(tol, _tc_quantisation_bound(result, setup) / _tr_slope_at_gamma(vehicle))
         p = params.get(e.key)
+        if e.key == "torque_converter.converter.gamma_coupling" and _turbine_unidentified(result):
+            p = None  # the fit said its turbine torque cannot place it
         if p is None:
             why = (result.errors.get(str(fit_key)) or result.errors.get(fit_key.subsystem)
-                   or _skipped(result, fit_key.subsystem) or "not identified")
+                   or _skipped(result, fit_key.subsystem) or _turbine_unidentified(result) or "not identified")
             checks.append(Check(e.group, e.key, float("nan"), e.truth, float("nan"), tol, mode, e.unit, False, why))
             continue
         c = _rel_check(e.group, e.key, p.value, e.truth, mode, tol, e.unit, e.note)
@@ -478,16 +489,21 @@ def _tc_checks(result: IdentificationResult, vehicle: VehicleConfig, profile: st
         tr_i, cf_i = _tc_curves(a_id, sr)
         for nm, ident, truth, tol in (("torque_ratio_curve", tr_i, tr_t, tol_tr),
                                       ("capacity_factor_curve", cf_i, cf_t, tol_conv)):
+            if nm == "torque_ratio_curve" and _turbine_unidentified(result):
+                checks.append(Check("torque_converter", "torque_converter.torque_ratio_curve", float("nan"),
+                                    float("nan"), float("nan"), tol, "rel", "-", False, _turbine_unidentified(result)))
+                continue
             rel = np.abs(ident / truth - 1.0)
             k = int(np.nanargmax(rel)) if np.any(np.isfinite(rel)) else 0
             err = float(np.nanmax(rel)) if np.any(np.isfinite(rel)) else float("inf")
             checks.append(Check("torque_converter", f"torque_converter.{nm}", float(ident[k]), float(truth[k]),
                                 err, tol, "rel", "-", err <= tol,
                                 note + f" (worst at SR {sr[k]:.2f})"))
-    if coup is None or not all(f"a{i}" in coup.params for i in (6, 7, 8)):
+    if coup is None or not all(f"a{i}" in coup.params for i in (6, 7, 8)) or _turbine_unidentified(result):
         # the converter fit's own flag says why (e.g. no coupling-mode point above its Gamma), not a bare NaN
         said = [r for r in (conv.reasons if conv is not None else []) if "a6..a8 not identified" in r]
-        why = result.errors.get("torque_converter", "not identified" + "".join(f": {r}" for r in said[:1]))
+        why = result.errors.get("torque_converter", _turbine_unidentified(result)
+                                or "not identified" + "".join(f": {r}" for r in said[:1]))
         checks.append(Check("torque_converter", "torque_converter.coupling_cf_curve", float("nan"), float("nan"),
                             float("nan"), tol_coup, "rel", "-", False, why))
     else:

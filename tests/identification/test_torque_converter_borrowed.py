@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
-from benchtwin.identification.torque_converter_borrowed import borrowed_gear_offsets, offset_significance
+from benchtwin.identification.torque_converter_borrowed import (
+    MAX_UNCALIBRATED_SHARE,
+    TURBINE_UNIDENTIFIED,
+    borrowed_gear_offsets,
+    offset_significance,
+    uncalibrated_share_reason,
+)
 from benchtwin.identification.torque_converter_points import ConverterPoints
 
 GAMMA = 0.88
@@ -120,3 +128,33 @@ def test_the_offset_is_taken_with_the_pump_steady() -> None:
     # all passes on one side of a steady pump: no line to read at dw_p = 0, the median over the passes as before
     off1, se1, _n, _b = offset_significance(t, d, dw=np.abs(dw))
     assert off1 == float(np.median(d)) and se1 == offset_significance(t, d)[1]
+
+
+def _share_reason(n1: int, n2: int, *, calibrated: set[int] | None = None, bad1: int = 0) -> str:
+    """The rule on ``n1`` points in gear 1 (gear 2's model, ``bad1`` of them unusable) and ``n2`` in gear 2."""
+    gear = np.r_[np.ones(n1, dtype=int), np.full(n2, 2)]
+    ok = np.r_[np.arange(n1) >= bad1, np.ones(n2, dtype=bool)]
+    return uncalibrated_share_reason(gear, ok, {1: 2}, calibrated or set())
+
+
+def test_most_points_through_an_uncalibrated_borrowed_gear_are_said() -> None:
+    # 61 of 100 points through gear 1 on gear 2's model: beyond half, the turbine-torque curves are not identified;
+    # the reason names the gear, the share and the count of points through a model of their own against the 51
+    # (more than half of 100) it needs, in the "N ... points (...; need K)" form the property excuses
+    why = _share_reason(61, 39)
+    assert TURBINE_UNIDENTIFIED in why and "gear 1 on gear 2's" in why and "61 %" in why, why
+    assert re.search(r"\b39 [\w-]+ points \([^)]*need 51\)", why), why
+    # unusable points do not count: 41 of 80 usable is still more than half (need 40)
+    assert re.search(r"\b39 [\w-]+ points \(of 80[^)]*need 41\)", _share_reason(61, 39, bad1=20))
+
+
+def test_a_minority_or_a_calibrated_borrowed_gear_identifies_the_curves() -> None:
+    # at half or below the points through a model of their own carry the fits (MAX_UNCALIBRATED_SHARE); a borrowed
+    # gear whose turbine torque was calibrated against the pump torque is not counted (mutants: the share ignored,
+    # the calibration ignored)
+    assert MAX_UNCALIBRATED_SHARE == 0.5
+    assert _share_reason(49, 51) == ""
+    assert _share_reason(50, 50) == ""
+    assert _share_reason(61, 39, bad1=30) == ""  # 31 of 70 usable
+    assert _share_reason(90, 10, calibrated={1}) == ""
+    assert _share_reason(0, 0) == ""

@@ -247,6 +247,29 @@ def test_converter_with_gear_1_on_a_borrowed_transmission_model() -> None:
     assert checks and not bad, "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g}" for c in bad)
 
 
+def test_converter_through_a_clipped_gear_1_says_its_curves_are_not_identified() -> None:
+    # found by test_torque_converter_curves_recovered: K_TEL 8000 (+-273 Nm shaft range) clips the 1st-gear
+    # ramp-ups, gear 1 borrows gear 2's transmission model and is left uncalibrated (no coupling mode in the gears of
+    # their own model to anchor it), and 663 of the 679 converter points are in gear 1: the TR curve was reported
+    # 16 % off as a finite number. Now the fit says so (more than half of the points, MAX_UNCALIBRATED_SHARE) and the
+    # curves that read the turbine torque are "not identified" with that reason, which the property excuses; the
+    # capacity factor (pump side) is still judged. 3 of the 4 checks unexcited: the property's "most checks
+    # identified" still fails this draw, so it is not an @example of the property (about 2 s)
+    vehicle, drawn, seed = pinned("converter_ktel_gear1_uncalibrated")
+    fam = FAMILIES["torque_converter"]
+    campaign = campaign_for(vehicle, fam.kinds, seed=seed, **FAMILY_PICKS[fam.name])
+    report = validate(vehicle, drawn.setup, campaign, trace=simulate_campaign(vehicle, campaign),
+                      families=[fam.name], profile="realistic")
+    checks = {c.name: c for c in property_checks(report.identification, vehicle, drawn.setup, drawn.noise, None,
+                                                 {fam.name})}
+    for name in ("torque_converter.torque_ratio_curve", "torque_converter.converter.gamma_coupling",
+                 "torque_converter.coupling_cf_curve"):
+        c = checks[name]
+        assert not math.isfinite(c.identified) and "gear 1 on gear 2's" in c.note and "%" in c.note, (name, c.note)
+        assert _says_too_little(c.note), (name, c.note)
+    assert checks["torque_converter.capacity_factor_curve"].passed
+
+
 def test_loose_converter_on_a_10_bit_telemetry() -> None:
     # found by test_torque_converter_curves_recovered: Gamma 0.62 for 0.80 (the first estimate compared the
     # turbine torque with a motor torque that also accelerates the pump) and the TR curve 5-7 % off near Gamma,
