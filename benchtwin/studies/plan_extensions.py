@@ -43,7 +43,7 @@ from benchtwin.identification.battery_rc import identify_battery_rc
 from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY
 from benchtwin.identification.motor import MotorPoints, identify_motor, motor_points
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission, transmission_points
-from benchtwin.recording import Channel, Recording
+from benchtwin.recording import Recording
 from benchtwin.segments import Segment
 from benchtwin.studies.plan_fits import PlannedParameter
 from benchtwin.studies.plan_noise import (
@@ -52,8 +52,9 @@ from benchtwin.studies.plan_noise import (
     sample_variances,
     window_mean_variance,
 )
+from benchtwin.studies.plan_windows import noisy_readings
 
-__all__ = ["BATTERY_RC_DRAWS", "CAN_TORQUE_DRAWS", "noisy_readings", "plan_battery_rc", "plan_can_torque",
+__all__ = ["BATTERY_RC_DRAWS", "CAN_TORQUE_DRAWS", "plan_battery_rc", "plan_can_torque",
            "plan_motor_loss", "plan_soc_slope", "soc_slope_variance"]
 
 #: draws of the readings through the ``battery.rc`` fit (its std known to about 1 / sqrt(2 (K - 1)): 11 %)
@@ -68,27 +69,6 @@ _HIDDEN = ("a branch that moves the pack voltage less than the fit's noisy resid
 RC_RATE_HZ = 2.0
 _RC_TEST = ("add [[tests]] kind = \"constant_drive\" tests that discharge and charge the pack (battery.rc fits every "
             "usable battery sample)")
-
-
-def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tuple[str, ...],
-                   rng: np.random.Generator) -> Recording:
-    """The Recording with the named channels read as a bench reads them: ``q rint(((1+g) y + o + n) / q)``.
-
-    ``y`` is each reading's noise-free value (the plan's Recording), ``g``, ``o`` the sensor's gain and offset
-    errors, ``n ~ N(0, sigma^2)`` and ``q`` the step; channels without a random error on the setup stay as they are.
-    Timestamps, flags and segments are kept.
-    """
-    out = Recording(segments=list(rec.segments), meta=dict(rec.meta))
-    for name, ch in rec.channels.items():
-        cn = noise.get(name)
-        if name not in names or cn is None:
-            out.add(ch)
-            continue
-        r = (1.0 + cn.gain) * ch.values + cn.offset + rng.normal(0.0, cn.sigma, ch.values.shape)
-        if cn.q > 0:
-            r = cn.q * np.rint(r / cn.q)
-        out.add(Channel(name, ch.unit, ch.timestamps, r, ch.flags, ch.source, ch.value_texts))
-    return out
 
 
 def soc_slope_variance(rec: Recording, noise: Mapping[str, ChannelNoise], t: np.ndarray, current_a: np.ndarray,

@@ -143,7 +143,7 @@ def noisy_readings(rec: Recording, noise: Mapping[str, ChannelNoise], names: tup
         v = (1.0 + cn.gain) * y + cn.offset + rng.normal(0.0, cn.sigma, ch.values.shape)
         if cn.q > 0:
             v = cn.q * np.rint(v / cn.q)
-        out.add(Channel(name, ch.unit, ch.timestamps, v, ch.flags, ch.source))
+        out.add(Channel(name, ch.unit, ch.timestamps, v, ch.flags, ch.source, ch.value_texts))
     return out
 
 

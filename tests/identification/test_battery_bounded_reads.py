@@ -12,10 +12,10 @@ the end), at ``RATE`` Hz, whatever the length of the channel.
 from __future__ import annotations
 
 import dataclasses
-import weakref
 
 import numpy as np
 import pytest
+from _alive_reads import AliveReads
 from test_battery_rc import SPECS, TRUTH, rc_recording
 
 import benchtwin.identification._battery_used as battery_used
@@ -35,22 +35,7 @@ SAMPLE_BYTES = 8 + 8 + 2  #: timestamp, value, flags
 READ_SAMPLES = int((SPAN + 2 * MARGIN_S) * RATE) + 2 * STRIDE + 2  #: most samples one part's read spans
 
 
-class _Reads:
-    """Block reads of lazy channels: the most bytes of them alive at once."""
-
-    def __init__(self) -> None:
-        self.alive = 0
-        self.most = 0
-
-    def track(self, arrays: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
-        for a in arrays:
-            self.alive += a.nbytes
-            weakref.finalize(a, self._gone, a.nbytes)
-        self.most = max(self.most, self.alive)
-        return arrays
-
-    def _gone(self, n: int) -> None:
-        self.alive -= n
+_Reads = AliveReads
 
 
 def _lazy(ch: Channel, reads: _Reads) -> LazyChannel:

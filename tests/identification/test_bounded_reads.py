@@ -11,10 +11,10 @@ geometry: a part of ``S`` s read with the margin ``MARGIN_S`` each side, widened
 from __future__ import annotations
 
 import itertools
-import weakref
 
 import numpy as np
 import pytest
+from _alive_reads import AliveReads
 
 import benchtwin.identification._windows as windows
 import benchtwin.identification.steady as steady
@@ -33,22 +33,7 @@ SAMPLE_BYTES = 8 + 8 + 2
 READ_SAMPLES = int((SPAN + 2 * MARGIN_S) * RATE) + 2 * STRIDE + 2
 
 
-class _Reads:
-    """Block reads of a Recording's lazy channels: the most bytes of them alive at once."""
-
-    def __init__(self) -> None:
-        self.alive = 0
-        self.most = 0
-
-    def track(self, arrays: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
-        for a in arrays:
-            self.alive += a.nbytes
-            weakref.finalize(a, self._gone, a.nbytes)
-        self.most = max(self.most, self.alive)
-        return arrays
-
-    def _gone(self, n: int) -> None:
-        self.alive -= n
+_Reads = AliveReads
 
 
 def _recording(duration_s: float) -> Recording:

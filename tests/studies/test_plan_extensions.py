@@ -22,8 +22,9 @@ from benchtwin.emulator.cache import cached_campaign
 from benchtwin.identification.battery import refine_soc
 from benchtwin.recording import Channel, Recording
 from benchtwin.studies.plan import plan_campaign
-from benchtwin.studies.plan_extensions import noisy_readings, soc_slope_variance
+from benchtwin.studies.plan_extensions import soc_slope_variance
 from benchtwin.studies.plan_noise import ChannelNoise, reading_variance
+from benchtwin.studies.plan_windows import noisy_readings
 from benchtwin.validation.run import validate
 
 
