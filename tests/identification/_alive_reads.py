@@ -6,6 +6,8 @@ import weakref
 
 import numpy as np
 
+from benchtwin.recording import Channel, LazyChannel
+
 
 class AliveReads:
     """Block reads of a Recording's lazy channels: the most bytes of them alive at once."""
@@ -24,3 +26,14 @@ class AliveReads:
 
     def _gone(self, n: int) -> None:
         self.alive -= n
+
+
+def tracked_lazy(ch: Channel, reads: AliveReads) -> LazyChannel:
+    """``ch`` as a lazy channel whose whole read fails and whose block reads are copies tracked by ``reads``."""
+    def whole() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        raise AssertionError(f"{ch.name} read whole")
+
+    def part(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return reads.track((ch.timestamps[a:b].copy(), ch.values[a:b].copy(), ch.flags[a:b].copy()))
+
+    return LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, ch.value_texts, block_loader=part)

@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from _alive_reads import AliveReads
+from _alive_reads import AliveReads, tracked_lazy
 from test_battery_rc import SPECS, TRUTH, rc_recording
 
 import benchtwin.identification._battery_used as battery_used
@@ -40,13 +40,7 @@ _Reads = AliveReads
 
 def _lazy(ch: Channel, reads: _Reads) -> LazyChannel:
     """``ch`` as a lazy channel whose whole read fails and whose block reads are tracked copies."""
-    def whole() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        raise AssertionError(f"{ch.name} read whole")
-
-    def part(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return reads.track((ch.timestamps[a:b].copy(), ch.values[a:b].copy(), ch.flags[a:b].copy()))
-
-    lazy = LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, ch.value_texts, block_loader=part)
+    lazy = tracked_lazy(ch, reads)
     windows.time_index(lazy)  # built here, by its own blocks: not counted below
     reads.most = reads.alive
     return lazy

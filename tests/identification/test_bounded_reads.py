@@ -14,7 +14,7 @@ import itertools
 
 import numpy as np
 import pytest
-from _alive_reads import AliveReads
+from _alive_reads import AliveReads, tracked_lazy
 
 import benchtwin.identification._windows as windows
 import benchtwin.identification.steady as steady
@@ -22,7 +22,7 @@ from benchtwin.identification._signals import Grid
 from benchtwin.identification._window_sums import cut_windows, window_groups
 from benchtwin.identification._windows import MARGIN_S, gather_at, read_parts
 from benchtwin.identification.steady import SteadyWindow, SteadyWindows
-from benchtwin.recording import Channel, Flag, LazyChannel, Recording
+from benchtwin.recording import Channel, Flag, Recording
 
 RATE = 100.0  #: samples per second of the synthetic channels "a" and "b"
 STRIDE = 64  #: the time index's stride in these tests (the default, 4096, is 41 s at 100 Hz)
@@ -56,18 +56,9 @@ def _recording(duration_s: float) -> Recording:
 
 def _blocked(rec: Recording, reads: _Reads) -> Recording:
     """The Recording with every channel lazy: a whole read fails, a block read is a tracked copy."""
-    def lazy(ch: Channel) -> LazyChannel:
-        def whole() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            raise AssertionError(f"{ch.name} read whole")
-
-        def part(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            return reads.track((ch.timestamps[a:b].copy(), ch.values[a:b].copy(), ch.flags[a:b].copy()))
-
-        return LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, ch.value_texts, block_loader=part)
-
     out = Recording()
     for ch in rec.channels.values():
-        out.add(lazy(ch))
+        out.add(tracked_lazy(ch, reads))
         windows.time_index(out[ch.name])  # built here, by its own blocks of INDEX_BLOCK samples: not counted below
     reads.most = reads.alive
     return out

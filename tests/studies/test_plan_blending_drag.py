@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _paper_subset import paper_subset
 from scipy import stats
 
 from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
@@ -71,12 +72,8 @@ def test_brake_intercepts_and_blending_agree_with_the_spread_over_seeds(tmp_path
     n = 40
     lo, hi = _chi2_interval(n)
     assert lo > 1 / 1.5 and hi < 1.5  # a correct plan passes the factor with well over 99 % probability
-    head = scenario_path("campaigns", "quick.toml").read_text(encoding="utf-8").split("[[tests]]")[0]
-    tests = [t for t in scenario_path("campaigns", "paper.toml").read_text(encoding="utf-8").split("[[tests]]")
-             if 'kind = "neutral_braking"' in t or 'kind = "deceleration"' in t]
-    path = tmp_path / "brakes.toml"
-    path.write_text(head.replace('name = "quick"', 'name = "brakes"') + "".join("[[tests]]" + t for t in tests),
-                    encoding="utf-8")
+    path, _ = paper_subset(tmp_path / "brakes.toml",
+                           lambda t: 'kind = "neutral_braking"' in t or 'kind = "deceleration"' in t)
     vehicle, setup, campaign = load_vehicle(), load_setup(scenario_path("setups", "paper.toml")), load_campaign(path)
     trace, _ = cached_campaign(vehicle, campaign, directory=tmp_path / "cache")
     plan = plan_campaign(vehicle, setup, campaign, trace=trace, families=["brakes"])

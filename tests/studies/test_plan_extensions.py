@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _paper_subset import paper_subset
 from scipy import stats
 
 from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
@@ -100,15 +101,11 @@ def test_extension_plans_agree_with_the_spread_over_seeds(tmp_path: Path) -> Non
     n = 20
     lo, hi = _chi2_interval(n)
     assert hi < 1.5
-    text = scenario_path("campaigns", "paper.toml").read_text(encoding="utf-8")
-    head, *tests = text.split("[[tests]]")
     names = ("constant_drive_deplete_85kmh", "constant_drive_charge_50kmh", "ramp_up_electric_g3_45kmh",
              "ramp_up_electric_g4_60kmh", "ramp_up_hybrid_g3_45kmh", "ramp_up_hybrid_g4_60kmh")
-    keep = [t for t in tests if any(f'name = "{x}"' in t for x in names)]
-    assert len(keep) == len(names)
-    path = tmp_path / "ext.toml"
-    path.write_text(head.replace('name = "paper"', 'name = "ext"') + "".join("[[tests]]" + t for t in keep),
-                    encoding="utf-8")
+    path, kept = paper_subset(tmp_path / "ext.toml", lambda t: any(f'name = "{x}"' in t for x in names),
+                              head="paper")
+    assert kept == len(names)
     vehicle, setup, campaign = load_vehicle(), load_setup(scenario_path("setups", "paper.toml")), load_campaign(path)
     trace, _ = cached_campaign(vehicle, campaign, directory=tmp_path / "cache")
     fams = ("battery", "motor", "transmission")

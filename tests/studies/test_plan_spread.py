@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _paper_subset import paper_subset
 from scipy import stats
 
 from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
@@ -85,13 +86,8 @@ def test_brake_gains_under_poll_faults_agree_with_the_spread_over_seeds(tmp_path
     n = 40
     lo, hi = _chi2_interval(n)
     assert lo > 1 / 1.5 and hi < 1.5 and BRAKE_FAULT_DRAWS >= 80
-    head = scenario_path("campaigns", "quick.toml").read_text(encoding="utf-8").split("[[tests]]")[0]
-    tests = [t for t in scenario_path("campaigns", "paper.toml").read_text(encoding="utf-8").split("[[tests]]")
-             if 'kind = "neutral_braking"' in t]
-    assert len(tests) == 2
-    path = tmp_path / "braking.toml"
-    path.write_text(head.replace('name = "quick"', 'name = "braking"') + "".join("[[tests]]" + t for t in tests),
-                    encoding="utf-8")
+    path, kept = paper_subset(tmp_path / "braking.toml", lambda t: 'kind = "neutral_braking"' in t)
+    assert kept == 2
     vehicle, setup, campaign = load_vehicle(), load_setup(scenario_path("setups", "paper.toml")), load_campaign(path)
     assert poll_fault_model(setup)["brake_pressure_fl_bar"].prob == pytest.approx(0.0007)
     trace, _ = cached_campaign(vehicle, campaign, directory=tmp_path / "cache")
@@ -162,13 +158,9 @@ def test_transmission_gears_1_2_agree_with_the_spread_over_seeds(tmp_path: Path)
     n = 30
     lo, hi = _chi2_interval(n)
     assert lo > 1 / 1.5 and hi < 1.5 and WINDOW_DRAWS >= 30
-    head = scenario_path("campaigns", "quick.toml").read_text(encoding="utf-8").split("[[tests]]")[0]
-    tests = [t for t in scenario_path("campaigns", "paper.toml").read_text(encoding="utf-8").split("[[tests]]")
-             if 'kind = "ramp_up"' in t and ("\ngear = 1\n" in t or "\ngear = 2\n" in t)]
-    assert len(tests) == 3
-    path = tmp_path / "gears12.toml"
-    path.write_text(head.replace('name = "quick"', 'name = "gears12"') + "".join("[[tests]]" + t for t in tests),
-                    encoding="utf-8")
+    path, kept = paper_subset(tmp_path / "gears12.toml", lambda t: 'kind = "ramp_up"' in t
+                              and ("\ngear = 1\n" in t or "\ngear = 2\n" in t))
+    assert kept == 3
     vehicle, setup, campaign = load_vehicle(), load_setup(scenario_path("setups", "paper.toml")), load_campaign(path)
     trace, _ = cached_campaign(vehicle, campaign, directory=tmp_path / "cache")
     plan = plan_campaign(vehicle, setup, campaign, trace=trace, families=["transmission"])
