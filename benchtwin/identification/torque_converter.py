@@ -36,7 +36,7 @@ import numpy as np
 from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import ConfigError, InsufficientDataError
 from benchtwin.identification._fit import FitResult, ParameterEstimate, derived, linear_fit, r_squared
-from benchtwin.identification.torque_converter_borrowed import borrowed_gear_offsets, uncalibrated_share_reason
+from benchtwin.identification.torque_converter_borrowed import borrowed_gear_offsets, uncalibrated_share
 from benchtwin.identification.torque_converter_calibration import calibration_budget
 from benchtwin.identification.torque_converter_model import (
     _gamma_from_data,
@@ -71,7 +71,6 @@ __all__ = [
     "speed_products",
     "tc_torques",
 ]  # the model forms and designs live in torque_converter_model; re-exported here
-
 
 
 #: converter-mode points must reach below this SR for the stall end of the curves to be measured, not extrapolated
@@ -509,7 +508,10 @@ def identify_torque_converter(
                            f"(the coupling point now {g_fit:.3f})")
     pts.reasons.extend(off_reasons.values())
     ok = np.isfinite(pts.w_p) & np.isfinite(pts.w_t) & np.isfinite(pts.t_p) & np.isfinite(pts.t_t)
-    pts.reasons.extend(r for r in [uncalibrated_share_reason(pts.gear, ok, pts.borrowed, set(offsets))] if r)
+    share = uncalibrated_share(pts.gear, ok, pts.borrowed, set(offsets))
+    if share is not None:  # the verdict as a structure (the orchestrator adds its cause) and in words
+        res["converter"].data[share.KEY] = share
+        pts.reasons.append(share.reason())
     for r in pts.reasons:
         res["converter"].flag(r)
         if "coupling" in res:

@@ -11,13 +11,17 @@ that read the turbine torque are not identified (:func:`uncalibrated_share_reaso
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
 import numpy as np
 from scipy import stats
 
 from benchtwin.identification.torque_converter_points import ConverterPoints
 
 __all__ = ["COUPLED_TR_TOL", "MAX_UNCALIBRATED_SHARE", "OFFSET_CONFIDENCE", "PASS_GAP_S", "TURBINE_UNIDENTIFIED",
-           "borrowed_gear_offsets", "offset_significance", "uncalibrated_share_reason"]
+           "UNCALIBRATED_SHARE_KEY", "UncalibratedShare", "borrowed_gear_offsets", "offset_significance",
+           "uncalibrated_share", "uncalibrated_share_reason"]
 
 #: a torque ratio this close to 1 counts as the coupling mode seen (:func:`borrowed_gear_offsets`): a few times the
 #: torque ratio's scatter from the telemetry step (about 0.5 Nm at 20-80 Nm), well below a converter's TR - 1 short of
@@ -38,6 +42,8 @@ PASS_GAP_S = 1.0
 MAX_UNCALIBRATED_SHARE = 0.5
 #: the words of the reason :func:`uncalibrated_share_reason` gives, by which the checks know the fit said so
 TURBINE_UNIDENTIFIED = "the turbine torque's curves (TR, Gamma, coupling) not identified"
+#: the converter fit's ``data`` key holding the :class:`UncalibratedShare` when its curves are not identified
+UNCALIBRATED_SHARE_KEY = "uncalibrated_share"
 
 
 def _plateau_start(sr: np.ndarray, d: np.ndarray, t_p: np.ndarray, min_points: int) -> float:
@@ -212,16 +218,74 @@ def offset_significance(t: np.ndarray, d: np.ndarray, *, dw: np.ndarray | None =
     return off, se, n_pass, float(stats.t.ppf(0.5 + confidence / 2.0, n_pass - 1)) * se
 
 
-def uncalibrated_share_reason(gear: np.ndarray, ok: np.ndarray, borrowed: dict[int, int], calibrated: set[int],
-                              max_share: float = MAX_UNCALIBRATED_SHARE) -> str:
-    """Why the converter's turbine-torque curves are not identified, or '' when they are.
+@dataclass(frozen=True)
+class UncalibratedShare:
+    """The converter's turbine-torque curves not identified: most points through borrowed gear models left
+    uncalibrated (:func:`uncalibrated_share`), as a structure a caller can judge, not only words.
+
+    Attributes
+    ----------
+    n_points:
+        The converter's usable points.
+    points_by_gear:
+        Uncalibrated borrowed gear -> its usable points.
+    borrowed:
+        Uncalibrated borrowed gear -> the gear whose transmission model it used.
+    max_share:
+        The largest share of such points that still identifies the curves.
+    clipped:
+        Gear -> why its own transmission model is missing when the telemetry's clipping is the cause
+        (:class:`~benchtwin.identification.transmission_clip.ClipCause`; filled by the orchestrator's converter
+        method, which holds the transmission result and the Recording). Empty: no clipping traced.
+    """
+
+    #: its key in the converter fit's ``data``
+    KEY: ClassVar[str] = UNCALIBRATED_SHARE_KEY
+
+    n_points: int
+    points_by_gear: dict[int, int]
+    borrowed: dict[int, int]
+    max_share: float = MAX_UNCALIBRATED_SHARE
+    clipped: dict[int, Any] = field(default_factory=dict)
+
+    @property
+    def n_uncalibrated(self) -> int:
+        """Points through the uncalibrated borrowed models."""
+        return sum(self.points_by_gear.values())
+
+    @property
+    def need(self) -> int:
+        """Points through a model of their own the curves need (strictly more than ``1 - max_share`` of them)."""
+        return int(np.floor((1.0 - self.max_share) * self.n_points)) + 1
+
+    def clip_explains(self) -> bool:
+        """Whether the clipping explains the verdict: some uncalibrated gear lost its model to clipped points, and
+        without those gears' points the share left through uncalibrated models would be within ``max_share``."""
+        left = self.n_uncalibrated - sum(self.points_by_gear.get(k, 0) for k in self.clipped)
+        return bool(self.clipped) and not left > self.max_share * self.n_points
+
+    def reason(self) -> str:
+        """The verdict in words: the gears, the share, the count of well-modelled points against the need (and,
+        when traced, the clipping that cost the gears their models)."""
+        n, n_unc = self.n_points, self.n_uncalibrated
+        gears = ", ".join(f"gear {k} on gear {self.borrowed[k]}'s" for k in sorted(self.points_by_gear))
+        why = "; ".join(c.reason() for _k, c in sorted(self.clipped.items()))
+        return (f"{n - n_unc} well-modelled points (of {n}: {n_unc}, {100.0 * n_unc / n:.0f} %, through {gears} "
+                f"transmission model left uncalibrated, more than {100.0 * self.max_share:g} % allowed; need "
+                f"{self.need}): {TURBINE_UNIDENTIFIED}, too little excitation of the gears with a model of their own"
+                + (f"; {why}" if why else ""))
+
+
+def uncalibrated_share(gear: np.ndarray, ok: np.ndarray, borrowed: dict[int, int], calibrated: set[int],
+                       max_share: float = MAX_UNCALIBRATED_SHARE) -> UncalibratedShare | None:
+    """Why the converter's turbine-torque curves are not identified, or None when they are.
 
     A gear on a borrowed transmission model whose turbine torque was not calibrated against the pump torque
     (:func:`borrowed_gear_offsets` found too few coupling points, no anchor, or no significant offset) may carry
     the two gears' C0 difference in every one of its points. When those points are more than ``max_share`` of the
     converter's points (``MAX_UNCALIBRATED_SHARE``: beyond half the fits follow them), the torque ratio curve, the
-    coupling point and the coupling fit read that error: the reason names the gears and the share, with the count
-    of points through a model of their own against the count it needs (more than ``1 - max_share`` of them).
+    coupling point and the coupling fit read that error (:class:`UncalibratedShare`: the gears, their points and,
+    in words, the count of points through a model of their own against the count it needs).
 
     Parameters
     ----------
@@ -238,12 +302,15 @@ def uncalibrated_share_reason(gear: np.ndarray, ok: np.ndarray, borrowed: dict[i
     n = int(ok.sum())
     uncal = sorted(k for k in borrowed if k not in calibrated)
     if n == 0 or not uncal:
-        return ""
-    n_unc = int((ok & np.isin(gear, uncal)).sum())
-    if not n_unc > max_share * n:
-        return ""
-    need = int(np.floor((1.0 - max_share) * n)) + 1  # strictly more than 1 - max_share of the points
-    gears = ", ".join(f"gear {k} on gear {borrowed[k]}'s" for k in uncal)
-    return (f"{n - n_unc} well-modelled points (of {n}: {n_unc}, {100.0 * n_unc / n:.0f} %, through {gears} "
-            f"transmission model left uncalibrated, more than {100.0 * max_share:g} % allowed; need {need}): "
-            f"{TURBINE_UNIDENTIFIED}, too little excitation of the gears with a model of their own")
+        return None
+    by_gear = {k: int((ok & (gear == k)).sum()) for k in uncal}
+    if not sum(by_gear.values()) > max_share * n:
+        return None
+    return UncalibratedShare(n, by_gear, {k: borrowed[k] for k in uncal}, max_share)
+
+
+def uncalibrated_share_reason(gear: np.ndarray, ok: np.ndarray, borrowed: dict[int, int], calibrated: set[int],
+                              max_share: float = MAX_UNCALIBRATED_SHARE) -> str:
+    """:func:`uncalibrated_share` in words ('' when the curves are identified)."""
+    share = uncalibrated_share(gear, ok, borrowed, calibrated, max_share)
+    return "" if share is None else share.reason()

@@ -17,6 +17,7 @@ cannot carry eq. 14 (fewer than three, or too little spread of ``1/C``) keeps it
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,8 @@ from benchtwin.identification._fit import FitResult, IdentificationResult
 from benchtwin.identification.engine_torque import ENGINE_TORQUE_KEY, _eq14, corrected_engine_torque
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.torque_converter import identify_torque_converter
+from benchtwin.identification.torque_converter_borrowed import UncalibratedShare
+from benchtwin.identification.transmission_clip import clip_causes
 from benchtwin.identification.transmission_drag import DRAG_KEY
 from benchtwin.recording import Recording
 
@@ -132,4 +135,23 @@ def converter_with_gearbox(rec: Recording, specs: VehicleSpecs | None, res: Iden
     out = identify_torque_converter(rec, specs, transmission=table or None, **o)  # type: ignore[arg-type]
     if table and not use:  # with the drag in use, eq. 32 reads the drag model, not the table
         out["converter"].reasons.extend(notes)
+    _trace_clipping(rec, res, out)
     return out
+
+
+def _trace_clipping(rec: Recording, res: IdentificationResult, out: Mapping[str, FitResult]) -> None:
+    """When the converter's turbine-torque curves are not identified (:class:`UncalibratedShare` in its data), add
+    the cause where the telemetry's clipping left a gear without a transmission model of its own
+    (:func:`~benchtwin.identification.transmission_clip.clip_causes`): in the structure and in the reasons."""
+    conv = out.get("converter")
+    share = conv.data.get(UncalibratedShare.KEY) if conv is not None else None
+    if not isinstance(share, UncalibratedShare):
+        return
+    causes = clip_causes(rec, res, share.points_by_gear)
+    if not causes:
+        return
+    conv.data[share.KEY] = replace(share, clipped=causes)
+    for c in causes.values():
+        for fit in (conv, out.get("coupling")):
+            if fit is not None:
+                fit.flag(c.reason())

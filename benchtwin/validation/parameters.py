@@ -27,7 +27,7 @@ from benchtwin.errors import ConfigError
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification.keys import FitKey, param_key, split_param
 from benchtwin.identification.torque_converter import STALL_END_SR
-from benchtwin.identification.torque_converter_borrowed import TURBINE_UNIDENTIFIED
+from benchtwin.identification.torque_converter_borrowed import TURBINE_UNIDENTIFIED, UncalibratedShare
 from benchtwin.sensors.telemetry import torque_step_nm
 from benchtwin.validation.hifi import converter_curve_checks, no_truth
 from benchtwin.validation.paper_r2 import PAPER_R2, paper_estimation_fits, reaches_paper
@@ -193,6 +193,9 @@ def _turbine_unidentified(result: IdentificationResult) -> str:
     """'not identified: <reason>' when the converter fit says its turbine torque's curves are not identified (most
     points through a borrowed gear model left uncalibrated), else ''."""
     conv = result.fits.get("torque_converter.converter")
+    share = conv.data.get(UncalibratedShare.KEY) if conv is not None else None
+    if isinstance(share, UncalibratedShare):  # the structure, with the clipping it traced
+        return f"not identified: {share.reason()}"
     said = [r for r in (conv.reasons if conv is not None else []) if TURBINE_UNIDENTIFIED in r]
     return f"not identified: {said[0]}" if said else ""
 

@@ -36,6 +36,9 @@ from strategies import (
 
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.emulator import simulate_campaign
+from benchtwin.identification._fit import IdentificationResult
+from benchtwin.identification.torque_converter_borrowed import UncalibratedShare
+from benchtwin.sensors.telemetry import k_tot, torque_step_nm
 from benchtwin.validation.families import FAMILIES
 from benchtwin.validation.report import Check
 from benchtwin.validation.run import validate
@@ -57,16 +60,46 @@ def _run(family: str, vehicle: VehicleConfig, drawn: DrawnSetup, seed: int, **pi
     report = validate(vehicle, drawn.setup, campaign, trace=trace, families=[family], profile="realistic")
     gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up"}) or None
     checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, gears, {family})
-    _judge(family, checks, vehicle, drawn)
+    _judge(family, checks, vehicle, drawn, report.identification)
 
 
-def _judge(family: str, checks: list[Check], vehicle: VehicleConfig, drawn: DrawnSetup) -> None:
+TC_FAMILY = "torque_converter"
+#: the converter checks that read the turbine torque (eq. 32): those a clipped gear's missing model leaves unidentified
+TURBINE_CHECKS = ("torque_converter.converter.gamma_coupling", "torque_converter.torque_ratio_curve",
+                  "torque_converter.coupling_cf_curve")
+
+
+def _clipped_on_this_bench(check: Check, result: IdentificationResult | None, drawn: DrawnSetup) -> bool:
+    # a converter check "not identified" because the bench's telemetry clipped: the converter fit's structure
+    # (UncalibratedShare) names the gears whose eq. 14 the clip guard's exclusion left without points, those gears'
+    # points alone carry the share past the rule (clip_explains: without them the rest would be identified), the
+    # range the data clipped at is the drawn gain's (Table 2: k_tot x vout_max; the AD codes end at the rail or
+    # one step below it), and the check's note says so in the cause's words
+    if check.name not in TURBINE_CHECKS or math.isfinite(check.identified) or result is None:
+        return False
+    conv = result.fits.get("torque_converter.converter")
+    share = conv.data.get(UncalibratedShare.KEY) if conv is not None else None
+    if not isinstance(share, UncalibratedShare) or not share.clip_explains():
+        return False
+    tel = drawn.setup.telemetry
+    rail = k_tot(tel.shaft, tel.k_tel) * tel.vout_max_v
+    step = torque_step_nm(tel.shaft, tel.k_tel)
+    return all(abs(c.range_nm - rail) <= 1.01 * step and c.reason() in check.note for c in share.clipped.values())
+
+
+def _judge(family: str, checks: list[Check], vehicle: VehicleConfig, drawn: DrawnSetup,
+           result: IdentificationResult | None = None) -> None:
     assert checks, f"no check of family {family}"
     # "every identified parameter": a fit the campaign does not excite enough is not identified, and says so
     # (its reason names the spread or the points it lacks); that is the guards' property, not a recovery
-    # failure. The family must still identify most of its checks.
+    # failure. The family must still identify most of its checks, but for those the bench's own clipping left
+    # unidentified (_clipped_on_this_bench: traced, in the fit's structure, to the clip guard's exclusion; issue #8:
+    # a clipping bench stays in the draws, its clipped gear's curves are the guards' property)
     unexcited = [c for c in checks if not math.isfinite(c.identified) and _says_too_little(c.note)]
-    assert len(unexcited) <= len(checks) // 2, f"{family}: {len(unexcited)} of {len(checks)} checks not excited"
+    clipped = [c for c in unexcited if _clipped_on_this_bench(c, result, drawn)]
+    assert len(unexcited) - len(clipped) <= len(checks) // 2, (
+        f"{family}: {len(unexcited)} of {len(checks)} checks not excited ({len(clipped)} traced to the bench's "
+        "clipping)")
     bad = [c for c in checks if not c.passed and c not in unexcited]
     assert not bad, (f"{vehicle.name}, noise x{drawn.noise:.2f}, K_TEL {drawn.setup.telemetry.k_tel}: "
                      + "; ".join(f"{c.name} error {c.error:.4g} > {c.tolerance:.4g} ({c.note[:80]})" for c in bad))
@@ -141,7 +174,7 @@ def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int)
     trace = simulate_campaign(vehicle, campaign)
     report = validate(vehicle, drawn.setup, campaign, trace=trace, families=[fam.name], profile="realistic")
     checks = property_checks(report.identification, vehicle, drawn.setup, drawn.noise, None, {fam.name})
-    _judge(fam.name, checks, vehicle, drawn)
+    _judge(fam.name, checks, vehicle, drawn, report.identification)
 
 
 @profile()
@@ -152,6 +185,9 @@ def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int)
 @example(*pinned("converter_ecu_offset_flagged_gears"))
 @example(*pinned("converter_ecu_offset_gamma"))
 @example(*pinned("converter_ecu_offset_gear3"))
+@example(*pinned("converter_ktel_gear1_uncalibrated"))
+@example(*pinned("converter_ktel_clipped_9speed_diesel"))
+@example(*pinned("converter_ktel_clipped_8speed_diesel"))
 def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
     # found here: the loose converter's coupling curve, the family's tests alone, the loose converter on a 10-bit
     # telemetry (tests below), the coupling mode fitted on a pump torque that kept part of the pump's inertia
@@ -162,7 +198,10 @@ def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnS
     # setups whose ECU engine torque is off beyond its data sheet (4.5-7.7 Nm, 3-5 %): eq. 32 read gears 1-3's
     # transmission fits, which took that torque in at their hybrid points (C0 up to 7 Nm off, or flagged and
     # borrowed), so Gamma was 0.05-0.12 off and the curves 5-20 % (the ecu_offset examples); now eq. 32 reads each
-    # gear's eq. 14 on its motor-only points (identification/torque_converter_gearbox.py)
+    # gear's eq. 14 on its motor-only points (identification/torque_converter_gearbox.py); three benches at K_TEL
+    # 8000 whose 1st-gear ramp-ups clip (gear 1 without a model of its own, most converter points through it left
+    # uncalibrated: TR, Gamma and the coupling curve not identified, 3 of 4 checks; the ktel examples): the clip is
+    # now traced in the fit's structure and excused (_clipped_on_this_bench)
     _converter_checks_pass(vehicle, drawn, seed)
 
 
@@ -251,23 +290,95 @@ def test_converter_through_a_clipped_gear_1_says_its_curves_are_not_identified()
     # found by test_torque_converter_curves_recovered: K_TEL 8000 (+-273 Nm shaft range) clips the 1st-gear
     # ramp-ups, gear 1 borrows gear 2's transmission model and is left uncalibrated (no coupling mode in the gears of
     # their own model to anchor it), and 663 of the 679 converter points are in gear 1: the TR curve was reported
-    # 16 % off as a finite number. Now the fit says so (more than half of the points, MAX_UNCALIBRATED_SHARE) and the
-    # curves that read the turbine torque are "not identified" with that reason, which the property excuses; the
-    # capacity factor (pump side) is still judged. 3 of the 4 checks unexcited: the property's "most checks
-    # identified" still fails this draw, so it is not an @example of the property (about 2 s)
+    # 16 % off as a finite number. Then the fit said so (more than half of the points, MAX_UNCALIBRATED_SHARE) and the
+    # curves that read the turbine torque were "not identified", 3 of the 4 checks: the property's "most checks
+    # identified" failed the draw. Now the verdict is a structure in the converter fit (UncalibratedShare) with its
+    # cause: gear 1's eq. 14 lost its points to the clip guard (SATURATED samples excluded), at the bench's rail; the
+    # property excuses those checks, the capacity factor (pump side) is still judged (about 2 s)
     vehicle, drawn, seed = pinned("converter_ktel_gear1_uncalibrated")
-    fam = FAMILIES["torque_converter"]
+    fam = FAMILIES[TC_FAMILY]
     campaign = campaign_for(vehicle, fam.kinds, seed=seed, **FAMILY_PICKS[fam.name])
     report = validate(vehicle, drawn.setup, campaign, trace=simulate_campaign(vehicle, campaign),
                       families=[fam.name], profile="realistic")
+    share = report.identification.fits["torque_converter.converter"].data[UncalibratedShare.KEY]
+    assert share.points_by_gear == {1: 663} and share.n_points == 679, share
+    assert list(share.clipped) == [1] and share.clip_explains(), share
+    cause = share.clipped[1]
+    assert "InsufficientDataError" in cause.fit_error and cause.clipped_samples > 0 and cause.engaged_s > 0, cause
     checks = {c.name: c for c in property_checks(report.identification, vehicle, drawn.setup, drawn.noise, None,
                                                  {fam.name})}
-    for name in ("torque_converter.torque_ratio_curve", "torque_converter.converter.gamma_coupling",
-                 "torque_converter.coupling_cf_curve"):
+    for name in TURBINE_CHECKS:
         c = checks[name]
-        assert not math.isfinite(c.identified) and "gear 1 on gear 2's" in c.note and "%" in c.note, (name, c.note)
-        assert _says_too_little(c.note), (name, c.note)
+        assert not math.isfinite(c.identified) and "gear 1 on gear 2's" in c.note and cause.reason() in c.note, c.note
+        assert _clipped_on_this_bench(c, report.identification, drawn), (name, c.note)
     assert checks["torque_converter.capacity_factor_curve"].passed
+    # the same draw at K_TEL 4000 (range +-547 Nm) clips nowhere in 1st: gear 1 keeps its model, nothing to excuse
+    tel = drawn.setup.telemetry.model_copy(update={"k_tel": 4000})
+    wide = DrawnSetup(drawn.setup.model_copy(update={"telemetry": tel}), drawn.noise, drawn.beyond_sheet)
+    report = validate(vehicle, wide.setup, campaign, trace=simulate_campaign(vehicle, campaign),
+                      families=[fam.name], profile="realistic")
+    assert "transmission.gear1" in report.identification.fits
+    assert UncalibratedShare.KEY not in report.identification.fits["torque_converter.converter"].data
+
+
+def _synthetic_clip_report(clipped: bool, *, rail: float | None = None, uncalibrated: dict[int, int] | None = None,
+                           note_from_clipped: bool | None = None) -> tuple[list[Check], IdentificationResult]:
+    """The converter's four checks, three 'not identified' through an uncalibrated gear 1, with the structure."""
+    from dataclasses import replace
+
+    from benchtwin.identification._fit import FitResult
+    from benchtwin.identification.torque_converter_borrowed import uncalibrated_share
+    from benchtwin.identification.transmission_clip import ClipCause
+
+    _vehicle, drawn, _seed = pinned("converter_ktel_gear1_uncalibrated")
+    tel = drawn.setup.telemetry
+    pts = uncalibrated or {1: 663}
+    gear = np.concatenate([np.full(v, k) for k, v in pts.items()] + [np.full(679 - sum(pts.values()), 2)])
+    share = uncalibrated_share(gear, np.ones(679, dtype=bool), {k: 2 for k in pts}, set())
+    assert share is not None
+    cause = ClipCause(1, 11993, 24.0, 70.0, k_tot(tel.shaft, tel.k_tel) * tel.vout_max_v if rail is None else rail,
+                      "InsufficientDataError: transmission.gear1: 2 steady points; need at least 3")
+    traced = replace(share, clipped={1: cause})
+    said = traced if (clipped if note_from_clipped is None else note_from_clipped) else share
+    result = IdentificationResult()
+    result.fits["torque_converter.converter"] = FitResult({}, 1.0, 1.0, 0.0, 679,
+                                                          data={UncalibratedShare.KEY: traced if clipped else share})
+    nan = float("nan")
+    checks = [Check(TC_FAMILY, n, nan, 1.0, nan, 0.02, "rel", "-", False, f"not identified: {said.reason()}")
+              for n in TURBINE_CHECKS]
+    checks.append(Check(TC_FAMILY, "torque_converter.capacity_factor_curve", 13.0, 12.9, 0.008, 0.02, "rel", "-",
+                        True, ""))
+    return checks, result
+
+
+def test_only_the_benchs_traced_clipping_excuses_most_converter_checks_not_identified() -> None:
+    # the rule of _judge, on synthetic reports (no run): three of four converter checks "not identified" pass only
+    # when the converter fit's structure traces them to the bench's clipping. Mutants: _clipped_on_this_bench
+    # accepting any not-identified turbine check fails the unrelated, the foreign-rail and the minority cases; one
+    # that skips the note's words fails the words case
+    _vehicle, drawn, _seed = pinned("converter_ktel_gear1_uncalibrated")
+    checks, result = _synthetic_clip_report(True)
+    _judge(TC_FAMILY, checks, PAPER_VEHICLE, drawn, result)  # traced: passes
+    cases = {
+        "unrelated (no cause in the structure)": _synthetic_clip_report(False),
+        "no identification result": (checks, None),
+        "the rail of another gain (K_TEL 4000)": _synthetic_clip_report(True, rail=546.8),
+        "the clipped gear a minority (gear 4's points keep the share)": _synthetic_clip_report(
+            True, uncalibrated={1: 150, 4: 400}),
+        "the cause not in the checks' words": _synthetic_clip_report(True, note_from_clipped=False),
+    }
+    for what, (c, r) in cases.items():
+        try:
+            _judge(TC_FAMILY, c, PAPER_VEHICLE, drawn, r)
+        except AssertionError as exc:
+            assert "3 of 4 checks not excited" in str(exc), (what, str(exc))
+        else:
+            pytest.fail(f"{what}: excused")
+    # a bare "not identified" is no excuse at all, traced structure or not
+    bare = [Check(c.group, c.name, c.identified, c.truth, c.error, c.tolerance, c.mode, c.unit, c.passed,
+                  "not identified" if c.name in TURBINE_CHECKS else c.note) for c in checks]
+    with pytest.raises(AssertionError, match="error nan"):
+        _judge(TC_FAMILY, bare, PAPER_VEHICLE, drawn, result)
 
 
 def test_loose_converter_on_a_10_bit_telemetry() -> None:
