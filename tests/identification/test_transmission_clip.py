@@ -87,3 +87,29 @@ def test_the_clip_explains_the_verdict_only_when_its_gears_carry_the_share() -> 
     share = _share({1: 60, 4: 20}, 100, {1: cause})
     assert TURBINE_UNIDENTIFIED in share.reason() and cause.reason() in share.reason()
     assert cause.reason() not in _share({1: 60, 4: 20}, 100, {}).reason()
+
+
+def test_a_lazy_shaft_torque_is_read_by_blocks_with_the_same_counts(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    # the trace runs on the streamed (lazy) Recording too: the shaft torque read block by block (never whole), the
+    # counts those of the eager channel; mutant: reading ch.values instead of blocks calls the whole loader
+    import benchtwin.identification.transmission_clip as tc
+    from benchtwin.recording import LazyChannel
+
+    rec = _recording()
+    eager = clipped_by_gear(rec)
+    ch = rec["shaft_torque_nm"]
+    arrays = (ch.timestamps, ch.values, ch.flags)
+
+    def whole() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        raise AssertionError("the whole shaft torque was read")
+
+    blocks: list[int] = []
+
+    def block(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        blocks.append(b - a)
+        return arrays[0][a:b], arrays[1][a:b], arrays[2][a:b]
+
+    rec.add(LazyChannel(ch.name, ch.unit, ch.source, len(ch), whole, block_loader=block))
+    monkeypatch.setattr(tc, "_BLOCK", 1000)
+    assert clipped_by_gear(rec) == eager
+    assert len(blocks) == 10 and max(blocks) == 1000
