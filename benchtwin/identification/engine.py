@@ -7,7 +7,8 @@ well; the fuel mean effective pressure ``pmf = mdot Q_LHV / (omega V_d / (2 pi (
 (bar, the fuel energy per cycle and displacement) is nearly a plane in BMEP (the Willans line).
 So the map is fitted on ``pmf(speed, BMEP)`` with a thin-plate-spline radial basis function with a
 linear term (scipy ``RBFInterpolator``) over normalised coordinates, and
-``BSFC = 3.6e9 / Q_LHV * pmf / BMEP``. Its smoothing is chosen by cross-validation unless given.
+``BSFC = 3.6e9 / Q_LHV * pmf / BMEP``. Its smoothing is chosen by cross-validation unless given. Repeats of one
+operating point are one weighted point (:mod:`~benchtwin.identification.engine_cells`): the fit grows with cells.
 Grid nodes outside the convex hull of the data, or inside it but beyond the BMEP reach of the speed
 bands on either side (:func:`_bracketed`), are marked extrapolated and never used for the
 best-efficiency region (minimum BSFC and the area within ``+band`` g/kWh of it). Uncertainty of the
