@@ -7,7 +7,8 @@ well; the fuel mean effective pressure ``pmf = mdot Q_LHV / (omega V_d / (2 pi (
 (bar, the fuel energy per cycle and displacement) is nearly a plane in BMEP (the Willans line).
 So the map is fitted on ``pmf(speed, BMEP)`` with a thin-plate-spline radial basis function with a
 linear term (scipy ``RBFInterpolator``) over normalised coordinates, and
-``BSFC = 3.6e9 / Q_LHV * pmf / BMEP``. Its smoothing is chosen by cross-validation unless given.
+``BSFC = 3.6e9 / Q_LHV * pmf / BMEP``. Its smoothing is chosen by cross-validation unless given. Repeats of one
+operating point are one weighted point (:mod:`~benchtwin.identification.engine_cells`): the fit grows with cells.
 Grid nodes outside the convex hull of the data, or inside it but beyond the BMEP reach of the speed
 bands on either side (:func:`_bracketed`), are marked extrapolated and never used for the
 best-efficiency region (minimum BSFC and the area within ``+band`` g/kWh of it). Uncertainty of the
@@ -37,6 +38,7 @@ from benchtwin.identification._fit import (
     r_squared,
 )
 from benchtwin.identification._signals import check_spread
+from benchtwin.identification.engine_cells import declared_cell, operating_cells
 from benchtwin.identification.engine_cold import (
     COLD_KEY,
     COOLANT_ROLE,
@@ -111,25 +113,25 @@ def _scale(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return (x - lo) / (hi - lo if hi > lo else 1.0)
 
 
-def _cv_residuals(P: np.ndarray, y: np.ndarray, smoothing: float, folds: int) -> np.ndarray:
-    """k-fold cross-validated prediction errors of the RBF at one smoothing."""
+def _cv_residuals(P: np.ndarray, y: np.ndarray, smoothing: np.ndarray, folds: int) -> np.ndarray:
+    """k-fold cross-validated prediction errors of the RBF at one smoothing (per point)."""
     idx = np.arange(y.size)
     err = np.empty(y.size)
     for k in range(folds):
         test = idx % folds == k
         try:
-            f = RBFInterpolator(P[~test], y[~test], kernel="thin_plate_spline", smoothing=smoothing, degree=1)
+            f = RBFInterpolator(P[~test], y[~test], kernel="thin_plate_spline", smoothing=smoothing[~test], degree=1)
             err[test] = f(P[test]) - y[test]
         except (np.linalg.LinAlgError, ValueError):
             err[test] = np.inf
     return err
 
 
-def _cv_smoothing(P: np.ndarray, y: np.ndarray, candidates: Sequence[float], folds: int) -> float:
-    """Smoothing with the least k-fold cross-validated RMSE."""
+def _cv_smoothing(P: np.ndarray, y: np.ndarray, candidates: Sequence[float], folds: int, count: np.ndarray) -> float:
+    """Smoothing with the least k-fold cross-validated RMSE (each point's smoothing that over its count)."""
     best = (float("inf"), candidates[0])
     for s in candidates:
-        rmse = float(np.sqrt(np.mean(_cv_residuals(P, y, s, folds) ** 2)))
+        rmse = float(np.sqrt(np.mean(_cv_residuals(P, y, s / count, folds) ** 2)))
         if rmse < best[0] * (1 - 1e-6):
             best = (rmse, s)
     return best[1]
@@ -139,7 +141,8 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
                  speed_grid: np.ndarray | None = None, bmep_grid: np.ndarray | None = None,
                  smoothing: float | None = None, band_gpkwh: float = 8.0, n_boot: int = 200,
                  min_search_bmep_bar: float = 2.0,
-                 segments: Sequence[str] = (), n_excluded: int = 0, min_points: int = 6, seed: int = 0) -> FitResult:
+                 segments: Sequence[str] = (), n_excluded: int = 0, min_points: int = 6, seed: int = 0,
+                 cell: tuple[float, float] | None = None) -> FitResult:
     """BSFC map over speed x BMEP from steady points, with the best-efficiency region.
 
     Parameters
@@ -161,6 +164,10 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
         Bootstrap replicates for the uncertainty of the minimum (each point's cross-validated
         prediction error added to the fitted fuel MEP with a random sign, map refitted); SE and
         percentile 95 % interval.
+    cell:
+        Speed (rpm) and torque (Nm) steps of the sensors: points closer than that in both are one operating
+        cell, fitted as one point with the smoothing over its count (:mod:`~benchtwin.identification.engine_cells`);
+        None merges nothing. ``min_points`` counts cells.
 
     Returns
     -------
@@ -169,7 +176,7 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
         ``bsfc_min`` (g/kWh), ``speed_at_min`` (rpm), ``bmep_at_min`` (bar), ``eta_max``;
         data ``speed_rpm``, ``bmep_bar``, ``bsfc`` (points), ``bsfc_fit``, ``map_speed_rpm``,
         ``map_bmep_bar``, ``map_bsfc`` (bmep x speed), ``map_extrapolated`` (bool, same shape),
-        ``map_best_region`` (bool), ``map_eta``.
+        ``map_best_region`` (bool), ``map_eta``; per cell (the points above are cells) ``cell_count``.
 
     Raises
     ------
@@ -181,9 +188,11 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     f = np.asarray(fuel_gps, dtype=float)
     ok = np.isfinite(n) & np.isfinite(t) & np.isfinite(f) & (t > 0) & (n > 0) & (f > 0)
     n_out = int((~ok).sum())
-    n, t, f = n[ok], t[ok], f[ok]
+    cells = operating_cells(n[ok], t[ok], f[ok], cell)
+    n, t, f, count = cells.speed_rpm, cells.torque_nm, cells.fuel_gps, cells.count
     if n.size < min_points:
-        raise InsufficientDataError(f"{what}: {n.size} usable steady points; need at least {min_points}")
+        raise InsufficientDataError(f"{what}: {int(ok.sum())} usable steady points in {n.size} operating cells "
+                                    f"(speed x torque steps {cell}); need at least {min_points} cells")
     b = bmep_bar(t, specs)
     check_spread(n, 200.0, what, "engine speed", "rpm")
     check_spread(b, 2.0, what, "BMEP", "bar")
@@ -198,12 +207,12 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
         raise CollinearError(f"{what}: the points lie on a line in speed x BMEP; no map can be built ({exc})") from exc
     folds = min(n.size, 10)
     if smoothing is None:
-        smoothing = _cv_smoothing(P, pmf, _SMOOTHINGS, folds)
-    cv_all = _cv_residuals(P, pmf, smoothing, folds)
+        smoothing = _cv_smoothing(P, pmf, _SMOOTHINGS, folds, count)
+    cv_all = _cv_residuals(P, pmf, smoothing / count, folds)
     cv_ok = np.isfinite(cv_all)
     cv_err = cv_all[cv_ok]
     cv_rmse = float(np.sqrt(np.mean(cv_err**2))) if cv_err.size else float("nan")
-    rbf = RBFInterpolator(P, pmf, kernel="thin_plate_spline", smoothing=smoothing, degree=1)
+    rbf = RBFInterpolator(P, pmf, kernel="thin_plate_spline", smoothing=smoothing / count, degree=1)
     pmf_fit = rbf(P)
     fitted = q * pmf_fit / b
     # the map interpolates (or nearly): its in-sample R^2 says nothing, so the fit reports the
@@ -230,7 +239,7 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     # the map is linear in the data for a fixed smoothing: one fit with the identity as data gives the
     # operator from fuel MEP values at the points to the fine grid, so bootstrap refits are products
     # (evaluated a block of fine points at a time: the whole operator is fine points x data points)
-    rbf_eye = RBFInterpolator(P, np.eye(n.size), kernel="thin_plate_spline", smoothing=smoothing, degree=1)
+    rbf_eye = RBFInterpolator(P, np.eye(n.size), kernel="thin_plate_spline", smoothing=smoothing / count, degree=1)
 
     def minima(y: np.ndarray) -> np.ndarray:
         # per column of y: the least BSFC over the fine grid (np.argmin's first least point), its speed and BMEP;
@@ -281,7 +290,7 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
                     pmf_bar=pmf, pmf_fit_bar=pmf_fit, bsfc_cv=bsfc_cv, r2_in_sample=np.array([r2_in]),
                     map_speed_rpm=sg, map_bmep_bar=bg, map_bsfc=mapv, map_extrapolated=extrap,
                     map_best_region=region, map_eta=q / mapv, smoothing=np.array([smoothing]),
-                    cv_rmse=np.array([cv_rmse]), band_gpkwh=np.array([band_gpkwh]))
+                    cv_rmse=np.array([cv_rmse]), band_gpkwh=np.array([band_gpkwh]), cell_count=count)
     if region.any():
         fit.data["best_region_speed_rpm"] = np.array([S[region].min(), S[region].max()])
         fit.data["best_region_bmep_bar"] = np.array([B[region].min(), B[region].max()])
@@ -426,7 +435,7 @@ def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints
     willans:
         Also fit the Willans lines.
     map_kwargs:
-        Options of :func:`fit_bsfc_map`.
+        Options of :func:`fit_bsfc_map` (``cell`` defaults to the steps the Recording's budget declares).
     cold:
         With the coolant temperature recorded (``engine_coolant_out_degc``): the cold-start factor
         ``engine.cold_fuel`` and the coolant's warm-up ``engine.warmup``
@@ -443,14 +452,15 @@ def identify_engine(rec: Recording, specs: VehicleSpecs, *, points: EnginePoints
     """
     pts = points if points is not None else engine_points(rec, **kwargs)  # type: ignore[arg-type]
     out = IdentificationResult()
+    kw: dict[str, object] = {"cell": declared_cell(rec.meta), **dict(map_kwargs or {})}
     try:
         out.fits["engine.bsfc"] = fit_bsfc_map(specs, pts.speed_rpm, pts.torque_nm, pts.fuel_gps,
                                                segments=pts.segments, n_excluded=pts.n_flagged,
-                                               **dict(map_kwargs or {}))  # type: ignore[arg-type]
+                                               **kw)  # type: ignore[arg-type]
     except IdentificationError as exc:
         out.errors["engine.bsfc"] = f"{type(exc).__name__}: {exc}"
     if cold and np.any(np.isfinite(pts.coolant_degc)):
-        _cold_fuel(out, rec, specs, pts, dict(map_kwargs or {}))
+        _cold_fuel(out, rec, specs, pts, kw)
     if start and "engine.bsfc" in out.fits:
         _start_fuel(out, rec, specs)
     if willans:
