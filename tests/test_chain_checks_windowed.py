@@ -250,3 +250,46 @@ def test_the_held_out_cut_reads_the_channels_by_blocks(bench, monkeypatch) -> No
         assert len(got) == len(t), name
         for x, y in zip((got.timestamps, got.values, got.flags), (t, v, f), strict=True):
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), name
+
+
+class _Map(np.ndarray):
+    """A time base as a spooled Trace maps it (a new map per use of ``time_s``): counts the samples sliced from it,
+    the pages a map makes resident (an index search touches a few pages only: not counted)."""
+
+    touched: list[int]
+
+    def __getitem__(self, k):
+        got = np.asarray(self).__getitem__(k)
+        self.touched[0] += int(np.size(got))
+        return got
+
+
+def test_the_time_base_is_mapped_a_block_at_a_time(bench, monkeypatch) -> None:
+    """The chain checks take from one map of the Trace's time base at most a block and its windows' margins: the plant
+    step's median, selected in passes over the blocks, maps the time base again per block (one map held over the
+    passes made every page of the time base resident: the whole 8.4 MB per paper campaign, 84 MB at ten times it).
+
+    Bound: a block of ``CHECK_BLOCK_SAMPLES`` plant steps (+1 for its diffs), or a Trace window, which spans a block
+    of Recording samples cut at ``CHECK_BLOCK_SAMPLES`` plant steps and the lags' margin each side (about 1 s, 100
+    samples, see test_checks_read_no_whole_channel): under twice the block. Mutant: the map taken once before the
+    passes (``tt = trace.time_s`` then ``tt[a:a + block + 1]``) touches all 6000 samples of one map: fails."""
+    _trace, spooled, recs = bench
+    block = 1000
+    monkeypatch.setattr(vchain, "CHECK_BLOCK_SAMPLES", block)
+    monkeypatch.setattr(vchain, "MEDIAN_CAP", 500)
+    maps: list[list[int]] = []
+    real = SpooledTrace.time_s.fget
+
+    def mapped(self: SpooledTrace) -> np.ndarray:
+        m = real(self).view(_Map)
+        m.touched = [0]
+        maps.append(m.touched)
+        return m
+
+    monkeypatch.setattr(SpooledTrace, "time_s", property(mapped))
+    assert vchain._plant_step(spooled) == _trace.dt_s
+    assert len(maps) >= len(spooled) // block and max(t[0] for t in maps) <= block + 1
+    maps.clear()
+    checks = chain_checks(spooled, recs["paper"], PAPER, profile="realistic")
+    assert sum(c.passed for c in checks) > 10
+    assert 0 < max(t[0] for t in maps) < 2 * block <= len(spooled) // 3

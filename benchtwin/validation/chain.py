@@ -68,10 +68,12 @@ def chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, *, prof
 
 
 #: Recording samples compared at a time (with the Trace window around them): the checks hold a block of a channel,
-#: never the whole channel of the campaign
-CHECK_BLOCK_SAMPLES = 1 << 20
+#: never the whole channel of the campaign. A block's temporaries (the samples, the truth, the error bound, the
+#: Trace window's gradient and maximum filter) are about 30 arrays of its length: 1 << 18 keeps them near 40 MB
+#: (1 << 20 made the chain checks' traced peak 147 MB, paper x3)
+CHECK_BLOCK_SAMPLES = 1 << 18
 #: diffs of a channel's timestamps gathered whole for their median; more are selected in passes (:func:`_kth`)
-MEDIAN_CAP = 1 << 21
+MEDIAN_CAP = 1 << 19
 
 
 def _chain_checks(trace: Trace, recording: Recording, setup: SetupConfig, profile: str,
@@ -230,16 +232,17 @@ def _median_step(ch: Channel) -> float:
 def _plant_step(trace: Trace) -> float:
     """``trace.dt_s`` (the median step of the time base), the steps taken a block at a time (exact: selected in
     passes when they are too many to gather, as :func:`_median_step`)."""
-    tt = trace.time_s
-    n = len(tt) - 1
+    n = len(trace) - 1
     if n < 1:
         return float("nan")
     if n <= MEDIAN_CAP:
-        return float(np.median(np.diff(tt)))
+        return float(np.median(np.diff(trace.time_s)))
 
     def diffs() -> Iterator[np.ndarray]:
         for a in range(0, n, CHECK_BLOCK_SAMPLES):
-            yield np.diff(tt[a:a + CHECK_BLOCK_SAMPLES + 1])
+            # the time base got again for each block: a spooled Trace maps its file anew, so only this block's pages
+            # are mapped (one map held over the passes made the whole time base resident: 8.4 MB per paper campaign)
+            yield np.diff(trace.time_s[a:a + CHECK_BLOCK_SAMPLES + 1])
 
     if n % 2:
         return float(_kth(diffs, n // 2))
