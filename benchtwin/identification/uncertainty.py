@@ -56,7 +56,9 @@ __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b
 
 #: meta key the acquisition writes the declared budget under
 META_KEY = "declared_uncertainty"
-#: Monte Carlo draws of the rounding errors (their estimate of u carries this many degrees of freedom)
+#: Monte Carlo draws of the rounding errors (their estimate of u carries this many degrees of freedom, a relative
+#: standard uncertainty of about 1 / sqrt(2 N): 29 % at 6, which the Welch-Satterthwaite coverage factor takes in;
+#: more draws narrow the spread of the intervals' widths, not their coverage: benchmarks/RESULTS.md, branch mcres)
 RESOLUTION_DRAWS = 6
 #: width of the level intervals sharing one rounding error, in steps: a reading whose noise flickers it by
 #: one step about a steady level keeps one error (its rounding is not dithered by that flicker)
@@ -340,13 +342,12 @@ def _changes(nominal: Mapping[str, Any], other: Mapping[str, Any], scale: float 
     return out
 
 
-def _propagate_one(recording: Recording, task: _Task) -> _Done:
+def _propagate_one(recording: Recording, task: _Task, draws: int = RESOLUTION_DRAWS) -> _Done:
     """The re-runs of one method for one component: per parameter, the changes of its value (per standard
     uncertainty); re-runs; failures; notes on splits held (see the module docstring)."""
     fits, nominal, comp, run, split0 = task
     if comp.kind != "resolution":
         return _propagate_step(recording, task)
-    draws = RESOLUTION_DRAWS
     rng = np.random.default_rng(RESOLUTION_SEED)
     shared: dict[str, _Rounding] = {}
     deltas: dict[str, list[float]] = {}
@@ -407,7 +408,7 @@ def _diff(a: Mapping[str, tuple], b: Mapping[str, tuple]) -> str:
 
 def propagate_type_b(result: IdentificationResult, recording: Recording,
                      plan: Iterable[tuple[Iterable[str], Iterable[str], Callable[[Recording], IdentificationResult]]],
-                     *, workers: int | None = None) -> dict[str, Any]:
+                     *, workers: int | None = None, draws: int | None = None) -> dict[str, Any]:
     """Add the type B budget to every parameter of ``result`` (in place).
 
     Parameters
@@ -425,6 +426,10 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         count. A lazy Recording (:meth:`Recording.open`) is worked through method by method (the method's
         re-runs on the threads), each method's channels dropped before the next's are read (its memory stays
         bounded by one method).
+    draws:
+        Monte Carlo draws of the rounding errors (default :data:`RESOLUTION_DRAWS`, at least 2): the resolution
+        term's degrees of freedom; its relative standard uncertainty, about ``1 / sqrt(2 draws)``, is
+        ``resolution_rel_u`` of the summary.
 
     Returns
     -------
@@ -433,6 +438,10 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         split and the step taken instead (``split_held``), and why a parameter has no type B term when the
         Recording declares none.
     """
+    n_draws = RESOLUTION_DRAWS if draws is None else int(draws)
+    if n_draws < 2:
+        raise ValueError(f"resolution draws must be at least 2 (got {draws}): the RMS of one draw has one degree of "
+                         "freedom, and its relative uncertainty (1 / sqrt(2 N)) is 71 %")
     table = recording.meta.get(META_KEY)
     if not table:
         return {"declared": False, "note": "the recording declares no systematic uncertainties (e.g. a real log "
@@ -454,7 +463,7 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             # share the threads and what they have in common (the channels a re-run does not move), then it goes
             recording.drop(recording.loaded() - kept)
             with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
-                futures = [pool.submit(_propagate_one, recording, t) for t in method_tasks]
+                futures = [pool.submit(_propagate_one, recording, t, n_draws) for t in method_tasks]
                 done += [f.result() for f in futures]
         recording.drop(recording.loaded() - kept)
     else:
@@ -463,7 +472,7 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         order = sorted(range(len(flat)), key=lambda i: flat[i][2].kind != "resolution")
         # the channels a re-run does not move are resampled and averaged once for all re-runs (see _reuse)
         with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
-            futures = {i: pool.submit(_propagate_one, recording, flat[i]) for i in order}
+            futures = {i: pool.submit(_propagate_one, recording, flat[i], n_draws) for i in order}
             done = [futures[i].result() for i in range(len(flat))]
     contrib: dict[str, dict[str, float]] = {}
     dof: dict[str, dict[str, float]] = {}
@@ -485,5 +494,5 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             c = contrib.get(f"{fk}.{pk}")
             if c:
                 p.combine_type_b(c, dof.get(f"{fk}.{pk}"), keep=True)
-    return {"declared": True, "roles": sorted(table), "reruns": reruns, "resolution_draws": RESOLUTION_DRAWS,
-            "failed": failed, "split_held": held}
+    return {"declared": True, "roles": sorted(table), "reruns": reruns, "resolution_draws": n_draws,
+            "resolution_rel_u": round(1.0 / math.sqrt(2.0 * n_draws), 4), "failed": failed, "split_held": held}
