@@ -122,3 +122,29 @@ def test_the_converter_publishes_its_mode_split_and_the_budget_steps_inside_it()
     # the smooth slope: the central difference over +-1 Nm, times u = 2 Nm (the -1 u step's jump is ~4x this)
     assert p.type_b["em_torque_nm.offset"] == pytest.approx(abs(g_half - g_minus), rel=0.25)
     assert meta["reruns"] == 3 and "+0.5 u" in meta["split_held"][0]
+
+
+def test_the_converter_calibration_budget_steps_inside_the_split() -> None:
+    """calibration_budget's move of the turbine torque scale by one standard error crossing the split: the
+    contribution is the smooth slope times the move (d mean(t_t) / d scale = mean(t_t)), not the jump."""
+    from types import SimpleNamespace
+
+    from benchtwin.identification.torque_converter_calibration import TORQUE_SCALE_SOURCE, calibration_budget
+
+    t_t = np.linspace(50.0, 150.0, 101)  # mean 100
+    rel = 0.002  # the scale's standard error over the scale
+    pts = SimpleNamespace(n_tcal=50, tscale_se=rel, tscale=1.0, n_cal=0, scale_se=float("nan"), scale=1.0,
+                          w_t=np.ones(3), t_t=t_t, torque_calibration=None)
+
+    def solve(_w_t: np.ndarray, tt: np.ndarray) -> dict[str, FitResult]:
+        m = float(np.mean(tt))
+        above = m > 100.0 + 0.5 * rel * 100.0  # +1 se crosses, -1 se does not
+        v = m + JUMP * above
+        fit = FitResult({"g": ParameterEstimate("g", v, 0.01, (v - 0.0196, v + 0.0196), 1.0, 101)}, 1.0, 1.0, 0.0, 101)
+        fit.data[SPLIT_KEY] = np.array([float(above)])
+        return {"converter": fit}
+
+    res = solve(pts.w_t, t_t)
+    calibration_budget(res, pts, solve, min_points=3)
+    assert res["converter"].params["g"].type_b[TORQUE_SCALE_SOURCE] == pytest.approx(100.0 * rel, rel=1e-9)
+    assert any("-1" in r and TORQUE_SCALE_SOURCE in r for r in res["converter"].reasons)
