@@ -235,11 +235,14 @@ def fit_torque_converter(
             g0 = g0b
             conv = conv_fit(sr < g0)
     g = g0
+    refined = False
     if gamma is None:
         g1 = coupling_point(np.array([conv.value(f"a{k}") for k in range(6)]), lo=0.3, hi=1.0)
         if np.isfinite(g1) and abs(g1 - g0) < 0.15 and int((sr < g1).sum()) >= min_points:
-            g = g1
+            g, refined = g1, True
             conv = conv_fit(sr < g)
+    # the mode split's discrete decisions: a type B re-run changing them crossed a jump (uncertainty.SPLIT_KEY)
+    conv.data["split"] = np.array([g0, float(refined)])
     derived(conv, "gamma_coupling",
             lambda x: coupling_point(x[:6], lo=0.3, hi=1.0) if gamma is None else float(gamma))
     if gamma is not None or not np.isfinite(conv.value("gamma_coupling")):

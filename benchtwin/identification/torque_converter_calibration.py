@@ -13,8 +13,11 @@ coupling point's interval missed the truth by that much.
 The correction's uncertainty is a component of each parameter's budget (JCGM 100 3.2.4 and 5.1.2): the method is
 run again with the corrected points moved by one standard error of the scale, the change of every parameter
 being its contribution (``turbine_torque_scale.calibration``, ``turbine_speed_scale.calibration``), with the
-scale's degrees of freedom for the Welch-Satterthwaite coverage factor. The setup's declared errors are added
-later on top (:mod:`benchtwin.identification.uncertainty`, which keeps these components).
+scale's degrees of freedom for the Welch-Satterthwaite coverage factor. A move that changes the converter's mode
+split (``data["split"]``) crossed a jump of the coupling point: it is taken the other way and smaller, as the
+declared errors' re-runs are (:data:`~benchtwin.identification.uncertainty.SPLIT_STEPS`), and the fit says so.
+The setup's declared errors are added later on top (:mod:`benchtwin.identification.uncertainty`, which keeps these
+components).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import numpy as np
 
 from benchtwin.identification._fit import FitResult
 from benchtwin.identification.torque_converter_points import ConverterPoints
+from benchtwin.identification.uncertainty import SPLIT_STEPS, splits
 
 __all__ = ["SPEED_SCALE_SOURCE", "TORQUE_SCALE_SOURCE", "calibration_budget", "torque_scale_dof"]
 
@@ -67,15 +71,32 @@ def calibration_budget(res: dict[str, FitResult], pts: ConverterPoints,
     min_points:
         Least samples of a gear in the torque calibration.
     """
-    moves = []
+    moves: list[tuple[str, Callable[[float], tuple[np.ndarray, np.ndarray]], float]] = []
     if pts.n_tcal and math.isfinite(pts.tscale_se) and pts.tscale_se > 0:
-        moves.append((TORQUE_SCALE_SOURCE, pts.w_t, pts.t_t * (1.0 + pts.tscale_se / pts.tscale),
+        rel = pts.tscale_se / pts.tscale
+        moves.append((TORQUE_SCALE_SOURCE, lambda f, rel=rel: (pts.w_t, pts.t_t * (1.0 + f * rel)),
                       torque_scale_dof(pts, min_points)))
     if pts.n_cal and math.isfinite(pts.scale_se) and pts.scale_se > 0:
         # the speed scale is a median over n_cal samples: its degrees of freedom are many (taken as infinite)
-        moves.append((SPEED_SCALE_SOURCE, pts.w_t * (1.0 + pts.scale_se / pts.scale), pts.t_t, math.inf))
-    for source, w_t, t_t, dof in moves:
-        moved = solve(w_t, t_t)
+        rel = pts.scale_se / pts.scale
+        moves.append((SPEED_SCALE_SOURCE, lambda f, rel=rel: (pts.w_t * (1.0 + f * rel), pts.t_t), math.inf))
+    split0 = splits(res, res)
+    for source, move, dof in moves:
+        # one standard error; a move that changes the mode split crossed a jump of the coupling point, not a slope:
+        # then the other way and smaller (SPLIT_STEPS) until the split holds, the change divided by the step
+        moved, frac = solve(*move(1.0)), 1.0
+        if splits(moved, res) != split0:
+            first = moved
+            for f in SPLIT_STEPS[1:]:
+                moved, frac = solve(*move(f)), f
+                if splits(moved, res) == split0:
+                    res["converter"].reasons.append(f"{source}: the mode split changes at +1 standard error; its "
+                                                    f"contribution is the change at {f:+g} divided by {f:+g}")
+                    break
+            else:
+                moved, frac = first, 1.0
+                res["converter"].reasons.append(f"{source}: the mode split changes at every step tried; the change "
+                                                "at +1 standard error kept (a jump)")
         for fk, fit in res.items():
             other = moved.get(fk)
             if other is None:
@@ -84,4 +105,4 @@ def calibration_budget(res: dict[str, FitResult], pts: ConverterPoints,
                 q = other.params.get(pk)
                 if q is None or not (math.isfinite(q.value) and math.isfinite(p.value)):
                     continue
-                p.combine_type_b({source: q.value - p.value}, {source: dof}, keep=True)
+                p.combine_type_b({source: (q.value - p.value) / frac}, {source: dof}, keep=True)

@@ -18,11 +18,16 @@ the Recording with that channel perturbed by one standard uncertainty (``x (1 + 
 the change of every parameter is its sensitivity times ``u``, i.e. its contribution (JCGM 100 5.1.3,
 with the sensitivity by a finite difference, which also follows the fits' point selection, outlier
 rejection and derived parameters). An error one declaration gives to several roles (``group``) moves
-them together (correlation 1). The rounding to each role's step is not one offset: a steady point
-holds one rounding error, the next point another, and a fit's intercept weighs them with signs. It is
-propagated by a few Monte Carlo draws of independent rounding errors per level (:func:`dithered`,
-JCGM 101), the RMS change of the parameter being its contribution, with as many degrees of freedom as
-draws. Contributions are combined in quadrature with the standard error
+them together (correlation 1). A fit that splits its points by a discrete decision (the converter's mode split)
+publishes it as ``data["split"]``: a re-run whose split differs from the nominal one crossed a discontinuity, and
+its difference is a jump, not a sensitivity; the step is then taken the other way and smaller (-1, +-1/2, +-1/4 u)
+until the split holds, the change divided by the step (a finite difference inside one split, stated in
+``meta["type_b"]["split_held"]`` and in the fit's reasons).
+
+The rounding to each role's step is not one offset: a steady point holds one rounding error, the next point
+another, and a fit's intercept weighs them with signs. It is propagated by Monte Carlo draws of independent
+rounding errors per level (:func:`dithered`, JCGM 101), the RMS change of the parameter being its contribution,
+with as many degrees of freedom as draws. Contributions are combined in quadrature with the standard error
 (:meth:`~benchtwin.identification._fit.ParameterEstimate.combine_type_b`), the coverage factor from the
 Welch-Satterthwaite effective degrees of freedom.
 
@@ -36,7 +41,7 @@ import math
 import os
 from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numba
@@ -51,7 +56,9 @@ __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b
 
 #: meta key the acquisition writes the declared budget under
 META_KEY = "declared_uncertainty"
-#: Monte Carlo draws of the rounding errors (their estimate of u carries this many degrees of freedom)
+#: Monte Carlo draws of the rounding errors (their estimate of u carries this many degrees of freedom, a relative
+#: standard uncertainty of about 1 / sqrt(2 N): 29 % at 6, which the Welch-Satterthwaite coverage factor takes in;
+#: more draws narrow the spread of the intervals' widths, not their coverage: benchmarks/RESULTS.md, branch mcres)
 RESOLUTION_DRAWS = 6
 #: width of the level intervals sharing one rounding error, in steps: a reading whose noise flickers it by
 #: one step about a steady level keeps one error (its rounding is not dithered by that flicker)
@@ -60,6 +67,10 @@ BIN_STEPS = 2.0
 RESOLUTION_SEED = 20260
 #: samples read at a time by the rounding's pass over a channel read by blocks (its lowest and highest level)
 ROUNDING_BLOCK = 1 << 16
+#: key of a fit's discrete split of its points (``FitResult.data``): equal in a re-run that stays on its side
+SPLIT_KEY = "split"
+#: fractions of one standard uncertainty tried, in order, until a re-run keeps every split (the first: one u)
+SPLIT_STEPS = (1.0, -1.0, 0.5, -0.5, 0.25, -0.25)
 
 
 @dataclass(frozen=True)
@@ -308,35 +319,96 @@ def perturbed(recording: Recording, comp: Component) -> Recording:
 #: array operations release the GIL, their Python glue does not, so a third thread gains little)
 WORKERS = max(1, min(2, os.cpu_count() or 1))
 
-#: one unit of work: the method's fits (names), its nominal parameters, the component, the function that runs it
-_Task = tuple[list[str], dict[str, Any], Component, Callable[[Recording], IdentificationResult]]
+#: one unit of work: the method's fits (names), its nominal parameters, the component, the function that runs it,
+#: the nominal splits of its fits (:func:`splits`)
+_Task = tuple[list[str], dict[str, Any], Component, Callable[[Recording], IdentificationResult], dict[str, tuple]]
+#: what one unit of work gives: per parameter the changes of its value, re-runs, failures, notes on held splits
+_Done = tuple[dict[str, list[float]], int, list[str], list[str]]
 
 
-def _propagate_one(recording: Recording, task: _Task) -> tuple[dict[str, list[float]], int, list[str]]:
-    """The re-runs of one method for one component: per parameter, the changes of its value; re-runs; failures."""
-    fits, nominal, comp, run = task
-    draws = RESOLUTION_DRAWS if comp.kind == "resolution" else 1
+def splits(fits: Mapping[str, Any], names: Iterable[str]) -> dict[str, tuple]:
+    """The discrete splits (``data["split"]``) of the fits ``names`` that publish one, as tuples of numbers."""
+    return {fk: tuple(float(x) for x in np.asarray(fits[fk].data[SPLIT_KEY], dtype=float).ravel())
+            for fk in names if fk in fits and SPLIT_KEY in fits[fk].data}
+
+
+def _changes(nominal: Mapping[str, Any], other: Mapping[str, Any], scale: float = 1.0) -> dict[str, float]:
+    """Per parameter of ``nominal`` that ``other`` also has finite: the change of its value, divided by ``scale``."""
+    out = {}
+    for key, p in nominal.items():
+        q = other.get(key)
+        if q is not None and math.isfinite(q.value) and math.isfinite(p.value):
+            out[key] = (q.value - p.value) / scale
+    return out
+
+
+def _propagate_one(recording: Recording, task: _Task, draws: int = RESOLUTION_DRAWS) -> _Done:
+    """The re-runs of one method for one component: per parameter, the changes of its value (per standard
+    uncertainty); re-runs; failures; notes on splits held (see the module docstring)."""
+    fits, nominal, comp, run, split0 = task
+    if comp.kind != "resolution":
+        return _propagate_step(recording, task)
     rng = np.random.default_rng(RESOLUTION_SEED)
     shared: dict[str, _Rounding] = {}
     deltas: dict[str, list[float]] = {}
     failed: list[str] = []
+    flipped = 0
     for _ in range(draws):
-        rec = dithered(recording, comp, rng, shared) if comp.kind == "resolution" else perturbed(recording, comp)
+        rec = dithered(recording, comp, rng, shared)
         try:
-            other = run(rec).parameters()
+            res = run(rec)
         except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
             failed.append(f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}")
             continue
-        for key, p in nominal.items():
-            q = other.get(key)
-            if q is not None and math.isfinite(q.value) and math.isfinite(p.value):
-                deltas.setdefault(key, []).append(q.value - p.value)
-    return deltas, draws, failed
+        flipped += splits(res.fits, fits) != split0
+        for key, d in _changes(nominal, res.parameters()).items():
+            deltas.setdefault(key, []).append(d)
+    notes = [f"{fits[0]} / {comp.source}: {flipped} of {draws} draws changed a split (kept: a draw is a possible "
+             "rounding, not a step)"] if flipped else []
+    return deltas, draws, failed, notes
+
+
+def _propagate_step(recording: Recording, task: _Task) -> _Done:
+    """A gain or offset: the re-run at one standard uncertainty; if it changes a split (``data["split"]``), the
+    re-runs at the further :data:`SPLIT_STEPS` until one keeps every split, its change divided by its step."""
+    fits, nominal, comp, run, split0 = task
+    first: dict[str, float] = {}
+    first_split: dict[str, tuple] = {}
+    for n, f in enumerate(SPLIT_STEPS, start=1):
+        step = comp if f == 1.0 else replace(comp, u=comp.u * f)
+        try:
+            res = run(perturbed(recording, step))
+        except Exception as exc:  # a perturbed run that breaks: the last good difference (if any), said in meta
+            fail = f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}" + (f" (at {f:+g} u)" if n > 1 else "")
+            note = [f"{fits[0]} / {comp.source}: a split changes at +1 u ({_diff(split0, first_split)}); the "
+                    f"re-run at {f:+g} u broke: the difference at +1 u kept (a jump)"] if n > 1 else []
+            return {k: [v] for k, v in first.items()}, n, [fail], note
+        moved = _changes(nominal, res.parameters(), f)
+        now = splits(res.fits, fits)
+        if n == 1:
+            first, first_split = moved, now
+        if now == split0:
+            note = [] if n == 1 else [
+                f"{fits[0]} / {comp.source}: a split changes at +1 u ({_diff(split0, first_split)}); the sensitivity "
+                f"is the difference at {f:+g} u divided by {f:+g}"]
+            return {k: [v] for k, v in moved.items()}, n, [], note
+    return {k: [v] for k, v in first.items()}, len(SPLIT_STEPS), [], [
+        f"{fits[0]} / {comp.source}: a split changes at every step tried ({', '.join(f'{f:+g}' for f in SPLIT_STEPS)}"
+        f" u; {_diff(split0, first_split)}): the difference at +1 u kept (a jump: not smooth in this error)"]
+
+
+def _diff(a: Mapping[str, tuple], b: Mapping[str, tuple]) -> str:
+    """The splits that differ, ``fit: nominal -> moved``."""
+    def text(x: tuple) -> str:
+        return ", ".join(f"{v:.4g}" for v in x)
+
+    return "; ".join(f"{k}: {text(a.get(k, ()))} -> {text(b.get(k, ()))}"
+                     for k in sorted(a.keys() | b.keys()) if a.get(k) != b.get(k))
 
 
 def propagate_type_b(result: IdentificationResult, recording: Recording,
                      plan: Iterable[tuple[Iterable[str], Iterable[str], Callable[[Recording], IdentificationResult]]],
-                     *, workers: int | None = None) -> dict[str, Any]:
+                     *, workers: int | None = None, draws: int | None = None) -> dict[str, Any]:
     """Add the type B budget to every parameter of ``result`` (in place).
 
     Parameters
@@ -354,13 +426,22 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         count. A lazy Recording (:meth:`Recording.open`) is worked through method by method (the method's
         re-runs on the threads), each method's channels dropped before the next's are read (its memory stays
         bounded by one method).
+    draws:
+        Monte Carlo draws of the rounding errors (default :data:`RESOLUTION_DRAWS`, at least 2): the resolution
+        term's degrees of freedom; its relative standard uncertainty, about ``1 / sqrt(2 draws)``, is
+        ``resolution_rel_u`` of the summary.
 
     Returns
     -------
     dict
-        Summary for ``result.meta["type_b"]``: components propagated, re-runs, and why a parameter
-        has no type B term when the Recording declares none.
+        Summary for ``result.meta["type_b"]``: components propagated, re-runs, the re-runs that changed a fit's
+        split and the step taken instead (``split_held``), and why a parameter has no type B term when the
+        Recording declares none.
     """
+    n_draws = RESOLUTION_DRAWS if draws is None else int(draws)
+    if n_draws < 2:
+        raise ValueError(f"resolution draws must be at least 2 (got {draws}): the RMS of one draw has one degree of "
+                         "freedom, and its relative uncertainty (1 / sqrt(2 N)) is 71 %")
     table = recording.meta.get(META_KEY)
     if not table:
         return {"declared": False, "note": "the recording declares no systematic uncertainties (e.g. a real log "
@@ -370,7 +451,8 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         fits = sorted(fits)
         nominal = {f"{fk}.{pk}": p for fk in fits if fk in result.fits for pk, p in result.fits[fk].params.items()}
         if nominal:
-            tasks.append([(fits, nominal, comp, run) for comp in components(recording, roles)])
+            split0 = splits(result.fits, fits)
+            tasks.append([(fits, nominal, comp, run, split0) for comp in components(recording, roles)])
     lazy = any(isinstance(c, LazyChannel) for c in recording.channels.values())
     n_threads = max(1, int(workers if workers is not None else WORKERS))
     if lazy:
@@ -381,7 +463,7 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             # share the threads and what they have in common (the channels a re-run does not move), then it goes
             recording.drop(recording.loaded() - kept)
             with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
-                futures = [pool.submit(_propagate_one, recording, t) for t in method_tasks]
+                futures = [pool.submit(_propagate_one, recording, t, n_draws) for t in method_tasks]
                 done += [f.result() for f in futures]
         recording.drop(recording.loaded() - kept)
     else:
@@ -390,15 +472,19 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         order = sorted(range(len(flat)), key=lambda i: flat[i][2].kind != "resolution")
         # the channels a re-run does not move are resampled and averaged once for all re-runs (see _reuse)
         with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
-            futures = {i: pool.submit(_propagate_one, recording, flat[i]) for i in order}
+            futures = {i: pool.submit(_propagate_one, recording, flat[i], n_draws) for i in order}
             done = [futures[i].result() for i in range(len(flat))]
     contrib: dict[str, dict[str, float]] = {}
     dof: dict[str, dict[str, float]] = {}
-    reruns, failed = 0, []
-    for (_fits, _nominal, comp, _run), (deltas, n, fails) in zip(
+    reruns, failed, held = 0, [], []
+    for (_fits, _nominal, comp, _run, split0), (deltas, n, fails, notes) in zip(
             [t for method_tasks in tasks for t in method_tasks], done, strict=True):
         reruns += n
         failed += fails
+        held += notes
+        if comp.kind != "resolution":  # the step taken is part of the fits' budget: said where they are read
+            for fk in split0:
+                result.fits[fk].reasons.extend(f"type B: {note}" for note in notes)
         for key, d in deltas.items():
             contrib.setdefault(key, {})[comp.source] = float(np.sqrt(np.mean(np.square(d))))
             if comp.kind == "resolution":
@@ -408,5 +494,5 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             c = contrib.get(f"{fk}.{pk}")
             if c:
                 p.combine_type_b(c, dof.get(f"{fk}.{pk}"), keep=True)
-    return {"declared": True, "roles": sorted(table), "reruns": reruns, "resolution_draws": RESOLUTION_DRAWS,
-            "failed": failed}
+    return {"declared": True, "roles": sorted(table), "reruns": reruns, "resolution_draws": n_draws,
+            "resolution_rel_u": round(1.0 / math.sqrt(2.0 * n_draws), 4), "failed": failed, "split_held": held}
