@@ -234,15 +234,13 @@ def fit_torque_converter(
         if np.isfinite(g0b) and g0b != g0 and int((sr < g0b).sum()) >= min_points:
             g0 = g0b
             conv = conv_fit(sr < g0)
-    g = g0
-    refined = False
+    g, refined = g0, False
     if gamma is None:
         g1 = coupling_point(np.array([conv.value(f"a{k}") for k in range(6)]), lo=0.3, hi=1.0)
         if np.isfinite(g1) and abs(g1 - g0) < 0.15 and int((sr < g1).sum()) >= min_points:
             g, refined = g1, True
             conv = conv_fit(sr < g)
-    # the mode split's discrete decisions: a type B re-run changing them crossed a jump (uncertainty.SPLIT_KEY)
-    conv.data["split"] = np.array([g0, float(refined)])
+    conv.data["split"] = np.array([g0, float(refined)])  # the mode split's decisions (uncertainty.SPLIT_KEY)
     derived(conv, "gamma_coupling",
             lambda x: coupling_point(x[:6], lo=0.3, hi=1.0) if gamma is None else float(gamma))
     if gamma is not None or not np.isfinite(conv.value("gamma_coupling")):
@@ -511,8 +509,8 @@ def identify_torque_converter(
                            f"(the coupling point now {g_fit:.3f})")
     pts.reasons.extend(off_reasons.values())
     ok = np.isfinite(pts.w_p) & np.isfinite(pts.w_t) & np.isfinite(pts.t_p) & np.isfinite(pts.t_t)
-    share = uncalibrated_share(pts.gear, ok, pts.borrowed, set(offsets))
-    if share is not None:  # the verdict as a structure (the orchestrator adds its cause) and in words
+    share = uncalibrated_share(pts.gear, ok, pts.borrowed, set(offsets))  # the orchestrator adds its cause
+    if share is not None:  # the verdict as a structure and in words
         res["converter"].data[share.KEY] = share
         pts.reasons.append(share.reason())
     for r in pts.reasons:
