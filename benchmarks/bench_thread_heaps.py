@@ -1,4 +1,4 @@
-"""What glibc keeps resident after threads free their arrays, with and without validate's one heap (``_one_heap``).
+"""What glibc keeps resident after threads free their arrays, with and without validate's one heap (``one_heap``).
 
 Usage::
 
@@ -6,8 +6,8 @@ Usage::
 
 Each run is a fresh process: ``--threads`` threads each allocate ``--steps`` arrays of 0.8-32 MB (six alive at a
 time) with small arrays between, then join; the main thread trims the heaps as validate does between its stages
-(``_give_back_freed_memory``: glibc's ``malloc_trim(0)``). Printed per mode: RssAnon grown (MB) after the threads and
-after the trim, each run's and the median. ``one_heap`` calls ``benchtwin.validation.run._one_heap`` first (glibc's
+(``give_back_freed_memory``: glibc's ``malloc_trim(0)``). Printed per mode: RssAnon grown (MB) after the threads and
+after the trim, each run's and the median. ``one_heap`` calls ``benchtwin._heap.one_heap`` first (glibc's
 ``M_ARENA_MAX`` = 1); ``default`` leaves glibc's arenas (a heap per thread, up to 8 per core). glibc only.
 """
 
@@ -22,9 +22,9 @@ _CHILD = """
 import re, threading
 from pathlib import Path
 import numpy as np
-from benchtwin.validation.run import _give_back_freed_memory, _one_heap
+from benchtwin._heap import give_back_freed_memory, one_heap
 if {one_heap}:
-    _one_heap()
+    one_heap()
 def anon_mb():
     return int(re.search(r"RssAnon:\\s+(\\d+)", Path("/proc/self/status").read_text()).group(1)) / 1024
 before = anon_mb()
@@ -44,7 +44,7 @@ for th in ths:
 for th in ths:
     th.join()
 joined = anon_mb() - before
-_give_back_freed_memory()
+give_back_freed_memory()
 print(joined, anon_mb() - before)
 """
 

@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from benchtwin import __version__
+from benchtwin._heap import one_heap
 from benchtwin.errors import BenchtwinError
 
 __all__ = ["main"]
@@ -69,7 +70,12 @@ def _broken(sub: argparse._SubParsersAction, name: str, exc: Exception) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the exit status."""
+    """Run the command line; return the exit status.
+
+    The process's threads share one C heap from here on (:func:`benchtwin._heap.one_heap`), so that the memory the
+    chain's and the type B re-runs' threads free is given back between the stages of a command.
+    """
+    one_heap()
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(

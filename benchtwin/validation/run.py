@@ -13,6 +13,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from benchtwin._heap import give_back_freed_memory
 from benchtwin.chain.batch import run_batch
 from benchtwin.chain.stream import run_chunked, time_slices
 from benchtwin.config._base import StrictModel
@@ -86,13 +87,7 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
     Returns
     -------
     ValidationReport
-
-    Notes
-    -----
-    On glibc the process's threads share one C heap from here on (:func:`_one_heap`), so that the memory the
-    chain's and the type B re-runs' threads free is given back between the stages.
     """
-    _one_heap()
     prof = profile or ("ideal" if _setup_is_ideal(setup) else "realistic")
     fams = resolve_families(families)
     report = ValidationReport(meta={"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
@@ -187,13 +182,13 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
                           out_dir=None if out_dir is None else Path(out_dir) / f"span{k}")
                 for k, sl in enumerate(slices)]
         rec, checked = merge_recordings(recs), stitch_traces(slices)
-    _give_back_freed_memory()
+    give_back_freed_memory()
     t2 = time.perf_counter()
     methods = None if fams is None else [m for f in fams for m in f.methods]
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
                           type_b=fams is None if type_b is None else type_b)
     t3 = time.perf_counter()
-    _give_back_freed_memory()
+    give_back_freed_memory()
     if streamed:
         report.timings_s = {"simulate": round(plant_s, 3), "chain": round(t2 - t1 - plant_s, 3),
                             "identify": round(t3 - t2, 3)}
@@ -238,42 +233,6 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
 
         write_html(report, out / "report.html", specs=vehicle.specs)
     return report
-
-
-#: glibc's ``mallopt`` parameter for the most heaps ("arenas") the threads of the process spread over
-_M_ARENA_MAX = -8
-
-
-def _one_heap() -> None:
-    """Let the threads started from now on allocate from the main C heap (glibc's ``M_ARENA_MAX`` = 1; nothing
-    elsewhere).
-
-    A thread's own heap keeps its free top resident (up to glibc's trim threshold, which grows to 64 MB with the
-    arrays freed) and ``malloc_trim`` trims only the main heap's top, so :func:`_give_back_freed_memory` left the
-    free tops of the plant's, the encoder's and the type B re-runs' threads resident: a floor under every later
-    stage that rose with the campaign (RssAnon at the chain checks' start 274 MB at paper x1, 332 MB at x3, with
-    the same bytes in use).
-    """
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").mallopt(_M_ARENA_MAX, 1)
-    except (OSError, AttributeError):  # not glibc
-        return
-
-
-def _give_back_freed_memory() -> None:
-    """Return the C heap's freed pages to the system (glibc's ``malloc_trim``; nothing elsewhere).
-
-    The chain frees many mid-sized arrays that glibc keeps for reuse instead of unmapping: measured on the paper
-    campaign, 250 MB of the resident set after the chain are free heap that the next stage does not reuse.
-    """
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc
-        return
 
 
 #: samples of a channel whose flags are counted at a time
@@ -389,7 +348,7 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
                                    "battery_voltage_v": tr["battery_voltage_v"][::10], "fuel_g": fuel_g[::10]}
     # the further drives, simulated and measured one at a time (never identified on), each closed before the next
     for k, (name, cycle, soc_pct) in enumerate(_held_out_drives(vehicle), start=1):
-        _give_back_freed_memory()
+        give_back_freed_memory()
         try:
             trace2, rec2 = _held_out_drive(vehicle, setup, campaign, name, cycle, soc_pct, campaign.seed + k)
         except BenchtwinError as exc:
