@@ -510,6 +510,7 @@ def identify_torque_converter(
     pts.reasons.extend(off_reasons.values())
     ok = np.isfinite(pts.w_p) & np.isfinite(pts.w_t) & np.isfinite(pts.t_p) & np.isfinite(pts.t_t)
     pts.reasons.extend(r for r in [uncalibrated_share_reason(pts.gear, ok, pts.borrowed, set(offsets))] if r)
+    res["converter"].reasons.extend(pts.notes)
     for r in pts.reasons:
         res["converter"].flag(r)
         if "coupling" in res:

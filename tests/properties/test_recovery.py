@@ -152,6 +152,7 @@ def _converter_checks_pass(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int)
 @example(*pinned("converter_ecu_offset_flagged_gears"))
 @example(*pinned("converter_ecu_offset_gamma"))
 @example(*pinned("converter_ecu_offset_gear3"))
+@example(*pinned("converter_shaft_clock_drift"))
 def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnSetup, seed: int) -> None:
     # found here: the loose converter's coupling curve, the family's tests alone, the loose converter on a 10-bit
     # telemetry (tests below), the coupling mode fitted on a pump torque that kept part of the pump's inertia
@@ -162,7 +163,11 @@ def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnS
     # setups whose ECU engine torque is off beyond its data sheet (4.5-7.7 Nm, 3-5 %): eq. 32 read gears 1-3's
     # transmission fits, which took that torque in at their hybrid points (C0 up to 7 Nm off, or flagged and
     # borrowed), so Gamma was 0.05-0.12 off and the curves 5-20 % (the ecu_offset examples); now eq. 32 reads each
-    # gear's eq. 14 on its motor-only points (identification/torque_converter_gearbox.py)
+    # gear's eq. 14 on its motor-only points (identification/torque_converter_gearbox.py); an 8-speed diesel whose
+    # telemetry clock runs 37 ppm slow on the family's 1,662 s of tests (too short for the acquisition's drift
+    # windows): the shaft torque read from 6 ms early to 48 ms late, the take-offs' torque ratios up to 6 % off and
+    # the TR curve 3.6 % (> 2.0 %); now the converter lines the shaft torque up with the dyno's axle forces test by
+    # test (identification/shaft_clock.py; the shaft_clock_drift example: 1.1 %)
     _converter_checks_pass(vehicle, drawn, seed)
 
 
