@@ -16,8 +16,9 @@ segment, the lag of the shaft torque against the sum of the axle forces, both on
 acquisition's shifts, is the residual of the shaft torque's clock there (:func:`roller_aligned_shifts`); on that
 draw the tests' lags lie on a line within a few ms (113 ms at the start to 180 ms at 1,480 s with the dyno's 120 ms
 offset). A Theil-Sen line through them (a test whose correlation peak is a wrong one, a braked deceleration, does
-not move it) refines the telemetry's shift: its slope applied when significant (``|drift| > sqrt(2) se``, the rule
-of :func:`~benchtwin.identification._clock.source_shifts`), else the tests' median lag as a constant.
+not move it) refines the telemetry's shift when its slope is significant (``|drift| > sqrt(2) se``, the rule of
+:func:`~benchtwin.identification._clock.source_shifts`): a drift the acquisition could not find. Without one the
+acquisition's offset stands.
 """
 
 from __future__ import annotations
@@ -59,48 +60,20 @@ def _where(t: np.ndarray, x: np.ndarray, lo: float, hi: float, step_s: float = 0
     return float(np.sum(0.5 * (grid[1:] + grid[:-1]) * w) / total) if total > 0 else 0.5 * (lo + hi)
 
 
-def roller_aligned_shifts(rec: Recording, shifts: Mapping[str, Shift], *, rate_hz: float = 100.0,
-                          max_lag_s: float = 0.5, min_correlation: float = 0.8, min_test_s: float = 5.0
-                          ) -> tuple[dict[str, Shift], str]:
-    """The shifts with the shaft torque's source lined up with the dyno's axle forces test by test (module docstring).
-
-    Parameters
-    ----------
-    rec:
-        The Recording (``shaft_torque_nm``, ``dyno_force_front_n`` and optionally ``dyno_force_rear_n``, its test
-        segments).
-    shifts:
-        Time to add to each source's timestamps (:func:`~benchtwin.identification._clock.source_shifts`).
-    rate_hz, max_lag_s, min_correlation:
-        The cross-correlation of each test (:func:`~benchtwin.chain.alignment.detect_lag`); a lag at the search's
-        edge is no peak and is left out.
-    min_test_s:
-        Shorter tests are left out.
-
-    Returns
-    -------
-    shifts, note
-        The refined shifts (a copy; unchanged without the channels, on one source, or with fewer than
-        :data:`MIN_TESTS` tests lined up) and what was done ('' when nothing).
-    """
-    out = dict(shifts)
-    if "shaft_torque_nm" not in rec or ROLLER_FORCES[0] not in rec:
-        return out, ""
-    tel, dyn = rec["shaft_torque_nm"].source, rec[ROLLER_FORCES[0]].source
-    forces = [n for n in ROLLER_FORCES if n in rec and rec[n].source == dyn]
-    if not tel or tel == dyn:
-        return out, ""
-    s_tel, s_dyn = shifts.get(tel, 0.0), shifts.get(dyn, 0.0)
+def _test_lags(rec: Recording, a: tuple[str, Shift], b: list[str], b_shift: Shift, rate_hz: float, max_lag_s: float,
+               min_correlation: float, min_test_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per test segment, where its lag holds (:func:`_where`) and the time to add to channel ``a`` (on the reference
+    clock through its shift) to line it up with the sum of channels ``b`` (through ``b_shift``)."""
     centres, lags = [], []
     margin = 2.0 * max_lag_s + 1.0
     for seg in rec.segments:
         lo, hi = float(seg.start_s), float(seg.end_s)
         if not hi - lo >= min_test_s:
             continue
-        t_a, x_a = _window(rec, "shaft_torque_nm", s_tel, lo - margin, hi + margin)
-        t_b, x_b = _window(rec, forces[0], s_dyn, lo - 2 * margin, hi + 2 * margin)
-        for extra in forces[1:]:
-            t_e, x_e = _window(rec, extra, s_dyn, lo - 2 * margin, hi + 2 * margin)
+        t_a, x_a = _window(rec, a[0], a[1], lo - margin, hi + margin)
+        t_b, x_b = _window(rec, b[0], b_shift, lo - 2 * margin, hi + 2 * margin)
+        for extra in b[1:]:
+            t_e, x_e = _window(rec, extra, b_shift, lo - 2 * margin, hi + 2 * margin)
             if t_e.size < 2:
                 t_b = t_b[:0]
                 break
@@ -112,21 +85,85 @@ def roller_aligned_shifts(rec: Recording, shifts: Mapping[str, Shift], *, rate_h
         if lag is not None and abs(lag) < max_lag_s - 1.0 / rate_hz:
             centres.append(_where(t_a, x_a, lo, hi))
             lags.append(lag)
-    if len(lags) < MIN_TESTS:
-        return out, ""
+    return np.asarray(centres, dtype=float), np.asarray(lags, dtype=float)
+
+
+def _line(c: np.ndarray, lags: np.ndarray) -> tuple[float, float]:
+    """Theil-Sen slope (s/s) of the tests' lags and half its 68.27 % interval (one standard deviation)."""
     from scipy.stats import theilslopes
 
-    c, lg = np.asarray(centres), np.asarray(lags)
-    res = theilslopes(lg, c, alpha=0.6827)
-    slope, se = float(res[0]), float(0.5 * (res[3] - res[2]))
-    c0, r0 = (s_tel.offset_s, s_tel.rate) if isinstance(s_tel, ClockShift) else (float(s_tel), 0.0)
-    if abs(slope) > np.sqrt(2.0) * se:
-        a = float(np.median(lg - slope * c))
-        out[tel] = ClockShift(c0 + a, r0 + slope)
-        how = f"{1e3 * a:+.1f} ms and {1e6 * slope:+.1f} +- {1e6 * se:.1f} ppm"
-    else:
-        a = float(np.median(lg))
-        out[tel] = c0 + a if r0 == 0.0 else ClockShift(c0 + a, r0)
-        how = f"{1e3 * a:+.1f} ms (its drift {1e6 * slope:+.1f} +- {1e6 * se:.1f} ppm not significant)"
+    res = theilslopes(lags, c, alpha=0.6827)
+    return float(res[0]), float(0.5 * (res[3] - res[2]))
+
+
+def _affine(shift: Shift) -> tuple[float, float]:
+    return (shift.offset_s, shift.rate) if isinstance(shift, ClockShift) else (float(shift), 0.0)
+
+
+def roller_aligned_shifts(rec: Recording, shifts: Mapping[str, Shift], *, rate_hz: float = 100.0,
+                          max_lag_s: float = 0.5, min_correlation: float = 0.8, min_test_s: float = 5.0
+                          ) -> tuple[dict[str, Shift], str]:
+    """The shifts with the shaft torque's source lined up with the dyno's axle forces test by test (module docstring).
+
+    First the dyno's own clock: the acquisition's offset of the rollers against the vehicle CAN is slip-aware but
+    finds a drift on an hour or more only, so per test the lag of the CAN's vehicle speed against the roller speed
+    gives the dyno's drift (its Theil-Sen slope, applied when significant, about the time the acquisition's offset
+    holds, ``meta["clock_offset_time_s"]``, so that offset stands there: a plain lag of a wheel speed carries the
+    tyres' slip). Then the shaft torque against the axle forces on that clock.
+
+    Parameters
+    ----------
+    rec:
+        The Recording (``shaft_torque_nm``, ``dyno_force_front_n`` and optionally ``dyno_force_rear_n``, for the
+        dyno's drift ``vehicle_speed_kmh`` and ``dyno_speed_kmh``; its test segments).
+    shifts:
+        Time to add to each source's timestamps (:func:`~benchtwin.identification._clock.source_shifts`).
+    rate_hz, max_lag_s, min_correlation:
+        The cross-correlation of each test (:func:`~benchtwin.chain.alignment.detect_lag`); a lag at the search's
+        edge is no peak and is left out.
+    min_test_s:
+        Shorter tests are left out.
+
+    Returns
+    -------
+    shifts, note
+        The shifts with the shaft torque's source refined (a copy; unchanged without the channels, on one source,
+        with fewer than :data:`MIN_TESTS` tests lined up, or when the tests' lags show no significant drift: the
+        acquisition's offset then stands) and what was done ('' when nothing).
+    """
+    out = dict(shifts)
+    if "shaft_torque_nm" not in rec or ROLLER_FORCES[0] not in rec:
+        return out, ""
+    tel, dyn = rec["shaft_torque_nm"].source, rec[ROLLER_FORCES[0]].source
+    forces = [n for n in ROLLER_FORCES if n in rec and rec[n].source == dyn]
+    if not tel or tel == dyn:
+        return out, ""
+    opts = (rate_hz, max_lag_s, min_correlation, min_test_s)
+    s_dyn = shifts.get(dyn, 0.0)
+    dyno_note = ""
+    if "vehicle_speed_kmh" in rec and "dyno_speed_kmh" in rec and rec["dyno_speed_kmh"].source == dyn:
+        v_src = rec["vehicle_speed_kmh"].source
+        c, lg = _test_lags(rec, ("vehicle_speed_kmh", shifts.get(v_src, 0.0)), ["dyno_speed_kmh"], s_dyn, *opts)
+        if lg.size >= MIN_TESTS:
+            slope, se = _line(c, lg)
+            if abs(slope) > np.sqrt(2.0) * se:
+                times = rec.meta.get("clock_offset_time_s") if isinstance(rec.meta, dict) else None
+                key = next((k for k in (times or {}) if k.endswith(f"->{dyn}") or k.startswith(f"{dyn}->")), None)
+                t_ref = float(times[key]) if key is not None else float(np.median(c))
+                c0, r0 = _affine(s_dyn)
+                # the speed's lag against the rollers is the rollers' lag with the sign turned
+                s_dyn = ClockShift(c0 + slope * t_ref, r0 - slope)
+                dyno_note = (f"; the dyno's clock first: {-1e6 * slope:+.1f} +- {1e6 * se:.1f} ppm against the vehicle "
+                             f"speed over {lg.size} tests")
+    c, lg = _test_lags(rec, ("shaft_torque_nm", shifts.get(tel, 0.0)), forces, s_dyn, *opts)
+    if lg.size < MIN_TESTS:
+        return out, ""
+    slope, se = _line(c, lg)
+    if not abs(slope) > np.sqrt(2.0) * se:  # no drift the acquisition missed: its offset stands
+        return out, ""
+    c0, r0 = _affine(shifts.get(tel, 0.0))
+    a = float(np.median(lg - slope * c))
+    out[tel] = ClockShift(c0 + a, r0 + slope)
     return out, (f"the shaft torque's clock ({tel}) lined up with the dyno's axle forces over {lg.size} tests: "
-                 f"{how} added to the acquisition's shift (lags {1e3 * lg.min():+.0f}..{1e3 * lg.max():+.0f} ms)")
+                 f"{1e3 * a:+.1f} ms and {1e6 * slope:+.1f} +- {1e6 * se:.1f} ppm added to the acquisition's shift "
+                 f"(lags {1e3 * lg.min():+.0f}..{1e3 * lg.max():+.0f} ms){dyno_note}")
