@@ -58,6 +58,28 @@ def test_a_drifting_shaft_clock_is_mapped_onto_the_rollers(rear: bool) -> None:
     assert f"over {N_TESTS} tests" in note and "ppm" in note
 
 
+def test_a_drifting_dyno_clock_is_taken_out_first() -> None:
+    # the dyno's clock drifts too (20 ppm about T_REF, where the acquisition's constant offset holds): the shaft torque
+    # lined up with the rollers alone would carry that drift (20 ppm over 1,000 s either side: 20 ms); the vehicle
+    # speed's lag against the roller speed per test takes it out first, and every time maps to within 1 ms again
+    dyno_drift, t_ref = 20e-6, 1000.0
+    rec = _recording()
+    td = np.arange(0.0, N_TESTS * TEST_S, 0.01)
+    stamps = td - DYNO_SHIFT + dyno_drift * (td - t_ref)
+    for name in ("dyno_force_front_n", "dyno_force_rear_n"):
+        ch = rec[name]
+        rec.add(Channel(name, ch.unit, stamps, ch.values, source="dyno"))
+    speed = 50.0 + 30.0 * np.sin(2 * np.pi * td / 53.0) + 0.1 * _torque(td)
+    rec.add(Channel("vehicle_speed_kmh", "km/h", td, speed, source="vehicle_can"))
+    rec.add(Channel("dyno_speed_kmh", "km/h", stamps, speed, source="dyno"))
+    rec.meta["clock_offset_time_s"] = {"vehicle_can->dyno": t_ref}
+    shifts, note = roller_aligned_shifts(rec, {"dyno": DYNO_SHIFT})
+    ts = np.linspace(0.0, N_TESTS * TEST_S, 50) + LAG0
+    err = np.abs(to_ref(ts, shifts["telemetry"]) - (ts - LAG0) / (1.0 + DRIFT))
+    assert err.max() < 1e-3, err.max()
+    assert "the dyno's clock first" in note
+
+
 def test_without_the_rollers_the_shifts_stand() -> None:
     given = {"telemetry": 0.005}
     shifts, note = roller_aligned_shifts(_recording(dyno=False), given)
