@@ -210,7 +210,7 @@ METHODS: tuple[Method, ...] = (
            spec_keys=("n_cells_series",), optional_roles=(battery_rc.TEMP_ROLE,)),
     Method("battery_map_free", ("battery_voltage_v", "battery_current_a"), _battery_map_free, needs_specs=False),
     Method("torque_converter", ("vehicle_speed_kmh", "shaft_torque_nm", "gear_actual"), _torque_converter,
-           spec_keys=_RATIOS, alternatives=_TC_PUMP),
+           spec_keys=_RATIOS, alternatives=_TC_PUMP, optional_roles=("dyno_force_front_n", "dyno_force_rear_n")),
     Method("shifts", ("gear_target", "vehicle_speed_kmh", "pedal_pct"), _shifts, needs_specs=False),
     Method("reduction_gear", ("em_speed_rpm", "em_torque_nm", "vehicle_speed_kmh", "dyno_force_front_n",
                               "dyno_force_rear_n"), _direct(identify_reduction_gear),

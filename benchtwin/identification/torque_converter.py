@@ -509,10 +509,10 @@ def identify_torque_converter(
                            f"(the coupling point now {g_fit:.3f})")
     pts.reasons.extend(off_reasons.values())
     ok = np.isfinite(pts.w_p) & np.isfinite(pts.w_t) & np.isfinite(pts.t_p) & np.isfinite(pts.t_t)
-    share = uncalibrated_share(pts.gear, ok, pts.borrowed, set(offsets))  # the orchestrator adds its cause
-    if share is not None:  # the verdict as a structure and in words
+    if (share := uncalibrated_share(pts.gear, ok, pts.borrowed, set(offsets))) is not None:  # run adds its cause
         res["converter"].data[share.KEY] = share
         pts.reasons.append(share.reason())
+    res["converter"].reasons.extend(pts.notes)
     for r in pts.reasons:
         res["converter"].flag(r)
         if "coupling" in res:

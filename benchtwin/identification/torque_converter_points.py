@@ -26,6 +26,7 @@ from benchtwin.errors import MissingChannelError
 from benchtwin.identification._fit import FitResult
 from benchtwin.identification._resample_blocks import GRID_BLOCK, StrictGrid
 from benchtwin.identification._signals import source_shifts
+from benchtwin.identification.shaft_clock import roller_aligned_shifts
 from benchtwin.identification.transmission_drag import drag_c0
 from benchtwin.recording import Recording
 from benchtwin.segments import touched
@@ -209,7 +210,8 @@ class ConverterPoints:
     ``scale_se``, ``n_cal``), the turbine-torque calibration (``tscale``, ``tscale_se``, ``n_tcal``: eq. 32's
     torque against the motor torque where the lock-up is closed and K0 open; its samples in
     ``torque_calibration``), the reasons to flag and ``borrowed``: gear -> the gear whose transmission model (or
-    drag model) it used for lack of its own, for the gears among the points.
+    drag model) it used for lack of its own, for the gears among the points; ``notes``: what was done without a flag
+    (the shaft torque's clock lined up with the rollers, :mod:`~benchtwin.identification.shaft_clock`).
     """
 
     t: np.ndarray
@@ -231,6 +233,7 @@ class ConverterPoints:
     n_tcal: int = 0
     torque_calibration: TorqueCalibration | None = None
     borrowed: dict[int, int] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
 
 def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mapping[int, tuple[float, float]] | None,
@@ -277,8 +280,10 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     if drag_gears and "gearbox_oil_degc" in rec:
         opt.append("gearbox_oil_degc")
     states = {"gear_actual", "lockup_closed", "gear_target", "k0_closed", "engine_on"}
-    # the shaft torque (telemetry clock) on the vehicle CAN's: offset, and drift where significant
-    grid = StrictGrid(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)), shifts=source_shifts(rec))
+    # the shaft torque (telemetry clock) on the vehicle CAN's: offset, and drift where significant, then lined up
+    # with the dyno's axle forces test by test (identification/shaft_clock.py)
+    shifts, clock_note = roller_aligned_shifts(rec, source_shifts(rec))
+    grid = StrictGrid(rec, need + opt, rate_hz, hold=tuple(states & set(need + opt)), shifts=shifts)
     reasons = []
     if engine_only:
         reasons.append("no motor channels: the engine drives the pump alone (conventional layout), pump speed and "
@@ -366,7 +371,7 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     return ConverterPoints(p["t"][use], p["n_p"][use] / RPM_PER_RADS, w_t[use], p["t_p"][use], t_t[use],
                            p["dn"][use] / RPM_PER_RADS, gear[use], ig[use] * eta[use] / tscale, segs,
                            int(sel.size - use.sum()), scale, scale_se, n_cal, reasons, tscale, tscale_se, n_tcal,
-                           tcal_points, borrowed)
+                           tcal_points, borrowed, [clock_note] if clock_note else [])
 
 
 def _median_step(grid: StrictGrid) -> float:
