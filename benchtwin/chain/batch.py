@@ -234,8 +234,8 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
         Recording stays in memory and the caller saves it, e.g. beside other work).
     chunk_s:
         Cut the Trace into chunks of this many plant seconds instead of one test a time (the Recording is the same
-        for any cut; fewer, longer chunks cost less per plant second where the tests are short and the memory of a
-        chunk is no concern, e.g. a family run's few thousand seconds: :data:`benchtwin.validation.run.FAMILY_CHUNK_S`).
+        for any cut; fewer, longer chunks cost less per plant second where the tests are short, e.g. a family run's
+        few thousand seconds: :data:`benchtwin.validation.families.FAMILY_CHUNK_S`).
 
     A Trace without some channels (a conventional car's, ``meta["absent_channels"]``) feeds the setup that
     :func:`~benchtwin.sensors.registry.setup_for_trace` keeps of ``setup`` (its rule: shunts and thermocouple

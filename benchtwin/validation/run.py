@@ -30,6 +30,7 @@ from benchtwin.trace import SpooledTrace, Trace
 from benchtwin.validation.chain import chain_checks
 from benchtwin.validation.coverage import interval_coverage
 from benchtwin.validation.families import (
+    FAMILY_CHUNK_S,
     family_checks,
     family_setup,
     family_spans,
@@ -46,11 +47,6 @@ from benchtwin.validation.report import Check, ValidationReport
 __all__ = ["validate"]
 
 _T = TypeVar("_T")
-
-#: plant seconds per chunk through the chain in a family run (the Recording is the same for any cut): the few
-#: thousand seconds of a family's tests go in a few chunks, not one per test (the per-chunk cost was about a third of
-#: the converter's property example; a chunk of 600 s holds the frames of a 600-s test)
-FAMILY_CHUNK_S = 600.0
 
 
 def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig, *, profile: str | None = None,
