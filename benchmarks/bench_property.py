@@ -8,7 +8,9 @@ the vehicle (``strategies.campaign_for`` with the family's ``FAMILY_PICKS``), si
 ``validate(..., trace=..., families=[f], profile="realistic")`` on the paper setup. Timed on the two shipped
 vehicles (the cost follows the seconds of tests, not the vehicle), the median of ``--runs`` runs each, after
 one warm-up example (numba and imports). ``--whole-bench`` times the same with every device of the setup
-kept (the family runs before they carried only the devices the family reads).
+kept (the family runs before they carried only the devices the family reads); ``--chain-checks``,
+``--per-test-chunks`` and ``--all-messages`` put back, one at a time, what the examples no longer do (the chain
+checks, a chunk per test, the vehicle-CAN messages the family does not read).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "properti
 
 import strategies
 
+import benchtwin.validation.families as families
 import benchtwin.validation.run as run
 from benchtwin.config import load_vehicle, scenario_path
 from benchtwin.emulator import simulate_campaign
@@ -37,7 +40,25 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3, help="timed runs per family and vehicle (default 3)")
     ap.add_argument("--families", default=",".join(FAMILIES), help="comma-separated families (default: all)")
     ap.add_argument("--whole-bench", action="store_true", help="keep every device of the setup in family runs")
+    ap.add_argument("--chain-checks", action="store_true",
+                    help="also make the chain checks (the properties leave them out: chain_checks=False)")
+    ap.add_argument("--per-test-chunks", action="store_true",
+                    help="feed the chain one test at a time (as family runs did before FAMILY_CHUNK_S)")
+    ap.add_argument("--all-messages", action="store_true",
+                    help="send every vehicle-CAN message in family runs (as before they sent only the read ones)")
     args = ap.parse_args()
+    if args.per_test_chunks:
+        run.FAMILY_CHUNK_S = None  # type: ignore[assignment]
+    if args.all_messages:
+        _setup = families.family_setup
+
+        def _all_messages(setup: object, roles: object) -> object:
+            bench = _setup(setup, roles)
+            if bench.vehicle_can is None:
+                return bench
+            return bench.model_copy(update={"vehicle_can": bench.vehicle_can.model_copy(update={"not_recorded": []})})
+
+        run.family_setup = _all_messages  # type: ignore[assignment]
     if args.whole_bench:
         run.family_setup = lambda setup, roles: setup  # type: ignore[assignment]
 
@@ -50,7 +71,8 @@ def main() -> None:
                                        **strategies.FAMILY_PICKS.get(family, {}))
         trace = simulate_campaign(vehicle, camp)
         t_sim = time.perf_counter() - w0
-        rep = run.validate(vehicle, setup, camp, trace=trace, families=[family], profile="realistic")
+        rep = run.validate(vehicle, setup, camp, trace=trace, families=[family], profile="realistic",
+                           chain_checks=args.chain_checks)
         return time.perf_counter() - w0, time.process_time() - c0, trace.duration_s, {**rep.timings_s,
                                                                                        "simulate": t_sim}
 
@@ -75,7 +97,10 @@ def main() -> None:
     print("## One property example per family (benchmarks/bench_property.py)\n")
     print(f"- date {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine {platform.machine()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}, commit {commit}")
-    print(f"- setup paper{' (whole bench in family runs)' if args.whole_bench else ''}; vehicles p2_phev_9at "
+    put_back = [f for f, on in (("whole bench in family runs", args.whole_bench), ("chain checks", args.chain_checks),
+                                ("a chunk per test", args.per_test_chunks),
+                                ("every vehicle-CAN message", args.all_messages)) if on]
+    print(f"- setup paper{' (' + ', '.join(put_back) + ')' if put_back else ''}; vehicles p2_phev_9at "
           f"and p2_phev_alt, {args.runs} runs each (seeds 100..); after one warm-up example\n")
     print("| family | tests (s of plant) | wall median (s) | min..max (s) | CPU median (s) | simulate / chain / "
           "identify (s) |")

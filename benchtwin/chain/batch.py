@@ -207,7 +207,8 @@ def _read_json(path: Path, what: str) -> Any:
 
 
 def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: str | Path | None = None, *,
-              blf: bool = False, meta: dict[str, Any] | None = None, save_recording: bool = True) -> Recording:
+              blf: bool = False, meta: dict[str, Any] | None = None, save_recording: bool = True,
+              chunk_s: float | None = None) -> Recording:
     """The whole batch chain: encode the trace, deliver, write the raw logs, acquire, test by test.
 
     The Trace goes through the chain one test at a time (:func:`benchtwin.chain.stream.run_chunked`), so the
@@ -231,19 +232,24 @@ def run_batch(trace: Trace, setup: SetupConfig, seed: int | None = 0, out_dir: s
     save_recording:
         Save ``recording.mf4`` into ``out_dir`` as the acquisition goes and return it opened lazily (False: the
         Recording stays in memory and the caller saves it, e.g. beside other work).
+    chunk_s:
+        Cut the Trace into chunks of this many plant seconds instead of one test a time (the Recording is the same
+        for any cut; fewer, longer chunks cost less per plant second where the tests are short, e.g. a family run's
+        few thousand seconds: :data:`benchtwin.validation.families.FAMILY_CHUNK_S`).
 
     A Trace without some channels (a conventional car's, ``meta["absent_channels"]``) feeds the setup that
     :func:`~benchtwin.sensors.registry.setup_for_trace` keeps of ``setup`` (its rule: shunts and thermocouple
     places on absent channels removed, the vehicle CAN's roles on them not sent); the Recording's
     ``meta["dropped_devices"]`` lists what was taken out.
     """
-    from benchtwin.chain.stream import run_chunked, trace_pieces
+    from benchtwin.chain.stream import run_chunked, time_slices, trace_pieces
     from benchtwin.sensors import setup_for_trace
 
     setup, dropped = setup_for_trace(setup, trace.meta.get("absent_channels", ()))
     if dropped:
         meta = {**(meta or {}), "dropped_devices": dropped}
-    return run_chunked(trace_pieces(trace), setup, seed, out_dir, blf=blf, meta=meta, save_recording=save_recording)
+    pieces = trace_pieces(trace) if chunk_s is None else time_slices([trace], chunk_s)
+    return run_chunked(pieces, setup, seed, out_dir, blf=blf, meta=meta, save_recording=save_recording)
 
 
 def as_logged(received: AcquisitionInput, setup: SetupConfig) -> AcquisitionInput:

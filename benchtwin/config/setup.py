@@ -7,6 +7,8 @@ frame faults). Everything left out is ideal; ``scenarios/setups/ideal.toml`` is 
 
 Saturation is the sensor's range (``current_range_a``, ``range_bar``, the telemetry's +-10 V, the
 thermo module's range): values beyond it are clipped and flagged, as on the real device.
+
+Kept whole: one model per setup-file section, read together (a split would scatter the file format's reference).
 """
 
 from __future__ import annotations
@@ -305,8 +307,11 @@ class VehicleCanConfig(StrictModel):
     link: LinkErrors = Field(default_factory=LinkErrors)
     not_sent: list[str] = Field(default_factory=list, description="roles the car does not send (a conventional "
                                 "car's motor and pack roles): 'not available' on the wire, nothing recorded")
+    not_recorded: list[str] = Field(default_factory=list, description="roles not read (a family run's bench): not "
+                                    "decoded; a message carrying none of the others is not sent (its draws still "
+                                    "taken: the others' are the same, draw for draw)")
 
-    @field_validator("errors", "not_sent")
+    @field_validator("errors", "not_sent", "not_recorded")
     @classmethod
     def _roles(cls, v: dict[str, ChannelErrors] | list[str]) -> dict[str, ChannelErrors] | list[str]:
         _known_roles(dict.fromkeys(v), VEHICLE_CAN_ROLES, "the vehicle CAN")

@@ -42,9 +42,9 @@ from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, StuckIn
 from benchtwin.errors import DataError
 from benchtwin.wire.frames import FRAME_DTYPE
 
-__all__ = ["DeviceClock", "FaultyClock", "device_rng", "disconnect", "faulty_clock", "frame_faults", "hold_sample",
-           "in_spans", "lti_filter", "measure", "sample", "silent_ticks", "span_frame_faults", "truncate_log",
-           "with_stuck"]
+__all__ = ["SPAN_FRAME_FAULTS", "DeviceClock", "FaultyClock", "device_rng", "disconnect", "draw_as_measured",
+           "faulty_clock", "frame_faults", "frames_faulted", "hold_sample", "in_spans", "lti_filter", "measure",
+           "sample", "silent_ticks", "span_frame_faults", "truncate_log", "with_stuck"]
 
 
 def device_rng(seed: int | None, device: str) -> np.random.Generator:
@@ -187,6 +187,13 @@ def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, error
     return y
 
 
+def draw_as_measured(errors: ChannelErrors, rng: np.random.Generator, n: int) -> None:
+    """Take the draws :func:`measure` takes for ``n`` readings (its noise only) without measuring: a reading left out
+    keeps the generator where the others expect it."""
+    if errors.noise_std > 0:
+        rng.normal(0.0, errors.noise_std, (n,))
+
+
 def frame_faults(frames: np.ndarray, stream: np.ndarray, link: LinkErrors, rng: np.random.Generator) -> np.ndarray:
     """Apply drops, duplicates and reorders to a device's frames (a FRAME_DTYPE array, time-sorted).
 
@@ -264,6 +271,16 @@ def with_stuck(errors: ChannelErrors, faults: Sequence[FaultSpec], channel: str)
     return errors if not extra else errors.model_copy(update={"stuck": [*errors.stuck, *extra]})
 
 
+#: the injected faults that act on a device's frames over a span (:func:`span_frame_faults`)
+SPAN_FRAME_FAULTS = ("frame_loss", "frame_loss_burst", "duplicate", "reorder", "corrupt_payload", "wrong_dlc")
+
+
+def frames_faulted(link: LinkErrors, faults: Sequence[FaultSpec]) -> bool:
+    """Whether :func:`frame_faults` or :func:`span_frame_faults` act on (and draw over) a device's frames."""
+    return (link.drop_prob > 0 or link.duplicate_prob > 0 or link.reorder_prob > 0
+            or any(f.kind in SPAN_FRAME_FAULTS for f in faults))
+
+
 def span_frame_faults(frames: np.ndarray, stream: np.ndarray, faults: Sequence[FaultSpec], rng: np.random.Generator,
                       clock: DeviceClock | None = None) -> np.ndarray:
     """Apply the frame faults injected over spans to a device's (or a bus's) frames, time-sorted.
@@ -273,8 +290,7 @@ def span_frame_faults(frames: np.ndarray, stream: np.ndarray, faults: Sequence[F
     its stream; ``corrupt_payload`` replaces the data bytes by random ones; ``wrong_dlc`` sends a frame
     with another data length. Frame times are device times; ``clock`` maps them to plant time.
     """
-    kinds = ("frame_loss", "frame_loss_burst", "duplicate", "reorder", "corrupt_payload", "wrong_dlc")
-    todo = [f for f in faults if f.kind in kinds]
+    todo = [f for f in faults if f.kind in SPAN_FRAME_FAULTS]
     if not todo or len(frames) == 0:
         return frames
     from benchtwin.wire.merge import copy_frames, insert_frames, mask_frames

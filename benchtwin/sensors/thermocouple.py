@@ -22,6 +22,7 @@ from benchtwin.sensors.base import CanopenEndpoint, Delivered, Device, FrameDeco
 from benchtwin.sensors.blocks import Block
 from benchtwin.sensors.imperfections import (
     DeviceClock,
+    draw_as_measured,
     frame_faults,
     in_spans,
     measure,
@@ -91,12 +92,6 @@ def temperature_type_k(emf_mv: np.ndarray, newton_steps: int = 3) -> np.ndarray:
     return t
 
 
-def _draw_as_measured(errors: ChannelErrors, rng: np.random.Generator, n: int) -> None:
-    """The draws :func:`~benchtwin.sensors.imperfections.measure` takes for ``n`` readings (its noise only)."""
-    if errors.noise_std > 0:
-        rng.normal(0.0, errors.noise_std, (n,))
-
-
 def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
                   faults: Sequence[FaultSpec] = (), blk: Block | None = None) -> ProcessImage:
     """The thermo module's object-dictionary values at each TPDO event (its own clock).
@@ -128,7 +123,7 @@ def encode_thermo(trace: Trace, cfg: ThermoConfig, rng: np.random.Generator,
     j = 0
     for place in cfg.places:
         if place in cfg.not_recorded:
-            _draw_as_measured(cfg.errors, rng, n)
+            draw_as_measured(cfg.errors, rng, n)
             continue
         temps[j] = measure(trace.time_s, trace[place], t, with_stuck(cfg.errors, faults, place), rng,
                            latency_s=cfg.link.latency_s, blk=blk, key=place)

@@ -22,7 +22,9 @@ from benchtwin.sensors.base import Device, FrameDecoder, TruthChannel
 from benchtwin.sensors.blocks import Block
 from benchtwin.sensors.imperfections import (
     DeviceClock,
+    draw_as_measured,
     frame_faults,
+    frames_faulted,
     measure,
     silent_ticks,
     span_frame_faults,
@@ -38,7 +40,8 @@ from benchtwin.wire.quality import FLAG, DecodeSink, FrameStream, counter_flags,
 if TYPE_CHECKING:
     from cantools.database.can import Database
 
-__all__ = ["SIGNAL_MAP", "DynoCan", "SignalSource", "VehicleCan", "encode_can_device", "message_codecs"]
+__all__ = ["SIGNAL_MAP", "DynoCan", "SignalSource", "VehicleCan", "encode_can_device", "message_codecs",
+           "unsent_messages"]
 
 RADPS_TO_RPM = 60.0 / (2.0 * np.pi)
 MPS_TO_KMH = 3.6
@@ -116,6 +119,8 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
     parts = []
     sources = SIGNAL_MAP[stem]
     ideal = ChannelErrors()
+    unsent = unsent_messages(stem, cfg)
+    faulted = frames_faulted(cfg.link, faults)
     for codec in message_codecs(stem):
         period = (codec.message.cycle_time or 100) / 1000.0
         phase = (zlib.crc32(codec.name.encode()) % 97) * 1e-4 % period  # senders are not in phase
@@ -126,21 +131,47 @@ def encode_can_device(trace: Trace, stem: str, cfg: VehicleCanConfig | DynoConfi
         for name in codec.signals:
             src = sources[name]
             if src.trace is None:
-                raw[name] = blk.counter(f"{codec.name}.{name}", n)
+                if codec.frame_id not in unsent:
+                    raw[name] = blk.counter(f"{codec.name}.{name}", n)
                 continue
             errors = with_stuck(cfg.errors.get(src.role or "", ideal), faults, src.role or "")
+            if codec.frame_id in unsent:  # not measured, its draws taken: the other messages' are unchanged
+                draw_as_measured(errors, rng, n)
+                continue
             x = measure(trace.time_s, trace[src.trace] * src.factor, t, errors, rng, latency_s=cfg.link.latency_s,
                         hold=src.hold, blk=blk, key=f"{codec.name}.{name}")
             raw[name], _ = codec.to_raw(name, x)
+        if codec.frame_id in unsent and not faulted:
+            continue
         fr = np.zeros(n, dtype=FRAME_DTYPE)
         fr["timestamp"] = t_dev
         fr["arbitration_id"] = codec.frame_id
         fr["dlc"] = codec.length
-        fr["data"] = codec.pack(raw, n)
+        if codec.frame_id not in unsent:
+            fr["data"] = codec.pack(raw, n)
         parts.append(fr)
     frames = merge_frames(parts)
+    # the frame faults draw over every frame, the unsent messages' too (built empty for them); those go after them
     frames = frame_faults(frames, frames["arbitration_id"].astype(np.int64), cfg.link, rng)
-    return span_frame_faults(frames, frames["arbitration_id"].astype(np.int64), faults, rng, clock)
+    frames = span_frame_faults(frames, frames["arbitration_id"].astype(np.int64), faults, rng, clock)
+    if unsent and faulted:
+        frames = frames[~np.isin(frames["arbitration_id"], list(unsent))]
+    return frames
+
+
+def unsent_messages(stem: str, cfg: VehicleCanConfig | DynoConfig) -> frozenset[int]:
+    """Identifiers of the messages none of whose signals is recorded (``not_recorded``, a family run's bench): such a
+    message is not sent; a message with one recorded signal is sent whole."""
+    skip = set(getattr(cfg, "not_recorded", ()))
+    if not skip:
+        return frozenset()
+    sources = SIGNAL_MAP[stem]
+    out = set()
+    for codec in message_codecs(stem):
+        roles = {sources[n].role for n in codec.signals if sources[n].trace is not None}
+        if roles and roles <= skip:
+            out.add(codec.frame_id)
+    return frozenset(out)
 
 
 class _DbcDevice(Device):
@@ -172,7 +203,7 @@ class _DbcDevice(Device):
                 texts[sig.name] = {round(sig.scale * raw + sig.offset): str(text)
                                    for raw, text in sig.choices.items()}
 
-        not_sent = set(getattr(self.cfg, "not_sent", ()))
+        not_sent = set(getattr(self.cfg, "not_sent", ())) | set(getattr(self.cfg, "not_recorded", ()))
 
         def decode(s: FrameStream, sink: DecodeSink) -> None:
             good, proto, nbad = split_bad(s.dlc, codec.length)
@@ -205,7 +236,7 @@ class _DbcDevice(Device):
         """Every signal with a role, to one step of its DBC scaling."""
         out = {}
         sources = SIGNAL_MAP[self.stem]
-        not_sent = set(getattr(self.cfg, "not_sent", ()))
+        not_sent = set(getattr(self.cfg, "not_sent", ())) | set(getattr(self.cfg, "not_recorded", ()))
         for codec in message_codecs(self.stem):
             for name, sig in codec.signals.items():
                 src = sources.get(name)

@@ -85,7 +85,14 @@ from benchtwin.studies.plan_noise import (
 )
 from benchtwin.studies.plan_windows import SEARCHED
 from benchtwin.trace import Trace
-from benchtwin.validation.families import FAMILIES, family_spans, merge_recordings, resolve_families, span_seed
+from benchtwin.validation.families import (
+    FAMILIES,
+    FAMILY_CHUNK_S,
+    family_spans,
+    merge_recordings,
+    resolve_families,
+    span_seed,
+)
 
 __all__ = ["Plan", "PlannedParameter", "plan_campaign", "planned_recording", "reading_variance", "truth_recording"]
 
@@ -148,7 +155,8 @@ def planned_recording(setup: SetupConfig, campaign: CampaignConfig, trace: Trace
     spans = family_spans(trace.segments, kinds)
     if not spans:
         return Recording(segments=list(trace.segments)), {}
-    recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k))
+    # in chunks of FAMILY_CHUNK_S, not one per test: the same Recording (any cut gives it), less per-chunk cost
+    recs = [run_batch(trace.slice_time(a, b), setup, seed=span_seed(campaign.seed, k), chunk_s=FAMILY_CHUNK_S)
             for k, (a, b) in enumerate(spans)]
     merged = merge_recordings(recs)
     return truth_recording(merged, trace, truth), {n: merged[n] for n in recorded if n in merged}

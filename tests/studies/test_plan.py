@@ -47,6 +47,20 @@ def test_reading_variance_of_a_coarse_step_matches_monte_carlo() -> None:
     assert reading_variance(0.05, 2.1) == pytest.approx(2.1 * 0.05 / math.sqrt(math.pi), rel=0.02)
 
 
+def test_reading_variance_is_the_two_cdfs_per_step_form_bit_for_bit() -> None:
+    # one normal CDF per step edge (an inner edge is the upper edge of one step and the lower of the next) must give
+    # the very floats of two CDFs per step (stats.norm.cdf), the form the plans were recorded with
+    from scipy import stats
+
+    sigma, q = 0.2, 0.25
+    y = np.append(np.random.default_rng(3).normal(0.0, 40.0, 5000), [0.0, -0.0, q / 2, -q / 2, 1e6])
+    k = np.arange(-int(6 * sigma / q) - 2, int(6 * sigma / q) + 3)
+    d = (y / q - np.rint(y / q))[:, None]
+    p = stats.norm.cdf((k + 0.5 - d) * q / sigma) - stats.norm.cdf((k - 0.5 - d) * q / sigma)
+    ref = np.clip(p @ (k * q) ** 2 - (p @ (k * q)) ** 2, 0.0, None)
+    assert np.array_equal(reading_variance(sigma, q, y), ref)
+
+
 def test_sandwich_with_equal_rows_is_the_textbook_covariance() -> None:
     A = np.column_stack([np.ones(5), np.arange(5.0)])
     s2 = np.full(5, 0.04)
