@@ -161,7 +161,7 @@ class BusLogWriter:
     """An MF4 bus log written as its frames arrive (e.g. chunk by chunk of a campaign): :func:`write_mf4` in parts.
 
     asammdf writes the blocks that describe the log (header, channel group, channels, source) once; the data blocks
-    are written by :class:`~benchtwin.chain.mf4stream.StreamedGroupFile` as the frames come, each block of
+    are written by :class:`~benchtwin.mf4stream.StreamedMdf` as the frames come, each block of
     ``block_frames`` frames compressed on a worker thread while the caller goes on (asammdf itself would put every
     block through its temporary file and compress them all on :meth:`close`). Memory: the frames of a few blocks.
     The frames appended must follow one another in time. The file equals what :func:`write_mf4` writes of all the
@@ -181,7 +181,7 @@ class BusLogWriter:
         from asammdf import MDF, Signal
         from asammdf.blocks.source_utils import Source
 
-        from benchtwin.chain.mf4stream import StreamedGroupFile, mdf_template
+        from benchtwin.mf4stream import GroupLayout, StreamedMdf, mdf_template
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -201,15 +201,15 @@ class BusLogWriter:
             template = mdf_template(mdf, self.compression)
         finally:
             mdf.close()
-        self._file: StreamedGroupFile | None = StreamedGroupFile(
-            self.path, template, _MF4_RECORD.itemsize, self.compression, self.block_frames,
-            lambda f, transposed: _mf4_block(f, channel, transposed))
+        layout = GroupLayout(_MF4_RECORD.itemsize, lambda f, transposed: _mf4_block(f, channel, transposed),
+                             self.block_frames)
+        self._file: StreamedMdf | None = StreamedMdf(self.path, template, [layout], self.compression)
 
     def append(self, frames: np.ndarray) -> None:
         """Append frames (FRAME_DTYPE, in time order, after those appended before)."""
         if self._file is None:
             raise ValueError(f"{self.path}: bus log already closed")
-        self._file.append(frames)
+        self._file.append(0, frames)
         self.frames += len(frames)
 
     def close(self) -> Path:
