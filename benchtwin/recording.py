@@ -24,8 +24,8 @@ from benchtwin.mdf import (
     ChannelFile,
     check_compression,
     open_mdf,
+    save_channel_groups,
     texts_of,
-    write_channel_groups,
 )
 from benchtwin.segments import Segment, segments_from_json, segments_to_json
 
@@ -366,17 +366,15 @@ class Recording:
         path.parent.mkdir(parents=True, exist_ok=True)
         mdf = MDF(version="4.10")
         kept = self.loaded()
-        # one group per source and time base, written block by block (a lazy channel with a block reader is never
-        # read whole); lazy channels read only to be written are dropped again, a group at a time
-        write_channel_groups(mdf, self.channels.values(), FLAG_CONVERSION,
-                             lambda names: self.drop([n for n in names if n not in kept]))
         if self.start_time is not None:
             mdf.header.start_time = self.start_time
         mdf.header.comment = json.dumps({"benchtwin": {"meta": self.meta, "segments": json.loads(
             segments_to_json(self.segments)), "channels": list(self.channels)}}, default=str)
-        # asammdf makes the suffix .mf4: the real name
-        path = Path(mdf.save(path, overwrite=True, compression=check_compression(compression)))
-        mdf.close()
+        # one group per source and time base, written block by block (a lazy channel with a block reader is never
+        # read whole), compressed on threads; lazy channels read only to be written are dropped again, group by group
+        path = save_channel_groups(path, mdf, self.channels.values(), FLAG_CONVERSION,
+                                   lambda names: self.drop([n for n in names if n not in kept]),
+                                   compression=check_compression(compression))
         path.with_suffix(".segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
         return path
 

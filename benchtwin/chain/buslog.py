@@ -93,13 +93,44 @@ def _mf4_records(f: np.ndarray, channel: int) -> np.ndarray:
     return rec
 
 
-#: frames appended to an MF4 bus log at a time (about 15 MB of records)
-MF4_BLOCK_FRAMES = 1 << 19
+#: frames in one data block of an MF4 bus log: asammdf's ``save`` cuts a group's data at 4 MiB (149,796 records of
+#: 28 bytes), so the blocks, compressed one at a time, are those it writes
+MF4_BLOCK_FRAMES = (4 << 20) // _MF4_RECORD.itemsize
+
+
+def _mf4_block(f: np.ndarray, channel: int, transposed: bool) -> bytes:
+    """The records of frames (FRAME_DTYPE) as one MF4 data block holds them: record after record, or byte column
+    after byte column (``transposed``: what transposed deflate compresses), built straight in that layout."""
+    n = len(f)
+    rec = _MF4_RECORD
+    if not transposed:
+        out = np.zeros(n, rec)
+        out["time"] = f["timestamp"]
+        r = _mf4_records(f, channel)
+        for name in MF4_FRAME_DTYPE.names:
+            out[name] = r[name]
+        return out.tobytes()
+    cols = np.zeros((rec.itemsize, n), np.uint8)
+
+    def put(name: str, values: np.ndarray) -> None:
+        dt, off = rec.fields[name][:2]
+        width = dt.itemsize
+        v = np.ascontiguousarray(values, dtype=dt.base if dt.shape else dt)
+        cols[off:off + width] = v.view(np.uint8).reshape(n, width).T
+
+    put("time", f["timestamp"])
+    cols[rec.fields["CAN_DataFrame.BusChannel"][1]] = channel
+    put("CAN_DataFrame.ID", f["arbitration_id"] | np.where(f["is_extended"], np.uint32(0x80000000), np.uint32(0)))
+    put("CAN_DataFrame.IDE", f["is_extended"])
+    put("CAN_DataFrame.DLC", f["dlc"])
+    put("CAN_DataFrame.DataLength", np.minimum(f["dlc"], 8))
+    put("CAN_DataFrame.DataBytes", f["data"])
+    return cols.tobytes()
 
 
 def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_time: datetime = DEFAULT_START,
               compression: int = DEFAULT_COMPRESSION, block_frames: int = MF4_BLOCK_FRAMES) -> Path:
-    """Write a frame table as an MF4 bus log, appended in blocks of ``block_frames`` frames.
+    """Write a frame table as an MF4 bus log, in data blocks of ``block_frames`` frames.
 
     Parameters
     ----------
@@ -117,7 +148,8 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
         ~1.6x the CPU of no compression, see benchmarks/bench_files.py). Every choice reads back the same
         with ``can.MF4Reader``, asammdf and :func:`read_mf4`.
     block_frames:
-        Frames converted and appended at a time (memory beyond the table: one block of records).
+        Frames of one MF4 data block (the last one fewer; default :data:`MF4_BLOCK_FRAMES`, asammdf's own cut, so
+        the file is the one asammdf's ``save`` writes of the same frames).
     """
     with BusLogWriter(path, table.bus, table.bitrate, channel=channel, start_time=start_time,
                       compression=compression, block_frames=block_frames) as writer:
@@ -128,9 +160,12 @@ def write_mf4(table: FrameTable, path: str | Path, *, channel: int = 1, start_ti
 class BusLogWriter:
     """An MF4 bus log written as its frames arrive (e.g. chunk by chunk of a campaign): :func:`write_mf4` in parts.
 
-    asammdf keeps what is appended in its temporary file until :meth:`close` saves the compressed log, so only
-    one block of records is in memory at a time. The frames appended must follow one another in time. The file
-    equals what :func:`write_mf4` writes of all the frames at once.
+    asammdf writes the blocks that describe the log (header, channel group, channels, source) once; the data blocks
+    are written by :class:`~benchtwin.mf4stream.StreamedMdf` as the frames come, each block of
+    ``block_frames`` frames compressed on a worker thread while the caller goes on (asammdf itself would put every
+    block through its temporary file and compress them all on :meth:`close`). Memory: the frames of a few blocks.
+    The frames appended must follow one another in time. The file equals what :func:`write_mf4` writes of all the
+    frames at once, and what asammdf's ``save`` writes of them (but for the history block's time).
 
     Parameters
     ----------
@@ -143,8 +178,10 @@ class BusLogWriter:
     def __init__(self, path: str | Path, bus: str, bitrate: int, *, channel: int = 1,
                  start_time: datetime = DEFAULT_START, compression: int = DEFAULT_COMPRESSION,
                  block_frames: int = MF4_BLOCK_FRAMES) -> None:
-        from asammdf import MDF
+        from asammdf import MDF, Signal
         from asammdf.blocks.source_utils import Source
+
+        from benchtwin.mf4stream import GroupLayout, StreamedMdf, mdf_template
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -152,41 +189,34 @@ class BusLogWriter:
         self.compression = check_compression(compression)
         self.block_frames = max(1, int(block_frames))
         self.frames = 0
-        self._mdf: Any = MDF(version="4.10")
-        self._mdf.header.start_time = start_time
-        self._mdf.header.comment = f"benchtwin bus log: bus {bus}, {bitrate} bit/s"
-        self._src = Source(name=bus, path=bus, comment=f"CAN bus {bus}", source_type=Source.SOURCE_BUS,
-                           bus_type=Source.BUS_TYPE_CAN)
-        self._started = False
+        mdf: Any = MDF(version="4.10")
+        try:
+            mdf.header.start_time = start_time
+            mdf.header.comment = f"benchtwin bus log: bus {bus}, {bitrate} bit/s"
+            src = Source(name=bus, path=bus, comment=f"CAN bus {bus}", source_type=Source.SOURCE_BUS,
+                         bus_type=Source.BUS_TYPE_CAN)
+            empty = np.zeros(0, FRAME_DTYPE)
+            mdf.append(Signal(name="CAN_DataFrame", samples=_mf4_records(empty, channel), timestamps=np.zeros(0),
+                              source=src), acq_name=bus, comment=f"CAN bus {bus}")
+            template = mdf_template(mdf, self.compression)
+        finally:
+            mdf.close()
+        layout = GroupLayout(_MF4_RECORD.itemsize, lambda f, transposed: _mf4_block(f, channel, transposed),
+                             self.block_frames)
+        self._file: StreamedMdf | None = StreamedMdf(self.path, template, [layout], self.compression)
 
     def append(self, frames: np.ndarray) -> None:
         """Append frames (FRAME_DTYPE, in time order, after those appended before)."""
-        from asammdf import Signal
-
-        if self._started and not len(frames):
-            return
-        for k in range(0, max(len(frames), 1), self.block_frames):
-            part = frames[k:k + self.block_frames]
-            rec = _mf4_records(part, self.channel)
-            ts = np.ascontiguousarray(part["timestamp"])
-            if not self._started:
-                self._mdf.append(Signal(name="CAN_DataFrame", samples=rec, timestamps=ts, source=self._src),
-                                 acq_name=self.bus, comment=f"CAN bus {self.bus}")
-                self._started = True
-            else:
-                self._mdf.extend(0, [(ts, None), (rec, None)])
-            self.frames += len(part)
+        if self._file is None:
+            raise ValueError(f"{self.path}: bus log already closed")
+        self._file.append(0, frames)
+        self.frames += len(frames)
 
     def close(self) -> Path:
-        """Save the compressed log; return its path."""
-        if self._mdf is not None:
-            if not self._started:
-                self.append(np.zeros(0, FRAME_DTYPE))
-            try:
-                self._mdf.save(self.path, overwrite=True, compression=self.compression)
-            finally:
-                self._mdf.close()
-                self._mdf = None
+        """Write the last block and the blocks that describe the log; return its path."""
+        if self._file is not None:
+            file, self._file = self._file, None
+            file.close()
         return self.path
 
     def __enter__(self) -> BusLogWriter:
