@@ -27,9 +27,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from benchtwin.chain.alignment import detect_lag
 from benchtwin.identification._clock import ClockShift, Shift, to_ref, to_source
 from benchtwin.identification._windows import window_of
+from benchtwin.lag import detect_lag
 from benchtwin.recording import Recording
 
 __all__ = ["MIN_TESTS", "ROLLER_FORCES", "roller_aligned_shifts"]
@@ -119,7 +119,7 @@ def roller_aligned_shifts(rec: Recording, shifts: Mapping[str, Shift], *, rate_h
     shifts:
         Time to add to each source's timestamps (:func:`~benchtwin.identification._clock.source_shifts`).
     rate_hz, max_lag_s, min_correlation:
-        The cross-correlation of each test (:func:`~benchtwin.chain.alignment.detect_lag`); a lag at the search's
+        The cross-correlation of each test (:func:`~benchtwin.lag.detect_lag`); a lag at the search's
         edge is no peak and is left out.
     min_test_s:
         Shorter tests are left out.
