@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -49,6 +50,8 @@ T_REF_DEGC = 25.0
 #: smallest span of the pack temperature over the data for a temperature term (below it the term is not separable
 #: from beta: a 1 K span moves an Arrhenius-like R_0 by ~2.5 %)
 MIN_TEMP_SPAN_K = 1.0
+#: the eq. 30 fit's arrays the RC fit reads (its samples)
+_EQ30_SAMPLES = ("t", "v_meas", "current", "soc")
 #: a gap in the samples longer than this restarts the RC states (the current in the gap is unknown)
 _MAX_GAP_S = 1.0
 
@@ -185,6 +188,9 @@ def identify_battery_rc(
             raise DataError("identify_battery_rc needs specs (n_cells_series) or n_cells")
         n_cells = specs.n_cells_series
     eq30 = identify_battery(rec, specs, n_cells=n_cells, maps=maps, rate_hz=rate_hz, segment_kinds=segment_kinds)
+    # the fit below reads these four of eq. 30's arrays: its design matrix, fitted values and maps go now (a
+    # campaign's rows each, not kept beside the RC search's)
+    eq30.data = {k: eq30.data[k] for k in _EQ30_SAMPLES}
     temp = None
     if TEMP_ROLE in rec:
         ch = rec[TEMP_ROLE]
@@ -247,8 +253,7 @@ def fit_battery_rc(
     """
     if n_branches not in (1, 2):
         raise DataError(f"n_branches must be 1 or 2, got {n_branches}")
-    need = ("t", "v_meas", "current", "soc")
-    if not all(k in eq30.data for k in need):
+    if not all(k in eq30.data for k in _EQ30_SAMPLES):
         raise DataError("fit_battery_rc needs the eq. 30 fit's samples (t, v_meas, current, soc)")
     maps = maps or load_literature_maps()
     t = np.asarray(eq30.data["t"], float)
@@ -284,6 +289,7 @@ def fit_battery_rc(
             break
         weak = sorted(why)
         reasons.append(f"{nb} RC branch(es): {why[weak[-1]]}")
+        del fit  # its design matrix and data go before the next search (a campaign's rows each)
     else:
         fit = linear_fit(np.column_stack(list(base.values())), y, list(base), units=_units(base),
                          segments=eq30.segments, what="battery eq. 30 (no RC branch supported)", serial=True)
@@ -310,16 +316,11 @@ def _units(base: dict[str, np.ndarray]) -> list[str]:
     return ["1/K" if k == "beta_temp_per_k" else "" for k in base]
 
 
-def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.ndarray], nb: int,
-              fast: tuple[float, float], slow: tuple[float, float], grid: int, segments: list[str]) -> FitResult:
-    """Best time constants (coarse log grid, then Nelder-Mead on ``log tau``); the fit there with joint intervals."""
+def _search_taus(B: np.ndarray, y: np.ndarray, filtered: _BranchFilter,
+                 design: Callable[[tuple[float, ...]], np.ndarray], nb: int, fast: tuple[float, float],
+                 slow: tuple[float, float], grid: int) -> tuple[float, ...]:
+    """The time constants of least squares (coarse log grid, then Nelder-Mead on ``log tau``)."""
     from scipy.optimize import minimize
-
-    B = np.column_stack(list(base.values()))
-    filtered = _BranchFilter(t, i)  # what does not depend on the time constants, once for the whole search
-
-    def design(taus: tuple[float, ...]) -> np.ndarray:
-        return np.column_stack([B] + [-filtered(tau) for tau in taus])
 
     # the base columns are the same for every pair of time constants: project them out once (QR), so that each
     # evaluation solves only for the branches' columns
@@ -344,7 +345,20 @@ def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.nd
                                                                        + ([slow[1]] if nb == 2 else []))
     opt = minimize(lambda z: sse(tuple(np.exp(np.clip(z, lo, hi)))), np.log(best), method="Nelder-Mead",
                    options={"xatol": 1e-3, "fatol": 0.0, "maxiter": 300})
-    taus = tuple(float(v) for v in np.exp(np.clip(opt.x, lo, hi)))
+    return tuple(float(v) for v in np.exp(np.clip(opt.x, lo, hi)))
+
+
+def _fit_taus(t: np.ndarray, i: np.ndarray, y: np.ndarray, base: dict[str, np.ndarray], nb: int,
+              fast: tuple[float, float], slow: tuple[float, float], grid: int, segments: list[str]) -> FitResult:
+    """Best time constants (coarse log grid, then Nelder-Mead on ``log tau``); the fit there with joint intervals."""
+    B = np.column_stack(list(base.values()))
+    filtered = _BranchFilter(t, i)  # what does not depend on the time constants, once for the whole search
+
+    def design(taus: tuple[float, ...]) -> np.ndarray:
+        return np.column_stack([B] + [-filtered(tau) for tau in taus])
+
+    # the search's projection goes with it: not beside the fits below (a campaign's rows times the base columns)
+    taus = _search_taus(B, y, filtered, design, nb, fast, slow, grid)
     names = list(base) + [f"r{k + 1}_ohm" for k in range(nb)]
     A = design(taus)
     fit = linear_fit(A, y, names, units=_units(base) + ["ohm"] * nb, segments=segments,

@@ -19,6 +19,7 @@ from benchtwin.identification.transmission import identify_transmission
 from benchtwin.recording import Channel, Recording
 from benchtwin.segments import Segment
 from benchtwin.trace import Trace
+from benchtwin.validation._spans import span_ranges, spans_view
 
 __all__ = ["HOLD_SPEED_BAND_KMH", "PAPER_R2", "battery_hold_fit", "battery_hold_windows", "paper_estimation_fits",
            "reaches_paper"]
@@ -126,10 +127,9 @@ def battery_hold_windows(rec: Recording) -> list[tuple[float, float, str]]:
         b = seg.end_s
         target = seg.settings.get("speed_kmh")
         if v is not None and target is not None:
-            t, x, _f = v.block(*np.searchsorted(v.timestamps, [a, seg.end_s]))
-            off = np.flatnonzero(np.abs(x - float(target)) > HOLD_SPEED_BAND_KMH)
-            if off.size:
-                b = float(t[off[0]])
+            left = _first_outside(v, a, seg.end_s, float(target))
+            if left is not None:
+                b = left
         if b > a:
             out.append((a, b, seg.name))
     return out
@@ -143,13 +143,45 @@ def battery_hold_fit(rec: Recording, vehicle: VehicleConfig) -> Any:
         return None
     # each hold's samples with a second either side (the fit's grid interpolates at the holds' edges), not the
     # samples between the holds: a long campaign's holds lie far apart
-    sub = _slice_recording(rec, min(w[0] for w in wins) - 1.0, max(w[1] for w in wins) + 1.0, names,
-                           spans=[(a - 1.0, b + 1.0) for a, b, _ in wins])
+    spans = [(a - 1.0, b + 1.0) for a, b, _ in wins]
+    sub = _holds_view(rec, names, spans)
+    if sub is None:
+        sub = _slice_recording(rec, min(w[0] for w in wins) - 1.0, max(w[1] for w in wins) + 1.0, names,
+                               spans=spans)
     sub.segments = [Segment(a, b, "constant_drive", name, {}) for a, b, name in wins]
     try:
         return identify_battery(sub, vehicle.specs)
     except IdentificationError:
         return None
+
+
+def _first_outside(v: Channel, start_s: float, end_s: float, target: float) -> float | None:
+    """The time of the first speed sample of ``[start_s, end_s)`` outside :data:`HOLD_SPEED_BAND_KMH` of ``target``
+    (None: none), read :data:`_BLOCK` samples at a time (a time-ordered channel read by blocks: around the span
+    only, and never the channel whole)."""
+    r = span_ranges(v, [(start_s, end_s)])
+    i0, i1 = r[0] if r is not None else np.searchsorted(v.timestamps, [start_s, end_s])
+    for a in range(int(i0), int(i1), _BLOCK):
+        t, x, _f = v.block(a, min(a + _BLOCK, int(i1)))
+        off = np.flatnonzero(np.abs(x - target) > HOLD_SPEED_BAND_KMH)
+        if off.size:
+            return float(t[off[0]])
+    return None
+
+
+def _holds_view(rec: Recording, names: tuple[str, ...], spans: list[tuple[float, float]]) -> Recording | None:
+    """:func:`_slice_recording`'s samples of ``names`` inside ``spans`` (sorted, disjoint), as lazy channels read a
+    block at a time from ``rec``'s (:func:`~benchtwin.validation._spans.spans_view`): the holds of a long campaign
+    are never all in memory at once. None when a channel is not read by blocks (in memory, or a file read whole)."""
+    order = sorted(spans)
+    ranges = {n: span_ranges(rec[n], order) for n in names}
+    if any(r is None for r in ranges.values()):
+        return None
+    out = Recording(segments=[s for s in rec.segments if s.end_s > order[0][0] and s.start_s < order[-1][1]],
+                    meta=dict(rec.meta))
+    for n in names:
+        out.add(spans_view(rec[n], ranges[n] or []))
+    return out
 
 
 def _gear5_fit(rec: Recording, vehicle: VehicleConfig, trace: Trace) -> dict[str, Any]:

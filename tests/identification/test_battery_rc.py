@@ -275,3 +275,29 @@ def test_branch_filter_reused_over_taus_equals_the_one_shot_filter():
             np.testing.assert_array_equal(f(tau), _filtered_blocks(tt, ii, tau))
     assert _BranchFilter(t, i).h is not None and len(_BranchFilter(t, i).blocks) == 3
     assert _BranchFilter(uneven, i2).h is None
+
+
+def test_the_rc_fit_is_handed_eq30s_samples_only(noisy, monkeypatch):
+    """identify_battery_rc keeps of the eq. 30 fit only the four sample arrays the RC fit reads: its design matrix,
+    fitted values and maps (a campaign's rows each) are not alive beside the RC search, and the fit is the one on the
+    whole eq. 30 result, bit for bit (mutant: eq. 30's data kept whole)."""
+    import benchtwin.identification.battery_rc as battery_rc
+
+    rec = noisy[0]
+    seen = {}
+    real = battery_rc.fit_battery_rc
+
+    def spy(eq30, n_cells, **kw):
+        seen["keys"] = set(eq30.data)
+        return real(eq30, n_cells, **kw)
+
+    monkeypatch.setattr(battery_rc, "fit_battery_rc", spy)
+    got = battery_rc.identify_battery_rc(rec, SPECS, rate_hz=RATE)
+    assert seen["keys"] == {"t", "v_meas", "current", "soc"}
+    whole = identify_battery(rec, SPECS, rate_hz=RATE, segment_kinds=None)
+    assert len(whole.data) > len(seen["keys"])
+    want = real(whole, SPECS.n_cells_series)
+    assert {k: (p.value, p.std_error, p.ci95) for k, p in got.params.items()} == \
+        {k: (p.value, p.std_error, p.ci95) for k, p in want.params.items()}
+    for k, a in want.data.items():
+        np.testing.assert_array_equal(got.data[k], a, err_msg=k)
