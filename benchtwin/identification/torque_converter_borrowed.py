@@ -4,9 +4,10 @@ The second half of the points' calibration of
 :func:`~benchtwin.identification.torque_converter.identify_torque_converter`: a gear without a transmission model of
 its own (:func:`~benchtwin.identification.torque_converter_points.converter_points` lends it the nearest gear's)
 has its eq. 32 turbine torque offset to meet the pump torque on its coupling points
-(:func:`borrowed_gear_offsets`), when the gear's passes through the coupling mode refute the borrowed C0
-(:func:`offset_significance`). When most of the points are read through a gear left uncalibrated, the curves
-that read the turbine torque are not identified (:func:`uncalibrated_share_reason`).
+(:func:`borrowed_gear_offsets`, split at the gear's own coupling point, :func:`coupling_kink`), when the gear's
+passes through the coupling mode refute the borrowed C0 (:func:`offset_significance`). When most of the points are
+read through a gear left uncalibrated, the curves that read the turbine torque are not identified
+(:func:`uncalibrated_share_reason`).
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from scipy import stats
 
 from benchtwin.identification.torque_converter_points import ConverterPoints
 
-__all__ = ["COUPLED_TR_TOL", "MAX_UNCALIBRATED_SHARE", "OFFSET_CONFIDENCE", "PASS_GAP_S", "TURBINE_UNIDENTIFIED",
-           "UNCALIBRATED_SHARE_KEY", "UncalibratedShare", "borrowed_gear_offsets", "offset_significance",
-           "uncalibrated_share", "uncalibrated_share_reason"]
+__all__ = ["COUPLED_TR_TOL", "KINK_MIN_TOP", "KINK_WINDOW", "MAX_UNCALIBRATED_SHARE", "OFFSET_CONFIDENCE", "PASS_GAP_S",
+           "TURBINE_UNIDENTIFIED", "UNCALIBRATED_SHARE_KEY", "UncalibratedShare", "borrowed_gear_offsets",
+           "coupling_kink", "offset_significance", "uncalibrated_share", "uncalibrated_share_reason"]
 
 #: a torque ratio this close to 1 counts as the coupling mode seen (:func:`borrowed_gear_offsets`): a few times the
 #: torque ratio's scatter from the telemetry step (about 0.5 Nm at 20-80 Nm), well below a converter's TR - 1 short of
