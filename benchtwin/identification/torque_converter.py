@@ -471,12 +471,11 @@ def identify_torque_converter(
         off_reasons: dict[int, str] = {}
         # a gear on a borrowed transmission model: its turbine torque offset to meet the pump torque on its own
         # coupling points; the coupling point moves with the offset, so both are iterated to a fixed point
-        for it in range(8 if p.borrowed else 0):
+        for _it in range(8 if p.borrowed else 0):
             conv = res["converter"]
             j = conv.value("J_pump_kgm2") if "J_pump_kgm2" in conv.params else 0.0
             new, off_reasons = borrowed_gear_offsets(p, conv.value("gamma_coupling"), j,
-                                                     0.1 * max_pump_accel_rpm_s / RPM_PER_RADS, min_points,
-                                                     start=it == 0)
+                                                     0.1 * max_pump_accel_rpm_s / RPM_PER_RADS, min_points)
             # a gear calibrated in an earlier round keeps its offset if the moved coupling point leaves it too few
             off_reasons = {k: r for k, r in off_reasons.items() if k not in offsets}
             new = {**{k: v for k, v in offsets.items() if k not in new}, **new}

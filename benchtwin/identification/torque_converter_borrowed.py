@@ -4,9 +4,10 @@ The second half of the points' calibration of
 :func:`~benchtwin.identification.torque_converter.identify_torque_converter`: a gear without a transmission model of
 its own (:func:`~benchtwin.identification.torque_converter_points.converter_points` lends it the nearest gear's)
 has its eq. 32 turbine torque offset to meet the pump torque on its coupling points
-(:func:`borrowed_gear_offsets`), when the gear's passes through the coupling mode refute the borrowed C0
-(:func:`offset_significance`). When most of the points are read through a gear left uncalibrated, the curves
-that read the turbine torque are not identified (:func:`uncalibrated_share_reason`).
+(:func:`borrowed_gear_offsets`, split at the gear's own coupling point, :func:`coupling_kink`), when the gear's
+passes through the coupling mode refute the borrowed C0 (:func:`offset_significance`). When most of the points are
+read through a gear left uncalibrated, the curves that read the turbine torque are not identified
+(:func:`uncalibrated_share_reason`).
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from scipy import stats
 
 from benchtwin.identification.torque_converter_points import ConverterPoints
 
-__all__ = ["COUPLED_TR_TOL", "MAX_UNCALIBRATED_SHARE", "OFFSET_CONFIDENCE", "PASS_GAP_S", "TURBINE_UNIDENTIFIED",
-           "UNCALIBRATED_SHARE_KEY", "UncalibratedShare", "borrowed_gear_offsets", "offset_significance",
-           "uncalibrated_share", "uncalibrated_share_reason"]
+__all__ = ["COUPLED_TR_TOL", "KINK_MIN_TOP", "KINK_WINDOW", "MAX_UNCALIBRATED_SHARE", "OFFSET_CONFIDENCE", "PASS_GAP_S",
+           "TURBINE_UNIDENTIFIED", "UNCALIBRATED_SHARE_KEY", "UncalibratedShare", "borrowed_gear_offsets",
+           "coupling_kink", "offset_significance", "uncalibrated_share", "uncalibrated_share_reason"]
 
 #: a torque ratio this close to 1 counts as the coupling mode seen (:func:`borrowed_gear_offsets`): a few times the
 #: torque ratio's scatter from the telemetry step (about 0.5 Nm at 20-80 Nm), well below a converter's TR - 1 short of
@@ -31,6 +32,12 @@ COUPLED_TR_TOL = 0.03
 #: Student t of its passes, :func:`offset_significance`): the borrowed model's C0 is kept unless the gear's own
 #: coupling points refute it
 OFFSET_CONFIDENCE = 0.9973
+#: the SR span below a gear's own coupling point whose converter-mode points calibrate its offset with it
+#: (:func:`coupling_kink`): TR - 1 is about linear in Gamma - SR there (2.29 per unit SR 0.01 below Gamma and 2.13
+#: on average over 0.06 below it, a drawn 9-speed's converter, Gamma 0.906), so the stick's slope holds within 7 %
+KINK_WINDOW = 0.05
+#: least points at or above a candidate kink (the coupling mode's plateau the offset is read from)
+KINK_MIN_TOP = 3
 #: coupling points further apart than this (s) are separate passes: 2.5 times the 0.4 s pump-acceleration window,
 #: so no two passes share a sample of dw_p/dt, while the points of one pass share its operating point and errors
 PASS_GAP_S = 1.0
@@ -46,29 +53,50 @@ TURBINE_UNIDENTIFIED = "the turbine torque's curves (TR, Gamma, coupling) not id
 UNCALIBRATED_SHARE_KEY = "uncalibrated_share"
 
 
-def _plateau_start(sr: np.ndarray, d: np.ndarray, t_p: np.ndarray, min_points: int) -> float:
-    """The SR from which ``d`` is flat: a broken stick ``d = c + s T_p max(G - SR, 0)`` fitted over ``G``.
+def coupling_kink(sr: np.ndarray, d: np.ndarray, t_p: np.ndarray, *, window: float = KINK_WINDOW,
+                  min_top: int = KINK_MIN_TOP) -> tuple[float, float]:
+    """Where a gear's turbine-minus-pump torque turns flat: a broken stick ``d = c + s T_p max(G - SR, 0)``.
 
-    Below the coupling point the turbine torque exceeds the pump torque by ``(TR - 1) T_p``, falling to 0 at
-    Gamma; above it the difference of eq. 32's turbine torque and the pump torque is the gear's offset alone.
-    The least-squares ``G`` (at least ``min_points`` points above it) starts the coupling point of a gear whose
-    offset moved the converter fit's (NaN: too few points).
+    Below the coupling point the turbine torque exceeds the pump torque by ``(TR - 1) T_p``, ``TR - 1`` falling
+    about linearly to 0 at Gamma; above it the difference of eq. 32's turbine torque and the pump torque is the
+    gear's offset ``c`` alone. Over each candidate ``G`` (the points' SRs with ``min_top`` points or more at or above
+    it) the stick is fitted by least squares on the points within ``window`` below ``G`` and above; the kink is kept
+    against the flat line (``s = 0`` over all those points) only when it lowers the Bayesian information criterion
+    (two more parameters, ``G`` and ``s``). The kink is read from the gear's own points, not from the converter fit's
+    Gamma: a Gamma fitted low (an offset taken too high lowers the torque ratios near it) would otherwise count
+    converter-mode points as coupling points, which raises the offset and lowers Gamma further.
+
+    Returns
+    -------
+    G, s
+        The kink (the lowest SR when the flat line wins, NaN with too few points) and the slope (0: flat).
     """
-    best, g_best = np.inf, float("nan")
+    sr, d, t_p = (np.asarray(x, dtype=float) for x in (sr, d, t_p))
+    if sr.size < min_top:
+        return float("nan"), 0.0
+    best = (np.inf, float(sr.min()), 0.0)
     for g in np.unique(np.round(sr, 3)):
-        if int((sr >= g).sum()) < min_points:
+        if int((sr >= g).sum()) < min_top:
             break
-        a = np.column_stack([np.ones_like(sr), t_p * np.clip(g - sr, 0.0, None)])
-        coef, *_ = np.linalg.lstsq(a, d, rcond=None)
-        sse = float(np.sum((d - a @ coef) ** 2))
-        if coef[1] > 0 and sse < best:
-            best, g_best = sse, float(g)
-    return g_best
+        m = sr >= g - window
+        n = int(m.sum())
+        x = t_p[m] * np.clip(g - sr[m], 0.0, None)
+        r0 = d[m] - d[m].mean()
+        sse0 = float(r0 @ r0)
+        a = np.column_stack([np.ones(n), x])
+        coef, *_ = np.linalg.lstsq(a, d[m], rcond=None)
+        sse1 = float(np.sum((d[m] - a @ coef) ** 2))
+        if not (coef[1] > 0 and n > 3) or (sse1 <= 0.0 and sse0 <= 0.0):
+            continue
+        # BIC of the kinked line against the flat one over the same points: n log(SSE / n) + k log(n)
+        gain = n * (np.log(max(sse0, 1e-300) / n) - np.log(max(sse1, 1e-300) / n)) - 2.0 * np.log(n)
+        if gain > 0 and sse1 / n < best[0]:
+            best = (sse1 / n, float(g), float(coef[1]))
+    return best[1], best[2]
 
 
 def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max_pump_accel_rads2: float,
-                          min_points: int, *, start: bool = False
-                          ) -> tuple[dict[int, tuple[float, float, int]], dict[int, str]]:
+                          min_points: int) -> tuple[dict[int, tuple[float, float, int]], dict[int, str]]:
     """Per gear on a borrowed transmission model, the offset of its eq. 32 turbine torque on its coupling points.
 
     A gear without a transmission model of its own (gear 1 never runs with the lock-up closed on most cars, so
@@ -76,8 +104,8 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
     nearest gear's ``eta_m`` and ``C0``, and its turbine torque is off by the difference of the two gears'
     drag, ``C0`` mostly (several Nm, against turbine torques of 20-60 Nm in a take-off). In coupling mode the
     turbine torque is the pump torque (eq. 36), i.e. the motor torque less the pump-side inertia torque: the
-    difference ``T_t(eq. 32) - (T_motor - J dw_p/dt)`` over the gear's own coupling points (SR at or above
-    ``gamma``, the pump nearly steady), taken with the pump steady (:func:`offset_significance`: its median, or
+    difference ``T_t(eq. 32) - (T_motor - J dw_p/dt)`` over the gear's own coupling points (the pump nearly
+    steady), taken with the pump steady (:func:`offset_significance`: its median, or
     the line through its passes at ``dw_p/dt = 0``), is that gear's offset. Only when the gears with a model of
     their own show the coupling mode (``COUPLED_TR_TOL``): else every borrowed gear is left as it is, with the
     reason. And only
@@ -90,7 +118,7 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
     pts:
         The converter points (:func:`converter_points`), with ``borrowed``.
     gamma:
-        The coupling point of the current converter fit.
+        The coupling point of the current converter fit (the split of a gear without a kink of its own).
     j_pump:
         The pump-side inertia of that fit (kg m^2; 0 without).
     max_pump_accel_rads2:
@@ -98,10 +126,6 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
         stays about 1 % of the pump torque).
     min_points:
         Least coupling points of a gear.
-    start:
-        The first round: each gear's coupling point taken no higher than where the difference of its turbine
-        and pump torques turns flat (:func:`_plateau_start`), since an offset moves the converter fit's.
-
     Returns
     -------
     offsets, reasons
@@ -132,13 +156,13 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
                           "off by the two gears' C0 difference)")
         return out, reasons
     for k, near in sorted(pts.borrowed.items()):
-        g = gamma
         own = (pts.gear == k) & calm & np.isfinite(pts.t_t)
-        if start and own.any():
-            g0 = _plateau_start(sr[own], pts.t_t[own] - (pts.t_p[own] - j_pump * pts.dw_p[own]), pts.t_p[own],
-                                min_points)
-            g = min(g, g0) if np.isfinite(g0) else g
-        m = own & (sr >= g)
+        d_all = pts.t_t - (pts.t_p - j_pump * pts.dw_p)
+        g, slope = coupling_kink(sr[own], d_all[own], pts.t_p[own]) if own.any() else (float("nan"), 0.0)
+        if slope > 0.0:  # the gear's own kink: its coupling points and, with the stick's slope, the window below it
+            m = own & (sr >= g - KINK_WINDOW)
+        else:  # no kink in the gear's points: its coupling points are those above the converter fit's Gamma
+            g, m = gamma, own & (sr >= gamma)
         n = int(m.sum())
         if n < min_points:
             reasons[k] = (f"gear {k} on gear {near}'s transmission model: {n} coupling-mode points (SR >= "
@@ -146,7 +170,8 @@ def borrowed_gear_offsets(pts: ConverterPoints, gamma: float, j_pump: float, max
                            "torque: left uncalibrated (too little excitation, its turbine torque may be off by the "
                            "two gears' C0 difference)")
             continue
-        d = pts.t_t[m] - (pts.t_p[m] - j_pump * pts.dw_p[m])
+        # the converter-mode points of the window brought to the coupling mode by the stick's (TR - 1) T_p
+        d = d_all[m] - slope * pts.t_p[m] * np.clip(g - sr[m], 0.0, None)
         off, se, n_pass, bound = offset_significance(pts.t[m], d, dw=pts.dw_p[m])
         if not abs(off) > bound:
             passes = f"{n_pass} pass" + ("es" if n_pass != 1 else "")

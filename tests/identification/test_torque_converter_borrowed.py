@@ -20,12 +20,12 @@ GAMMA = 0.88
 T_3DOF, T_9DOF = 9.219, 4.094
 
 
-def _points(own_tr: float, offset: float, scatter: np.ndarray | float = 0.0) -> ConverterPoints:
+def _points(own_tr: float, offset: float, scatter: np.ndarray | float = 0.0, sr_lo: float = 0.60) -> ConverterPoints:
     """Gear 2 (own model) at SR 0.90-0.95 with torque ratio ``own_tr``; gear 1 (gear 2's model) over SR 0.60-0.95:
     TR = 1 + 2 (GAMMA - SR) below GAMMA, 1 above, its turbine torque ``offset`` (+ ``scatter``) high; every point
-    its own pass (2 s apart)."""
+    its own pass (2 s apart); gear 1 from SR ``sr_lo`` on a grid of 0.005."""
     sr2 = np.linspace(0.90, 0.95, 20)
-    sr1 = np.linspace(0.60, 0.95, 71)
+    sr1 = np.linspace(sr_lo, 0.95, round((0.95 - sr_lo) / 0.005) + 1)
     t_p2, t_p1 = np.full(sr2.size, 80.0), np.full(sr1.size, 35.0)
     tr1 = 1.0 + 2.0 * np.clip(GAMMA - sr1, 0.0, None)
     sr, t_p = np.r_[sr2, sr1], np.r_[t_p2, t_p1]
@@ -38,25 +38,36 @@ def _points(own_tr: float, offset: float, scatter: np.ndarray | float = 0.0) -> 
 
 
 def test_offset_of_a_borrowed_gear_from_its_coupling_points() -> None:
-    # gear 1's coupling points (SR >= 0.88) read its turbine torque exactly 8 Nm high: that is the offset, also when
-    # the start is taken where the difference turns flat; the converter-mode points (8 + up to 19 Nm) are not used
-    pts = _points(1.0, 8.0)
-    for start in (False, True):
-        off, why = borrowed_gear_offsets(pts, GAMMA, 0.0, 1.0, 10, start=start)
-        assert not why and set(off) == {1}
-        assert abs(off[1][0] - 8.0) < 1e-9 and off[1][2] == 15
+    # gear 1's coupling points (SR >= 0.88) read its turbine torque exactly 8 Nm high: that is the offset. The kink
+    # is read from gear 1's own points (a grid of SR 0.005), and the window's converter-mode points (SR 0.83-0.875,
+    # 8 + 70 (0.88 - SR) Nm, the construction's TR slope 2 times 35 Nm) join them brought to 8 Nm by the stick:
+    # 25 points (SR 0.83-0.95)
+    off, why = borrowed_gear_offsets(_points(1.0, 8.0), GAMMA, 0.0, 1.0, 10)
+    assert not why and set(off) == {1}
+    assert abs(off[1][0] - 8.0) < 1e-9 and off[1][2] == 25
+
+
+def test_a_coupling_point_fitted_low_does_not_let_converter_points_in() -> None:
+    # the converter fit's Gamma fitted low, 0.80 for 0.88 (an offset taken high lowers the gear's torque ratios and
+    # Gamma with them): split there, the 16 points at SR 0.80-0.875 (TR 1.01-1.16, 0.35-5.6 Nm above the offset)
+    # would count as coupling points with the 15 at 8 Nm, and the median of the 31 (the 16th) would read
+    # 8 + 70 x 0.005 = 8.35 Nm; read from the gear's own kink it is 8.0. Likewise a Gamma fitted high (0.94: 3 points
+    # above it) does not starve the gear
+    for g_fit in (0.80, 0.94):
+        off, why = borrowed_gear_offsets(_points(1.0, 8.0), g_fit, 0.0, 1.0, 10)
+        assert not why and abs(off[1][0] - 8.0) < 1e-9, (g_fit, off)
 
 
 def test_no_offset_without_the_coupling_mode_in_the_gears_with_their_own_model() -> None:
     # gear 2's torque ratio 1.10: no coupling mode seen to anchor gear 1's, which is left as it is, said why
-    off, why = borrowed_gear_offsets(_points(1.10, 8.0), GAMMA, 0.0, 1.0, 10, start=True)
+    off, why = borrowed_gear_offsets(_points(1.10, 8.0), GAMMA, 0.0, 1.0, 10)
     assert off == {} and set(why) == {1} and "too little excitation" in why[1]
 
 
 def test_too_few_coupling_points_of_the_borrowed_gear_are_said() -> None:
-    # above SR 0.94 gear 1 has 3 points, fewer than the 10 needed
-    off, why = borrowed_gear_offsets(_points(1.0, 8.0), 0.94, 0.0, 1.0, 10)
-    assert off == {} and "coupling-mode points" in why[1]
+    # gear 1 from SR 0.86 only: the kink's window holds its 19 points (SR 0.86-0.95), fewer than the 20 asked for
+    off, why = borrowed_gear_offsets(_points(1.0, 8.0, sr_lo=0.86), GAMMA, 0.0, 1.0, 20)
+    assert off == {} and "19 coupling-mode points" in why[1]
 
 
 def test_the_offset_bound_is_students_t_over_the_passes() -> None:
