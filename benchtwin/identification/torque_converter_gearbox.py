@@ -133,7 +133,7 @@ def converter_with_gearbox(rec: Recording, specs: VehicleSpecs | None, res: Iden
     use = drag is not None and drag.status == "ok" and bool(np.all(np.asarray(drag.data.get("use", [False]))))
     o["drag"] = drag if use else None
     out = identify_torque_converter(rec, specs, transmission=table or None, **o)  # type: ignore[arg-type]
-    if table and not use:  # with the drag in use, eq. 32 reads the drag model (the table only for a gear without one)
+    if table and not use:  # with the drag in use, eq. 32 reads the drag model, not the table
         out["converter"].reasons.extend(notes)
     _trace_clipping(rec, res, out)
     return out

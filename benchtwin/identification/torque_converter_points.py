@@ -258,10 +258,8 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
     drag:
         The gearbox drag at the oil temperature (``transmission.drag``, to be used: the caller decides). With it and
         a ``gearbox_oil_degc`` channel, each point's ``eta_m`` and ``C0`` are the drag model's at that point's oil
-        temperature and turbine speed, instead of eq. 14's constant ``C0`` (identified at other oil temperatures).
-        A gear without its own drag group (the drag takes motor-only points; a gear run only with K0 closed has
-        none) keeps its model of ``transmission`` (constant ``C0``), and only a gear with neither takes the nearest
-        gear's drag model; both said in the reasons.
+        temperature and turbine speed (a gear without its own drag group: the nearest gear's, said in the
+        reasons), instead of eq. 14's constant ``C0`` (identified at other oil temperatures).
 
     Raises
     ------
@@ -313,7 +311,6 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
                 reasons.append(f"turbine speed from eq. 31 is off by {100 * (scale - 1):+.1f} % against the motor "
                                "speed with the lock-up closed: check gear ratios, final drive and wheel radius")
     borrowed: dict[int, int] = {}
-    table: dict[int, tuple[float, float]] = {}
     if transmission:
         table = {int(k): (float(e), float(c)) for k, (e, c) in transmission.items()}
         lacking = sorted({int(k) for k in np.unique(g[use]) if int(k) not in table})
@@ -335,25 +332,16 @@ def converter_points(rec: Recording, specs: VehicleSpecs, *, transmission: Mappi
         eta, c0 = np.array(eta, dtype=float), np.array(c0, dtype=float)
         oil = p["gearbox_oil_degc"]
         borrowed = {}
-        # a gear without a drag group (the drag takes motor-only points; a gear run only with K0 closed, as 1st
-        # in the converter's tests, has none) keeps the model the transmission table gives it (its eq. 14, with
-        # the ECU's torque corrected: torque_converter_gearbox), constant C0; only a gear with neither borrows
-        own_eq14 = {int(k) for k in sel.gears if int(k) not in drag_gears and int(k) in table}
         for k in sel.gears:  # every gear of the grid (np.unique of the clipped gear)
             near = min(drag_gears, key=lambda j: (abs(j - k), j))
             m = g == k
-            if int(k) in own_eq14:
-                if np.any(m & use):
-                    reasons.append(f"gear {k} has no drag model: its own eq. 14 used (eta_m {table[int(k)][0]:.4f}, "
-                                   f"C0 {table[int(k)][1]:.2f} Nm, constant)")
-                continue  # eta and c0 of the table, set above
             if near != k and np.any(m & use):
                 borrowed[int(k)] = near
                 reasons.append(f"gear {k} has no drag model: eta_m and C0(T_oil) of gear {near} used")
             eta[m] = drag.value(f"eta_m_g{near}")
             c0[m] = drag_c0(drag, f"g{near}", oil[m], w_t[m])
         use = use & np.isfinite(oil)
-        own_model = np.isin(g, drag_gears + sorted(own_eq14))
+        own_model = np.isin(g, drag_gears)
     t_t = p["shaft_torque_nm"] / (ig * eta) + c0
     use = use & np.isfinite(t_t)
     tscale, tscale_se, n_tcal = 1.0, float("nan"), 0

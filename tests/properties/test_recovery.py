@@ -202,10 +202,10 @@ def test_torque_converter_curves_recovered(vehicle: VehicleConfig, drawn: DrawnS
     # gear's eq. 14 on its motor-only points (identification/torque_converter_gearbox.py); three benches at K_TEL
     # 8000 whose 1st-gear ramp-ups clip (gear 1 without a model of its own, most converter points through it left
     # uncalibrated: TR, Gamma and the coupling curve not identified, 3 of 4 checks; the ktel examples): the clip is
-    # now traced in the fit's structure and excused (_clipped_on_this_bench); a 9-speed diesel at noise x2.81 whose
-    # drag model (motor-only points; 1st is run only in a hybrid ramp-up) had no gear 1 group: eq. 32 read gear 2's
-    # drag model for gear 1 and left it uncalibrated (3 of 4 checks not identified); now a gear without a drag group
-    # keeps its own eq. 14 of the table (converter_drag_no_gear1_group)
+    # now traced in the fit's structure and excused (_clipped_on_this_bench); a 9-speed diesel at noise x2.81 on an
+    # 11-bit telemetry whose drag fit ran along its speed ridge and was used: gear 1 (no drag group: run only in a
+    # hybrid ramp-up) on gear 2's drag model, uncalibrated, 3 of 4 checks not identified; now the speed term must
+    # also lower the SSE (transmission_drag.LR_3SIGMA) and the drag is not used (converter_drag_no_gear1_group)
     _converter_checks_pass(vehicle, drawn, seed)
 
 
