@@ -33,7 +33,8 @@ from scipy.optimize import minimize
 
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate
 
-__all__ = ["DRAG_KEY", "MIN_EFFECT", "MIN_SPAN_K", "add_drag_fit", "drag_c0", "drag_factor"]
+__all__ = ["DRAG_KEY", "LR_3SIGMA", "MIN_EFFECT", "MIN_SPAN_K", "add_drag_fit", "drag_c0", "drag_factor",
+           "temperature_supported"]
 
 DRAG_KEY = "transmission.drag"
 #: the least oil-temperature span over the points that can show a temperature dependence, K (at ~1 %/K a 15 K
@@ -122,6 +123,13 @@ def _hessian(f, x: np.ndarray, h: np.ndarray) -> np.ndarray:
             ej[j] = h[j]
             H[i, j] = H[j, i] = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (4 * h[i] * h[j])
     return H
+
+
+def temperature_supported(fit: FitResult) -> bool:
+    """Whether the drag fit's ``k_T`` is at least three standard errors from zero (the data show a temperature
+    dependence, whatever its size)."""
+    k, se = fit.value("k_T"), fit.params["k_T"].std_error
+    return bool(np.isfinite(se) and abs(k) >= 3.0 * se)
 
 
 def _lr(sse_without: float, sse_with: float, dof: int) -> float:
