@@ -5,10 +5,12 @@ off); the bench measures the propeller shaft torque. Where the engine is decoupl
 is the motor's torque alone, so those steady points identify the gearbox without the ECU's estimate; at the
 points of the same gear with K0 closed the shaft torque then gives the input torque back,
 ``C_in = T_out / (i_g eta_m) + C0``, and the engine's share is ``C_in - C_em``. The gearbox reference is the drag
-fit ``transmission.drag`` when it was identified on the motor-only points (its ``C0`` at each point's oil
-temperature and input speed: the engine points run with hotter oil, 100-120 degC against 50-75 degC for the
-electric ramps of the paper campaign, and a constant ``C0`` from the motor-only points puts the drag's 1.2 %/K
-into the engine's torque, 5-10 Nm); else each gear's eq. 14 from its motor-only points. The ECU's torque against that
+fit ``transmission.drag`` when it was identified on the motor-only points and its ``k_T`` is three standard errors
+from zero (``transmission_drag.temperature_supported``: a k_T of noise, carried over the oil span, moved the offset
+by 2-5 Nm on coarse telemetry), at each point's oil temperature and input speed (the engine points run with hotter
+oil, 100-120 degC against 50-75 degC for the electric ramps of the paper campaign, and a constant ``C0`` from the
+motor-only points puts the drag's 1.2 %/K into the engine's torque, 5-10 Nm); else each gear's eq. 14 from its
+motor-only points. The ECU's torque against that
 share is a line,
 
 ``C_eng,CAN = g C_eng + o``,
@@ -86,8 +88,9 @@ def add_engine_torque_fit(out: IdentificationResult, pts: Any, ratios: np.ndarra
     ratios:
         Gear ratios (public specs).
     drag:
-        The drag fit ``transmission.drag`` when it was identified on the motor-only points (the gearbox reference at
-        each point's oil temperature and input speed); None: each gear's eq. 14 from its motor-only points.
+        The drag fit ``transmission.drag`` when it was identified on the motor-only points and its ``k_T`` is
+        supported (the gearbox reference at each point's oil temperature and input speed); None: each gear's eq. 14
+        from its motor-only points.
     """
     if pts.engine_in is None or pts.c_engine is None:
         return

@@ -29,7 +29,7 @@ from benchtwin.identification._signals import check_spread, raise_all_failed
 from benchtwin.identification.engine_torque import add_engine_torque_fit
 from benchtwin.identification.keys import FitKey
 from benchtwin.identification.steady import SteadyWindows, Tolerance, find_steady_windows
-from benchtwin.identification.transmission_drag import DRAG_KEY, add_drag_fit
+from benchtwin.identification.transmission_drag import DRAG_KEY, add_drag_fit, temperature_supported
 from benchtwin.identification.transmission_drag import MIN_SPAN_K as DRAG_MIN_SPAN_K
 from benchtwin.identification.transmission_eq14 import direction_points, efficiency_design
 from benchtwin.recording import Recording
@@ -352,7 +352,10 @@ def identify_transmission(rec: Recording, specs: VehicleSpecs, *, gears: Iterabl
         add_drag_fit(out, groups, list(pts.segments), note=note)
         drag = out.fits.get(DRAG_KEY)
         motor_only = drag is not None and note.startswith("points with the engine decoupled")
-        add_engine_torque_fit(out, pts, ratios, drag=drag if motor_only else None)
+        # the reference of the ECU's torque: the drag model where its temperature term is supported, else each
+        # gear's eq. 14 (a k_T within 3 standard errors of 0 is noise, carried over the oil span into the offset:
+        # +4.5 Nm of a true -0.7 on an 11-bit telemetry's ridge, -2.3 Nm of 0 at 10 bits, issue #8)
+        add_engine_torque_fit(out, pts, ratios, drag=drag if motor_only and temperature_supported(drag) else None)
     elif out.fits and gears is None:
         add_engine_torque_fit(out, pts, ratios)
     if not out.fits:

@@ -13,8 +13,9 @@ all gears and directions finds
 pump) and ``eta_m``, ``C0`` per gear and direction, weighted as eq. 15-17 (``C^2``, normalised per group). For
 given ``(k_T, k_w)`` the problem is linear per group; the two minimise the profile sum of squares, and their
 covariance comes from the profile's curvature (``2 s^2 H^-1``, ``s^2 = SSE / (N - 2 G - 2)``). ``T_ref`` is the
-points' median oil temperature. When the speed term is not supported (Hessian not positive definite or ``k_w``
-within three standard errors of zero) it is dropped and ``k_T`` fitted alone.
+points' median oil temperature. When the speed term is not supported (Hessian not positive definite, ``k_w``
+within three standard errors of zero, or its drop of the SSE below :data:`LR_3SIGMA` residual variances) it is
+dropped and ``k_T`` fitted alone.
 
 Fit ``transmission.drag``: ``k_T`` (1/K), ``k_w`` (s/rad), ``T_ref`` (degC) and ``eta_m_<group>``,
 ``C0_<group>`` per group (``g5``, ``g5_coast``). The map-based vehicle model applies it (``data["use"]``) only
@@ -32,7 +33,8 @@ from scipy.optimize import minimize
 
 from benchtwin.identification._fit import FitResult, IdentificationResult, ParameterEstimate
 
-__all__ = ["DRAG_KEY", "MIN_EFFECT", "MIN_SPAN_K", "add_drag_fit", "drag_c0", "drag_factor"]
+__all__ = ["DRAG_KEY", "LR_3SIGMA", "MIN_EFFECT", "MIN_SPAN_K", "add_drag_fit", "drag_c0", "drag_factor",
+           "temperature_supported"]
 
 DRAG_KEY = "transmission.drag"
 #: the least oil-temperature span over the points that can show a temperature dependence, K (at ~1 %/K a 15 K
@@ -40,6 +42,12 @@ DRAG_KEY = "transmission.drag"
 MIN_SPAN_K = 15.0
 #: the least relative change of the drag over the points' span that is worth a model (below it eq. 14 stays)
 MIN_EFFECT = 0.05
+#: the SSE drop (in residual variances) the speed term must bring to be kept: the likelihood-ratio counterpart of
+#: "three standard errors from zero" (3^2 on one degree of freedom). Both are required: where the profile runs along
+#: its ridge (k_w off to ~1e6 s/rad with every C0 -> 0: a drag proportional to the speed) the curvature gives tiny,
+#: meaningless standard errors (k_w and k_T) while the SSE barely moves (an 11-bit telemetry at K_TEL 250, 8.5 Nm
+#: steps); with the speed term dropped k_T is fitted alone, off the ridge
+LR_3SIGMA = 9.0
 
 Groups = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
@@ -117,6 +125,21 @@ def _hessian(f, x: np.ndarray, h: np.ndarray) -> np.ndarray:
     return H
 
 
+def temperature_supported(fit: FitResult) -> bool:
+    """Whether the drag fit's ``k_T`` is at least three standard errors from zero (the data show a temperature
+    dependence, whatever its size)."""
+    k, se = fit.value("k_T"), fit.params["k_T"].std_error
+    return bool(np.isfinite(se) and abs(k) >= 3.0 * se)
+
+
+def _lr(sse_without: float, sse_with: float, dof: int) -> float:
+    """The SSE drop of one term in units of the fuller model's residual variance ``s^2 = SSE / dof`` (the
+    likelihood-ratio statistic, chi-square with one degree of freedom; ``inf`` on exact points)."""
+    drop = max(sse_without - sse_with, 0.0)
+    s2 = sse_with / dof
+    return drop / s2 if s2 > 0 else (math.inf if drop > 0 else 0.0)
+
+
 def _profile(pts: _Points, t_ref: float, with_speed: bool, dof: int) -> tuple[np.ndarray, np.ndarray, float]:
     """``(k_T, k_w)``, their covariance and the SSE at the minimum (``k_w`` = 0 without the speed term)."""
     if with_speed:
@@ -178,10 +201,15 @@ def add_drag_fit(result: IdentificationResult, groups: Groups, segments: list[st
     pts = _Points(groups)
     x, cov, sse = _profile(pts, t_ref, True, dof)
     se = np.sqrt(np.diag(cov))
-    if not (np.isfinite(se[1]) and abs(x[1]) >= 3.0 * se[1] and x[1] > -1.0 / 1000.0):
-        notes.append(f"speed term not supported (k_w = {x[1]:.2e} +/- {se[1]:.1e} s/rad): dropped")
-        x, cov, sse = _profile(pts, t_ref, False, dof + 1)
-        se = np.sqrt(np.diag(cov))
+    x_t, cov_t, sse_t = _profile(pts, t_ref, False, dof + 1)
+    lr_w = _lr(sse_t, sse, dof)
+    wald_w = bool(np.isfinite(se[1]) and abs(x[1]) >= 3.0 * se[1] and x[1] > -1.0 / 1000.0)
+    if not (wald_w and lr_w >= LR_3SIGMA):
+        notes.append(f"speed term not supported (k_w = {x[1]:.2e} +/- {se[1]:.1e} s/rad"
+                     + (f", but it lowers the SSE by only {lr_w:.2g} s^2 < {LR_3SIGMA:g} s^2" if wald_w else "")
+                     + "): dropped")
+        x, cov, sse = x_t, cov_t, sse_t
+    se = np.sqrt(np.diag(cov))
     k, kw = float(x[0]), float(x[1])
     se_k, se_kw = float(se[0]), float(se[1])
     sse0 = pts.solve(0.0, 0.0, t_ref)[0]
