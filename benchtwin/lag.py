@@ -59,7 +59,10 @@ def _correlate(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarra
     ext = np.concatenate([grid[0] - np.arange(m, 0, -1) / rate_hz, grid, grid[-1] + np.arange(1, m + 1) / rate_hz])
     b = np.interp(ext, t_b, x_b)
     n = a.size
-    ea = float(np.dot(a, a))
+    # numpy's own (pairwise) sum, not np.dot: BLAS splits a long dot product over its threads as it finds them free
+    # (OpenBLAS above 10,000 samples), so the same samples gave energies (and lags) differing in the last bits
+    # from one call to the next, and the type B re-runs of the converter (shaft_clock) differed from plain ones
+    ea = float(np.sum(a * a))
     if ea == 0:
         return None
     from scipy.signal import correlate

@@ -38,19 +38,25 @@ GRID_BLOCK = 8192
 _STEP_BLOCK = 1 << 16
 
 
-def _typical_step(ch: Channel) -> float:
-    """``np.median(dt[:: max(1, dt.size // 20000)])`` of ``dt = np.diff(ch.timestamps)``, read block by block (kept
-    with the time index of a channel read by blocks: a property of its times, which the type B re-runs share)."""
+def _typical_step(ch: Channel, s: Shift = 0.0) -> float:
+    """``np.median(dt[:: max(1, dt.size // 20000)])`` of ``dt = np.diff(to_ref(ch.timestamps, s))`` (the steps on
+    the reference clock, as ``strict_resample`` finds them on the shifted channel), read block by block (kept with the
+    time index of a channel read by blocks, per shift: a property of its times, which the type B re-runs share)."""
     index = time_index(ch) if reads_by_block(ch) else None
-    if index is not None and index.typical_step is not None and index.n == len(ch):
-        return index.typical_step
-    step = _typical_step_of(ch)
+    if index is not None and index.n == len(ch):
+        step = index.typical_step if not s else index.shifted_steps.get(s)
+        if step is not None:
+            return step
+    step = _typical_step_of(ch, s)
     if index is not None:
-        index.typical_step = step
+        if s:
+            index.shifted_steps[s] = step
+        else:
+            index.typical_step = step
     return step
 
 
-def _typical_step_of(ch: Channel) -> float:
+def _typical_step_of(ch: Channel, s: Shift = 0.0) -> float:
     n = len(ch)
     stride = max(1, (n - 1) // 20000)
     picked = []
@@ -60,7 +66,8 @@ def _typical_step_of(ch: Channel) -> float:
         if first >= b:
             continue
         ts = ch.block(first, b + 1)[0]
-        picked.append(np.diff(ts)[::stride].copy())  # a copy: a view would keep the block's steps
+        # on the reference clock (elementwise, as the shifted channel's); a copy: a view would keep the block's steps
+        picked.append(np.diff(to_ref(ts, s) if s else ts)[::stride].copy())
     return float(np.median(np.concatenate(picked)))
 
 
@@ -108,7 +115,7 @@ def resample_strict(rec: Recording, names: Sequence[str], rate_hz: float, *, hol
     bad = np.zeros(t.shape, dtype=bool)
     held = set(hold)
     for c, (first, last), s in zip(chans, bounds, sh, strict=True):
-        step = None if c.name in held else _typical_step(c)
+        step = None if c.name in held else _typical_step(c, s)
         for a in range(0, t.size, GRID_BLOCK):
             v, blk = _channel_block(c, first, last, s, step, t[a:a + GRID_BLOCK])
             out[c.name][a:a + GRID_BLOCK] = v
@@ -120,11 +127,22 @@ def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float 
                    ) -> tuple[np.ndarray, np.ndarray]:
     """One channel at the grid times ``tb`` (reference clock) and their bad mask, read around them.
 
-    ``first``, ``last``: the channel's first and last timestamps; ``s``: its clock shift; ``step``: its typical
-    step (None: a held state, no gap mask)."""
+    ``first``, ``last``: the channel's first and last timestamps (its own clock); ``s``: its clock shift; ``step``:
+    its typical step on the reference clock (:func:`_typical_step` with ``s``; None: a held state, no gap mask).
+
+    The samples around the block are read on the channel's own clock, then their timestamps put on the reference
+    clock (``to_ref``) and the grid times ``tb`` looked up among them: the very numbers of ``strict_resample`` on the
+    shifted channel (``_shifted``), which the whole path takes. (The grid times put on the channel's clock instead,
+    ``to_source(tb)``, interpolate with other weights in the last bits: 1,213 of the quick campaign's 9,217 shaft
+    torques differed by up to 5e-10 N m with the shaft clock's drift, so a Recording read by blocks and the same
+    Recording in memory gave converter fits that differed in the last bits.)"""
     if s:
-        tb = to_source(tb, s)  # the grid times on the channel's own clock
-    _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
+        lo_src, hi_src = to_source(float(tb[0]), s), to_source(float(tb[-1]), s)
+        _, ts, vs, fl = window_of(c, float(lo_src) - MARGIN_S, float(hi_src) + MARGIN_S)
+        ts = to_ref(ts, s)  # elementwise: the shifted channel's timestamps, bit for bit
+        first, last = float(to_ref(first, s)), float(to_ref(last, s))
+    else:
+        _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
     # Channel.at on the samples around the block (the same bracketing samples as on the whole channel)
     if step is None:
         idx = np.searchsorted(ts, tb, side="right") - 1
@@ -194,7 +212,8 @@ class StrictGrid:
         self.step = 1.0 / rate_hz
         self.size = int(np.ceil((hi - self.lo) / self.step))  # np.arange's length
         held = set(hold)
-        self._steps = [None if c.name in held else _typical_step(c) for c in self._chans]
+        self._steps = [None if c.name in held else _typical_step(c, s)
+                       for c, s in zip(self._chans, self._sh, strict=True)]
 
     def times(self, i0: int, i1: int) -> np.ndarray:
         """The times of grid points ``i0 .. i1 - 1`` (no channel read)."""

@@ -87,6 +87,8 @@ class _TimeIndex:
         self.bounds = (float(self.marks[0]), float(last)) if self.marks.size else None
         self.median_step: float | None = None  #: kept by ``_resample_blocks.rate_of`` (a property of the times)
         self.typical_step: float | None = None  #: kept by ``_resample_blocks._typical_step`` (the same)
+        #: the same on the reference clock, per clock shift (``_resample_blocks._typical_step`` with a shift)
+        self.shifted_steps: dict[object, float] = {}
 
 
 _indexes: dict[int, tuple[weakref.ref[Channel], _TimeIndex]] = {}

@@ -149,3 +149,37 @@ def test_the_native_rate_by_blocks_is_the_whole_median(n: int, ties: bool, monke
     blocked = _blocked(Recording(channels={ch.name: ch}))[ch.name]
     assert rb.rate_of(blocked, max_hz=1e6) == native_rate(ch, max_hz=1e6)
     assert not blocked.loaded
+
+
+@pytest.mark.parametrize("shift", [0.0123, "drift"])
+def test_the_strict_resample_by_blocks_with_clock_shifts_equals_the_whole_one(ramp_plant, shift,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """With the sources' clock shifts (a constant, and an offset with a drift as the converter's shaft clock gives):
+    the same grid, values and bad points by blocks of 37 grid points as the whole path on the shifted channels, bit
+    for bit (the grid times put on a channel's own clock instead interpolate with other weights in the last bits)."""
+    import benchtwin.identification._resample_blocks as rb
+    from benchtwin.identification._clock import ClockShift
+    from benchtwin.recording import Flag
+
+    rec = _repeated(ramp_plant, 2)
+    rec["em_torque_nm"].flags[100:200:7] = int(Flag.SATURATED)
+    speed = rec["em_speed_rpm"]
+    keep = np.ones(len(speed), dtype=bool)
+    keep[500:560] = False  # a pause in the log
+    rec.add(Channel(speed.name, speed.unit, speed.timestamps[keep], speed.values[keep], None, speed.source))
+    s = ClockShift(0.0123, -3e-5) if shift == "drift" else shift
+    shifts = {c.source: s for c in rec.channels.values()}
+    names = [*NAMES, "gear_actual"] if "gear_actual" in rec else NAMES
+    hold = ("gear_actual",) if "gear_actual" in rec else ()
+    monkeypatch.setattr(rb, "GRID_BLOCK", 37)
+    t0, v0, bad0 = rb.resample_strict(rec, names, 10.0, hold=hold, shifts=shifts)  # in memory: the whole path
+    blocked = _blocked(rec)
+    t1, v1, bad1 = rb.resample_strict(blocked, names, 10.0, hold=hold, shifts=shifts)
+    grid = rb.StrictGrid(blocked, names, 10.0, hold=hold, shifts=shifts)
+    t2, v2, bad2 = grid.block(0, grid.size)
+    assert bad0.sum() > 0
+    for t, v, bad in ((t1, v1, bad1), (t2, v2, bad2)):
+        np.testing.assert_array_equal(t, t0)
+        np.testing.assert_array_equal(bad, bad0)
+        for n in names:
+            np.testing.assert_array_equal(v[n], v0[n])
