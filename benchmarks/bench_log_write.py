@@ -95,16 +95,9 @@ def _asammdf_recording(rec: Any, path: Path) -> None:
 
 
 def _same_but_history_time(a: Path, b: Path) -> bool:
-    from benchtwin.mf4stream import _blocks
+    from benchtwin.mf4stream import without_history_time
 
-    def masked(raw: bytes) -> bytes:
-        buf = bytearray(raw)
-        for addr, _, _ in _blocks(raw, 64):
-            if raw[addr:addr + 4] == b"##FH":
-                buf[addr + 40:addr + 48] = bytes(8)
-        return bytes(buf)
-
-    return masked(a.read_bytes()) == masked(b.read_bytes())
+    return without_history_time(a.read_bytes()) == without_history_time(b.read_bytes())
 
 
 def _codec_rows(name: str, frames: np.ndarray, repeat: int) -> list[str]:

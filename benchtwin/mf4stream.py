@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["GroupLayout", "StreamedMdf", "mdf_template", "record_bytes"]
+__all__ = ["GroupLayout", "StreamedMdf", "mdf_template", "record_bytes", "without_history_time"]
 
 _BLOCK_HEAD = struct.Struct("<4sIQQ")  # id, reserved, length, link count
 _U64 = struct.Struct("<Q")
@@ -82,6 +82,24 @@ class GroupLayout:
     def __post_init__(self) -> None:
         if self.block_records <= 0:
             self.block_records = max(1, FRAGMENT_BYTES // self.record_size)
+
+
+def without_history_time(raw: bytes) -> bytes:
+    """An MF4 file's bytes with its history block's time (when it was saved, ``fh_time_ns``) zeroed: two saves of the
+    same data compare equal byte for byte.
+
+    Raises
+    ------
+    ValueError
+        The file has not exactly one history (``##FH``) block.
+    """
+    buf = bytearray(raw)
+    fh = [a for a, _, _ in _blocks(raw, 64) if raw[a:a + 4] == b"##FH"]
+    if len(fh) != 1:
+        raise ValueError(f"{len(fh)} history blocks, expected one")
+    at = fh[0] + 24 + 8 * 2  # after the block head and its two links: fh_time_ns
+    buf[at:at + 8] = bytes(8)
+    return bytes(buf)
 
 
 def _blocks(raw: bytes | bytearray, start: int) -> list[tuple[int, int, int]]:

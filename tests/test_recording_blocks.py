@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from benchtwin.mdf import write_channel_groups
-from benchtwin.mf4stream import _blocks
+from benchtwin.mf4stream import _blocks, without_history_time
 from benchtwin.recording import FLAG_CONVERSION, Channel, Recording
 from benchtwin.segments import segments_to_json
 
@@ -54,15 +54,6 @@ def _asammdf_save(rec: Recording, path: Path, compression: int) -> Path:
     return out
 
 
-def _without_history_time(raw: bytes) -> bytes:
-    buf = bytearray(raw)
-    fh = [a for a, _, _ in _blocks(raw, 64) if raw[a:a + 4] == b"##FH"]
-    assert len(fh) == 1
-    at = fh[0] + 24 + 8 * 2  # after the block head and its two links: fh_time_ns
-    buf[at:at + 8] = bytes(8)
-    return bytes(buf)
-
-
 @pytest.mark.parametrize("compression", [0, 1, 2])
 def test_recording_mf4_is_the_file_asammdf_writes(compression: int, tmp_path: Path) -> None:
     rec = _recording()
@@ -71,7 +62,7 @@ def test_recording_mf4_is_the_file_asammdf_writes(compression: int, tmp_path: Pa
     assert ours == tmp_path / "ours.mf4"
     raw = ours.read_bytes()
     assert sum(raw[a:a + 4] == b"##DL" for a, _, _ in _blocks(raw, 64)) == 2  # the groups of two blocks
-    assert _without_history_time(raw) == _without_history_time(ref.read_bytes())
+    assert without_history_time(raw) == without_history_time(ref.read_bytes())
     back = Recording.load(ours)
     assert list(back.channels) == list(rec.channels)
     for name, ch in rec.channels.items():

@@ -21,7 +21,7 @@ from benchtwin.chain.buslog import (
     read_mf4,
     write_mf4,
 )
-from benchtwin.mf4stream import _blocks
+from benchtwin.mf4stream import _blocks, without_history_time
 from benchtwin.wire.frames import FRAME_DTYPE, FrameTable
 
 
@@ -60,16 +60,6 @@ def _asammdf_log(frames: np.ndarray, path: Path, compression: int, bus: str = "v
     return path
 
 
-def _without_history_time(raw: bytes) -> bytes:
-    """The file with its history block's time (when it was saved) zeroed."""
-    buf = bytearray(raw)
-    fh = [a for a, _, _ in _blocks(raw, 64) if raw[a:a + 4] == b"##FH"]
-    assert len(fh) == 1
-    at = fh[0] + 24 + 8 * 2  # after the block head and its two links: fh_time_ns
-    buf[at:at + 8] = bytes(8)
-    return bytes(buf)
-
-
 # one block, exactly one block, several with a short last one (asammdf cuts at 149,796 records)
 @pytest.mark.parametrize("n", [0, 1, 5_000, MF4_BLOCK_FRAMES, 2 * MF4_BLOCK_FRAMES + 17])
 @pytest.mark.parametrize("compression", [0, 1, 2])
@@ -81,7 +71,7 @@ def test_the_log_is_the_file_asammdf_writes_of_the_same_frames(n: int, compressi
         for a, b in pairwise(cuts):
             w.append(frames[a:b])
     assert w.frames == n
-    assert _without_history_time(w.path.read_bytes()) == _without_history_time(ref.read_bytes())
+    assert without_history_time(w.path.read_bytes()) == without_history_time(ref.read_bytes())
     assert read_mf4(w.path).frames.tobytes() == frames.tobytes()
 
 
