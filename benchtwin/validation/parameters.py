@@ -1,7 +1,6 @@
 """Identified parameters against the truth: expectations, tolerances and the comparisons.
 
-Kept whole: every check's tolerance reads the same expectations, declared-error budget and quantisation
-bounds (the converter's carry the transmission's), so they stay beside the comparisons that use them.
+Kept whole: every tolerance reads the same expectations, error budget and quantisation bounds as the comparisons.
 
 Tolerances come in two profiles. ``ideal`` (every imperfection off) aims at 0.1 % and states a
 different bound, with its reason, where the measurement chain itself cannot do better (quantisation of
@@ -193,8 +192,7 @@ def _turbine_unidentified(result: IdentificationResult) -> str:
     """'not identified: <reason>' when the converter fit says its turbine torque's curves are not identified (most
     points through a borrowed gear model left uncalibrated), else ''."""
     conv = result.fits.get("torque_converter.converter")
-    share = conv.data.get(UncalibratedShare.KEY) if conv is not None else None
-    if isinstance(share, UncalibratedShare):  # the structure, with the clipping it traced
+    if isinstance(share := (conv.data if conv is not None else {}).get(UncalibratedShare.KEY), UncalibratedShare):
         return f"not identified: {share.reason()}"
     said = [r for r in (conv.reasons if conv is not None else []) if TURBINE_UNIDENTIFIED in r]
     return f"not identified: {said[0]}" if said else ""
