@@ -1,10 +1,14 @@
 """Hypothesis profiles of the property tests.
 
 ``ci`` (the default): few examples per property, so that tests/properties adds a few minutes to
-``make test`` on 2 cores; the example database lives in ``.hypothesis/`` (git-ignored), so a failure found
-once is replayed first by the next run. ``thorough``: many more examples, for nightly runs::
+``make test`` on 2 cores; derandomized and without a database, so every run (a clean clone's CI too) draws the
+same examples. ``thorough``: many more examples, new ones each run, the example database in ``.hypothesis/``
+(git-ignored), so a failure found once is replayed first by the next run; for nightly runs::
 
     HYPOTHESIS_PROFILE=thorough .venv/bin/python -m pytest tests/properties
+
+``HYPOTHESIS_MAX_EXAMPLES=N`` replaces either profile's examples per property (a short try: ``thorough`` with 2 on
+one family, ``-k battery``).
 
 No test depends on timing (``deadline=None``). The tests take the profile with ``@profile()`` (from
 ``_profiles``), so the settings of the rest of the suite are left as they are.
@@ -67,4 +71,15 @@ def profile(**overrides: object) -> settings:
     The profile is applied per test rather than loaded globally, so the other tests of the suite keep
     their own settings.
     """
-    return settings(settings.get_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci")), **overrides)
+    return settings(settings.get_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci")), **_max_examples(), **overrides)
+
+
+def _max_examples() -> dict[str, int]:
+    """``HYPOTHESIS_MAX_EXAMPLES=N`` (a positive integer) replaces the profile's examples per property: a short
+    try of the ``thorough`` profile, or a longer night; unset, the profile's own count."""
+    raw = os.environ.get("HYPOTHESIS_MAX_EXAMPLES", "").strip()
+    if not raw:
+        return {}
+    if not raw.isdigit() or int(raw) < 1:
+        raise ValueError(f"HYPOTHESIS_MAX_EXAMPLES = {raw!r}: allowed a positive integer (examples per property)")
+    return {"max_examples": int(raw)}
