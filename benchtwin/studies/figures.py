@@ -68,7 +68,7 @@ def summary_figures(table: Any, axes: list[str], out_dir: str | Path) -> list[Pa
         plt.close(fig)
         written.append(path)
     if not ok.empty:
-        setup_axes = [a for a in axes if a.startswith("setup.")] or list(axes)
+        setup_axes = [a for a in axes if a == "setup" or a.startswith("setup.")] or list(axes)
         rate = (ok["n_checks"] - ok["n_failed"]) / ok["n_checks"].where(ok["n_checks"] > 0)
         labels = (ok[setup_axes].astype(str).agg(", ".join, axis=1) if setup_axes
                   else ok["run_key"].map(lambda _k: "base setup"))

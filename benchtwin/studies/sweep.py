@@ -165,7 +165,7 @@ class Sweep:
                  *, cache_dir: str | Path | None = None) -> None:
         self.config = config
         self.base = {"vehicle": vehicle.model_dump(mode="json"), "setup": setup.model_dump(mode="json"),
-                     "campaign": campaign.model_dump(mode="json")}
+                     "campaign": campaign.model_dump(mode="json"), "files": config.model_files}
         self.cache_dir = None if cache_dir is None else str(cache_dir)
         self.axes = config.axis_values()
         self.seeds = list(config.seeds) or [campaign.seed]
@@ -297,7 +297,7 @@ class Sweep:
 
 def _trace_part(params: dict[str, Any]) -> dict[str, Any]:
     """The axis values a Trace depends on (vehicle and campaign axes)."""
-    return {k: v for k, v in params.items() if not k.startswith("setup.")}
+    return {k: v for k, v in params.items() if k != "setup" and not k.startswith("setup.")}
 
 
 def _cell(v: Any) -> Any:

@@ -12,6 +12,7 @@ families = ["transmission"]   # optional: validate only these identification fam
 setup.telemetry.k_tel = [250, 500, 1000]
 setup.ivt.battery.current_errors.noise_std = {start = 0, stop = 3, num = 4}   # linspace, ends included
 # a range may also give a step: {start = 0.1, stop = 0.5, step = 0.1}
+vehicle = ["p2_phev_9at", "my_car.toml"]   # a whole model: a list of files (relative to this file) or shipped names
 
 [collect]                     # default: every check's error and pass/fail and every identified value
 checks = true
@@ -21,7 +22,9 @@ only = ["transmission.*"]     # fnmatch patterns over the check and parameter na
 
 Paths are checked against the base models when the file loads (an unknown key is a one-line error naming
 the key and the keys allowed there); values are applied per run, so a value the model refuses makes that
-run fail with its message while the others go on.
+run fail with its message while the others go on. An axis named by a model alone (``vehicle``, ``setup`` or
+``campaign``) swaps that whole model: its files are loaded and checked when the sweep file loads (a bad one is
+an error naming the axis and the file), and a run's dotted axes of that model then apply to the swapped one.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
 from benchtwin.config._base import StrictModel, validate_data
@@ -91,6 +94,8 @@ class SweepConfig(StrictModel):
     profile: Literal["ideal", "realistic"] | None = None
     axes: dict[str, Any] = Field(default_factory=dict)
     collect: CollectConfig = Field(default_factory=CollectConfig)
+    #: whole-model axes: root -> axis value (as written) -> the model's JSON dump (filled by :func:`load_sweep`)
+    _model_files: dict[str, dict[str, dict[str, Any]]] = PrivateAttr(default_factory=dict)
 
     @field_validator("seeds")
     @classmethod
@@ -120,13 +125,24 @@ class SweepConfig(StrictModel):
         """Axis path -> its values, in file order."""
         return {k: (v.values() if isinstance(v, RangeSpec) else list(v)) for k, v in self.axes.items()}
 
+    @property
+    def model_files(self) -> dict[str, dict[str, dict[str, Any]]]:
+        """Whole-model axes (``vehicle = [...]``): root -> value as written -> the loaded model's JSON dump."""
+        return self._model_files
+
 
 def _parse_axis(path: str, values: Any) -> list[Any] | RangeSpec:
     """One axis: a non-empty list of values or a :class:`RangeSpec` (ValueError naming what is allowed)."""
     root = path.split(".", 1)[0]
+    if path in AXIS_ROOTS:
+        if not isinstance(values, list) or not values or not all(isinstance(v, str) and v for v in values):
+            raise ValueError(f"a whole-model axis takes a non-empty list of {path} files or shipped names")
+        if len(set(values)) != len(values):
+            raise ValueError(f"the {path} files must not repeat")
+        return values
     if root not in AXIS_ROOTS or "." not in path:
-        raise ValueError(f"an axis must start with one of {', '.join(AXIS_ROOTS)} and name a key inside it "
-                         "(e.g. setup.telemetry.k_tel)")
+        raise ValueError(f"an axis must be one of {', '.join(AXIS_ROOTS)} (a list of files) or start with one "
+                         "of them and name a key inside it (e.g. setup.telemetry.k_tel)")
     if isinstance(values, list):
         if not values:
             raise ValueError("empty list of values")
@@ -198,10 +214,22 @@ def load_sweep(path: str | Path) -> tuple[SweepConfig, VehicleConfig, SetupConfi
     setup = load_setup(resolve_scenario("setups", cfg.setup, path.parent))
     campaign = load_campaign(resolve_scenario("campaigns", cfg.campaign, path.parent))
     bases = {"vehicle": vehicle, "setup": setup, "campaign": campaign}
-    problems = [p for axis in cfg.axes if (p := _check_path(bases, axis))]
+    problems = []
+    for root in AXIS_ROOTS:
+        for value in cfg.axes.get(root, []):
+            try:
+                model = _LOADERS[root](resolve_scenario(f"{root}s", value, path.parent))
+            except ConfigError as exc:
+                problems.append(f"key 'axes.{root}' = {value!r}: {exc}")
+                continue
+            cfg.model_files.setdefault(root, {})[value] = model.model_dump(mode="json")
+    problems += [p for axis in cfg.axes if axis not in AXIS_ROOTS and (p := _check_path(bases, axis))]
     if problems:
         raise ConfigError("\n".join(f"{path}: {p}" for p in problems))
     return cfg, vehicle, setup, campaign
+
+
+_LOADERS = {"vehicle": load_vehicle, "setup": load_setup, "campaign": load_campaign}
 
 
 def _check_path(bases: dict[str, BaseModel], axis: str) -> str:
@@ -227,11 +255,20 @@ def _check_path(bases: dict[str, BaseModel], axis: str) -> str:
 
 
 def apply_axes(base: dict[str, dict[str, Any]], params: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The base models' JSON dumps with the axis values of one run set (a deep copy; nothing validated)."""
+    """The base models' JSON dumps with the axis values of one run set (a deep copy; nothing validated).
+
+    A whole-model axis (``vehicle``: a file's name) takes its model from ``base["files"]`` (root -> value -> dump)
+    before any dotted axis applies, whatever the order of the axes.
+    """
     import copy
 
     out = copy.deepcopy(base)
+    for root in AXIS_ROOTS:
+        if root in params:
+            out[root] = copy.deepcopy(base["files"][root][params[root]])
     for axis, value in params.items():
+        if axis in AXIS_ROOTS:
+            continue
         root, *parts = axis.split(".")
         cur: Any = out[root]
         for part in parts[:-1]:
