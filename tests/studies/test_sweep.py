@@ -137,3 +137,29 @@ def test_sweep_file_errors_name_the_key_and_what_is_allowed(tmp_path: Path) -> N
                  encoding="utf-8")
     cfg, *_ = load_sweep(p)
     assert cfg.axis_values() == {"setup.telemetry.k_tel": [250.0, 500.0, 750.0, 1000.0]}
+
+
+def test_an_interrupted_sweep_keeps_what_finished(tmp_path: Path, cache: Path, serial_table: pd.DataFrame,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    # Ctrl-C during the third run (in this process): the two finished rows stay in runs.csv and runs.parquet,
+    # the interrupt reaches the caller, and --resume runs only the other two
+    import benchtwin.studies.sweep as sweep_module
+
+    real, finished = sweep_module.run_task, []
+
+    def interrupted_on_the_third(task):  # type: ignore[no-untyped-def]
+        if len(finished) == 2:
+            raise KeyboardInterrupt
+        finished.append(task.key)
+        return real(task)
+
+    monkeypatch.setattr(sweep_module, "run_task", interrupted_on_the_third)
+    path = _file(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        Sweep.from_file(path, cache_dir=cache).run(tmp_path / "out", workers=0, figures=False)
+    monkeypatch.undo()
+    assert sorted(read_table(tmp_path / "out")["run_key"]) == sorted(finished)
+    assert sorted(pd.read_parquet(tmp_path / "out" / "runs.parquet")["run_key"]) == sorted(finished)
+    again = Sweep.from_file(path, cache_dir=cache).run(tmp_path / "out", workers=0, resume=True, figures=False)
+    assert (again.done, again.skipped) == (2, 2)
+    pd.testing.assert_frame_equal(_comparable(read_table(tmp_path / "out")), _comparable(serial_table))
