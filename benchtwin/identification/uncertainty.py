@@ -40,19 +40,17 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterable, Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Any
 
+import numba
 import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._reuse import reusing
-from benchtwin.identification._rounding import BIN_STEPS as BIN_STEPS  # the rounding's constants, read here too
-from benchtwin.identification._rounding import ROUNDING_BLOCK as ROUNDING_BLOCK
-from benchtwin.identification._rounding import _Rounding, dithered, dithered_with, drawn
 from benchtwin.identification._windows import reads_by_block, share_time_index
-from benchtwin.recording import Channel, LazyChannel, Recording
+from benchtwin.recording import Channel, Flag, LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
 
@@ -62,8 +60,13 @@ META_KEY = "declared_uncertainty"
 #: standard uncertainty of about 1 / sqrt(2 N): 29 % at 6, which the Welch-Satterthwaite coverage factor takes in;
 #: more draws narrow the spread of the intervals' widths, not their coverage: benchmarks/RESULTS.md, branch mcres)
 RESOLUTION_DRAWS = 6
+#: width of the level intervals sharing one rounding error, in steps: a reading whose noise flickers it by
+#: one step about a steady level keeps one error (its rounding is not dithered by that flicker)
+BIN_STEPS = 2.0
 #: seed of those draws: the same Recording gives the same report
 RESOLUTION_SEED = 20260
+#: samples read at a time by the rounding's pass over a channel read by blocks (its lowest and highest level)
+ROUNDING_BLOCK = 1 << 16
 #: key of a fit's discrete split of its points (``FitResult.data``): equal in a re-run that stays on its side
 SPLIT_KEY = "split"
 #: fractions of one standard uncertainty tried, in order, until a re-run keeps every split (the first: one u)
@@ -142,6 +145,144 @@ def components(recording: Recording, roles: Iterable[str]) -> list[Component]:
     return comps
 
 
+@numba.njit(cache=True, nogil=True)
+def _add_level_errors(values: np.ndarray, scaled: np.ndarray, phase: float, errors: np.ndarray,
+                      positions: np.ndarray) -> np.ndarray:
+    """``values`` plus, at each good sample (``positions``, or all), the error of its level ``floor(scaled + phase)``.
+
+    One pass without temporaries, free of the GIL; the same operations as the NumPy expression
+    ``values[good] + errors[np.floor(scaled + phase).astype(int)]``, so the same numbers.
+    """
+    if positions.size == 0:
+        out = np.empty_like(values)
+        for i in range(values.size):
+            out[i] = values[i] + errors[math.floor(scaled[i] + phase)]
+        return out
+    out = values.copy()
+    for j in range(positions.size):
+        k = positions[j]
+        out[k] = values[k] + errors[math.floor(scaled[j] + phase)]
+    return out
+
+
+class _Rounding:
+    """What every draw of :func:`dithered` over one role shares: its good samples and their scaled levels.
+
+    The scaling ``(v - lo) / (BIN_STEPS q)`` does not depend on the draw, only the grid phase added to it does,
+    so the draws of one component compute it once (the same floating-point operations as a draw on its own,
+    hence the same errors). The largest level index of a draw is that of the largest reading (``floor`` of a
+    monotone expression), so the number of errors drawn is known without a maximum over the indices.
+
+    A lazy channel that reads blocks from its store (:func:`reads_by_block`, the chunk files ``validate --out``
+    identifies from) is not held: one pass by blocks finds ``lo`` and the top level (a minimum and a maximum, the
+    same numbers block by block), and each draw is a lazy channel that adds the draw's errors to every block it
+    reads (:meth:`moved_lazily`): the same per-sample operations, so the same values, and a re-run that reads
+    windows of it never holds it whole.
+    """
+
+    def __init__(self, ch: Any, q: float) -> None:
+        self.q = q
+        #: whether the draws move blocks as they are read (the channel is never held whole)
+        self.by_block = reads_by_block(ch)
+        if self.by_block:
+            self._scan_blocks(ch)
+            return
+        v = ch.values
+        # the good samples only: a flagged sample (clipped, lost, out of range) is excluded by every method, so
+        # its value must not move the grid of the others' rounding errors
+        fin = ch.good
+        self.usable = bool(fin.any()) and q > 0
+        if not self.usable:
+            return
+        all_good = bool(fin.all())
+        #: the good samples' indices (none: every sample is good)
+        self.positions = np.empty(0, dtype=np.int64) if all_good else np.flatnonzero(fin).astype(np.int64)
+        vf = v if all_good else v[fin]
+        self.lo = float(vf.min())
+        self.scaled = (vf - self.lo) / (BIN_STEPS * q)
+        self.top = float(self.scaled.max())
+
+    def _scan_blocks(self, ch: Any) -> None:
+        """``lo`` (lowest good reading) and ``top`` (highest scaled level) of a channel read by blocks."""
+        lo, hi = math.inf, -math.inf
+        for a in range(0, len(ch), ROUNDING_BLOCK):
+            _ts, v, f = ch.block(a, a + ROUNDING_BLOCK)
+            vf = v[_good(v, f)]
+            if vf.size:
+                lo, hi = min(lo, float(vf.min())), max(hi, float(vf.max()))
+        self.usable = math.isfinite(lo) and self.q > 0
+        if self.usable:
+            self.lo = lo
+            # the maximum of (v - lo) / (2 q) over the samples is that of the largest v: floating-point subtraction
+            # and division by a positive number are monotone, so this is the whole pass's maximum bit for bit
+            self.top = float((np.float64(hi) - lo) / (BIN_STEPS * self.q))
+
+    def _draw(self, rng: np.random.Generator) -> tuple[float, np.ndarray]:
+        """One draw's grid phase and level errors (in this order from ``rng``)."""
+        phase = rng.uniform(0.0, 1.0)
+        n_levels = math.floor(self.top + phase) + 1
+        return phase, rng.uniform(-0.5 * self.q, 0.5 * self.q, n_levels)
+
+    def moved(self, ch: Any, rng: np.random.Generator) -> np.ndarray:
+        """The channel's values with one draw of level-wise rounding errors added (see :func:`dithered`)."""
+        phase, errors = self._draw(rng)
+        return _add_level_errors(ch.values, self.scaled, phase, errors, self.positions)
+
+    def moved_lazily(self, ch: Any, rng: np.random.Generator) -> LazyChannel:
+        """One draw as a lazy channel that adds the draw's errors to each block it reads (a channel read by blocks)."""
+        phase, errors = self._draw(rng)
+        scale = BIN_STEPS * self.q
+        lo = self.lo
+
+        def read(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            ts, v, f = ch.block(a, b)
+            good = _good(v, f)
+            if good.all():
+                return ts, _add_level_errors(v, (v - lo) / scale, phase, errors, np.empty(0, dtype=np.int64)), f
+            positions = np.flatnonzero(good).astype(np.int64)
+            return ts, _add_level_errors(v, (v[good] - lo) / scale, phase, errors, positions), f
+
+        out = LazyChannel(ch.name, ch.unit, ch.source, len(ch), lambda: read(0, len(ch)), ch.value_texts,
+                          block_loader=read)
+        share_time_index(out, ch)  # the same timestamps: the re-run finds spans without indexing them again
+        return out
+
+
+def _good(values: np.ndarray, flags: np.ndarray) -> np.ndarray:
+    """:attr:`Channel.good` of a block: free of :meth:`Flag.bad` flags and finite."""
+    return ((flags & int(Flag.bad())) == 0) & np.isfinite(values)
+
+
+def dithered(recording: Recording, comp: Component, rng: np.random.Generator,
+             shared: dict[str, _Rounding] | None = None) -> Recording:
+    """One Monte Carlo draw of the rounding errors of the component's roles (GUM Supplement 1, JCGM 101).
+
+    A reading rounded to a step ``q`` is off by an error uniform in ``+-q/2`` (JCGM 100 F.2.2.1) that is a
+    function of the level: a steady point holds one error, a point at another level another. Each draw
+    gives every interval of width ``BIN_STEPS q`` of the reading (on a grid of random phase) an independent
+    error ``U(-q/2, q/2)`` and adds to each sample the error of its interval: a steady point moves as a
+    whole (also when its noise flickers it by a step), points at other levels move independently, and a
+    channel whose noise spreads it over many steps averages its errors out, as the rounding does.
+
+    ``shared`` (role -> work shared by the draws, filled on first use) lets several draws of one component
+    skip what they have in common; the draws are the same with or without it. A channel read by blocks from its
+    store stays so: its draw is a lazy channel moving each block it reads (the same numbers, see :class:`_Rounding`).
+    """
+    channels = dict(recording.channels)
+    for role, q in zip(comp.roles, comp.steps, strict=True):
+        ch = recording.channels[role]
+        r = shared.get(role) if shared is not None else None
+        if r is None:
+            r = _Rounding(ch, q)
+            if shared is not None:
+                shared[role] = r
+        if not r.usable:
+            continue
+        channels[role] = r.moved_lazily(ch, rng) if r.by_block else ch.with_values(r.moved(ch, rng))
+    return Recording(channels=channels, segments=recording.segments, meta=recording.meta,
+                     start_time=recording.start_time)
+
+
 def _moved(ch: Channel, comp: Component) -> Channel:
     """The channel with its values moved by one standard uncertainty of ``comp``: in memory, or, for a lazy channel
     whose store reads blocks, a lazy channel that moves what it reads (the same numbers: the move is per sample)."""
@@ -204,51 +345,23 @@ def _changes(nominal: Mapping[str, Any], other: Mapping[str, Any], scale: float 
 def _propagate_one(recording: Recording, task: _Task, draws: int = RESOLUTION_DRAWS) -> _Done:
     """The re-runs of one method for one component: per parameter, the changes of its value (per standard
     uncertainty); re-runs; failures; notes on splits held (see the module docstring)."""
-    if task[2].kind != "resolution":
-        return _propagate_step(recording, task)
-    shared: dict[str, _Rounding] = {}
-    made = _all_drawn(recording, task[2], draws, shared)
-    return _gathered(task, [_one_draw(recording, task, shared, d) for d in made])
-
-
-#: what one rounding draw gives: the changes of the parameters, whether a split changed, the failure (if any)
-_DrawDone = tuple[dict[str, float], bool, str | None]
-
-
-def _all_drawn(recording: Recording, comp: Component, draws: int,
-               shared: dict[str, _Rounding]) -> list[dict[str, tuple[float, np.ndarray]]]:
-    """The ``draws`` draws of a resolution component, one after the other from one generator seeded with
-    :data:`RESOLUTION_SEED` (the numbers of the draws made in turn, whichever thread then runs each)."""
-    rng = np.random.default_rng(RESOLUTION_SEED)
-    return [drawn(recording, comp, rng, shared) for _ in range(draws)]
-
-
-def _one_draw(recording: Recording, task: _Task, shared: dict[str, _Rounding],
-              draw: Mapping[str, tuple[float, np.ndarray]]) -> _DrawDone:
-    """The re-run of one rounding draw (:func:`~benchtwin.identification._rounding.drawn`): the changes of the
-    parameters, whether a split changed, the failure that left the draw out (said in meta)."""
     fits, nominal, comp, run, split0 = task
-    try:
-        res = run(dithered_with(recording, comp, shared, draw))
-    except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
-        return {}, False, f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}"
-    return _changes(nominal, res.parameters()), splits(res.fits, fits) != split0, None
-
-
-def _gathered(task: _Task, done: list[_DrawDone]) -> _Done:
-    """The draws of one resolution component put together in the draws' order: per parameter the changes, re-runs,
-    failures, the note on the draws that changed a split."""
-    fits, _nominal, comp, _run, _split0 = task
-    draws = len(done)
+    if comp.kind != "resolution":
+        return _propagate_step(recording, task)
+    rng = np.random.default_rng(RESOLUTION_SEED)
+    shared: dict[str, _Rounding] = {}
     deltas: dict[str, list[float]] = {}
     failed: list[str] = []
     flipped = 0
-    for changes, moved_split, fail in done:
-        if fail is not None:
-            failed.append(fail)
+    for _ in range(draws):
+        rec = dithered(recording, comp, rng, shared)
+        try:
+            res = run(rec)
+        except Exception as exc:  # a perturbed run that breaks leaves the draw out, said in meta
+            failed.append(f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}")
             continue
-        flipped += moved_split
-        for key, d in changes.items():
+        flipped += splits(res.fits, fits) != split0
+        for key, d in _changes(nominal, res.parameters()).items():
             deltas.setdefault(key, []).append(d)
     notes = [f"{fits[0]} / {comp.source}: {flipped} of {draws} draws changed a split (kept: a draw is a possible "
              "rounding, not a step)"] if flipped else []
@@ -291,23 +404,6 @@ def _diff(a: Mapping[str, tuple], b: Mapping[str, tuple]) -> str:
 
     return "; ".join(f"{k}: {text(a.get(k, ()))} -> {text(b.get(k, ()))}"
                      for k in sorted(a.keys() | b.keys()) if a.get(k) != b.get(k))
-
-
-def _run_units(pool: ThreadPoolExecutor, recording: Recording, tasks: list[_Task], draws: int) -> list[_Done]:
-    """The units ``tasks`` on the pool, each rounding draw a re-run of its own (a component's draws made in turn
-    here, :func:`_all_drawn`, then run on any thread and put together in their order): what each unit gives, in the
-    order of ``tasks``. The gains and offsets go first: the threads run them while this one makes the draws (a pass
-    over each rounded channel); every unit is then one re-run, so the threads end together."""
-    step_futures = {i: pool.submit(_propagate_step, recording, t) for i, t in enumerate(tasks)
-                    if t[2].kind != "resolution"}
-    draw_futures: dict[int, list[Future[_DrawDone]]] = {}
-    for i, t in enumerate(tasks):
-        if i not in step_futures:
-            shared: dict[str, _Rounding] = {}
-            draw_futures[i] = [pool.submit(_one_draw, recording, t, shared, d)
-                               for d in _all_drawn(recording, t[2], draws, shared)]
-    return [_gathered(t, [f.result() for f in draw_futures[i]]) if i in draw_futures else step_futures[i].result()
-            for i, t in enumerate(tasks)]
 
 
 def propagate_type_b(result: IdentificationResult, recording: Recording,
@@ -367,13 +463,17 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             # share the threads and what they have in common (the channels a re-run does not move), then it goes
             recording.drop(recording.loaded() - kept)
             with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
-                done += _run_units(pool, recording, method_tasks, n_draws)
+                futures = [pool.submit(_propagate_one, recording, t, n_draws) for t in method_tasks]
+                done += [f.result() for f in futures]
         recording.drop(recording.loaded() - kept)
     else:
         flat = [t for method_tasks in tasks for t in method_tasks]
+        # the Monte Carlo components (several re-runs each) first, so that the threads end together
+        order = sorted(range(len(flat)), key=lambda i: flat[i][2].kind != "resolution")
         # the channels a re-run does not move are resampled and averaged once for all re-runs (see _reuse)
         with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
-            done = _run_units(pool, recording, flat, n_draws)
+            futures = {i: pool.submit(_propagate_one, recording, flat[i], n_draws) for i in order}
+            done = [futures[i].result() for i in range(len(flat))]
     contrib: dict[str, dict[str, float]] = {}
     dof: dict[str, dict[str, float]] = {}
     reruns, failed, held = 0, [], []

@@ -15,7 +15,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-import benchtwin.identification._rounding as rounding
+import benchtwin.identification.uncertainty as unc
 from benchtwin.identification.uncertainty import ROUNDING_BLOCK, Component, dithered
 from benchtwin.recording import Channel, Flag, LazyChannel, Recording
 
@@ -102,7 +102,7 @@ def test_a_draw_on_a_channel_read_by_blocks_does_not_grow_with_the_channel() -> 
 
 def test_the_in_memory_draw_fails_the_same_bound(monkeypatch: pytest.MonkeyPatch) -> None:
     """The bound catches the whole-channel draw (what ``dithered`` did before on every channel)."""
-    monkeypatch.setattr(rounding, "reads_by_block", lambda ch: False)  # where the draws look
+    monkeypatch.setattr(unc, "reads_by_block", lambda ch: False)
     monkeypatch.setattr(LazyChannel, "_load", lambda self: list(self._block_loader(0, self._n)))
     with pytest.raises(AssertionError, match=r"\(\d+, \d+, \d+\)"):
         _check()
