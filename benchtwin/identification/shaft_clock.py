@@ -28,6 +28,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from benchtwin.identification._clock import ClockShift, Shift, to_ref, to_source
+from benchtwin.identification._reuse import reused
 from benchtwin.identification._windows import window_of
 from benchtwin.lag import detect_lag
 from benchtwin.recording import Recording
@@ -63,7 +64,20 @@ def _where(t: np.ndarray, x: np.ndarray, lo: float, hi: float, step_s: float = 0
 def _test_lags(rec: Recording, a: tuple[str, Shift], b: list[str], b_shift: Shift, rate_hz: float, max_lag_s: float,
                min_correlation: float, min_test_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Per test segment, where its lag holds (:func:`_where`) and the time to add to channel ``a`` (on the reference
-    clock through its shift) to line it up with the sum of channels ``b`` (through ``b_shift``)."""
+    clock through its shift) to line it up with the sum of channels ``b`` (through ``b_shift``).
+
+    A function of those channels, the shifts, the options and the segments' spans only: inside the type B re-runs
+    (:func:`~benchtwin.identification._reuse.reusing`) it is computed once for the re-runs that do not move the
+    channels (a gain of the engine torque moves neither the speeds nor the shaft torque nor the axle forces)."""
+    key = (a, tuple(b), b_shift, rate_hz, max_lag_s, min_correlation, min_test_s,
+           tuple((float(seg.start_s), float(seg.end_s)) for seg in rec.segments))
+    return reused("test_lags", (rec[a[0]], *(rec[n] for n in b)), key,  # type: ignore[arg-type]
+                  lambda: _test_lags_of(rec, a, b, b_shift, rate_hz, max_lag_s, min_correlation, min_test_s))
+
+
+def _test_lags_of(rec: Recording, a: tuple[str, Shift], b: list[str], b_shift: Shift, rate_hz: float,
+                  max_lag_s: float, min_correlation: float, min_test_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_test_lags` computed."""
     centres, lags = [], []
     margin = 2.0 * max_lag_s + 1.0
     for seg in rec.segments:

@@ -96,3 +96,31 @@ def test_without_a_drift_the_acquisitions_offset_stands() -> None:
     given = {"dyno": DYNO_SHIFT, "telemetry": -LAG0 + 0.002}
     shifts, note = roller_aligned_shifts(rec, given)
     assert shifts == given and note == ""
+
+
+def test_the_type_b_re_runs_share_the_lags_of_the_channels_they_do_not_move(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Inside the re-runs' store, a Recording whose shaft torque and axle forces are the nominal channels takes the
+    tests' lags computed once; one whose shaft torque is another channel (a re-run moving it: read 30 ms later here)
+    gets its own, those computed without the store."""
+    from benchtwin.identification import _reuse, shaft_clock
+
+    rec = _recording()
+    moved = Recording(channels=dict(rec.channels), segments=rec.segments, meta=rec.meta)
+    ch = rec["shaft_torque_nm"]
+    moved.channels["shaft_torque_nm"] = Channel(ch.name, ch.unit, ch.timestamps + 0.030, ch.values, source=ch.source)
+    other = Recording(channels=dict(rec.channels), segments=rec.segments, meta=rec.meta)
+    em = rec["em_torque_nm"]
+    other.channels["em_torque_nm"] = em.with_values(em.values * 1.01)  # a gain of a channel the lags do not read
+    want_rec = roller_aligned_shifts(rec, {"dyno": DYNO_SHIFT})
+    want_moved = roller_aligned_shifts(moved, {"dyno": DYNO_SHIFT})
+    assert want_moved[0]["telemetry"] != want_rec[0]["telemetry"]
+    calls = []
+    computed = shaft_clock._test_lags_of
+    monkeypatch.setattr(shaft_clock, "_test_lags_of", lambda *a: calls.append(1) or computed(*a))
+    with _reuse.reusing():
+        assert roller_aligned_shifts(rec, {"dyno": DYNO_SHIFT}) == want_rec
+        assert len(calls) == 1
+        assert roller_aligned_shifts(other, {"dyno": DYNO_SHIFT}) == want_rec  # shared: nothing computed again
+        assert len(calls) == 1
+        assert roller_aligned_shifts(moved, {"dyno": DYNO_SHIFT}) == want_moved  # its own lags
+        assert len(calls) == 2
