@@ -293,3 +293,16 @@ def test_the_time_base_is_mapped_a_block_at_a_time(bench, monkeypatch) -> None:
     checks = chain_checks(spooled, recs["paper"], PAPER, profile="realistic")
     assert sum(c.passed for c in checks) > 10
     assert 0 < max(t[0] for t in maps) < 2 * block <= len(spooled) // 3
+
+
+@pytest.mark.parametrize("guess", [0.0, 1e7])
+def test_a_wrong_guess_of_the_latest_time_is_made_again(bench, monkeypatch: pytest.MonkeyPatch, guess: float) -> None:
+    """The realistic check counts and bounds in one pass with the filter width of a guessed latest usable time; a
+    guess whose width differs from the found time's is passed again, so the checks do not depend on it. A guess of
+    1e7 s widens the slope's filter to the whole window (a drift of 10-20 ppm x 1e7 s: 100 s of lag): with the
+    re-pass removed (mutant: ``break`` after the first pass) the fractions inside the bound change and this fails."""
+    _trace, spooled, recs = bench
+    want = chain_checks(spooled, recs["paper"], PAPER, profile="realistic")
+    monkeypatch.setattr(vchain, "_latest_time", lambda ch: guess)
+    got = chain_checks(spooled, recs["paper"], PAPER, profile="realistic")
+    assert [repr(c) for c in got] == [repr(c) for c in want]

@@ -149,28 +149,30 @@ def _check(trace: Trace, dt_s: float, ch: Channel, tc: TruthChannel, profile: st
         return np.isfinite(truth) & np.isfinite(v) & (f & int(Flag.bad()) == 0) & in_span(truth)
 
     span_s = CHECK_BLOCK_SAMPLES * dt_s if len(trace) > 1 else np.inf
-    n_flag, n_ok, n_out, t_max = 0, 0, 0, 0.0
-    worst: tuple[float, float, float, float] | None = None  # |err|, value, truth, err: the first largest
-    for t, v, f in _blocks(ch, span_s):
-        n_flag += int(np.count_nonzero(f))
-        truth = truth_of(_TruthWindow(trace, tc.trace, tc.factor, t, 2), t)
-        n_out += int(np.count_nonzero(np.isfinite(truth) & ~in_span(truth)))
-        ok = usable(t, v, f, truth)
-        if not ok.any():
-            continue
-        n_ok += int(np.count_nonzero(ok))
-        t_max = max(t_max, float(np.max(np.abs(t[ok]))))
-        if profile == "ideal":
+
+    def domain_of(n_out: int) -> str:
+        return (f"; {n_out} samples whose truth lies outside the wire's range [{lo + 0.5 * res:g}, {hi - 0.5 * res:g}] "
+                f"{ch.unit} left out (saturated on the wire: outside the check's domain)") if n_out else ""
+
+    if profile == "ideal":
+        n_flag, n_ok, n_out, t_max = 0, 0, 0, 0.0
+        worst: tuple[float, float, float, float] | None = None  # |err|, value, truth, err: the first largest
+        for t, v, f in _blocks(ch, span_s):
+            n_flag += int(np.count_nonzero(f))
+            truth = truth_of(_TruthWindow(trace, tc.trace, tc.factor, t, 2), t)
+            n_out += int(np.count_nonzero(np.isfinite(truth) & ~in_span(truth)))
+            ok = usable(t, v, f, truth)
+            if not ok.any():
+                continue
+            n_ok += int(np.count_nonzero(ok))
             err = v[ok] - truth[ok]
             k = int(np.argmax(np.abs(err)))
             if worst is None or abs(err[k]) > worst[0]:
                 worst = (abs(float(err[k])), float(v[ok][k]), float(truth[ok][k]), float(err[k]))
-    domain = (f"; {n_out} samples whose truth lies outside the wire's range [{lo + 0.5 * res:g}, {hi - 0.5 * res:g}] "
-              f"{ch.unit} left out (saturated on the wire: outside the check's domain)") if n_out else ""
-    if n_ok == 0:
-        return Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", ch.unit, False,
-                     "no usable sample" + domain)
-    if profile == "ideal":
+        domain = domain_of(n_out)
+        if n_ok == 0:
+            return Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", ch.unit,
+                         False, "no usable sample" + domain)
         assert worst is not None
         # half a step; thermocouples add the 0.5 uV input converter (~0.013 degC at 39 uV/degC)
         tol = 0.5 * res + degc + 1e-9
@@ -187,29 +189,72 @@ def _check(trace: Trace, dt_s: float, ch: Channel, tc: TruthChannel, profile: st
     if link is not None:
         lag += link.latency_s + abs(link.clock_offset_s)
         drift = abs(link.clock_drift_ppm) * 1e-6
-    lag_max = lag + drift * t_max if link is not None else lag
-    w = max(int(np.ceil(float(max(lag_max, lag)) / max(dt_s, 1e-9))) + 1, 1)
-    n_in = 0
-    for t, v, f in _blocks(ch, span_s):
-        win = _TruthWindow(trace, tc.trace, tc.factor, t, w + 3)
-        truth = truth_of(win, t)
-        ok = usable(t, v, f, truth)
-        if not ok.any():
-            continue
-        err, tk, xv = v[ok] - truth[ok], t[ok], truth[ok]
-        bound = np.full(xv.shape, 0.5 * res * (1 + 1e-6) + 1e-9 + extra + degc)
-        if errs is not None:
-            bound += abs(errs.offset) + abs(errs.gain_error_frac) * np.abs(xv) + 4.0 * errs.noise_std
-            bound += errs.quantisation_step
-        lag_t = lag + drift * np.abs(tk) if link is not None else np.full(tk.shape, lag)
-        dxdt = np.abs(np.gradient(win.x, win.time)) if len(trace) > 1 else np.zeros_like(win.x)
-        slope = maximum_filter1d(dxdt, size=2 * w + 1, mode="nearest")
-        bound += np.interp(tk, win.time, slope) * lag_t
-        n_in += int(np.count_nonzero(np.abs(err) <= bound))
+
+    def width(t_max: float) -> int:
+        """The maximum filter's half width (plant samples) for the latest usable time ``t_max``."""
+        lag_max = lag + drift * t_max if link is not None else lag
+        return max(int(np.ceil(float(max(lag_max, lag)) / max(dt_s, 1e-9))) + 1, 1)
+
+    # one pass counts the usable samples and those the bound explains, with the width of the latest usable time
+    # guessed as the channel's latest time (its last sample is usable but on a faulty run): when the pass finds
+    # another latest usable time whose width differs, it is made again with that width (the same numbers as a
+    # counting pass followed by a bounding one; the truth at a sample does not depend on the window's margin)
+    w = width(_latest_time(ch))
+    while True:
+        n_flag, n_ok, n_out, t_max, n_in = _bound_pass(trace, ch, tc, span_s, w, lag, drift, link is not None, errs,
+                                                       0.5 * res * (1 + 1e-6) + 1e-9 + extra + degc, truth_of,
+                                                       in_span, usable)
+        if n_ok == 0 or width(t_max) == w:
+            break
+        w = width(t_max)
+    domain = domain_of(n_out)
+    if n_ok == 0:
+        return Check("chain", f"chain.{role}", float("nan"), float("nan"), float("nan"), res, "abs", ch.unit, False,
+                     "no usable sample" + domain)
     inside = n_in / n_ok
     return Check("chain", f"chain.{role}", inside, 0.99, inside, 0.99, "min", "-", inside >= 0.99,
                  f"fraction of unflagged samples whose error the setup's declared imperfections explain; "
                  f"{n_flag} flagged samples{domain}")
+
+
+def _latest_time(ch: Channel) -> float:
+    """``max(|t|)`` of the channel's first and last timestamps that are finite (0 when neither is): the latest
+    usable time of a channel whose times rise and whose last sample is usable."""
+    n = len(ch)
+    if n == 0:
+        return 0.0
+    ends = np.abs(np.concatenate([ch.block(0, 1)[0], ch.block(n - 1, n)[0]]))
+    ends = ends[np.isfinite(ends)]
+    return float(ends.max()) if ends.size else 0.0
+
+
+def _bound_pass(trace: Trace, ch: Channel, tc: TruthChannel, span_s: float, w: int, lag: float, drift: float,
+                linked: bool, errs: Any, base: float, truth_of: Any, in_span: Any,
+                usable: Any) -> tuple[int, int, int, float, int]:
+    """One pass of the realistic check over the channel's blocks with the maximum filter's half width ``w``:
+    (flagged, usable, outside the wire's range, latest usable time, usable within the bound) samples."""
+    n_flag, n_ok, n_out, t_max, n_in = 0, 0, 0, 0.0, 0
+    for t, v, f in _blocks(ch, span_s):
+        n_flag += int(np.count_nonzero(f))
+        win = _TruthWindow(trace, tc.trace, tc.factor, t, w + 3)
+        truth = truth_of(win, t)
+        n_out += int(np.count_nonzero(np.isfinite(truth) & ~in_span(truth)))
+        ok = usable(t, v, f, truth)
+        if not ok.any():
+            continue
+        n_ok += int(np.count_nonzero(ok))
+        err, tk, xv = v[ok] - truth[ok], t[ok], truth[ok]
+        t_max = max(t_max, float(np.max(np.abs(tk))))
+        bound = np.full(xv.shape, base)
+        if errs is not None:
+            bound += abs(errs.offset) + abs(errs.gain_error_frac) * np.abs(xv) + 4.0 * errs.noise_std
+            bound += errs.quantisation_step
+        lag_t = lag + drift * np.abs(tk) if linked else np.full(tk.shape, lag)
+        dxdt = np.abs(np.gradient(win.x, win.time)) if len(trace) > 1 else np.zeros_like(win.x)
+        slope = maximum_filter1d(dxdt, size=2 * w + 1, mode="nearest")
+        bound += np.interp(tk, win.time, slope) * lag_t
+        n_in += int(np.count_nonzero(np.abs(err) <= bound))
+    return n_flag, n_ok, n_out, t_max, n_in
 
 
 def _median_step(ch: Channel) -> float:
@@ -224,9 +269,7 @@ def _median_step(ch: Channel) -> float:
     n = len(ch) - 1
     if n <= MEDIAN_CAP:
         return float(np.median(np.concatenate(list(diffs()))))
-    if n % 2:
-        return float(_kth(diffs, n // 2))
-    return float(np.mean([_kth(diffs, n // 2 - 1), _kth(diffs, n // 2)]))
+    return _median_of(diffs, n, lambda a, b: np.diff(ch.block(a, b + 1)[0]))
 
 
 def _plant_step(trace: Trace) -> float:
@@ -244,9 +287,73 @@ def _plant_step(trace: Trace) -> float:
             # are mapped (one map held over the passes made the whole time base resident: 8.4 MB per paper campaign)
             yield np.diff(trace.time_s[a:a + CHECK_BLOCK_SAMPLES + 1])
 
-    if n % 2:
-        return float(_kth(diffs, n // 2))
-    return float(np.mean([_kth(diffs, n // 2 - 1), _kth(diffs, n // 2)]))
+    return _median_of(diffs, n, lambda a, b: np.diff(trace.time_s[a:b + 1]))
+
+
+#: values of the sample a bracket of the median is guessed from (:func:`_median_of`), in this many pieces spread
+#: over the values
+SAMPLE_VALUES, SAMPLE_PIECES = 1 << 15, 8
+
+
+def _median_of(arrays: Any, n: int, piece: Any) -> float:
+    """The median of the ``n`` values ``arrays()`` yields, as ``np.median`` gives it (the middle one, or the mean of
+    the two middle ones): first in one pass inside a bracket guessed from a sample (``piece(a, b)``: values
+    ``a:b``; :func:`_bracketed`), else selected in passes (:func:`_kth`)."""
+    ks = [n // 2] if n % 2 else [n // 2 - 1, n // 2]
+    size = max(min(SAMPLE_VALUES // SAMPLE_PIECES, CHECK_BLOCK_SAMPLES - 1), 1)  # its times: at most a block
+    starts = np.unique(np.linspace(0, max(n - size, 0), SAMPLE_PIECES).astype(np.int64))
+    got = _bracketed(arrays, ks, n, np.concatenate([piece(int(a), int(a) + size) for a in starts]))
+    if got is None:
+        got = [_kth(arrays, k) for k in ks]
+    return float(got[0]) if len(got) == 1 else float(np.mean(got))
+
+
+def _bracketed(arrays: Any, ks: list[int], n: int, sample: np.ndarray) -> list[float] | None:
+    """The ``ks``-th smallest (0-based) of the ``n`` values ``arrays()`` yields, in one pass: the values between two
+    quantiles of ``sample`` around the ``ks`` (about half :data:`MEDIAN_CAP` of them when the sample is like the
+    whole) are gathered and the values below counted. None when the bracket does not hold every ``ks``-th value or
+    holds more than :data:`MEDIAN_CAP` values that are not all equal (the caller then selects in passes): a guess
+    that misses costs a pass, never a wrong number."""
+    s = sample[np.isfinite(sample)]
+    if not s.size or n < 1:
+        return None
+    f = 0.25 * MEDIAN_CAP / n
+    lo = float(np.quantile(s, max(min(ks) / n - f, 0.0)))
+    hi = float(np.quantile(s, min((max(ks) + 1) / n + f, 1.0)))
+    below, n_in, mn, mx = 0, 0, np.inf, -np.inf
+    kept: list[np.ndarray] | None = []
+    # over the cap, the bracket's distinct values and their counts (a channel's time steps are a few dozen numbers:
+    # the period and its rounding neighbours); dropped when they are too many
+    vals: np.ndarray | None = None
+    cnts = np.zeros(0, np.int64)
+    for a in arrays():
+        below += int(np.count_nonzero(a < lo))
+        sel = a[(a >= lo) & (a <= hi)]
+        n_in += sel.size
+        if sel.size:
+            mn, mx = min(mn, float(sel.min())), max(mx, float(sel.max()))
+        if kept is not None:
+            kept.append(sel)
+            if n_in > MEDIAN_CAP:
+                vals, cnts = np.unique(np.concatenate(kept), return_counts=True)
+                kept = None
+        elif vals is not None and sel.size:
+            u, c = np.unique(sel, return_counts=True)
+            vals, inv = np.unique(np.concatenate([vals, u]), return_inverse=True)
+            cnts = np.bincount(inv.ravel(), weights=np.concatenate([cnts, c]), minlength=vals.size).astype(np.int64)
+        if vals is not None and vals.size > MEDIAN_CAP // 8:
+            vals = None
+    if not all(below <= k < below + n_in for k in ks):
+        return None
+    if mn == mx:
+        return [mn] * len(ks)
+    if kept is not None:
+        part = np.partition(np.concatenate(kept), [k - below for k in ks])
+        return [float(part[k - below]) for k in ks]
+    if vals is None:
+        return None
+    cum = np.cumsum(cnts)
+    return [float(vals[int(np.searchsorted(cum, k - below, side="right"))]) for k in ks]
 
 
 def _kth(arrays: Any, k: int, bins: int = 4096) -> float:
@@ -274,8 +381,12 @@ def _kth(arrays: Any, k: int, bins: int = 4096) -> float:
             return mn if k - below < n_mn else mx
         edges = np.linspace(mn, mx, bins + 1)
         counts = np.zeros(bins, np.int64)
+        # equal bins by range: numpy's bins are then the same ``edges`` (it corrects its index against them), found
+        # without sorting each block as explicit edges need (numpy refuses a range too narrow for distinct edges)
+        uniform = bool(np.isfinite(mx - mn) and np.all(edges[:-1] < edges[1:]))
         for a in arrays():
-            counts += np.histogram(a[(a >= mn) & (a <= mx)], edges)[0]
+            sel = a[(a >= mn) & (a <= mx)]
+            counts += np.histogram(sel, bins, (mn, mx))[0] if uniform else np.histogram(sel, edges)[0]
         cum = np.cumsum(counts)
         j = int(np.searchsorted(cum, k - below, side="right"))
         below += int(cum[j - 1]) if j else 0
