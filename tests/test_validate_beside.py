@@ -146,3 +146,29 @@ def test_validate_raises_the_identifications_exception_and_ends_the_side_stages(
     with pytest.raises(DataError, match="identification failed here"):
         vrun.validate(*_small(), type_b=False)
     assert multiprocessing.active_children() == []
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_the_side_stages_send_in_the_inline_order_and_the_prediction_waits_for_the_tolerances(
+        monkeypatch: pytest.MonkeyPatch, mode: str) -> None:
+    from functools import partial
+
+    from benchtwin.recording import Recording
+    from benchtwin.validation.report import ValidationReport
+
+    def prediction(report: ValidationReport, *args: object, tols: Any = None, **kwargs: object) -> list[Any]:
+        report.prediction = {"held_out": "wltc"}
+        return ["predicted", tols()["motor.motoring.e"]]
+
+    monkeypatch.setattr(vrun, "chain_checks", lambda *a, **k: ["chain"])
+    monkeypatch.setattr(vrun, "paper_estimation_fits", lambda *a, **k: {"paper": 1})
+    monkeypatch.setattr(vrun, "_prediction", prediction)
+    vehicle, setup, campaign = _small()
+    job = partial(vrun._side_stages, ValidationReport(), vehicle, setup, campaign, None, Recording(), setup,
+                  "realistic", True, True)
+    with Beside(job, mode) as side:  # type: ignore[arg-type]
+        assert side.get("chain") == ["chain"]
+        assert side.get("paper") == {"paper": 1}
+        side.put("tols", {"motor.motoring.e": 0.03})
+        pred, checks, seconds = side.get("prediction")
+    assert pred == {"held_out": "wltc"} and checks == ["predicted", 0.03] and seconds >= 0
