@@ -72,3 +72,17 @@ def test_family_names_of_the_command_are_the_library_families() -> None:
     from benchtwin.validation.families import FAMILIES
 
     assert tuple(FAMILIES) == FAMILY_NAMES
+
+
+def test_the_command_line_imports_no_heavy_library_before_a_command_runs() -> None:
+    """``benchtwin --help`` and ``benchtwin validate --help`` answer without the plotting, MDF, fitting, bus and data
+    frame libraries (each command imports what it uses when it runs): the parser alone, in a fresh interpreter."""
+    import subprocess
+    import sys
+
+    heavy = ("matplotlib", "asammdf", "scipy", "numba", "pandas", "pymodbus", "canopen", "cantools", "dask",
+             "benchtwin.validation", "benchtwin.identification", "benchtwin.emulator")
+    code = ("import sys; from benchtwin.cli import build_parser; build_parser(); "
+            f"print(sorted(m for m in {heavy!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

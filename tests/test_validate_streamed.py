@@ -118,6 +118,8 @@ def test_validate_holds_neither_the_trace_nor_the_recording(monkeypatch: pytest.
 
     monkeypatch.setattr(vrun, "identify_all", identify)
     monkeypatch.setattr(vrun, "chain_checks", checks)
+    # the chain checks in this process, in line (beside, in a forked child, what they saw would stay the child's)
+    monkeypatch.setattr(vrun, "SIDE_MODE", "off")
     report = vrun.validate(load_vehicle(), setup, campaign, type_b=False)
     rec = seen["rec"]
     assert isinstance(rec, Recording)

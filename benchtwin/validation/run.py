@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import itertools
 import json
+import os
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -28,6 +30,7 @@ from benchtwin.identification.run import identify_all
 from benchtwin.recording import Flag, Recording
 from benchtwin.sensors import devices, setup_for_trace
 from benchtwin.trace import SpooledTrace, Trace
+from benchtwin.validation.beside import Beside
 from benchtwin.validation.chain import chain_checks
 from benchtwin.validation.coverage import interval_coverage
 from benchtwin.validation.families import (
@@ -191,6 +194,15 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
         rec, checked = merge_recordings(recs), stitch_traces(slices)
     give_back_freed_memory()
     t2 = time.perf_counter()
+    # a ramp-up with the lock-up held open drives the converter, not the gearbox at a known input speed
+    gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings
+                    and s.settings.get("lockup") != "open"})
+    roles = None if fams is None else set().union(*(f.roles() for f in fams))
+    want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
+    side = None
+    if streamed and fams is None and SIDE_MODE != "off":  # the stages that do not read the type B budget, beside it
+        side = cleanup.enter_context(Beside(partial(_side_stages, report, vehicle, setup, campaign, checked, rec,
+                                                    bench, prof, with_chain, want_paper), SIDE_MODE))
     methods = None if fams is None else [m for f in fams for m in f.methods]
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
                           type_b=fams is None if type_b is None else type_b)
@@ -209,21 +221,25 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
         "clock_offsets_s": rec.meta.get("clock_offsets_s", {}),
         **_flag_counts(rec),
     }
-    # a ramp-up with the lock-up held open drives the converter, not the gearbox at a known input speed
-    gears = sorted({int(s.settings["gear"]) for s in trace.segments if s.kind == "ramp_up" and "gear" in s.settings
-                    and s.settings.get("lockup") != "open"})
-    roles = None if fams is None else set().union(*(f.roles() for f in fams))
-    if with_chain:
+    if side is not None:
+        report.checks = side.get("chain") if with_chain else []
+    elif with_chain:
         report.checks = chain_checks(checked, rec, bench, profile=prof, roles=roles)
-    else:
+    if not with_chain:
         report.meta["chain_checks"] = "skipped (chain_checks=False)"
-    want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
-    paper_sets = _dropping(rec, paper_estimation_fits, rec, vehicle, trace) if want_paper else {}
+    if side is not None:
+        paper_sets = side.get("paper")
+    else:
+        paper_sets = _dropping(rec, paper_estimation_fits, rec, vehicle, trace) if want_paper else {}
     params = compare_with_truth(result, vehicle, profile=prof, gears=gears or None, setup=setup,
                                 paper_sets=paper_sets)
     report.checks += params if fams is None else family_checks(params, fams)
     report.coverage = [r.to_dict() for r in interval_coverage(result, vehicle)]
-    if fams is None:  # held-out drives need the whole campaign (a family run is a fast inner loop)
+    if side is not None:
+        side.put("tols", _tolerances(report))
+        report.prediction, pred_checks, report.timings_s["predict"] = side.get("prediction")
+        report.checks += pred_checks
+    elif fams is None:  # held-out drives need the whole campaign (a family run is a fast inner loop)
         t4 = time.perf_counter()
         report.checks += _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof)
         report.timings_s["predict"] = round(time.perf_counter() - t4, 3)
@@ -243,6 +259,34 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
 
         write_html(report, out / "report.html", specs=vehicle.specs)
     return report
+
+
+#: how the stages that do not read the type B budget (the chain checks, the paper's estimation fits, the held-out
+#: prediction) run in a streamed whole-campaign ``validate``: beside the identification in a forked process
+#: (``"fork"``, where the system has ``os.fork``), on a thread (``"thread"``: the GIL leaves it nothing to gain) or
+#: after it (``"off"``); see :mod:`benchtwin.validation.beside` and benchmarks/bench_overlap.py
+SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
+
+
+def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
+                 trace: Trace, rec: Recording, bench: SetupConfig, prof: str, with_chain: bool, want_paper: bool,
+                 channel: Any) -> None:
+    """The stages run beside the identification, in the order :func:`_validate` runs them in line: the chain
+    checks (``"chain"``), the paper's estimation fits (``"paper"``) and the prediction (``"prediction"``: the
+    report's prediction, its checks and its seconds), which waits for the parameter checks' tolerances
+    (``"tols"``) before its sub-model checks."""
+    if with_chain:
+        channel.put("chain", chain_checks(trace, rec, bench, profile=prof, roles=None))
+    channel.put("paper", _dropping(rec, paper_estimation_fits, rec, vehicle, trace) if want_paper else {})
+    t = time.perf_counter()
+    checks = _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof,
+                       tols=lambda: channel.get("tols"))
+    channel.put("prediction", (report.prediction, checks, round(time.perf_counter() - t, 3)))
+
+
+def _tolerances(report: ValidationReport) -> dict[str, Any]:
+    """The tolerance of each check of the report by name (the sub-model checks propagate the parameters')."""
+    return {c.name: c.tolerance for c in report.checks}
 
 
 #: samples of a channel whose flags are counted at a time
@@ -299,14 +343,17 @@ def _held_out_drives(vehicle: VehicleConfig) -> list[tuple[str, str, float]]:
 
 
 def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
-                trace: Trace, rec: Any, profile: str) -> list[Check]:
+                trace: Trace, rec: Any, profile: str,
+                tols: Callable[[], dict[str, Any]] | None = None) -> list[Check]:
     """Identify without the campaign's driving cycle, predict it and further drives with the map-based model.
 
     The further drives (:func:`_held_out_drives`: the WLTC from a low SOC, the NEDC) are simulated and measured
     one at a time after this identification, each closed before the next.
 
     Only for a campaign that holds a cycle beside other tests (the cycle is held out of identification);
-    the result goes to ``report.prediction`` and the checks of group ``prediction`` are returned.
+    the result goes to ``report.prediction`` and the checks of group ``prediction`` are returned. The sub-model
+    checks, which propagate the parameter checks' tolerances (``tols()``; default: those of ``report.checks``), are
+    made last and put after the held-out cycle's own checks.
     """
     cycles = [s for s in trace.segments if s.kind == "cycle"]
     pred: dict[str, Any] = {"drives": [], "notes": []}
@@ -332,7 +379,6 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
     pred["held_out"] = held.name
     pred["notes"] += model.notes
     checks: list[Check] = []
-    tols = {c.name: c.tolerance for c in report.checks}
     first = None
     for gear_source in ("recorded", "shift_lines"):
         try:
@@ -346,8 +392,8 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
         if gear_source == "recorded":
             first = (res, p, drive)
             checks += prediction_checks(res, profile, _budget(setup))
+    sub_at = len(checks)
     if first is not None:
-        checks += _dropping(rec, submodel_checks, result, vehicle, trace, model, first[1], first[2], profile, tols)
         ser = first[1].series
         pred["series"] = {"t_s": ser["t_s"], "soc_pct": ser["soc_pct"], "battery_voltage_v": ser["battery_voltage_v"],
                           "fuel_g": np.cumsum(ser["fuel_gps"]) * first[2].dt_s}
@@ -375,6 +421,10 @@ def _prediction(report: ValidationReport, vehicle: VehicleConfig, setup: SetupCo
         finally:
             rec2.close()
             trace2.close()
+    if first is not None:
+        tol = tols() if tols is not None else _tolerances(report)
+        checks[sub_at:sub_at] = _dropping(rec, submodel_checks, result, vehicle, trace, model, first[1], first[2],
+                                          profile, tol)
     return checks
 
 
