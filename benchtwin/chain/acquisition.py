@@ -209,7 +209,7 @@ class Acquisition:
         self._devs = devices(setup)
         self._polled = {d.poll_device: d for d in self._devs if d.poll_device is not None}
         where = self.path.parent if self.path is not None else (tempfile.gettempdir() if keep_chunks else None)
-        self._store = ChannelStore(where, write_behind=True)  # the decoded arrays are not changed after their append
+        self._store = ChannelStore(where)
         self._streams: dict[tuple[str, int], _Stream] = {}
         self._buses: dict[str, int] = {}  # bus -> position (first seen)
         self._of_bus: dict[str, set[str]] = {}

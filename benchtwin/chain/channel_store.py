@@ -9,8 +9,6 @@ sequential reads of raw samples: the pages of a memory map would count as reside
 The files stay open while the store is (one descriptor per file, up to :data:`MAX_OPEN_FILES` in all the process's
 stores): a chunk's appends
 and a block's reads are a system call each, with no open and close around them (positional reads: safe on threads).
-With ``write_behind`` the appends' writes go to one writer thread, in order (the system call holds no GIL: the caller
-decodes the next stream meanwhile); every read, flag write and cleanup waits for the writes queued before it.
 """
 
 from __future__ import annotations
@@ -20,9 +18,7 @@ import resource
 import shutil
 import tempfile
 import threading
-from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,19 +44,6 @@ def _write_all(fd: int, a: np.ndarray) -> None:
     buf = memoryview(a).cast("B")
     while buf.nbytes:
         buf = buf[os.write(fd, buf):]
-
-
-#: appends' column writes queued on the writer thread at most (``write_behind``); the caller waits beyond
-MAX_PENDING_WRITES = 24
-
-
-def _write_column(fd: int | None, path: Path, a: np.ndarray) -> None:
-    """Append ``a`` (contiguous) to its file: through its open descriptor, or opened here."""
-    if fd is None:
-        with path.open("ab") as fh:
-            a.tofile(fh)
-    else:
-        _write_all(fd, a)
 
 
 def _read_at(fd: int, dtype: np.dtype, count: int, offset: int) -> np.ndarray:
@@ -94,15 +77,9 @@ class ChannelStore:
     directory:
         Append the samples to files in a new folder inside this one (removed by :meth:`cleanup`);
         None keeps them in memory.
-    write_behind:
-        On disk: write the appended samples on a writer thread (in order); the caller must not change the arrays it
-        appends. Reads wait for the writes before them, so what is read is the same.
     """
 
-    def __init__(self, directory: str | Path | None = None, *, write_behind: bool = False) -> None:
-        self._write_behind = write_behind
-        self._writer: ThreadPoolExecutor | None = None
-        self._pending: deque[Future[None]] = deque()
+    def __init__(self, directory: str | Path | None = None) -> None:
         self._entries: dict[str, _Entry] = {}
         self._dir: Path | None = None
         if directory is not None:
@@ -125,35 +102,11 @@ class ChannelStore:
             return
         for k, a in enumerate(arrays):
             fd = self._fd(name, k)
-            if self._write_behind:
-                self._write_later(fd, self._file(name, k), np.ascontiguousarray(a))
-            elif fd is None:
+            if fd is None:
                 with self._file(name, k).open("ab") as fh:
                     np.ascontiguousarray(a).tofile(fh)
             else:
                 _write_all(fd, np.ascontiguousarray(a))
-
-    def _write_later(self, fd: int | None, path: Path, a: np.ndarray) -> None:
-        """Queue one column's write on the writer thread (waiting while :data:`MAX_PENDING_WRITES` are queued; a
-        failed write raises here or at the next read)."""
-        if self._writer is None:
-            self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="channel-store")
-        self._pending.append(self._writer.submit(_write_column, fd, path, a))
-        while self._pending and (len(self._pending) > MAX_PENDING_WRITES or self._pending[0].done()):
-            self._pending.popleft().result()
-
-    def flush(self) -> None:
-        """Wait for the queued writes (raising a failed write's error); a no-op without ``write_behind``."""
-        while self._pending:
-            self._pending.popleft().result()
-
-    def _stop_writer(self) -> None:
-        """Wait for the queued writes, errors ignored (the files are being given up), and end the writer thread."""
-        while self._pending:
-            self._pending.popleft().exception()
-        if self._writer is not None:
-            self._writer.shutdown(wait=True)
-            self._writer = None
 
     def _file(self, name: str, k: int) -> Path:
         assert self._dir is not None
@@ -175,7 +128,6 @@ class ChannelStore:
 
     def _read(self, name: str, k: int, start: int, count: int) -> np.ndarray:
         """``count`` samples of column ``k`` of ``name`` from sample ``start`` (``np.fromfile``'s numbers)."""
-        self.flush()
         fd = self._fd(name, k) if count >= 0 else None
         if fd is None:
             with self._file(name, k).open("rb") as fh:
@@ -212,11 +164,9 @@ class ChannelStore:
         elif e.n == 0:
             t, v, f = (np.zeros(0, d) for d in _DTYPES)
         else:
-            self.flush()  # mapped below: the files whole
             files = [self._file(name, k) for k in range(3)]
 
             def load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-                self.flush()
                 t, v, f = (np.memmap(files[k], dtype=_DTYPES[k], mode="r+" if k == 2 else "r", shape=(e.n,))
                            for k in range(3))
                 return np.asarray(t), np.asarray(v), np.asarray(f)
@@ -265,7 +215,6 @@ class ChannelStore:
         """Write ``flags`` over the flags of samples ``start:start + len(flags)`` of ``name`` in its file."""
         if self._dir is None:
             raise ValueError("ChannelStore.write_flags: the store keeps its samples in memory, not in files")
-        self.flush()
         with self._file(name, 2).open("r+b") as fh:
             fh.seek(start * _DTYPES[2].itemsize)
             np.ascontiguousarray(flags, dtype=_DTYPES[2]).tofile(fh)
@@ -286,7 +235,6 @@ class ChannelStore:
 
     def cleanup(self) -> None:
         """Remove the files (channels mapped from them must no longer be used)."""
-        self._stop_writer()
         self._close_files()
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)

@@ -30,14 +30,12 @@ def _whole(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
 
 
 @pytest.mark.parametrize("max_open", [512, 4, 0])
-@pytest.mark.parametrize("write_behind", [False, True])  # True: the writes on the store's writer thread
-def test_the_store_gives_back_what_was_appended(tmp_path: Path, monkeypatch, max_open: int,
-                                                write_behind: bool) -> None:
+def test_the_store_gives_back_what_was_appended(tmp_path: Path, monkeypatch, max_open: int) -> None:
     # 512: every file kept open; 4: one channel's files and one more, the rest opened at each call; 0: none
     monkeypatch.setattr(channel_store, "MAX_OPEN_FILES", max_open)
     names = [f"ch{k}" for k in range(5)]
     chunks = _chunks(7, names, 6)
-    store = ChannelStore(tmp_path, write_behind=write_behind)
+    store = ChannelStore(tmp_path)
     for c in range(6):
         for n in names:
             store.append(n, "V", "dev", None, (0,), *chunks[n][c])
@@ -120,32 +118,3 @@ def test_the_limit_of_open_files_is_shared_by_the_stores(tmp_path: Path, monkeyp
     assert len(two._fds) == 3  # x's three files, now that the first store's are closed
     np.testing.assert_array_equal(two.reader("x").timestamps, [0.0, 1.0, 2.0, 0.0, 1.0])
     two.cleanup()
-
-
-def test_written_behind_channels_mapped_whole_and_a_failed_write_raised(tmp_path: Path, monkeypatch) -> None:
-    """Writes behind: a channel mapped from its files right after its appends holds them all (the map waits for the
-    queued writes); a write that fails on the writer thread raises (at an append or the next read), and cleanup
-    still goes."""
-    monkeypatch.setattr(channel_store, "MAX_PENDING_WRITES", 1_000)  # nothing waited for at append
-    chunks = _chunks(11, ["a", "b"], 40)
-    store = ChannelStore(tmp_path, write_behind=True)
-    for c in range(40):
-        for n in ("a", "b"):
-            store.append(n, "V", "dev", None, (0,), *chunks[n][c])
-    for n in ("a", "b"):
-        ch = store.channel(n)
-        whole = _whole(chunks[n])
-        np.testing.assert_array_equal(ch.timestamps, whole[0])
-        np.testing.assert_array_equal(ch.flags, whole[2])
-        ch.drop()
-
-    def broken(fd, path, a) -> None:
-        raise OSError(28, "No space left on device")
-
-    monkeypatch.setattr(channel_store, "_write_column", broken)
-    with pytest.raises(OSError, match="No space"):  # at the next append (if done by then) or at the read
-        store.append("a", "V", "dev", None, (0,), *chunks["a"][0])
-        store.append("a", "V", "dev", None, (0,), *chunks["a"][1])
-        store.read_block("a", 0, 5)
-    store.cleanup()  # the failed write given up with the files
-    assert store.directory is not None and not store.directory.exists()
