@@ -279,7 +279,7 @@ def save_channel_groups(path: str | Path, mdf: Any, channels: Iterable[Any], fla
                     rec[f"v{j}"] = cols[2 * j]
                     rec[f"f{j}"] = cols[2 * j + 1]
                 del t, cols
-                out.append(k, rec)
+                out.append(k, rec, owned=True)  # a new array, not touched again
                 del rec
             out.finish_group(k)
             release([ch.name for ch in group])

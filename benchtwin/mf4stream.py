@@ -190,15 +190,20 @@ class StreamedMdf:
         self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(max_workers=max(1, int(workers)),
                                                                    thread_name_prefix="mf4-blocks")
 
-    def append(self, group: int, items: np.ndarray) -> None:
-        """Append items (whatever the group's ``records_of`` turns into records) to a group, after its earlier ones."""
+    def append(self, group: int, items: np.ndarray, *, owned: bool = False) -> None:
+        """Append items (whatever the group's ``records_of`` turns into records) to a group, after its earlier ones.
+
+        ``owned``: the caller hands ``items`` over and will not change them, so no copy of them is made on its thread;
+        otherwise they are copied here, and the caller may reuse its arrays once append returns. A block's pieces are
+        joined on the worker.
+        """
         g = self.groups[group]
         if g.finished:
             raise ValueError(f"StreamedMdf: group {group} already finished")
         k, n = 0, len(items)
         while k < n:
             take = min(n - k, g.block_records - g.pending_n)
-            g.pending.append(items[k:k + take])
+            g.pending.append(items[k:k + take] if owned else items[k:k + take].copy())
             g.pending_n += take
             k += take
             if g.pending_n == g.block_records:
@@ -207,10 +212,9 @@ class StreamedMdf:
     def _submit(self, g: GroupLayout) -> None:
         if not g.pending_n:
             return
-        # a copy of its own: the caller may reuse its arrays once append returns
-        block = np.concatenate(g.pending) if len(g.pending) > 1 else g.pending[0].copy()
+        block = g.pending  # joined on the worker
+        g.records += g.pending_n
         g.pending, g.pending_n = [], 0
-        g.records += len(block)
         assert self._pool is not None
         self._futures.append((g, self._pool.submit(self._block, g, block)))
         self._write_done(self._max_pending)
@@ -238,11 +242,13 @@ class StreamedMdf:
             g.addresses.append(self._fh.tell())
             self._fh.write(raw)
 
-    def _block(self, g: GroupLayout, items: np.ndarray) -> bytes:
-        """On a worker: a data block of the items, compressed as asammdf's ``save`` does, padded to 8 bytes."""
+    def _block(self, g: GroupLayout, items: list[np.ndarray]) -> bytes:
+        """On a worker: a data block of the items' pieces, joined, compressed as asammdf's ``save`` does, padded to 8
+        bytes."""
         from asammdf.blocks import v4_blocks
         from asammdf.blocks import v4_constants as v4c
 
+        items = np.concatenate(items) if len(items) > 1 else items[0]
         transposed = self.compression == 2
         data = g.records_of(items, transposed)
         if self.compression:

@@ -47,11 +47,11 @@ from benchtwin.chain.decoding import (
     events_for,
     flag_saturation,
     flag_truncations,
-    group_ids,
 )
 from benchtwin.chain.decoding import bus_load as _bus_load  # noqa: F401  (the name earlier code imports)
 from benchtwin.chain.faults import detect_faults
 from benchtwin.chain.pollspool import PollSpool, decode_spooled
+from benchtwin.chain.streams import split_streams
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Flag, Recording
@@ -59,7 +59,6 @@ from benchtwin.segments import Segment
 from benchtwin.sensors import devices
 from benchtwin.sensors.base import FrameDecoder
 from benchtwin.wire.frames import FrameTable, PollLog, TransportEvent
-from benchtwin.wire.merge import take_frames
 from benchtwin.wire.quality import DecodeSink, FrameStream
 
 __all__ = ["CONTEXT_FRAMES", "HOLD_FRAMES", "Acquisition", "AcquisitionInput", "acquire", "declared_uncertainty",
@@ -282,19 +281,16 @@ class Acquisition:
     def _decode_bus(self, table: FrameTable, last: bool) -> None:
         frames = table.frames
         decoders, owner = self._decoders(table.bus)
-        groups, unknown = group_ids(frames, list(decoders))
+        split = split_streams(frames, list(decoders))
         got = self._unknown.setdefault(table.bus, {})
-        for k, v in unknown.items():
+        for k, v in split.unknown.items():
             got[k] = got.get(k, 0) + v
         drops = events_for(self._events, {table.bus})
-        # every stream gathers its whole records at once (one pass over the table, not one per column), then
-        # splits them into its columns (the data bytes as one 8-byte word): one stream's copy at a time, no copy
-        # of the bus's columns beside its frame table
-        for cid, idx in groups.items():
-            mine = take_frames(frames, idx)
-            words = mine["data"].copy().view("<u8")[:, 0]
-            self._decode_stream(table.bus, cid, decoders[cid], owner[cid], np.ascontiguousarray(mine["timestamp"]),
-                                np.ascontiguousarray(mine["dlc"]), words, drops, last)
+        # one pass over the table writes every stream's columns (times, lengths, the data bytes as one 8-byte word)
+        # side by side: one copy of the bus's three columns, each stream a view on them
+        for cid in split.bounds:
+            t, dlc, words = split.stream(cid)
+            self._decode_stream(table.bus, cid, decoders[cid], owner[cid], t, dlc, words, drops, last)
 
     def _decoders(self, bus: str) -> tuple[dict[int, FrameDecoder], dict[int, str]]:
         """The decoders of ``bus`` and the device of each identifier (built once per bus)."""

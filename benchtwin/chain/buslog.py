@@ -205,11 +205,15 @@ class BusLogWriter:
                              self.block_frames)
         self._file: StreamedMdf | None = StreamedMdf(self.path, template, [layout], self.compression)
 
-    def append(self, frames: np.ndarray) -> None:
-        """Append frames (FRAME_DTYPE, in time order, after those appended before)."""
+    def append(self, frames: np.ndarray, *, owned: bool = False) -> None:
+        """Append frames (FRAME_DTYPE, in time order, after those appended before).
+
+        ``owned``: the caller will not change them (no copy is made on its thread:
+        :meth:`StreamedMdf.append <benchtwin.mf4stream.StreamedMdf.append>`).
+        """
         if self._file is None:
             raise ValueError(f"{self.path}: bus log already closed")
-        self._file.append(0, frames)
+        self._file.append(0, frames, owned=owned)
         self.frames += len(frames)
 
     def close(self) -> Path:

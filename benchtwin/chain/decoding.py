@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from benchtwin.chain.blocks import ChannelBlocks
+from benchtwin.chain.streams import dlc_histogram
 from benchtwin.sensors.base import Device, FrameDecoder
 from benchtwin.wire.frames import FrameTable, TransportEvent
 from benchtwin.wire.quality import FLAG
@@ -122,8 +123,7 @@ class BusLoad:
         """Count the frames of one chunk (time order, after the chunks before)."""
         if not len(frames):
             return
-        key = (np.minimum(frames["dlc"], 15).astype(np.uint8) << 1) | frames["is_extended"].view(np.uint8)
-        self.hist += np.bincount(key, minlength=32)
+        self.hist += dlc_histogram(frames)
         if self.n == 0:
             self.first = float(frames["timestamp"][0])
         self.last = float(frames["timestamp"][-1])

@@ -156,7 +156,7 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
                             channel = bus_channel(setup, bus)
                             writers[bus] = stack.enter_context(BusLogWriter(out / f"{bus}.mf4", bus, bitrates[bus],
                                                                             channel=channel, start_time=start))
-                        writers[bus].append(frames)
+                        writers[bus].append(frames, owned=True)  # the chunk's frames are only read from here on
                     chunk.can[bus] = FrameTable(bus, frames, bitrates[bus])
                 acq.feed(chunk)
         poll_logs = acq.poll_logs  # spooled beside the chunk files (or in memory): the written logs read them by blocks

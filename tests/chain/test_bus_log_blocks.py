@@ -63,16 +63,34 @@ def _asammdf_log(frames: np.ndarray, path: Path, compression: int, bus: str = "v
 # one block, exactly one block, several with a short last one (asammdf cuts at 149,796 records)
 @pytest.mark.parametrize("n", [0, 1, 5_000, MF4_BLOCK_FRAMES, 2 * MF4_BLOCK_FRAMES + 17])
 @pytest.mark.parametrize("compression", [0, 1, 2])
-def test_the_log_is_the_file_asammdf_writes_of_the_same_frames(n: int, compression: int, tmp_path: Path) -> None:
+@pytest.mark.parametrize("owned", [False, True])  # the caller's frames copied on its thread, or joined on the worker
+def test_the_log_is_the_file_asammdf_writes_of_the_same_frames(n: int, compression: int, owned: bool,
+                                                              tmp_path: Path) -> None:
     frames = _frames(n)
     ref = _asammdf_log(frames, tmp_path / "ref.mf4", compression)
     cuts = sorted({0, min(3, n), n // 3, min(n // 3 + 1, n), n})  # appends that do not fall on the block edges
     with BusLogWriter(tmp_path / "ours.mf4", "vehicle", 500_000, channel=2, compression=compression) as w:
         for a, b in pairwise(cuts):
-            w.append(frames[a:b])
+            w.append(frames[a:b], owned=owned)
     assert w.frames == n
     assert without_history_time(w.path.read_bytes()) == without_history_time(ref.read_bytes())
     assert read_mf4(w.path).frames.tobytes() == frames.tobytes()
+
+
+def test_frames_not_owned_are_copied_when_handed_over(tmp_path: Path) -> None:
+    """Without ``owned`` the caller may overwrite its array once append returns: the log holds what was appended
+    (a mix of a copied and an owned append in one block too)."""
+    frames = _frames(3_000)
+    ref = write_mf4(FrameTable("vehicle", frames, 500_000), tmp_path / "ref.mf4", block_frames=1_000)
+    buf = frames.copy()
+    with BusLogWriter(tmp_path / "ours.mf4", "vehicle", 500_000, block_frames=1_000) as w:
+        for a in range(0, 2_500, 500):
+            buf[a:a + 500] = frames[a:a + 500]
+            w.append(buf[a:a + 500])
+            buf[a:a + 500] = 0  # reused by the caller
+        w.append(frames[2_500:], owned=True)
+    assert read_mf4(w.path).frames.tobytes() == frames.tobytes()
+    assert without_history_time(w.path.read_bytes()) == without_history_time(ref.read_bytes())
 
 
 def test_small_blocks_read_back_by_asammdf_and_python_can(tmp_path: Path) -> None:
