@@ -88,16 +88,22 @@ def _slip_fit(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarray
     a = np.interp(grid, t_a, x_a)
     lags = lag0 + np.arange(-round(search_s * rate_hz), round(search_s * rate_hz) + 1) / rate_hz
     ssr = np.empty(lags.size)
+    finite_a = np.isfinite(a)
     for j, lag in enumerate(lags):
-        b = np.interp(grid + lag, t_b, x_b)
-        cols = [b, np.ones_like(b)] + [b * np.interp(grid + lag, tf, f) for tf, f in forces]
-        design = np.column_stack(cols)
-        good = np.isfinite(a) & np.all(np.isfinite(design), axis=1)
-        if good.sum() < 10 * design.shape[1]:
+        at = grid + lag
+        b = np.interp(at, t_b, x_b)
+        cols = [b, np.ones_like(b)] + [b * np.interp(at, tf, f) for tf, f in forces]
+        # column by column (a reduction along the rows of an n x k array is several times slower); the same
+        # rows, scales and scaled design bit for bit, so the same normal equations
+        good = finite_a.copy()
+        for c in cols:
+            good &= np.isfinite(c)
+        if good.sum() < 10 * len(cols):
             return lag0
-        dg, ag = design[good], a[good]
-        scale = np.maximum(np.abs(dg).max(axis=0), 1e-300)  # normal equations of the column-scaled design
-        dn = dg / scale
+        kept = [c[good] for c in cols]
+        ag = a[good]
+        scale = np.maximum(np.array([np.abs(c).max() for c in kept]), 1e-300)  # normal equations, columns scaled
+        dn = np.column_stack([c / s for c, s in zip(kept, scale)])
         coef = np.linalg.lstsq(dn.T @ dn, dn.T @ ag, rcond=None)[0]
         ssr[j] = float(np.sum((ag - dn @ coef) ** 2)) / ag.size
     k = int(np.argmin(ssr))

@@ -41,10 +41,12 @@ ROLLER_FORCES = ("dyno_force_front_n", "dyno_force_rear_n")
 MIN_TESTS = 3
 
 
-def _window(rec: Recording, name: str, shift: Shift, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
-    """Finite samples of channel ``name`` around reference times ``lo..hi``, their times on the reference clock."""
+def _window(rec: Recording, name: str, shift: Shift, lo: float, hi: float, ordered: dict[int, bool]
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Finite samples of channel ``name`` around reference times ``lo..hi``, their times on the reference clock
+    (``ordered``: whether each channel is in time order, checked once for all the tests' windows, not per window)."""
     ch = rec[name]
-    _, ts, vs, _fl = window_of(ch, float(to_source(lo, shift)), float(to_source(hi, shift)))
+    _, ts, vs, _fl = window_of(ch, float(to_source(lo, shift)), float(to_source(hi, shift)), ordered)
     good = np.isfinite(vs) & np.isfinite(ts)
     return np.asarray(to_ref(ts[good], shift), dtype=float), np.asarray(vs[good], dtype=float)
 
@@ -80,14 +82,15 @@ def _test_lags_of(rec: Recording, a: tuple[str, Shift], b: list[str], b_shift: S
     """:func:`_test_lags` computed."""
     centres, lags = [], []
     margin = 2.0 * max_lag_s + 1.0
+    ordered: dict[int, bool] = {}
     for seg in rec.segments:
         lo, hi = float(seg.start_s), float(seg.end_s)
         if not hi - lo >= min_test_s:
             continue
-        t_a, x_a = _window(rec, a[0], a[1], lo - margin, hi + margin)
-        t_b, x_b = _window(rec, b[0], b_shift, lo - 2 * margin, hi + 2 * margin)
+        t_a, x_a = _window(rec, a[0], a[1], lo - margin, hi + margin, ordered)
+        t_b, x_b = _window(rec, b[0], b_shift, lo - 2 * margin, hi + 2 * margin, ordered)
         for extra in b[1:]:
-            t_e, x_e = _window(rec, extra, b_shift, lo - 2 * margin, hi + 2 * margin)
+            t_e, x_e = _window(rec, extra, b_shift, lo - 2 * margin, hi + 2 * margin, ordered)
             if t_e.size < 2:
                 t_b = t_b[:0]
                 break

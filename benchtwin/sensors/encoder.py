@@ -151,8 +151,8 @@ class ChunkEncoder:
             self._t = t
             self._meta = dict(chunk.meta)
             return
-        self._t = np.concatenate([self._t, t])
-        self._ch = {k: np.concatenate([v, chunk[k]]) for k, v in self._ch.items()}
+        self._t = _joined(self._t, t)
+        self._ch = {k: _joined(v, chunk[k]) for k, v in self._ch.items()}
 
     def _next_block(self, final: bool) -> Block | None:
         j = self._block
@@ -225,3 +225,23 @@ class ChunkEncoder:
                                                  np.concatenate([s.times for s in ss]),
                                                  np.concatenate([s.registers for s in ss]), ss[0].kind)
         return out
+
+
+def _joined(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.concatenate([a, b])`` of two 1-D arrays; when ``b`` follows ``a`` in the memory of one array, at the same
+    stride (the pieces of one Trace cut by :func:`~benchtwin.chain.stream.time_slices`, e.g. a family run's 600-s
+    chunks; the plant's channels are rows or columns of a few 2-D arrays) a read-only view of that memory instead of
+    a copy: the same values (a family run's converter example copied its 57 channels
+    at each chunk, 0.01 s of 0.5)."""
+    if (a.ndim == b.ndim == 1 and a.size and b.size and a.dtype == b.dtype and _owner(a) is _owner(b)
+            and a.strides == b.strides and a.strides[0] > 0
+            and a.__array_interface__["data"][0] + a.size * a.strides[0] == b.__array_interface__["data"][0]):
+        return np.lib.stride_tricks.as_strided(a, shape=(a.size + b.size,), strides=a.strides, writeable=False)
+    return np.concatenate([a, b])
+
+
+def _owner(x: object) -> object:
+    """The object that owns an array's memory (the end of its chain of ``base``)."""
+    while getattr(x, "base", None) is not None:
+        x = x.base  # type: ignore[attr-defined]
+    return x

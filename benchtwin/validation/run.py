@@ -41,6 +41,7 @@ from benchtwin.validation.families import (
     merge_recordings,
     resolve_families,
     span_seed,
+    span_view,
     stitch_traces,
 )
 from benchtwin.validation.holdout import predict_drive, prediction_checks, submodel_checks, without_window
@@ -185,7 +186,7 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
             kinds = sorted({k for f in fams for k in f.kinds})
             raise ConfigError(f"campaign {campaign.name!r} has no test of the kind(s) {', '.join(kinds)} that "
                               f"the families {', '.join(f.name for f in fams)} need")
-        slices = [trace.slice_time(a, b) for a, b in spans]
+        slices = [span_view(trace, a, b) for a, b in spans]
         bench = family_setup(setup, set().union(*(f.reads() for f in fams)))
         report.meta["devices"] = [d.name for d in devices(bench)]
         recs = [run_batch(sl, bench, seed=span_seed(campaign.seed, k), chunk_s=FAMILY_CHUNK_S,
