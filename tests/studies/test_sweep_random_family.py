@@ -1,4 +1,5 @@
-"""A random vehicle family as a sweep axis (``[axes.vehicle] random = {count, seed}``).
+"""A random vehicle family as a sweep axis (``[axes.vehicle] random = {count, seed}``), and runs.parquet kept
+readable as runs finish.
 
 The run test is small: the quick campaign, the battery family only (its constant-drive test), a family of two
 (seed 1: an 8-speed petrol car of alpha 0.966 and a 9-speed diesel of alpha 0.987), two seeds; the four Traces
@@ -13,6 +14,7 @@ from typing import Any
 import pandas as pd
 import pytest
 
+import benchtwin.studies.sweep as sweep_mod
 from benchtwin.config import load_vehicle
 from benchtwin.config.campaign import RampUpTest
 from benchtwin.errors import ConfigError
@@ -112,3 +114,25 @@ def test_a_sweep_over_a_random_family_runs_one_row_per_vehicle_and_seed(tmp_path
         assert abs(a - truth[v]) < 0.005, (v, a, truth[v])
     pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "out" / "runs.parquet"), t)
 
+
+def test_runs_parquet_is_readable_while_the_sweep_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """What a hard kill would leave: runs.parquet read during the sweep (before its end) holds the finished runs."""
+    out = tmp_path / "out"
+    seen: list[pd.DataFrame | None] = []
+
+    def fake_run(task: sweep_mod.RunTask) -> dict[str, Any]:
+        p = out / "runs.parquet"
+        seen.append(pd.read_parquet(p) if p.exists() else None)
+        return {"run_key": task.key, "index": task.index, "seed": task.seed, "params": task.params, "status": "ok",
+                "error": "", "passed": True, "n_checks": 1, "n_failed": 0, "trace_cached": True, "wall_s": 0.0,
+                "figures": {"value:x": float(task.index)}}
+
+    monkeypatch.setattr(sweep_mod, "run_task", fake_run)
+    monkeypatch.setattr(Sweep, "_prefetch", lambda self, backend, todo: 0)
+    sweep = Sweep.from_file(_file(tmp_path, "{count = 2, seed = 1}"), cache_dir=tmp_path / "c")
+    sweep.run(out, workers=0, figures=False)
+    assert seen[0] is None
+    for k, table in enumerate(seen[1:], start=1):  # before run k: the k finished runs, whole, in order
+        assert table is not None and list(table["index"]) == list(range(k))
+        assert list(table["value:x"]) == [float(i) for i in range(k)]
+    assert not list(out.glob(".runs.parquet.*"))  # no temporary file left behind
