@@ -1,10 +1,12 @@
 """``benchtwin sweep``: many validation runs over axes of the vehicle, setup and campaign, and seeds.
 
 A sweep file names a base vehicle, setup and campaign (shipped names or paths), the axes to vary (dotted
-paths into the models, each a list of values or a range), the seeds and the figures to collect; see
-scenarios/sweeps/telemetry_noise.toml. One row per run is appended to DIR/runs.csv as runs finish;
-DIR/runs.parquet (one column per figure) and the summary PNGs are written at the end, and from what
-finished when the sweep is interrupted; --resume then runs only the rest. A failed run records its
+paths into the models, each a list of values or a range; whole models as a list of files, or a random vehicle
+family ``[axes.vehicle] random = {count, seed}``), the seeds and the figures to collect; see
+scenarios/sweeps/telemetry_noise.toml. One row per run is appended to DIR/runs.csv as runs finish, and
+DIR/runs.parquet (one column per figure) is rewritten from it after each (a killed sweep leaves both
+readable); the summary PNGs are drawn at the end, also from what finished when the sweep is interrupted;
+--resume then runs only the rest. A failed run records its
 error in its row and the sweep goes on. Runs go to a local process pool (--workers) or to an existing
 Dask cluster (--scheduler tcp://HOST:PORT); both give the same table.
 """

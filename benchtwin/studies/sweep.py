@@ -9,8 +9,13 @@ parameters and seed, so both give the same table.
 The Traces are simulated first, once per distinct (vehicle, campaign, seed), into the disk cache
 (:mod:`benchtwin.emulator.cache`); the runs then only push a cached Trace through sensors, chain and
 identification. Each finished run appends one line to ``runs.csv`` in the output folder (flushed at
-once); ``runs.parquet`` (one column per figure) is written from it at the end, also when the sweep is
-interrupted. ``resume=True`` runs only the runs whose key has no line yet. A run that raises records
+once), then ``runs.parquet`` (one column per figure) is rewritten from it, whole, into a temporary file that
+replaces the old one (``os.replace``): a sweep killed at any moment leaves a readable ``runs.parquet`` of the runs
+finished before its last rewrite, and ``runs.csv`` of every finished run. (A ``ParquetWriter`` appending a row
+group per run would leave no readable file: a Parquet file's footer, its schema and row-group index, is written
+only when the writer closes, and the figures' columns are known only as runs bring them.) The rewrite costs
+0.1 s at 100 rows and 0.3 s at 1,000 rows of 400 figures; a run costs seconds. ``resume=True`` runs only the
+runs whose key has no line yet. A run that raises records
 its message in its row (``status = failed``) and the sweep goes on.
 """
 
@@ -22,6 +27,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator
@@ -35,7 +41,14 @@ from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.errors import ConfigError
-from benchtwin.studies.sweep_file import CollectConfig, SweepConfig, apply_axes, load_sweep, validate_models
+from benchtwin.studies.sweep_file import (
+    CollectConfig,
+    RandomVehicles,
+    SweepConfig,
+    apply_axes,
+    load_sweep,
+    validate_models,
+)
 
 __all__ = ["RUN_COLUMNS", "RunTask", "Sweep", "SweepOutcome", "read_table", "run_task"]
 
@@ -87,7 +100,13 @@ def _run_models(task: RunTask) -> tuple[VehicleConfig, SetupConfig, CampaignConf
     doc = apply_axes(task.base, task.params)
     doc["campaign"]["seed"] = task.seed
     where = ", ".join(f"{k}={v!r}" for k, v in task.params.items())
-    return validate_models(doc, f"run {task.key} ({where or 'base'}, seed {task.seed}):")
+    vehicle, setup, campaign = validate_models(doc, f"run {task.key} ({where or 'base'}, seed {task.seed}):")
+    if task.params.get("vehicle") in task.base.get("follow_gears", ()):
+        # a drawn vehicle: the campaign (written for the base vehicle) follows its gear count
+        from benchtwin.studies.vehicle_family import follow_gears
+
+        campaign = follow_gears(campaign, vehicle, VehicleConfig.model_validate(task.base["vehicle"]))
+    return vehicle, setup, campaign
 
 
 def _prefetch(task: RunTask) -> bool | None:
@@ -165,12 +184,16 @@ class Sweep:
                  *, cache_dir: str | Path | None = None) -> None:
         self.config = config
         self.base = {"vehicle": vehicle.model_dump(mode="json"), "setup": setup.model_dump(mode="json"),
-                     "campaign": campaign.model_dump(mode="json"), "files": config.model_files}
+                     "campaign": campaign.model_dump(mode="json"), "files": config.model_files,
+                     "follow_gears": list(config.follow_gears)}
         self.cache_dir = None if cache_dir is None else str(cache_dir)
         self.axes = config.axis_values()
         self.seeds = list(config.seeds) or [campaign.seed]
         base_names = {"vehicle": vehicle.name, "setup": setup.name, "campaign": campaign.name,
                       "families": config.families, "profile": config.profile}
+        if isinstance(config.axes.get("vehicle"), RandomVehicles):
+            # a random family's values are "random-i" whatever its seed: the key must still tell two families apart
+            base_names["vehicle_family"] = config.axes["vehicle"].model_dump(mode="json")
         self.tasks: list[RunTask] = []
         combos = list(itertools.product(*self.axes.values())) if self.axes else [()]
         for combo in combos:
@@ -246,6 +269,7 @@ class Sweep:
                         for row in backend.map_unordered(run_task, todo):
                             writer.writerow(self._csv_row(row))
                             fh.flush()
+                            write_parquet(out)
                             outcome.done += row["status"] == "ok"
                             outcome.failed += row["status"] != "ok"
                             if bar is not None:
@@ -406,10 +430,16 @@ def read_table(out_dir: str | Path) -> Any:
 
 
 def write_parquet(out_dir: str | Path) -> Any:
-    """Write ``runs.parquet`` from ``runs.csv`` and return the table (None when there is no CSV)."""
+    """Write ``runs.parquet`` from ``runs.csv`` and return the table (None when there is no CSV).
+
+    The table goes to a temporary file first, which then replaces ``runs.parquet`` in one step: a reader (or a
+    kill) never meets a half-written file.
+    """
     path = Path(out_dir) / "runs.csv"
     if not path.exists():
         return None
     table = read_table(out_dir)
-    table.to_parquet(Path(out_dir) / "runs.parquet", index=False)
+    tmp = Path(out_dir) / f".runs.parquet.{os.getpid()}.tmp"
+    table.to_parquet(tmp, index=False)
+    os.replace(tmp, Path(out_dir) / "runs.parquet")
     return table

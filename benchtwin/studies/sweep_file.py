@@ -14,6 +14,11 @@ setup.ivt.battery.current_errors.noise_std = {start = 0, stop = 3, num = 4}   # 
 # a range may also give a step: {start = 0.1, stop = 0.5, step = 0.1}
 vehicle = ["p2_phev_9at", "my_car.toml"]   # a whole model: a list of files (relative to this file) or shipped names
 
+# or, instead of the list, a random family of physically plausible vehicles (benchtwin.studies.vehicle_family):
+# [axes.vehicle]
+# random = {count = 4, seed = 1, gears = [8, 9], fuels = ["diesel", "petrol"]}   # gears, fuels optional
+# battery.alpha = [0.98, 1.02]    # dotted vehicle axes may sit beside it; they apply to each drawn vehicle
+
 [collect]                     # default: every check's error and pass/fail and every identified value
 checks = true
 parameters = true
@@ -25,6 +30,16 @@ the key and the keys allowed there); values are applied per run, so a value the 
 run fail with its message while the others go on. An axis named by a model alone (``vehicle``, ``setup`` or
 ``campaign``) swaps that whole model: its files are loaded and checked when the sweep file loads (a bad one is
 an error naming the axis and the file), and a run's dotted axes of that model then apply to the swapped one.
+
+A random vehicle family ``[axes.vehicle] random = {count = N, seed = S}`` is a whole-model vehicle axis of the N
+values ``"random-0"`` .. ``"random-<N-1>"``: vehicle i is
+:func:`~benchtwin.studies.vehicle_family.random_vehicle` of the seed ``(S, i)`` on the base vehicle (so the same
+seed gives the same vehicles, a larger count keeps the smaller one's), drawn when the sweep file loads. Each run
+on a drawn vehicle moves the campaign's ramp-ups to that vehicle's gears
+(:func:`~benchtwin.studies.vehicle_family.follow_gears`, as the property tests do: an 8-speed runs the 9-speed
+base vehicle's ramp-ups in the corresponding gears, at the same motor speed). ``gears`` (default ``[8, 9]``)
+and ``fuels`` (default ``["diesel", "petrol"]``) narrow the family. A key other than these four is an error
+naming it.
 """
 
 from __future__ import annotations
@@ -42,9 +57,11 @@ from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.setup import SetupConfig
 from benchtwin.config.vehicle import VehicleConfig
 from benchtwin.errors import ConfigError
+from benchtwin.studies.vehicle_family import FUELS, GEAR_COUNTS, random_family
 from benchtwin.validation.families import FAMILIES
 
-__all__ = ["AXIS_ROOTS", "CollectConfig", "RangeSpec", "SweepConfig", "apply_axes", "load_sweep", "resolve_scenario"]
+__all__ = ["AXIS_ROOTS", "CollectConfig", "RandomVehicles", "RangeSpec", "SweepConfig", "apply_axes", "load_sweep",
+           "resolve_scenario"]
 
 #: the models an axis may point into
 AXIS_ROOTS: tuple[str, ...] = ("vehicle", "setup", "campaign")
@@ -74,6 +91,33 @@ class RangeSpec(StrictModel):
         return [float(self.start + k * self.step) for k in range(max(n, 0))]
 
 
+class RandomVehicles(StrictModel):
+    """A random vehicle family: ``count`` vehicles drawn from ``seed`` (see the module docstring)."""
+
+    count: int = Field(ge=1, le=10_000)
+    seed: int = Field(ge=0)
+    gears: list[int] = Field(default_factory=lambda: list(GEAR_COUNTS), min_length=1)
+    fuels: list[str] = Field(default_factory=lambda: list(FUELS), min_length=1)
+
+    @field_validator("gears")
+    @classmethod
+    def _gears(cls, v: list[int]) -> list[int]:
+        if not set(v) <= set(GEAR_COUNTS):
+            raise ValueError(f"gear counts {v}: allowed {', '.join(map(str, GEAR_COUNTS))}")
+        return v
+
+    @field_validator("fuels")
+    @classmethod
+    def _fuels(cls, v: list[str]) -> list[str]:
+        if not set(v) <= set(FUELS):
+            raise ValueError(f"fuels {v}: allowed {', '.join(FUELS)}")
+        return v
+
+    def values(self) -> list[str]:
+        """The axis values: ``random-0`` .. ``random-<count-1>``."""
+        return [f"random-{i}" for i in range(self.count)]
+
+
 class CollectConfig(StrictModel):
     """Which figures each run's row keeps."""
 
@@ -96,6 +140,8 @@ class SweepConfig(StrictModel):
     collect: CollectConfig = Field(default_factory=CollectConfig)
     #: whole-model axes: root -> axis value (as written) -> the model's JSON dump (filled by :func:`load_sweep`)
     _model_files: dict[str, dict[str, dict[str, Any]]] = PrivateAttr(default_factory=dict)
+    #: vehicle axis values whose runs move the campaign's ramp-ups to the vehicle's gears (a random family's)
+    _follow_gears: list[str] = PrivateAttr(default_factory=list)
 
     @field_validator("seeds")
     @classmethod
@@ -123,17 +169,35 @@ class SweepConfig(StrictModel):
 
     def axis_values(self) -> dict[str, list[Any]]:
         """Axis path -> its values, in file order."""
-        return {k: (v.values() if isinstance(v, RangeSpec) else list(v)) for k, v in self.axes.items()}
+        return {k: (v.values() if isinstance(v, (RangeSpec, RandomVehicles)) else list(v))
+                for k, v in self.axes.items()}
 
     @property
     def model_files(self) -> dict[str, dict[str, dict[str, Any]]]:
         """Whole-model axes (``vehicle = [...]``): root -> value as written -> the loaded model's JSON dump."""
         return self._model_files
 
+    @property
+    def follow_gears(self) -> list[str]:
+        """The vehicle axis values (a random family's) whose campaign follows the vehicle's gear count."""
+        return self._follow_gears
 
-def _parse_axis(path: str, values: Any) -> list[Any] | RangeSpec:
-    """One axis: a non-empty list of values or a :class:`RangeSpec` (ValueError naming what is allowed)."""
+
+def _parse_axis(path: str, values: Any) -> list[Any] | RangeSpec | RandomVehicles:
+    """One axis: a non-empty list of values, a :class:`RangeSpec` or (``vehicle``) a :class:`RandomVehicles`
+    (ValueError naming what is allowed)."""
     root = path.split(".", 1)[0]
+    if path == "vehicle" and isinstance(values, (dict, RandomVehicles)):
+        if isinstance(values, RandomVehicles):
+            return values
+        if set(values) != {"random"}:
+            raise ValueError("a vehicle axis is a list of vehicle files or shipped names, or a table "
+                             "{random = {count, seed, gears, fuels}}")
+        try:
+            return RandomVehicles.model_validate(values["random"])
+        except ValidationError as exc:
+            why = "; ".join(_why(e) for e in exc.errors())
+            raise ValueError(f"random family: {why}") from None
     if path in AXIS_ROOTS:
         if not isinstance(values, list) or not values or not all(isinstance(v, str) and v for v in values):
             raise ValueError(f"a whole-model axis takes a non-empty list of {path} files or shipped names")
@@ -155,9 +219,25 @@ def _parse_axis(path: str, values: Any) -> list[Any] | RangeSpec:
                          f"({why})") from None
 
 
+def _why(e: Any) -> str:
+    """One pydantic error as ``key: message`` (an unknown key named as such, with the keys allowed)."""
+    loc = ".".join(map(str, e["loc"])) or "random"
+    if e["type"] == "extra_forbidden":
+        return f"unknown key {loc!r}; allowed: {', '.join(RandomVehicles.model_fields)}"
+    if e["type"] == "missing":
+        return f"key {loc!r} missing"
+    return f"{loc}: {e['msg']}"
+
+
 def _flatten_axes(node: Any, prefix: str, out: dict[str, Any]) -> None:
     """Nested TOML tables of dotted keys -> ``{"setup.telemetry.k_tel": [...]}``; a leaf is a list, a range
-    table (``start``/``stop`` with ``num`` or ``step``) or a single value."""
+    table (``start``/``stop`` with ``num`` or ``step``) or a single value. ``vehicle.random`` (a random family)
+    becomes the axis ``vehicle`` = ``{"random": ...}``."""
+    if prefix == "vehicle" and isinstance(node, dict) and "random" in node:
+        out["vehicle"] = {"random": node["random"]}
+        node = {k: v for k, v in node.items() if k != "random"}
+        if not node:
+            return
     if isinstance(node, dict) and not (node and set(node) <= _RANGE_KEYS and "start" in node):
         for k, v in node.items():
             _flatten_axes(v, f"{prefix}.{k}" if prefix else str(k), out)
@@ -215,7 +295,19 @@ def load_sweep(path: str | Path) -> tuple[SweepConfig, VehicleConfig, SetupConfi
     campaign = load_campaign(resolve_scenario("campaigns", cfg.campaign, path.parent))
     bases = {"vehicle": vehicle, "setup": setup, "campaign": campaign}
     problems = []
+    family = cfg.axes.get("vehicle")
+    if isinstance(family, RandomVehicles):
+        try:
+            drawn = random_family(family.count, family.seed, gears=family.gears, fuels=family.fuels, base=vehicle)
+        except (ValueError, ValidationError) as exc:
+            problems.append(f"key 'axes.vehicle.random': the base vehicle {cfg.vehicle!r} cannot carry a drawn "
+                            f"family ({str(exc).splitlines()[0]})")
+            drawn = []
+        cfg.model_files["vehicle"] = {f"random-{i}": v.model_dump(mode="json") for i, v in enumerate(drawn)}
+        cfg.follow_gears.extend(family.values())
     for root in AXIS_ROOTS:
+        if isinstance(cfg.axes.get(root), RandomVehicles):
+            continue
         for value in cfg.axes.get(root, []):
             try:
                 model = _LOADERS[root](resolve_scenario(f"{root}s", value, path.parent))
