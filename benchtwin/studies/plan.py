@@ -45,9 +45,10 @@ figure a sweep over seeds measures; it holds no bias (gain and offset errors, mo
 lack of fit (the identification's own standard errors carry the residual scatter, which includes it).
 
 Parameters whose fit will not get the points it needs are flagged *not identifiable*, with the reason
-and the test to add in the campaign's TOML terms. A family that reads no channel with a random error
-on the setup (engine, road load and shift lines on the paper bench) gets a standard error of 0: the
-same estimate for every seed.
+and the test to add in the campaign's TOML terms; so is each region of the motor map (side, speed band,
+torque level: :mod:`benchtwin.studies.plan_motor_regions`) no planned steady point visits. A family that
+reads no channel with a random error on the setup (engine, road load and shift lines on the paper bench) gets
+a standard error of 0: the same estimate for every seed.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ from benchtwin.studies.plan_fits import (
     plan_shifts,
     plan_transmission,
 )
+from benchtwin.studies.plan_motor_regions import plan_motor_regions
 from benchtwin.studies.plan_noise import (
     noise_budget,
     poll_fault_model,
@@ -237,6 +239,8 @@ def plan_campaign(vehicle: VehicleConfig, setup: SetupConfig, campaign: Campaign
         elif fam.name == "motor":
             plan.parameters += plan_motor(rec, vehicle, noise, segments)
             plan.parameters += plan_motor_loss(rec, vehicle, noise)
+            regions, plan.meta["motor_regions"] = plan_motor_regions(rec, vehicle.specs)
+            plan.parameters += regions
         elif fam.name == "torque_converter":
             planned = [p for p in plan.parameters if p.name.startswith("transmission.")] or \
                 plan_transmission(rec, vehicle, noise, segments, recorded=raw, sensed=sensed)
