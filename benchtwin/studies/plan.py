@@ -122,12 +122,13 @@ class Plan:
 
     def format_table(self) -> str:
         """One line per parameter: value, predicted SE, relative SE, identifiable, reason and the test to add."""
-        head = f"{'parameter':40s} {'value':>11s} {'pred. SE':>10s} {'rel. SE':>9s}  ident.  reason / test to add"
+        w = max([40, *(len(p.name) for p in self.parameters)])  # the name column as wide as the longest name
+        head = f"{'parameter':{w}s} {'value':>11s} {'pred. SE':>10s} {'rel. SE':>9s}  ident.  reason / test to add"
         lines = [f"plan of campaign {self.meta.get('campaign')!r} on setup {self.meta.get('setup')!r} "
                  f"(vehicle {self.meta.get('vehicle')!r})", head, "-" * len(head)]
         for p in self.parameters:
             note = p.reason + (f" -> {p.suggestion}" if p.suggestion else "")
-            lines.append(f"{p.name:40s} {_fmt(p.value):>11s} {_fmt(p.se):>10s} "
+            lines.append(f"{p.name:{w}s} {_fmt(p.value):>11s} {_fmt(p.se):>10s} "
                          f"{(f'{p.rel_se:.2%}' if math.isfinite(p.rel_se) else '-'):>9s}  "
                          f"{'yes' if p.identifiable else 'NO':6s}  {note}")
         n_no = sum(not p.identifiable for p in self.parameters)

@@ -123,3 +123,19 @@ def test_the_paper_campaign_visits_every_region(paper_trace: Trace) -> None:
     rows, meta = plan_motor_regions(rec, vehicle.specs)
     assert rows == []
     assert len(meta["counts"]) == 8 and min(meta["counts"].values()) >= 5
+
+
+def test_the_plan_table_keeps_its_columns_under_a_long_parameter_name() -> None:
+    """A region row's name (over 40 characters) widens the name column: each row's value ends where the head's does."""
+    from benchtwin.studies.plan import Plan
+    from benchtwin.studies.plan_fits import PlannedParameter
+
+    long = "motor.generating.region.above_base_speed.high_torque"
+    plan = Plan(parameters=[PlannedParameter("motor.e", "-", 0.9, 0.01, True, "ok", "", 10),
+                            PlannedParameter(long, "-", float("nan"), float("nan"), False, "never visited", "add", 0)])
+    lines = plan.format_table().splitlines()
+    head, rows = lines[1], lines[3:5]
+    col = head.index("value") + len("value")  # the value column is right-aligned to the end of its title
+    assert len(long) > 40
+    for row, value in zip(rows, ("0.9", " -"), strict=True):
+        assert row[:col].endswith(value) and row[col] == " ", row
