@@ -6,7 +6,8 @@ Prints a Markdown section to append to benchmarks/RESULTS.md.
 For each campaign and setup: one whole validation (the Trace from the disk cache, ``--cache``), then, per
 parameter family, the share of its scalar parameters whose statistical interval (``ci95``, the fit's scatter)
 and whose total interval (``ci95_total``, with the setup's declared systematic uncertainties, GUM type B)
-hold the truth. Parameters a run could not identify, or flagged, are not counted.
+hold the truth (the shift lines: c0 and c1 against the vehicle file's v0 and slope). Parameters a run could
+not identify, or flagged, are not counted.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import time
 
 from benchtwin.config import load_campaign, load_vehicle, scenario_path
 from benchtwin.config.setup import load_setup
-from benchtwin.validation.coverage import coverage_by_family, interval_coverage
+from benchtwin.validation.coverage import coverage_by_family, interval_coverage, shift_line_coverage
 from benchtwin.validation.run import validate
 
 
@@ -49,7 +50,7 @@ def main() -> None:
         for st in args.setups.split(","):
             setup = load_setup(scenario_path("setups", f"{st}.toml"))
             rep = validate(vehicle, setup, campaign, cache=args.cache or True)
-            rows = interval_coverage(rep.identification, vehicle)
+            rows = interval_coverage(rep.identification, vehicle) + shift_line_coverage(rep.identification, vehicle)
             table[(camp, st)] = coverage_by_family(rows)
             failed = [c.name for c in rep.checks if not c.passed]
             misses += [f"{camp}/{st}: {r.key} value {r.value:.6g} truth {r.truth:.6g} u_stat {r.u_stat:.3g} "

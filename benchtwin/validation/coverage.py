@@ -20,7 +20,7 @@ from benchtwin.identification.keys import split_param
 from benchtwin.validation.parameters import truth_expectations
 from benchtwin.validation.report import by_family
 
-__all__ = ["CoverageRow", "coverage_by_family", "interval_coverage"]
+__all__ = ["CoverageRow", "coverage_by_family", "interval_coverage", "shift_line_coverage"]
 
 
 @dataclass
@@ -101,6 +101,31 @@ def interval_coverage(result: IdentificationResult, vehicle: VehicleConfig) -> l
         rows.append(CoverageRow(family, e.key, float(e.truth), float(p.value), float(p.std_error), float(u_total),
                                 _inside(p.ci95, e.truth), _inside(ci_total, e.truth),
                                 (float(p.ci95[0]), float(p.ci95[1])), (float(ci_total[0]), float(ci_total[1]))))
+    return rows
+
+
+def shift_line_coverage(result: IdentificationResult, vehicle: VehicleConfig) -> list[CoverageRow]:
+    """The shift lines' ``c0_kmh`` and ``c1_kmh_per_pct`` against the vehicle file's ``v0`` and ``slope`` (family
+    ``shifts``): what validation compares each identified line ``c0 + c1 pedal`` with. Lines not identified, or
+    flagged, are left out, as in :func:`interval_coverage` (which does not list them: its rows are
+    :func:`~benchtwin.validation.parameters.truth_expectations`' scalars)."""
+    s = vehicle.shift_schedule
+    rows = []
+    for g in range(vehicle.n_gears - 1):
+        for key, truths in ((f"shifts.up_{g + 1}_{g + 2}", (s.up_v0_kmh[g], s.up_slope_kmh_per_pct[g])),
+                            (f"shifts.down_{g + 2}_{g + 1}", (s.down_v0_kmh[g], s.down_slope_kmh_per_pct[g]))):
+            fit = result.fits.get(key)
+            if fit is None or fit.status != "ok":
+                continue
+            for name, truth in zip(("c0_kmh", "c1_kmh_per_pct"), truths, strict=True):
+                p = fit.params.get(name)
+                if p is None or not math.isfinite(p.value):
+                    continue
+                ci_total = getattr(p, "ci95_total", None) or p.ci95
+                rows.append(CoverageRow("shifts", f"{key}.{name}", float(truth), float(p.value), float(p.std_error),
+                                        float(getattr(p, "u_total", p.std_error)), _inside(p.ci95, truth),
+                                        _inside(ci_total, truth), (float(p.ci95[0]), float(p.ci95[1])),
+                                        (float(ci_total[0]), float(ci_total[1]))))
     return rows
 
 

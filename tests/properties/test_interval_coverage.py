@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Iterable
 from dataclasses import replace
 
 import numpy as np
@@ -33,13 +34,17 @@ from hypothesis import strategies as st
 from scipy.stats import binom
 
 from benchtwin.chain.acquisition import declared_uncertainty
-from benchtwin.config import scenario_path
-from benchtwin.config.setup import load_setup
+from benchtwin.config import load_vehicle, scenario_path
+from benchtwin.config.setup import SetupConfig, load_setup
+from benchtwin.config.vehicle import VehicleConfig
+from benchtwin.emulator import simulate_campaign
 from benchtwin.identification._fit import linear_fit
 from benchtwin.identification.run import identify_all
 from benchtwin.recording import Recording
 from benchtwin.sensors.registry import devices
-from benchtwin.validation.coverage import interval_coverage
+from benchtwin.validation.coverage import interval_coverage, shift_line_coverage
+from benchtwin.validation.families import FAMILIES
+from benchtwin.validation.run import validate
 
 #: families with scalar truths that the quick campaign's ideal Recording identifies
 METHODS = ["transmission", "motor", "road_load", "brakes", "battery"]
@@ -140,3 +145,47 @@ def test_intervals_widen_as_noise_grows(seed: int, sigma: float, ratio: float, u
     for (w_stat0, w_tot0), (w_stat1, w_tot1) in zip(*widths, strict=True):
         assert w_stat1 == pytest.approx(ratio * w_stat0, rel=1e-6)
         assert w_tot1 > w_tot0
+
+
+#: plant seeds of the shift-line coverage test: 20 campaigns x 16 lines x (c0, c1) = 640 intervals
+SHIFT_SEEDS = range(1000, 1020)
+
+
+def shift_lines_over_seeds(vehicle: VehicleConfig, setup: SetupConfig, seeds: Iterable[int]) -> dict[str, list]:
+    """``up.c0_kmh`` ... ``down.c1_kmh_per_pct`` -> the :class:`CoverageRow` of every line and seed.
+
+    Each seed is its own campaign of the shifts family (the paper campaign's accelerations, decelerations and
+    ramp-downs, :func:`strategies.campaign_for`), simulated, measured and identified with the type B budget. The
+    truth is what validation compares the lines with: the vehicle file's ``v0 + slope * pedal`` of each pair.
+    """
+    from strategies import campaign_for
+
+    out: dict[str, list] = defaultdict(list)
+    for seed in seeds:
+        campaign = campaign_for(vehicle, FAMILIES["shifts"].kinds, seed=seed)
+        res = validate(vehicle, setup, campaign, trace=simulate_campaign(vehicle, campaign), families=["shifts"],
+                       type_b=True, chain_checks=False).identification
+        assert res.meta["type_b"]["declared"] and not res.meta["type_b"]["failed"]
+        rows = shift_line_coverage(res, vehicle)
+        assert len(rows) == 4 * (vehicle.n_gears - 1), len(rows)  # every line of the paper campaign identified
+        for r in rows:
+            out[f"{r.key.split('.')[1].split('_')[0]}.{r.key.rsplit('.', 1)[1]}"].append(r)
+    return out
+
+
+@pytest.mark.slow
+def test_shift_line_total_interval_covers_truth() -> None:
+    """The shift lines' total intervals hold the truth for >= 90 % of the family's 640 intervals (20 campaigns).
+
+    Not the binomial of the module docstring: a line's miss repeats from seed to seed (the event times' bias,
+    RESULTS "Coverage of the engine, converter and shift intervals"), so the 640 are not independent; measured
+    2026-11-25 at 600/640 (94 %) total, 280/640 (44 %) statistical. The statistical interval alone fails the
+    same bound, so dropping the type B term fails this test."""
+    vehicle = load_vehicle(scenario_path("vehicles", "p2_phev_9at.toml"))
+    cov = shift_lines_over_seeds(vehicle, load_setup(scenario_path("setups", "paper.toml")), SHIFT_SEEDS)
+    total = [r.inside_total for v in cov.values() for r in v]
+    stat = [r.inside_stat for v in cov.values() for r in v]
+    assert len(total) == 2 * 2 * (vehicle.n_gears - 1) * len(SHIFT_SEEDS)
+    per_param = {k: f"{sum(r.inside_total for r in v)}/{len(v)}" for k, v in cov.items()}
+    assert np.mean(total) >= MIN_COVERAGE, per_param
+    assert np.mean(stat) < MIN_COVERAGE, per_param
