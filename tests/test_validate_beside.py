@@ -14,7 +14,7 @@ import pytest
 import benchtwin.validation.run as vrun
 from benchtwin.config import load_campaign, load_setup, load_vehicle
 from benchtwin.errors import DataError
-from benchtwin.validation.beside import Beside, SideStageError
+from benchtwin.validation.beside import SIDE_MAX_CAMPAIGN_S, Beside, SideStageError, side_stages_beside
 
 MODES = ("fork", "thread")
 
@@ -172,3 +172,33 @@ def test_the_side_stages_send_in_the_inline_order_and_the_prediction_waits_for_t
         side.put("tols", {"motor.motoring.e": 0.03})
         pred, checks, seconds = side.get("prediction")
     assert pred == {"held_out": "wltc"} and checks == ["predicted", 0.03] and seconds >= 0
+
+
+def test_which_runs_fork_their_side_stages() -> None:
+    """Only a streamed whole-campaign run no longer than SIDE_MAX_CAMPAIGN_S, with a mode other than off."""
+    limit = SIDE_MAX_CAMPAIGN_S
+    assert 10_464.0 <= limit < 2 * 10_464.0  # the paper campaign forks; twice it does not (measured at 10x: 1,014 MB)
+    assert side_stages_beside("fork", streamed=True, families=None, campaign_s=10_464.0)
+    assert side_stages_beside("thread", streamed=True, families=None, campaign_s=limit)
+    assert not side_stages_beside("fork", streamed=True, families=None, campaign_s=np.nextafter(limit, np.inf))
+    assert not side_stages_beside("fork", streamed=True, families=None, campaign_s=10 * 10_464.0)
+    assert not side_stages_beside("off", streamed=True, families=None, campaign_s=100.0)
+    assert not side_stages_beside("fork", streamed=False, families=None, campaign_s=100.0)
+    assert not side_stages_beside("fork", streamed=True, families=["battery"], campaign_s=100.0)
+    assert not side_stages_beside("fork", streamed=True, families=None, campaign_s=0.0)
+
+
+def test_a_campaign_over_the_limit_runs_its_side_stages_in_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The small campaign with the limit set under its length: no Beside is made, and the report is the forked one."""
+    import benchtwin.validation.beside as beside_mod
+
+    monkeypatch.setattr(vrun, "SIDE_MODE", "fork")
+    forked = vrun.validate(*_small(), type_b=False)
+
+    def no_beside(*a: Any, **k: Any) -> Any:
+        raise AssertionError("a Beside was made for a campaign over the limit")
+
+    monkeypatch.setattr(beside_mod, "SIDE_MAX_CAMPAIGN_S", 1.0)
+    monkeypatch.setattr(vrun, "Beside", no_beside)
+    in_line = vrun.validate(*_small(), type_b=False)
+    assert repr(_without_seconds(in_line.to_dict())) == repr(_without_seconds(forked.to_dict()))

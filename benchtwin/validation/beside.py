@@ -25,7 +25,7 @@ from typing import Any, Literal
 
 from benchtwin.errors import BenchtwinError
 
-__all__ = ["MODES", "Beside", "SideStageError"]
+__all__ = ["MODES", "SIDE_MAX_CAMPAIGN_S", "Beside", "SideStageError", "side_stages_beside"]
 
 #: how a job runs: ``"fork"`` a child process (the default where ``os.fork`` exists), ``"thread"`` a thread of this
 #: process, ``"off"`` not beside anything (the caller runs the stages in line)
@@ -214,3 +214,32 @@ def _rebuilt(packed: tuple[bytes | None, str] | None) -> BaseException:
         exc.add_note("raised beside the main stage, in a child process:\n" + text)
         return exc
     return SideStageError("the side stage failed:\n" + text)
+
+
+#: the longest campaign (s of tests) whose side stages run beside the type B re-runs. The two sides' memory adds up:
+#: on the paper campaign (10,464 s) the process tree's peak PSS is 718 MB forked against 692 MB in line, on the
+#: paper campaign ten times over 1,014 MB forked (2026-11-25, benchmarks/bench_overlap.py) against 683 MB of the in-line
+#: run (bench_timeline.py, RESULTS.md), so a longer campaign runs them after the re-runs: its memory stays bounded by
+#: a chunk, not by the campaign
+SIDE_MAX_CAMPAIGN_S = 12_000.0
+
+
+def side_stages_beside(mode: str, *, streamed: bool, families: Any, campaign_s: float) -> bool:
+    """Whether ``validate`` runs its side stages beside the identification.
+
+    Parameters
+    ----------
+    mode:
+        :data:`SIDE_MODE` (``"off"``: never).
+    streamed:
+        A streamed whole-campaign run (the only kind with side stages).
+    families:
+        The families validated on their own (``None``: the whole campaign).
+    campaign_s:
+        The campaign's length in seconds of tests; over :data:`SIDE_MAX_CAMPAIGN_S` the stages run in line.
+
+    Returns
+    -------
+    bool
+    """
+    return mode != "off" and streamed and families is None and 0.0 < campaign_s <= SIDE_MAX_CAMPAIGN_S

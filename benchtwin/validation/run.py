@@ -30,7 +30,7 @@ from benchtwin.identification.run import identify_all
 from benchtwin.recording import Flag, Recording
 from benchtwin.sensors import devices, setup_for_trace
 from benchtwin.trace import SpooledTrace, Trace
-from benchtwin.validation.beside import Beside
+from benchtwin.validation.beside import Beside, side_stages_beside
 from benchtwin.validation.chain import chain_checks
 from benchtwin.validation.coverage import interval_coverage
 from benchtwin.validation.families import (
@@ -201,7 +201,8 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     roles = None if fams is None else set().union(*(f.roles() for f in fams))
     want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
     side = None
-    if streamed and fams is None and SIDE_MODE != "off":  # the stages that do not read the type B budget, beside it
+    # the stages that do not read the type B budget, beside it (a campaign short enough for both sides' memory)
+    if side_stages_beside(SIDE_MODE, streamed=streamed, families=fams, campaign_s=checked.duration_s):
         side = cleanup.enter_context(Beside(partial(_side_stages, report, vehicle, setup, campaign, checked, rec,
                                                     bench, prof, with_chain, want_paper), SIDE_MODE))
     methods = None if fams is None else [m for f in fams for m in f.methods]
