@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from benchtwin.identification._reuse import reused
 from benchtwin.identification._signals import Shift, native_rate, strict_resample, to_ref, to_source
 from benchtwin.identification._windows import (
     MARGIN_S,
@@ -144,8 +145,9 @@ def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float 
     else:
         _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
     # Channel.at on the samples around the block (the same bracketing samples as on the whole channel)
+    # the sample at or before each grid time (one search, used by the hold, the flags and the gap mask)
+    idx = np.searchsorted(ts, tb, side="right") - 1
     if step is None:
-        idx = np.searchsorted(ts, tb, side="right") - 1
         v = vs[np.clip(idx, 0, ts.size - 1)].copy()
         v[idx < 0] = np.nan
     else:
@@ -154,14 +156,13 @@ def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float 
     v[tb > last] = np.nan
     bad_bits = int(Flag.bad())
     # Recording.resample: not finite, or flagged at the sample at or before
-    k = np.clip(np.searchsorted(ts, tb, side="right") - 1, 0, ts.size - 1)
+    k = np.clip(idx, 0, ts.size - 1)
     blk = ~np.isfinite(v) | ((fl[k] & bad_bits) != 0)
     if step is not None:
         # strict_resample: the sample at or after flagged bad or not finite ...
         nxt = np.clip(np.searchsorted(ts, tb, side="left"), 0, ts.size - 1)
         blk |= ((fl[nxt] & bad_bits) != 0) | ~np.isfinite(vs[nxt])
         # ... and gap_mask: the grid point inside a step longer than 3 typical steps
-        idx = np.searchsorted(ts, tb, side="right") - 1
         inside = (idx >= 0) & (idx < ts.size - 1)
         gap = np.zeros(tb.shape, dtype=bool)
         gap[inside] = (np.diff(ts)[idx[inside]] > 3.0 * step) & (tb[inside] > ts[idx[inside]])
@@ -229,7 +230,12 @@ class StrictGrid:
         if t.size == 0:
             return t, {n: np.empty(0) for n in self.names}, bad
         for c, (first, last), s, step in zip(self._chans, self._bounds, self._sh, self._steps, strict=True):
-            out[c.name], blk = _channel_block(c, first, last, s, step, t)
+            # the grid times are those of (lo, step, i0, i1) (grid_times): keyed by them and the channel object, a
+            # channel a type B re-run does not move is read around the block once for all re-runs (see _reuse)
+            key = (float(first), float(last), s, step, self.lo, self.step, i0, i1)
+            out[c.name], blk = reused("strict_block", (c,), key,  # type: ignore[arg-type]
+                                      lambda c=c, first=first, last=last, s=s, step=step:
+                                      _channel_block(c, first, last, s, step, t))
             bad |= blk
         return t, out, bad
 

@@ -133,6 +133,14 @@ class _IndexCache:
     def __init__(self, t: np.ndarray) -> None:
         self.t = t
         self._cache: list[tuple[weakref.ref[np.ndarray], Shift, np.ndarray, int]] = []
+        self._key: tuple | None = None
+
+    def key(self) -> tuple:
+        """:func:`~benchtwin.identification._reuse.fingerprint` of the grid times, worked out once for the channels
+        sampled at them (the cache lives while they are sampled: the times are not changed meanwhile)."""
+        if self._key is None:
+            self._key = fingerprint(self.t)
+        return self._key
 
     def fidx(self, ts: np.ndarray, shift_s: Shift = 0.0, k0: int = 0) -> np.ndarray:
         """Fractional index into ``ts + shift_s`` of every grid time (``ts`` in time order; ``k0``: the index of
@@ -171,7 +179,8 @@ def _sample(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache | None = 
 
     # the type B re-runs sample the channels they do not move on the same grid again (see _reuse)
     return reused("sample", (ch.timestamps, ch.values, ch.flags),
-                  (t.size, float(t[0]) if t.size else 0.0, fingerprint(t), hold, shift_s), compute)
+                  (t.size, float(t[0]) if t.size else 0.0,
+                   cache.key() if cache is not None and cache.t is t else fingerprint(t), hold, shift_s), compute)
 
 
 def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray, fidx: np.ndarray, hold: bool,

@@ -274,7 +274,8 @@ def _sample_at(ch: Channel, t: np.ndarray, hold: bool, cache: _IndexCache, shift
         return v, flagged
 
     # keyed by the channel object: the type B re-runs keep every channel they do not move (see _reuse)
-    return reused("sample_at", (ch,), (t.size, float(t[0]), fingerprint(t), hold, shift_s), compute)  # type: ignore[arg-type]
+    tkey = cache.key() if cache.t is t else fingerprint(t)  # the grid's fingerprint once for all its channels
+    return reused("sample_at", (ch,), (t.size, float(t[0]), tkey, hold, shift_s), compute)  # type: ignore[arg-type]
 
 
 def gather_at(rec: Recording, names: Sequence[str], t: np.ndarray, rate_hz: float, shifts: dict[str, Shift], *,

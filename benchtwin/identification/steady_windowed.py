@@ -9,6 +9,7 @@ same; their statistics differ from the whole-grid ones at rounding level only (t
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -89,11 +90,12 @@ def find_steady_windows_by_piece(rec: Recording, channels: Sequence[str], state_
         n_excl += int(g.flagged.sum())
         searched += t.size
         if spans:
-            stats = window_stats(g, spans)
+            # the statistics as lists of floats once per piece, not an array item per window and channel
+            stats = [(nm, m.tolist(), sd.tolist()) for nm, (m, sd) in window_stats(g, spans).items()]
             segnames = index.names_at([t[(a + b - 1) // 2] for a, b in spans])
             for k, (a, b) in enumerate(spans):
-                means = {nm: float(v[0][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
-                stds = {nm: float(v[1][k]) for nm, v in stats.items() if np.isfinite(v[0][k])}
+                means = {nm: m[k] for nm, m, _sd in stats if math.isfinite(m[k])}
+                stds = {nm: sd[k] for nm, m, sd in stats if math.isfinite(m[k])}
                 states_v = {s: float(g[s][a]) for s in st}
                 off = g.first_index
                 found.append(window(float(t[a]), float(t[b - 1] + dt), off + a, off + b, means, stds, states_v,
