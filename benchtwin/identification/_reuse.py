@@ -30,11 +30,12 @@ import threading
 import weakref
 from collections.abc import Callable, Hashable, Iterator
 from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["STORE_BYTES", "fingerprint", "reused", "reusing", "stored_bytes"]
+__all__ = ["STORE_BYTES", "fingerprint", "only_values", "reused", "reusing", "stored_bytes", "values_only"]
 
 T = TypeVar("T")
 
@@ -66,6 +67,29 @@ class _Store:
 
 
 _store: _Store | None = None
+
+#: whether the methods run here are a type B re-run, whose caller reads the parameters' values only (per thread)
+_values_only: ContextVar[bool] = ContextVar("values_only", default=False)
+
+
+@contextmanager
+def values_only() -> Iterator[None]:
+    """Run the block as a type B re-run: its caller takes the change of each parameter's value, nothing else.
+
+    Work whose only output is a parameter's standard error or interval (the BSFC map's bootstrap, the converter's
+    calibration budget) may then be left out (:func:`only_values`); every value stays the same. Per thread (and
+    re-entrant): the re-runs on the type B threads do not change the nominal run's.
+    """
+    token = _values_only.set(True)
+    try:
+        yield
+    finally:
+        _values_only.reset(token)
+
+
+def only_values() -> bool:
+    """Whether the methods run inside :func:`values_only` (a type B re-run): standard errors go unread."""
+    return _values_only.get()
 
 
 @contextmanager

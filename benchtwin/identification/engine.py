@@ -37,6 +37,7 @@ from benchtwin.identification._fit import (
     linear_fit,
     r_squared,
 )
+from benchtwin.identification._reuse import only_values
 from benchtwin.identification._signals import check_spread
 from benchtwin.identification.engine_cells import declared_cell, operating_cells
 from benchtwin.identification.engine_cold import (
@@ -96,8 +97,7 @@ def engine_points(rec: Recording, *, steady: SteadyWindows | None = None,
     if steady is None:
         steady = find_steady_windows(rec, ["engine_speed_rpm", "engine_torque_nm"],
                                      states=("engine_on", "k0_closed", "gear_actual"), extra=("fuel_mass_flow_gps",),
-                                     kinds=kinds, rate_hz=rate_hz, tolerances=tolerances,
-                                     max_duration_s=max_duration_s)
+                                     kinds=kinds, rate_hz=rate_hz, tolerances=tolerances, max_duration_s=max_duration_s)
     n = steady.raw_average(rec, "engine_speed_rpm")
     t = steady.raw_average(rec, "engine_torque_nm")
     f = steady.raw_average(rec, "fuel_mass_flow_gps")
@@ -267,7 +267,7 @@ def fit_bsfc_map(specs: VehicleSpecs, speed_rpm: np.ndarray, torque_nm: np.ndarr
     # extrapolated in cross-validation), so they are not swapped between points.
     resid = np.where(cv_ok, cv_all, 0.0) if cv_ok.any() else pmf - pmf_fit
     boots: list[np.ndarray] = []
-    if np.any(resid != 0) and n_boot > 0:
+    if np.any(resid != 0) and n_boot > 0 and not only_values():  # a type B re-run reads no standard error
         signs = rng.choice(np.array([-1.0, 1.0]), (resid.size, n_boot))
         boots = list(minima(pmf_fit[:, None] + resid[:, None] * signs))
     boots_a = np.asarray(boots) if boots else np.zeros((1, 3))

@@ -47,6 +47,7 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError, DataError, IdentificationError
 from benchtwin.identification import battery_rc
 from benchtwin.identification._fit import FitResult, IdentificationResult
+from benchtwin.identification._reuse import values_only
 from benchtwin.identification._signals import STATE_ROLES
 from benchtwin.identification.battery import identify_battery
 from benchtwin.identification.battery_map_free import (
@@ -407,8 +408,9 @@ def _rerun(name: str, specs: VehicleSpecs | None,
 
     def run(rec: Recording) -> IdentificationResult:
         out = IdentificationResult(meta={"ran": [], "skipped": {}, "seconds": {}})
-        for n in (*_DEPENDS.get(name, ()), name):
-            _run_method(known[n], rec, specs, out, options)
+        with values_only():  # propagate_type_b reads the changes of the values only
+            for n in (*_DEPENDS.get(name, ()), name):
+                _run_method(known[n], rec, specs, out, options)
         return out
 
     return run

@@ -28,6 +28,7 @@ from collections.abc import Callable
 import numpy as np
 
 from benchtwin.identification._fit import FitResult
+from benchtwin.identification._reuse import only_values
 from benchtwin.identification.torque_converter_points import ConverterPoints
 from benchtwin.identification.uncertainty import SPLIT_STEPS, splits
 
@@ -71,6 +72,8 @@ def calibration_budget(res: dict[str, FitResult], pts: ConverterPoints,
     min_points:
         Least samples of a gear in the torque calibration.
     """
+    if only_values():  # a type B re-run: its caller reads the values only, which the budget leaves as they are
+        return
     moves: list[tuple[str, Callable[[float], tuple[np.ndarray, np.ndarray]], float]] = []
     if pts.n_tcal and math.isfinite(pts.tscale_se) and pts.tscale_se > 0:
         rel = pts.tscale_se / pts.tscale
