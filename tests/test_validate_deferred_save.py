@@ -27,20 +27,21 @@ def test_the_side_stages_write_recording_mf4_once_and_the_same(monkeypatch: pyte
     runs = tmp_path / "runs.txt"
     run = DeferredSave.run
 
-    def logged(self: DeferredSave) -> Path:
+    def logged(self: DeferredSave, workers: int = 2) -> Path:
         with open(runs, "a") as fh:  # appended by whichever process saves
-            fh.write(f"{os.getpid()} {self.done}\n")
-        return run(self)
+            fh.write(f"{os.getpid()} {self.done} {workers}\n")
+        return run(self, workers)
 
     monkeypatch.setattr(DeferredSave, "run", logged)
     monkeypatch.setattr(vrun, "SIDE_MODE", "off")
     vrun.validate(*_small(), type_b=False, out_dir=tmp_path / "off")
-    assert runs.read_text().split() == [str(os.getpid()), "False"]  # in line: right after the chain, here
+    assert runs.read_text().split() == [str(os.getpid()), "False", "2"]  # in line: right after the chain, here
     runs.unlink()
     monkeypatch.setattr(vrun, "SIDE_MODE", mode)
     vrun.validate(*_small(), type_b=False, out_dir=tmp_path / mode)
-    pid, done = runs.read_text().split()  # one save, not repeated when the parent closes its Recording
+    pid, done, workers = runs.read_text().split()  # one save, not repeated when the parent closes its Recording
     assert done == "False" and (pid != str(os.getpid())) == (mode == "fork")
+    assert workers == "1"  # beside the parent's identification: one core
     a, b = Recording.load(tmp_path / "off" / "recording.mf4"), Recording.load(tmp_path / mode / "recording.mf4")
     assert list(a.channels) == list(b.channels) and a.channels
     for name in a.channels:

@@ -50,8 +50,9 @@ class DeferredSave:
         """Whether the file was written (here or, per :meth:`done_elsewhere`, in another process)."""
         return self._saved is not None
 
-    def run(self) -> Path:
-        """Write the file (once; a later call returns the path, or re-raises the first call's exception)."""
+    def run(self, workers: int = 2) -> Path:
+        """Write the file (once; a later call returns the path, or re-raises the first call's exception), compressed on
+        ``workers`` threads (the same bytes for any number)."""
         with self._lock:
             if self._saved is not None:
                 return self._saved
@@ -59,7 +60,7 @@ class DeferredSave:
                 raise self._error
             assert self._rec is not None
             try:
-                self._saved = self._rec.save(self.path)
+                self._saved = self._rec.save(self.path, workers=workers)
             except BaseException as exc:
                 self._error = exc
                 raise

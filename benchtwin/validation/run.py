@@ -288,7 +288,7 @@ def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupC
 
     def save() -> None:
         if deferred is not None and not deferred.done:
-            channel.put("saved", str(deferred.run()))
+            channel.put("saved", str(deferred.run(workers=1)))  # one core: the parent's type B has the other
 
     if with_chain:
         channel.put("chain", chain_checks(trace, rec, bench, profile=prof, roles=None))

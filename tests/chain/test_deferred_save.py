@@ -69,3 +69,23 @@ def test_a_save_done_elsewhere_is_not_written_again(tmp_path: Path) -> None:
     assert deferred.done
     rec.close()
     assert not (tmp_path / "recording.mf4").exists()  # another process's to write
+
+
+def _bytes_but_creation_time(path: Path) -> bytes:
+    """The file's bytes with the file history block's creation time (ns, after its header and two links) zeroed."""
+    raw = bytearray(path.read_bytes())
+    at = raw.find(b"##FH")
+    assert at >= 0
+    raw[at + 40:at + 48] = bytes(8)
+    return bytes(raw)
+
+
+def test_one_worker_writes_the_same_bytes(tmp_path: Path) -> None:
+    _run(tmp_path / "now", defer=False).close()  # finish's save: two workers
+    rec = _run(tmp_path / "later", defer=True)
+    deferred = pending_save(rec)
+    assert deferred is not None
+    deferred.run(workers=1)  # the side stages' child: one core
+    rec.close()
+    a, b = (_bytes_but_creation_time(p / "recording.mf4") for p in (tmp_path / "now", tmp_path / "later"))
+    assert a == b
