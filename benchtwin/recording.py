@@ -347,8 +347,8 @@ class Recording:
                 self.drop([c.name])
         return t, out, bad
 
-    def save(self, path: str | Path, *, compression: int = DEFAULT_COMPRESSION) -> Path:
-        """Save as MF4 (one channel group per source) with units and flags.
+    def save(self, path: str | Path, *, compression: int = DEFAULT_COMPRESSION, workers: int = 2) -> Path:
+        """Save as MF4 (one channel group per source) with units and flags (compressed on ``workers`` threads).
 
         ``compression`` is asammdf's: 0 none, 1 deflate, 2 transposed deflate (default
         :data:`DEFAULT_COMPRESSION`; every MDF 4.10 reader, CANape and asammdf among them, reads all three).
@@ -374,7 +374,7 @@ class Recording:
         # read whole), compressed on threads; lazy channels read only to be written are dropped again, group by group
         path = save_channel_groups(path, mdf, self.channels.values(), FLAG_CONVERSION,
                                    lambda names: self.drop([n for n in names if n not in kept]),
-                                   compression=check_compression(compression))
+                                   compression=check_compression(compression), workers=workers)
         path.with_suffix(".segments.json").write_text(segments_to_json(self.segments), encoding="utf-8")
         return path
 

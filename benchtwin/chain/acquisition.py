@@ -49,6 +49,7 @@ from benchtwin.chain.decoding import (
     flag_truncations,
 )
 from benchtwin.chain.decoding import bus_load as _bus_load  # noqa: F401  (the name earlier code imports)
+from benchtwin.chain.deferred_save import DeferredSave
 from benchtwin.chain.faults import detect_faults
 from benchtwin.chain.pollspool import PollSpool, decode_spooled
 from benchtwin.chain.streams import split_streams
@@ -361,7 +362,8 @@ class Acquisition:
         if not self._finished:
             self.close()
 
-    def finish(self, *, segments: list[Segment] | None = None, meta: dict[str, Any] | None = None) -> Recording:
+    def finish(self, *, segments: list[Segment] | None = None, meta: dict[str, Any] | None = None,
+               defer_save: bool = False) -> Recording:
         """Decode what was held back and the poll logs, run the whole-recording passes, return the Recording.
 
         Parameters
@@ -370,6 +372,10 @@ class Acquisition:
             Segment table (overrides the chunks' segments).
         meta:
             Extra metadata for the Recording.
+        defer_save:
+            With a path and ``keep_chunks``: leave writing the file to a
+            :class:`~benchtwin.chain.deferred_save.DeferredSave` the Recording owns (``pending_save(rec)``; run when
+            the caller chooses, at the latest when the Recording is closed); the same file.
         """
         if self._finished:
             raise DataError("Acquisition.finish() called twice")
@@ -435,14 +441,19 @@ class Acquisition:
         rec.start_time = self._start_time
         if not self._store.on_disk:
             return rec
-        saved = None
-        if self.path is not None:
+        saved = deferred = None
+        segs = rec.segments  # the returned Recording's (the deferred save keeps a copy)
+        if self.path is not None and defer_save and self.keep_chunks:
+            deferred = DeferredSave(rec, self.path)  # closed before the chunk files (owned first)
+        elif self.path is not None:
             saved = rec.save(self.path)  # drops every channel it reads: nothing of the chunks' files stays mapped
         if self.keep_chunks or saved is None:
-            out = Recording(segments=rec.segments, meta=rec.meta, start_time=rec.start_time)
+            out = Recording(segments=segs, meta=m, start_time=rec.start_time)
             rec.drop()
             for name in rec.channels:
                 out.add(self._store.reader(name))
+            if deferred is not None:
+                out.own(deferred)
             out.own(self._store)
             return out
         self._store.cleanup()

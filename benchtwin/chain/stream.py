@@ -79,7 +79,7 @@ def time_slices(pieces: Iterable[Trace], max_s: float = SLICE_S) -> Iterator[Tra
 def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 0,
                 out_dir: str | Path | None = None, *, blf: bool = False,
                 meta: dict[str, Any] | None = None, save_recording: bool = True,
-                keep_chunks: bool = False) -> Recording:
+                keep_chunks: bool = False, defer_save: bool = False) -> Recording:
     """The batch chain over a Trace given in pieces, one chunk in memory at a time.
 
     Parameters
@@ -106,6 +106,9 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
         Return the Recording read from the acquisition's raw chunk files (one channel in memory while used, read
         again at the cost of a plain file read; the files go when the Recording is closed), ``recording.mf4``
         still written with ``out_dir`` and ``save_recording``; without ``out_dir`` the files are temporary.
+    defer_save:
+        With ``keep_chunks``, ``out_dir`` and ``save_recording``: ``recording.mf4`` is written when the caller runs
+        :func:`~benchtwin.chain.deferred_save.pending_save` of the Recording (at the latest when it is closed).
 
     Returns
     -------
@@ -177,7 +180,7 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
                 for bus in sorted(spans):
                     write_blf(read_mf4(out / f"{bus}.mf4", bus, bitrates[bus]), out / f"{bus}.blf",
                               channel=bus_channel(setup, bus), start_time=start)
-        return acq.finish(segments=segments, meta=run_meta)
+        return acq.finish(segments=segments, meta=run_meta, defer_save=defer_save)
     except BaseException:
         acq.close()  # the chunk files go; the raw logs written so far are kept
         raise

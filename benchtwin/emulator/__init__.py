@@ -13,7 +13,7 @@ How it is built
   :mod:`benchtwin.emulator.models`; tests run block by block (:mod:`benchtwin.emulator.protocols`
   precomputes per-step commands) and may end early on an in-loop condition (speed reached, displayed SOC reached).
 - Controllers (driver PI on force with feed-forward, dyno speed PI) are designed for a pure mass and
-  discretised with python-control (``c2d``, Tustin); their coefficients feed the loop
+  discretised with python-control's ``c2d`` (Tustin; :func:`benchtwin.lti.c2d`); their coefficients feed the loop
   (:mod:`benchtwin.emulator.params`).
 - Thermal states (:mod:`benchtwin.emulator.thermal`) and the random 12 V load profile are computed outside
   the loop. Every random draw comes from the campaign seed, split per subsystem with

@@ -14,6 +14,7 @@ import numpy as np
 
 from benchtwin.config.campaign import CampaignConfig
 from benchtwin.config.vehicle import VehicleConfig
+from benchtwin.lti import c2d
 
 __all__ = ["PlantTables", "build_tables", "cell_maps"]
 
@@ -283,14 +284,9 @@ def _pi_coefficients(mass: float, bandwidth: float, damping: float, dt: float) -
 
     Returns the coefficients (b0, b1) of ``u[k] = u[k-1] + b0 e[k] + b1 e[k-1]``.
     """
-    import control
-
     kp = 2.0 * damping * bandwidth * mass
     ki = bandwidth**2 * mass
-    pi_c = control.tf([kp, ki], [1.0, 0.0])
-    pi_d = control.c2d(pi_c, dt, method="tustin")
-    num = np.atleast_1d(np.squeeze(pi_d.num[0][0])).astype(float)
-    den = np.atleast_1d(np.squeeze(pi_d.den[0][0])).astype(float)
+    num, den = c2d([kp, ki], [1.0, 0.0], dt, method="tustin")  # python-control's c2d (benchtwin.lti)
     num = num / den[0]
     return float(num[0]), float(num[1])
 

@@ -2,7 +2,7 @@
 
 Measured value (:func:`measure`), in the unit the sensor measures::
 
-    x_f   = LTI(bandwidth)(x_true)                python-control tf, c2d (ZOH) at the trace step,
+    x_f   = LTI(bandwidth)(x_true)                python-control's c2d (ZOH, benchtwin.lti) at the trace step,
                                                   applied with scipy.signal.lfilter from steady state
     x_s   = x_f(t_true - latency)                 sampled when the device samples (its own clock)
     x_m   = (1 + gain_error) x_s + offset + N(0, noise_std)
@@ -40,6 +40,7 @@ import numpy as np
 
 from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, StuckInterval
 from benchtwin.errors import DataError
+from benchtwin.lti import c2d
 from benchtwin.wire.frames import FRAME_DTYPE
 
 __all__ = ["SPAN_FRAME_FAULTS", "DeviceClock", "FaultyClock", "device_rng", "disconnect", "draw_as_measured",
@@ -90,16 +91,11 @@ class DeviceClock:
 
 @functools.lru_cache(maxsize=256)
 def _discrete_filter(bandwidth_hz: float, order: int, damping: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    import control
-
     wc = 2.0 * np.pi * bandwidth_hz
     if order == 1:
-        sys = control.tf([wc], [1.0, wc])
+        num, den = c2d([wc], [1.0, wc], dt, method="zoh")  # python-control's c2d (benchtwin.lti)
     else:
-        sys = control.tf([wc * wc], [1.0, 2.0 * damping * wc, wc * wc])
-    sysd = control.c2d(sys, dt, method="zoh")
-    num = np.atleast_1d(np.squeeze(sysd.num[0][0])).astype(np.float64)
-    den = np.atleast_1d(np.squeeze(sysd.den[0][0])).astype(np.float64)
+        num, den = c2d([wc * wc], [1.0, 2.0 * damping * wc, wc * wc], dt, method="zoh")
     # polynomials in z -> in z^-1 for lfilter: right-align the numerator (keeps the ZOH delay)
     num = np.concatenate([np.zeros(den.size - num.size), num])
     return num / den[0], den / den[0]
@@ -108,9 +104,9 @@ def _discrete_filter(bandwidth_hz: float, order: int, damping: float, dt: float)
 def lti_filter(x: np.ndarray, dt: float, bandwidth_hz: float, order: int = 1, damping: float = 0.707) -> np.ndarray:
     """Low-pass ``x`` (uniform step ``dt``) with the sensor's LTI model, starting from steady state.
 
-    The continuous model (python-control ``tf``: first order ``wc/(s+wc)`` or second order
-    ``wc^2/(s^2+2 zeta wc s+wc^2)``) is discretised with ``c2d`` (zero-order hold) and applied
-    with ``scipy.signal.lfilter``. ``bandwidth_hz <= 0`` returns ``x`` unchanged.
+    The continuous model (first order ``wc/(s+wc)`` or second order ``wc^2/(s^2+2 zeta wc s+wc^2)``) is
+    discretised with :func:`benchtwin.lti.c2d` (python-control's ``c2d``, zero-order hold) and applied with
+    ``scipy.signal.lfilter``. ``bandwidth_hz <= 0`` returns ``x`` unchanged.
     """
     from scipy.signal import lfilter, lfilter_zi
 

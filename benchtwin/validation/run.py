@@ -17,6 +17,7 @@ import numpy as np
 
 from benchtwin._heap import give_back_freed_memory
 from benchtwin.chain.batch import run_batch
+from benchtwin.chain.deferred_save import DeferredSave, pending_save
 from benchtwin.chain.stream import run_chunked, time_slices
 from benchtwin.config._base import StrictModel
 from benchtwin.config.campaign import CampaignConfig, CycleTest
@@ -142,7 +143,7 @@ def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign
                 bar.update(round(sum(steps[:k + 1]) / campaign.plant_rate_hz) - bar.n)
             yield from time_slices([piece])  # the chain's memory bounded by a slice, not by the longest test
 
-    rec = run_chunked(pieces(), setup, campaign.seed, out_dir, keep_chunks=True)
+    rec = run_chunked(pieces(), setup, campaign.seed, out_dir, keep_chunks=True, defer_save=out_dir is not None)
     cleanup.callback(rec.close)
     return truth, rec, plant_s
 
@@ -201,10 +202,14 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     roles = None if fams is None else set().union(*(f.roles() for f in fams))
     want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
     side = None
+    deferred = pending_save(rec)  # recording.mf4 of the streamed chain, not written yet
     # the stages that do not read the type B budget, beside it (a campaign short enough for both sides' memory)
     if side_stages_beside(SIDE_MODE, streamed=streamed, families=fams, campaign_s=checked.duration_s):
         side = cleanup.enter_context(Beside(partial(_side_stages, report, vehicle, setup, campaign, checked, rec,
-                                                    bench, prof, with_chain, want_paper), SIDE_MODE))
+                                                    bench, prof, with_chain, want_paper, deferred=deferred),
+                                            SIDE_MODE))
+    elif deferred is not None:
+        deferred.run()
     methods = None if fams is None else [m for f in fams for m in f.methods]
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
                           type_b=fams is None if type_b is None else type_b)
@@ -248,6 +253,8 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     if saver is not None:
         saved.result()
         saver.shutdown()
+    if side is not None and deferred is not None:  # written by the side stages (in the child: its own copy)
+        deferred.done_elsewhere(side.get("saved"))
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -272,18 +279,25 @@ SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
 
 def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
                  trace: Trace, rec: Recording, bench: SetupConfig, prof: str, with_chain: bool, want_paper: bool,
-                 channel: Any) -> None:
+                 channel: Any, *, deferred: DeferredSave | None = None) -> None:
     """The stages run beside the identification, in the order :func:`_validate` runs them in line: the chain
     checks (``"chain"``), the paper's estimation fits (``"paper"``) and the prediction (``"prediction"``: the
     report's prediction, its checks and its seconds), which waits for the parameter checks' tolerances
-    (``"tols"``) before its sub-model checks."""
+    (``"tols"``) before its sub-model checks. While it waits (the parent still identifying), ``recording.mf4`` is
+    written (``deferred``; ``"saved"``: its path)."""
+
+    def save() -> None:
+        if deferred is not None and not deferred.done:
+            channel.put("saved", str(deferred.run(workers=1)))  # one core: the parent's type B has the other
+
     if with_chain:
         channel.put("chain", chain_checks(trace, rec, bench, profile=prof, roles=None))
     channel.put("paper", _dropping(rec, paper_estimation_fits, rec, vehicle, trace) if want_paper else {})
     t = time.perf_counter()
     checks = _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof,
-                       tols=lambda: channel.get("tols"))
+                       tols=lambda: (save(), channel.get("tols"))[1])
     channel.put("prediction", (report.prediction, checks, round(time.perf_counter() - t, 3)))
+    save()  # a prediction that never waited
 
 
 def _tolerances(report: ValidationReport) -> dict[str, Any]:
