@@ -30,8 +30,10 @@ __all__ = ["HEAD_THREADS", "TYPE_B_WORKER", "ForkedShare", "type_b_worker_beside
 #: whether ``validate`` forks a worker for the type B re-runs (where the side stages fork: a campaign short enough for
 #: the process tree's memory, :data:`~benchtwin.validation.beside.SIDE_MAX_CAMPAIGN_S`)
 TYPE_B_WORKER: bool = hasattr(os, "fork")
-#: threads the parent runs its units on while the worker runs
-HEAD_THREADS = 2
+#: threads the parent runs its units on while the worker runs: one (the type B re-runs of the paper campaign alone,
+#: benchmarks/bench_type_b_worker.py: 6.40 s with one, 6.65 s with two, 11.69 s in line on two; in ``validate`` the
+#: side stages' child shares the cores too, and a second thread of the parent only adds to the GIL's contention)
+HEAD_THREADS = 1
 
 #: the message key of the list of units the worker ran (each unit's result under ``"type_b:<unit>"``)
 _UNITS = "type_b"
