@@ -1,7 +1,7 @@
 """The type B re-runs on both cores: a worker process forked for them takes units from the tail of the list.
 
-``validate`` hands :func:`~benchtwin.identification.run.identify_all` a :class:`ForkedShare` (a
-:class:`~benchtwin.identification.type_b_share.TypeBShare`). When
+``validate`` (with :data:`TYPE_B_WORKER` on) hands :func:`~benchtwin.identification.run.identify_all` a
+:class:`ForkedShare` (a :class:`~benchtwin.identification.type_b_share.TypeBShare`). When
 :func:`~benchtwin.identification.uncertainty.propagate_type_b` has its list of re-run units (after the nominal
 identification), :meth:`ForkedShare.start` forks a worker: it inherits the nominal result, the plan's functions and
 the Recording (the chunk files it reads from are read by position, ``os.preadv``: the two processes never move a
@@ -17,7 +17,6 @@ worker that dies is a :class:`~benchtwin.validation.beside.SideStageError` there
 
 from __future__ import annotations
 
-import os
 import sys
 from contextlib import ExitStack
 from typing import Any
@@ -28,8 +27,11 @@ from benchtwin.validation.beside import Beside, side_stages_beside
 __all__ = ["HEAD_THREADS", "TYPE_B_WORKER", "ForkedShare", "type_b_worker_beside"]
 
 #: whether ``validate`` forks a worker for the type B re-runs (where the side stages fork: a campaign short enough for
-#: the process tree's memory, :data:`~benchtwin.validation.beside.SIDE_MAX_CAMPAIGN_S`)
-TYPE_B_WORKER: bool = hasattr(os, "fork")
+#: the process tree's memory, :data:`~benchtwin.validation.beside.SIDE_MAX_CAMPAIGN_S`). Off: on their own the paper
+#: campaign's re-runs take 6.4 s instead of 11.7 s with it, but whole ``validate --out`` processes on this shared
+#: 2-core machine (load 2.2-2.8) showed no gain (6 pairs with main, median +1.6 s, CPU the same: benchmarks/RESULTS.md,
+#: branch tbpool); to be measured on a quiet machine before it is turned on
+TYPE_B_WORKER: bool = False
 #: threads the parent runs its units on while the worker runs: one (the type B re-runs of the paper campaign alone,
 #: benchmarks/bench_type_b_worker.py: 6.40 s with one, 6.65 s with two, 11.69 s in line on two; in ``validate`` the
 #: side stages' child shares the cores too, and a second thread of the parent only adds to the GIL's contention)
