@@ -66,6 +66,7 @@ from benchtwin.identification.shifts import identify_shift_thresholds, shift_fit
 from benchtwin.identification.torque_converter import identify_torque_converter
 from benchtwin.identification.torque_converter_gearbox import converter_with_gearbox as _torque_converter
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission
+from benchtwin.identification.type_b_share import TypeBShare
 from benchtwin.identification.uncertainty import propagate_type_b
 from benchtwin.recording import Channel, Recording
 from benchtwin.roles import unit_of_role
@@ -314,6 +315,7 @@ def identify_all(
     methods: Iterable[str] | None = None,
     options: Mapping[str, Mapping[str, Any]] | None = None,
     type_b: bool = True,
+    type_b_share: TypeBShare | None = None,
 ) -> IdentificationResult:
     """Run every identification method whose roles are present.
 
@@ -333,6 +335,8 @@ def identify_all(
         (:mod:`benchtwin.identification.uncertainty`): each method runs again once per declared component
         of the roles it reads. False: the total intervals equal the statistical ones (but the converter's, which keep
         its own calibrations' components: :mod:`~benchtwin.identification.torque_converter_calibration`).
+    type_b_share:
+        Another worker that runs a share of the type B re-runs (:mod:`~benchtwin.identification.type_b_share`).
 
     Returns
     -------
@@ -378,7 +382,7 @@ def identify_all(
             t0 = time.perf_counter()
             plan = [(fits, _reads(m.name), _rerun(m.name, specs, options)) for m in METHODS
                     if (fits := produced.get(m.name))]
-            result.meta["type_b"] = propagate_type_b(result, recording, plan)
+            result.meta["type_b"] = propagate_type_b(result, recording, plan, share=type_b_share)
             result.meta["seconds"]["type_b"] = round(time.perf_counter() - t0, 4)
         else:
             result.meta["type_b"] = {"declared": False, "note": "type B propagation not asked for: the total "

@@ -50,6 +50,7 @@ import numpy as np
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._reuse import reusing
 from benchtwin.identification._windows import reads_by_block, share_time_index
+from benchtwin.identification.type_b_share import TypeBShare, run_shared
 from benchtwin.recording import Channel, Flag, LazyChannel, Recording
 
 __all__ = ["Component", "components", "dithered", "perturbed", "propagate_type_b"]
@@ -433,7 +434,8 @@ def _diff(a: Mapping[str, tuple], b: Mapping[str, tuple]) -> str:
 
 def propagate_type_b(result: IdentificationResult, recording: Recording,
                      plan: Iterable[tuple[Iterable[str], Iterable[str], Callable[[Recording], IdentificationResult]]],
-                     *, workers: int | None = None, draws: int | None = None) -> dict[str, Any]:
+                     *, workers: int | None = None, draws: int | None = None,
+                     share: TypeBShare | None = None) -> dict[str, Any]:
     """Add the type B budget to every parameter of ``result`` (in place).
 
     Parameters
@@ -455,6 +457,10 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         Monte Carlo draws of the rounding errors (default :data:`RESOLUTION_DRAWS`, at least 2): the resolution
         term's degrees of freedom; its relative standard uncertainty, about ``1 / sqrt(2 draws)``, is
         ``resolution_rel_u`` of the summary.
+    share:
+        Another worker that runs a share of the re-runs, from the tail of the list (e.g. a forked process,
+        :mod:`~benchtwin.identification.type_b_share`); this side runs the head on ``share.threads`` threads (if
+        set). Each unit's result depends on the unit only: the budget is the same.
 
     Returns
     -------
@@ -480,7 +486,10 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             tasks.append([(fits, nominal, comp, run, split0) for comp in components(recording, roles)])
     lazy = any(isinstance(c, LazyChannel) for c in recording.channels.values())
     n_threads = max(1, int(workers if workers is not None else WORKERS))
-    if lazy:
+    if share is not None and tasks:
+        done = run_shared(share, recording, tasks, lambda t: _propagate_one(recording, t, n_draws),
+                          threads=share.threads or n_threads, lazy=lazy)
+    elif lazy:
         kept = recording.loaded()
         done = []
         for method_tasks in tasks:

@@ -49,6 +49,7 @@ from benchtwin.validation.holdout import predict_drive, prediction_checks, submo
 from benchtwin.validation.parameters import _budget, compare_with_truth, paper_estimation_fits
 from benchtwin.validation.predict import MapVehicle
 from benchtwin.validation.report import Check, ValidationReport
+from benchtwin.validation.type_b_worker import ForkedShare, type_b_worker_beside
 
 __all__ = ["validate"]
 
@@ -211,8 +212,11 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     elif deferred is not None:
         deferred.run()
     methods = None if fams is None else [m for f in fams for m in f.methods]
+    # the type B re-runs shared with a worker forked when they are known (the same campaigns as the side stages)
+    share = (cleanup.enter_context(ForkedShare())
+             if type_b_worker_beside(streamed=streamed, families=fams, campaign_s=checked.duration_s) else None)
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
-                          type_b=fams is None if type_b is None else type_b)
+                          type_b=fams is None if type_b is None else type_b, type_b_share=share)
     t3 = time.perf_counter()
     give_back_freed_memory()
     if streamed:
