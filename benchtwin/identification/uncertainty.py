@@ -44,10 +44,10 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Any
 
-import numba
 import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
+from benchtwin.identification._level_errors import BAD_BITS, add_level_errors, block_level_errors
 from benchtwin.identification._reuse import reusing
 from benchtwin.identification._windows import reads_by_block, share_time_index
 from benchtwin.identification.type_b_share import TypeBShare, run_shared
@@ -146,49 +146,6 @@ def components(recording: Recording, roles: Iterable[str]) -> list[Component]:
     return comps
 
 
-@numba.njit(cache=True, nogil=True)
-def _add_level_errors(values: np.ndarray, scaled: np.ndarray, phase: float, errors: np.ndarray,
-                      positions: np.ndarray) -> np.ndarray:
-    """``values`` plus, at each good sample (``positions``, or all), the error of its level ``floor(scaled + phase)``.
-
-    One pass without temporaries, free of the GIL; the same operations as the NumPy expression
-    ``values[good] + errors[np.floor(scaled + phase).astype(int)]``, so the same numbers.
-    """
-    if positions.size == 0:
-        out = np.empty_like(values)
-        for i in range(values.size):
-            out[i] = values[i] + errors[math.floor(scaled[i] + phase)]
-        return out
-    out = values.copy()
-    for j in range(positions.size):
-        k = positions[j]
-        out[k] = values[k] + errors[math.floor(scaled[j] + phase)]
-    return out
-
-
-#: the bits of :meth:`Flag.bad` (a flagged sample keeps its value in a draw)
-_BAD_BITS = int(Flag.bad())
-
-
-@numba.njit(cache=True, nogil=True)
-def _block_level_errors(values: np.ndarray, flags: np.ndarray, bad_bits: int, lo: float, scale: float, phase: float,
-                        errors: np.ndarray) -> np.ndarray:
-    """A block of a channel with one draw's level errors added to its good samples (free of ``bad_bits``, finite).
-
-    One pass free of the GIL with the very operations of :func:`_add_level_errors` on ``(values[good] - lo) /
-    scale`` (a subtraction and a division per sample, then the floor of the sum with ``phase``), so the same numbers
-    without the good mask, the positions and the scaled levels as arrays.
-    """
-    out = np.empty_like(values)
-    for i in range(values.size):
-        x = values[i]
-        if (flags[i] & bad_bits) == 0 and math.isfinite(x):
-            out[i] = x + errors[math.floor((x - lo) / scale + phase)]
-        else:
-            out[i] = x
-    return out
-
-
 class _Rounding:
     """What every draw of :func:`dithered` over one role shares: its good samples and their scaled levels.
 
@@ -250,7 +207,7 @@ class _Rounding:
     def moved(self, ch: Any, rng: np.random.Generator) -> np.ndarray:
         """The channel's values with one draw of level-wise rounding errors added (see :func:`dithered`)."""
         phase, errors = self._draw(rng)
-        return _add_level_errors(ch.values, self.scaled, phase, errors, self.positions)
+        return add_level_errors(ch.values, self.scaled, phase, errors, self.positions)
 
     def moved_lazily(self, ch: Any, rng: np.random.Generator) -> LazyChannel:
         """One draw as a lazy channel that adds the draw's errors to each block it reads (a channel read by blocks)."""
@@ -261,12 +218,12 @@ class _Rounding:
         def read(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             ts, v, f = ch.block(a, b)
             if v.dtype == np.float64:  # one pass (the same numbers); another dtype rounds (v - lo) in its own
-                return ts, _block_level_errors(v, f, _BAD_BITS, lo, scale, phase, errors), f
+                return ts, block_level_errors(v, f, BAD_BITS, lo, scale, phase, errors), f
             good = _good(v, f)
             if good.all():
-                return ts, _add_level_errors(v, (v - lo) / scale, phase, errors, np.empty(0, dtype=np.int64)), f
+                return ts, add_level_errors(v, (v - lo) / scale, phase, errors, np.empty(0, dtype=np.int64)), f
             positions = np.flatnonzero(good).astype(np.int64)
-            return ts, _add_level_errors(v, (v[good] - lo) / scale, phase, errors, positions), f
+            return ts, add_level_errors(v, (v[good] - lo) / scale, phase, errors, positions), f
 
         out = LazyChannel(ch.name, ch.unit, ch.source, len(ch), lambda: read(0, len(ch)), ch.value_texts,
                           block_loader=read)
