@@ -40,7 +40,6 @@ import numpy as np
 
 from benchtwin.config.setup import ChannelErrors, FaultSpec, LinkErrors, StuckInterval
 from benchtwin.errors import DataError
-from benchtwin.sensors.readout import read_out
 from benchtwin.wire.frames import FRAME_DTYPE
 
 __all__ = ["SPAN_FRAME_FAULTS", "DeviceClock", "FaultyClock", "device_rng", "disconnect", "draw_as_measured",
@@ -169,11 +168,17 @@ def measure(t_trace: np.ndarray, x_true: np.ndarray, t_sample: np.ndarray, error
         dt = float(np.median(np.diff(t_trace)))
         x = lti_filter(x, dt, errors.bandwidth_hz, errors.filter_order, errors.damping)
     ts = np.asarray(t_sample, dtype=np.float64) - latency_s
-    # sampling, gain, offset, noise, quantisation, saturation: one pass without the GIL (readout.py)
-    noise = rng.normal(0.0, errors.noise_std, ts.shape) if errors.noise_std > 0 else None
-    y = read_out(t_trace, x, ts, hold=hold, gain_error_frac=errors.gain_error_frac, offset=errors.offset,
-                 noise=noise, quantisation_step=errors.quantisation_step, saturation_min=errors.saturation_min,
-                 saturation_max=errors.saturation_max)
+    y = hold_sample(t_trace, x, ts) if hold else sample(t_trace, x, ts)
+    if errors.gain_error_frac:
+        y = y * (1.0 + errors.gain_error_frac)
+    if errors.offset:
+        y = y + errors.offset
+    if errors.noise_std > 0:
+        y = y + rng.normal(0.0, errors.noise_std, y.shape)
+    if errors.quantisation_step > 0:
+        y = np.rint(y / errors.quantisation_step) * errors.quantisation_step
+    if errors.saturation_min is not None or errors.saturation_max is not None:
+        y = np.clip(y, errors.saturation_min, errors.saturation_max)
     frozen = blk.state.setdefault("stuck", {}) if blk is not None else {}
     for k, iv in enumerate(errors.stuck):  # the output freezes at its first reading in the interval
         inside = np.flatnonzero((ts >= iv.start_s) & (ts < iv.end_s))
