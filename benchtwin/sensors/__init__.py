@@ -45,8 +45,8 @@ def encode(trace: Trace, setup: SetupConfig, seed: int | None = 0, *, workers: i
     seed:
         Campaign seed; each device draws from its own stream per block of plant time, split from it.
     workers:
-        Threads encoding devices in parallel (numpy releases the GIL in the heavy loops); the
-        result does not depend on it. Default: the CPU count, at most 4.
+        Threads encoding devices in parallel; the result does not depend on it. Default 1
+        (:class:`ChunkEncoder`).
 
     Raises
     ------

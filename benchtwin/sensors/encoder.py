@@ -17,7 +17,7 @@ the same order (time, then device, then block). ``outputs.until_s`` says how far
 from __future__ import annotations
 
 import math
-import os
+import weakref
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
@@ -69,8 +69,11 @@ class ChunkEncoder:
     block_s:
         Block of plant time (the unit of the keyed draws and of the memory held).
     workers:
-        Threads encoding devices in parallel; the result does not depend on it. Default: the CPU count, at
-        most 4.
+        Threads encoding devices in parallel; the result does not depend on it. Default 1 (in the calling
+        thread): the devices' encoders hold the GIL for most of their work (many small numpy steps), so threads
+        did not pay on a block's nine devices and beside ``run_chunked``'s decoding thread they cost hand-offs
+        (benchmarks/RESULTS.md, branch chainenc). With ``workers`` > 1 one pool serves the whole run (shut when
+        the run ends or the encoder is dropped).
     """
 
     def __init__(self, setup: SetupConfig, seed: int | None = 0, *, block_s: float = BLOCK_S,
@@ -81,7 +84,8 @@ class ChunkEncoder:
         self.seed = seed
         self.block_s = float(block_s)
         self.devices = devices(setup)
-        self.workers = max(1, min(4, os.cpu_count() or 1)) if workers is None else max(1, int(workers))
+        self.workers = 1 if workers is None else max(1, int(workers))
+        self._pool: ThreadPoolExecutor | None = None
         self.tail_s = max([d.link.latency_s for d in self.devices] + [0.0]) + 1.0
         self._state: dict[str, dict] = {d.name: {} for d in self.devices}
         self._frames: dict[str, list[np.ndarray]] = {d.name: [] for d in self.devices if d.wire == "can"}
@@ -119,16 +123,19 @@ class ChunkEncoder:
         if self._t.size == 0:
             return DeviceOutputs(until_s=self.until_s)
         done: list[tuple[Device, list]] = []
-        pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="encode") if self.workers > 1 else None
+        if self.workers > 1 and self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="encode")
+            weakref.finalize(self, self._pool.shutdown, wait=False)
         try:
             while not self.finished:
                 blk = self._next_block(final)
                 if blk is None:
                     break
-                done.append(self._encode_block(blk, pool))
+                done.append(self._encode_block(blk, self._pool))
         finally:
-            if pool is not None:
-                pool.shutdown()
+            if self._pool is not None and self.finished:
+                self._pool.shutdown()
+                self._pool = None
         return self._emit(done)
 
     def finish(self) -> DeviceOutputs:

@@ -149,7 +149,9 @@ class MessageCodec:
         words_le = np.zeros(n, dtype=np.uint64)
         words_be = np.zeros(n, dtype=np.uint64)
         for name, sig in self.signals.items():
-            v = np.broadcast_to(np.asarray(raw[name], dtype=np.int64), (n,))
+            v = np.asarray(raw[name], dtype=np.int64)
+            if v.shape != (n,):  # a scalar (or a shorter column numpy can broadcast)
+                v = np.broadcast_to(v, (n,))
             bits = (v.astype(np.uint64) & sig.mask) << np.uint64(sig.shift)
             if sig.little_endian:
                 words_le |= bits
