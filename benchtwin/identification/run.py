@@ -313,6 +313,7 @@ def identify_all(
     methods: Iterable[str] | None = None,
     options: Mapping[str, Mapping[str, Any]] | None = None,
     type_b: bool = True,
+    on_nominal: Callable[[IdentificationResult], None] | None = None,
 ) -> IdentificationResult:
     """Run every identification method whose roles are present.
 
@@ -332,6 +333,9 @@ def identify_all(
         (:mod:`benchtwin.identification.uncertainty`): each method runs again once per declared component
         of the roles it reads. False: the total intervals equal the statistical ones (but the converter's, which keep
         its own calibrations' components: :mod:`~benchtwin.identification.torque_converter_calibration`).
+    on_nominal:
+        Called with the result once every method has run, before the type B re-runs (which then add to it in
+        place): for a caller that draws the fits meanwhile.
 
     Returns
     -------
@@ -373,6 +377,8 @@ def identify_all(
                 # a lazy Recording (Recording.open): what this method read goes, so only one family's channels are
                 # in memory at a time; channels the caller had loaded stay
                 recording.drop(recording.loaded() - kept)
+        if on_nominal is not None:
+            on_nominal(result)
         if type_b:
             t0 = time.perf_counter()
             plan = [(fits, _reads(m.name), _rerun(m.name, specs, options)) for m in METHODS

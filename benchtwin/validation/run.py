@@ -44,6 +44,7 @@ from benchtwin.validation.families import (
     span_view,
     stitch_traces,
 )
+from benchtwin.validation.figures_beside import FIGURES, NOMINAL, FigureDrawer, drawn_images
 from benchtwin.validation.holdout import predict_drive, prediction_checks, submodel_checks, without_window
 from benchtwin.validation.parameters import _budget, compare_with_truth, paper_estimation_fits
 from benchtwin.validation.predict import MapVehicle
@@ -201,13 +202,20 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     roles = None if fams is None else set().union(*(f.roles() for f in fams))
     want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
     side = None
-    # the stages that do not read the type B budget, beside it (a campaign short enough for both sides' memory)
+    # the stages that do not read the type B budget, beside it (a campaign short enough for both sides' memory); a
+    # forked child also draws report.html's figures from the nominal fits (validation/figures_beside.py)
+    draw = SIDE_MODE == "fork" and out_dir is not None
     if side_stages_beside(SIDE_MODE, streamed=streamed, families=fams, campaign_s=checked.duration_s):
         side = cleanup.enter_context(Beside(partial(_side_stages, report, vehicle, setup, campaign, checked, rec,
-                                                    bench, prof, with_chain, want_paper), SIDE_MODE))
+                                                    bench, prof, with_chain, want_paper, draw=draw), SIDE_MODE))
+    draw = draw and side is not None
+    sent: list[None] = []  # the nominal result is pickled when put, before the type B re-runs add to it
     methods = None if fams is None else [m for f in fams for m in f.methods]
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
-                          type_b=fams is None if type_b is None else type_b)
+                          type_b=fams is None if type_b is None else type_b,
+                          **({"on_nominal": lambda r: sent.append(side.put(NOMINAL, r))} if draw else {}))
+    if draw and not sent:  # an identification that handed out no nominal result
+        side.put(NOMINAL, result)
     t3 = time.perf_counter()
     give_back_freed_memory()
     if streamed:
@@ -259,7 +267,8 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
             render_figures(result, out / "figures", specs=vehicle.specs)
         from benchtwin.validation.html import write_html
 
-        write_html(report, out / "report.html", specs=vehicle.specs)
+        images = drawn_images(side.get(FIGURES)) if draw else None
+        write_html(report, out / "report.html", specs=vehicle.specs, images=images)
     return report
 
 
@@ -272,18 +281,29 @@ SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
 
 def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
                  trace: Trace, rec: Recording, bench: SetupConfig, prof: str, with_chain: bool, want_paper: bool,
-                 channel: Any) -> None:
+                 channel: Any, *, draw: bool = False) -> None:
     """The stages run beside the identification, in the order :func:`_validate` runs them in line: the chain
     checks (``"chain"``), the paper's estimation fits (``"paper"``) and the prediction (``"prediction"``: the
     report's prediction, its checks and its seconds), which waits for the parameter checks' tolerances
-    (``"tols"``) before its sub-model checks."""
+    (``"tols"``) before its sub-model checks. With ``draw``, report.html's figures are drawn from the nominal
+    identification result (``"nominal"``) before that wait, or after the prediction if it never waits
+    (:class:`~benchtwin.validation.figures_beside.FigureDrawer`)."""
+    drawer = FigureDrawer(channel, report, vehicle.specs) if draw else None
+
+    def tols() -> dict[str, Any]:
+        if drawer is not None:
+            drawer.draw()
+        return channel.get("tols")
+
     if with_chain:
         channel.put("chain", chain_checks(trace, rec, bench, profile=prof, roles=None))
     channel.put("paper", _dropping(rec, paper_estimation_fits, rec, vehicle, trace) if want_paper else {})
     t = time.perf_counter()
-    checks = _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof,
-                       tols=lambda: channel.get("tols"))
-    channel.put("prediction", (report.prediction, checks, round(time.perf_counter() - t, 3)))
+    checks = _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof, tols=tols)
+    seconds = round(time.perf_counter() - t, 3)
+    if drawer is not None:
+        drawer.draw()
+    channel.put("prediction", (report.prediction, checks, seconds))
 
 
 def _tolerances(report: ValidationReport) -> dict[str, Any]:
