@@ -188,7 +188,7 @@ def test_the_paper_estimation_window_is_cut_without_reading_a_channel_whole(benc
 
 def test_flag_counts_are_counted_by_blocks(bench, monkeypatch) -> None:
     """validate's flagged and clipped sample counts: the same as on whole channels, no channel read whole."""
-    from benchtwin.validation.run import _flag_counts
+    from benchtwin.validation.flag_counts import flag_counts
 
     _trace, _spooled, recs = bench
     rec = recs["paper"]
@@ -207,8 +207,8 @@ def test_flag_counts_are_counted_by_blocks(bench, monkeypatch) -> None:
         return self._arrays
 
     monkeypatch.setattr(LazyChannel, "_load", whole)
-    monkeypatch.setattr("benchtwin.validation.run._FLAG_BLOCK", 333)
-    assert _flag_counts(rec) == want
+    monkeypatch.setattr("benchtwin.validation.flag_counts.FLAG_BLOCK", 333)
+    assert flag_counts(rec) == want
 
 
 def test_the_held_out_cut_reads_the_channels_by_blocks(bench, monkeypatch) -> None:

@@ -202,3 +202,74 @@ def test_a_campaign_over_the_limit_runs_its_side_stages_in_line(monkeypatch: pyt
     monkeypatch.setattr(vrun, "Beside", no_beside)
     in_line = vrun.validate(*_small(), type_b=False)
     assert repr(_without_seconds(in_line.to_dict())) == repr(_without_seconds(forked.to_dict()))
+
+
+# -- report.html's figures, drawn by the forked child from the nominal identification (validation/figures_beside.py) --
+
+def _waits_for_the_parent_then_reads(ch: Any, sent: Any) -> None:
+    # the parent sets ``sent`` only once its put of a value larger than the pipe holds has returned: a put that
+    # waited for this job to read would never get there (the guard's 60 s are a deadlock's, never reached otherwise)
+    ch.put("sent in time", sent.wait(60))
+    ch.put("got", (ch.get("big"), ch.get("small")))
+
+
+def test_a_put_larger_than_the_pipe_returns_before_the_child_reads_and_sends_the_value_as_it_was() -> None:
+    sent = multiprocessing.get_context("fork").Event()
+    big = np.arange(1_000_000.0)  # 8 MB: a pipe holds 64 KiB
+    with Beside(lambda ch: _waits_for_the_parent_then_reads(ch, sent), "fork") as side:
+        side.put("big", big)
+        big[:] = -1.0  # changed after the put (as the type B re-runs add to the nominal result): not sent
+        side.put("small", 2)
+        sent.set()
+        assert side.get("sent in time") is True
+        got_big, got_small = side.get("got")
+    np.testing.assert_array_equal(got_big, np.arange(1_000_000.0))
+    assert got_small == 2
+    assert multiprocessing.active_children() == []
+
+
+def _images(page: str) -> list[tuple[str, bytes]]:
+    import base64
+    import re
+
+    return [(alt, base64.b64decode(data)) for alt, data in
+            re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,([^"]*)">', page)]
+
+
+def test_report_html_figures_drawn_beside_are_the_ones_drawn_in_line(monkeypatch: pytest.MonkeyPatch,
+                                                                     tmp_path: Any) -> None:
+    """The quick campaign with its type B re-runs (which add to the result after the child got the nominal one):
+    report.html is the in-line run's but for its wall-time line, every figure's PNG byte for byte."""
+    vehicle, setup = load_vehicle(), load_setup("paper")
+    pages = {}
+    for mode in ("off", "fork"):
+        monkeypatch.setattr(vrun, "SIDE_MODE", mode)
+        vrun.validate(vehicle, setup, load_campaign("quick.toml"), out_dir=tmp_path / mode)
+        pages[mode] = (tmp_path / mode / "report.html").read_text(encoding="utf-8")
+    imgs = {m: _images(p) for m, p in pages.items()}
+    assert len(imgs["off"]) == 8 and "fig08_transmission_efficiency" in dict(imgs["off"])  # the quick campaign's
+    assert imgs["fork"] == imgs["off"]
+
+    def without_wall(page: str) -> list[str]:
+        return [line for line in page.splitlines() if not line.startswith("<p>wall time")]
+
+    assert without_wall(pages["fork"]) == without_wall(pages["off"])
+    assert multiprocessing.active_children() == []
+
+
+@pytest.mark.parametrize("mode", ["off", "thread", "fork"])
+def test_a_figure_that_fails_is_raised_by_the_parent_after_the_results_are_written(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Any, mode: str) -> None:
+    from benchtwin.identification import figures
+
+    def boom(result: Any, path: Any) -> None:
+        raise RuntimeError("figure 8 drawn wrong")
+
+    monkeypatch.setitem(figures.FIGURES, "fig08_transmission_efficiency", boom)
+    monkeypatch.setattr(vrun, "SIDE_MODE", mode)
+    with pytest.raises(RuntimeError, match="figure 8 drawn wrong"):
+        vrun.validate(*_small(), type_b=False, out_dir=tmp_path)
+    # where the in-line run raises it: params.json and validation.json written, report.html not
+    assert (tmp_path / "validation.json").exists() and (tmp_path / "params.json").exists()
+    assert not (tmp_path / "report.html").exists()
+    assert multiprocessing.active_children() == []

@@ -40,7 +40,6 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 from threadpoolctl import threadpool_limits
 
 from benchtwin.config.specs import VehicleSpecs
@@ -63,13 +62,13 @@ from benchtwin.identification.motor import identify_motor
 from benchtwin.identification.reduction_gear import identify_reduction_gear
 from benchtwin.identification.road_load import identify_road_load
 from benchtwin.identification.shifts import identify_shift_thresholds, shift_fits
+from benchtwin.identification.stuck import stuck_channels
 from benchtwin.identification.torque_converter import identify_torque_converter
 from benchtwin.identification.torque_converter_gearbox import converter_with_gearbox as _torque_converter
 from benchtwin.identification.transmission import OIL_ROLE, identify_transmission
 from benchtwin.identification.type_b_share import TypeBShare
 from benchtwin.identification.uncertainty import propagate_type_b
-from benchtwin.recording import Channel, Recording
-from benchtwin.roles import unit_of_role
+from benchtwin.recording import Recording
 
 __all__ = ["METHODS", "Method", "identify_all", "method_option_defaults", "method_options", "transmission_table"]
 
@@ -316,6 +315,7 @@ def identify_all(
     options: Mapping[str, Mapping[str, Any]] | None = None,
     type_b: bool = True,
     type_b_share: TypeBShare | None = None,
+    on_nominal: Callable[[IdentificationResult], None] | None = None,
 ) -> IdentificationResult:
     """Run every identification method whose roles are present.
 
@@ -337,6 +337,9 @@ def identify_all(
         its own calibrations' components: :mod:`~benchtwin.identification.torque_converter_calibration`).
     type_b_share:
         Another worker that runs a share of the type B re-runs (:mod:`~benchtwin.identification.type_b_share`).
+    on_nominal:
+        Called with the result once every method has run, before the type B re-runs (which then add to it in
+        place): for a caller that draws the fits meanwhile.
 
     Returns
     -------
@@ -378,6 +381,8 @@ def identify_all(
                 # a lazy Recording (Recording.open): what this method read goes, so only one family's channels are
                 # in memory at a time; channels the caller had loaded stay
                 recording.drop(recording.loaded() - kept)
+        if on_nominal is not None:
+            on_nominal(result)
         if type_b:
             t0 = time.perf_counter()
             plan = [(fits, _reads(m.name), _rerun(m.name, specs, options)) for m in METHODS
@@ -418,61 +423,6 @@ def _rerun(name: str, specs: VehicleSpecs | None,
         return out
 
     return run
-
-
-#: fewest samples over which a continuous channel that never changes is taken for a stuck sensor
-STUCK_MIN_SAMPLES = 100
-#: samples looked at first (a channel that changes among them is not stuck)
-STUCK_HEAD = 4096
-
-
-def stuck_channels(recording: Recording) -> dict[str, float]:
-    """Continuous channels (torques, speeds, currents, voltages; not states) that hold one value over the whole
-    Recording: a stuck sensor or a wrong signal mapping, never a measurement of a vehicle that was driven.
-
-    Returns
-    -------
-    dict
-        Channel name -> the value it is stuck at (channels with fewer than :data:`STUCK_MIN_SAMPLES` finite
-        samples are not judged).
-    """
-    out: dict[str, float] = {}
-    kept = recording.loaded()
-    for name, ch in recording.channels.items():
-        if name in STATE_ROLES or unit_of_role(name) == "" or len(ch) < STUCK_MIN_SAMPLES:
-            continue
-        head = ch.block(0, STUCK_HEAD)[1]
-        head = head[np.isfinite(head)]
-        # two different readings among the first ones settle it without a pass over the whole channel
-        if not (head.size and bool(np.any(head != head[0]))):
-            value = _stuck_value(ch, STUCK_BLOCK)
-            if value is not None:
-                out[name] = value
-        if name not in kept:
-            recording.drop([name])  # a lazy Recording: one channel in memory at a time
-    return out
-
-
-#: samples of a channel read at a time by :func:`stuck_channels` (a lazy channel read by blocks is never whole)
-STUCK_BLOCK = 1 << 20
-
-
-def _stuck_value(ch: Channel, block: int) -> float | None:
-    """The value every finite sample of ``ch`` holds when there are at least :data:`STUCK_MIN_SAMPLES` of them and it
-    is not zero, else None (read ``block`` samples at a time: a channel that changes is left at its first change)."""
-    first: float | None = None
-    n = 0
-    for a in range(0, len(ch), block):
-        v = ch.block(a, a + block)[1]
-        v = v[np.isfinite(v)]
-        if v.size and first is None:
-            first = float(v[0])
-        if bool(np.any(v != first)):  # False on an empty block
-            return None
-        n += int(v.size)
-    if first is None or n < STUCK_MIN_SAMPLES or first == 0.0:
-        return None
-    return first
 
 
 def _run_method(m: Method, recording: Recording, specs: VehicleSpecs | None, result: IdentificationResult,

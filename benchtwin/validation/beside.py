@@ -99,6 +99,11 @@ class Beside:
             # while this thread identifies would wait for it), each put on the queue
             self._pump = threading.Thread(target=self._pump_main, name="validate-beside-pump", daemon=True)
             self._pump.start()
+            # what the parent sends is written by a thread of its own: a value larger than the pipe holds (the
+            # nominal fits for the figures) waits there until the busy child reads it, not the caller of put
+            self._down_q = queue.Queue()
+            self._sender = threading.Thread(target=self._send_main, name="validate-beside-send", daemon=True)
+            self._sender.start()
         else:
             self._up_q = queue.Queue()
             self._down_q: queue.Queue = queue.Queue()
@@ -113,6 +118,11 @@ class Beside:
         except (EOFError, OSError):  # the child has closed its end (ended), or this end was closed
             self._up_q.put((_EOF, None))
 
+    def _send_main(self) -> None:
+        while (item := self._down_q.get()) is not None:
+            with contextlib.suppress(OSError):  # the child is gone: its fate is read by the next get
+                self._down_w.send(item)
+
     def get(self, key: str) -> Any:
         """The value the job put under ``key`` (waits for it); re-raises the job's exception if it failed first."""
         while key not in self._got:
@@ -125,12 +135,11 @@ class Beside:
         return self._got.pop(key)
 
     def put(self, key: str, value: Any) -> None:
-        """Send ``value`` under ``key`` to the job (it may be waiting for it)."""
+        """Send ``value`` under ``key`` to the job (it may be waiting for it); returns at once (in ``"fork"`` mode the
+        value is pickled here and written to the pipe by a thread, in the order sent)."""
         if self.mode == "fork":
-            with contextlib.suppress(OSError):  # the child is gone: its fate is read by the next get
-                self._down_w.send((key, value))
-        else:
-            self._down_q.put((key, value))
+            value = _Pickled(pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))  # as it is now
+        self._down_q.put((key, value))
 
     def __exit__(self, *exc: Any) -> None:
         if self.mode == "fork":
@@ -139,6 +148,8 @@ class Beside:
             if self._proc.is_alive():
                 self._proc.terminate()  # a job no longer waited for (the caller failed)
             self._proc.join()
+            self._down_q.put(None)
+            self._sender.join()  # the child has ended: a write it never read fails (its end is closed)
             self._pump.join()  # the child's end is closed: the pump has read to its end
             self._up_r.close()
             self._down_w.close()
@@ -165,6 +176,8 @@ class Beside:
 
     def _recv_from_parent(self, key: str) -> Any:
         k, v = self._down_q.get() if self.mode == "thread" else self._down_r.recv()
+        if isinstance(v, _Pickled):
+            v = pickle.loads(v.data)
         if k == _ERROR:
             raise SideStageError("the main stage ended before sending " + repr(key))
         if k != key:
@@ -189,6 +202,18 @@ class Beside:
         self._up_w.close()
         # the child leaves through multiprocessing's os._exit: the parent's files, temporary folders and atexit
         # handlers stay the parent's
+
+
+class _Pickled:
+    """A value pickled by the parent when it was sent (a later change to the object is not sent)."""
+
+    __slots__ = ("data",)
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (_Pickled, (self.data,))
 
 
 def _packed(exc: BaseException) -> tuple[bytes | None, str]:

@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 
 from benchtwin.config.specs import VehicleSpecs
+from benchtwin.identification._fit import IdentificationResult
 from benchtwin.validation.report import Check, ValidationReport
 
-__all__ = ["render_html", "write_html"]
+__all__ = ["figure_images", "render_html", "write_html"]
 
 _CSS = """
 body{font-family:sans-serif;margin:1.5em;max-width:1200px;color:#222}
@@ -182,8 +183,52 @@ def _prediction_figure(pred: dict[str, Any]) -> bytes | None:
     return _png(fig)
 
 
-def render_html(report: ValidationReport, specs: VehicleSpecs | None = None, *, figures: bool = True) -> str:
-    """The report as one self-contained HTML document."""
+def figure_images(prediction: dict[str, Any] | None, identification: IdentificationResult | None,
+                  specs: VehicleSpecs | None = None) -> tuple[list[tuple[str, bytes]], dict[str, str]]:
+    """The report's figures: the held-out drive's (from ``prediction``) and the identification's.
+
+    Parameters
+    ----------
+    prediction:
+        The report's prediction (``ValidationReport.prediction``).
+    identification:
+        The identification result whose fits are drawn (the figures read the fits, not their type B intervals).
+    specs:
+        Public specs (the motor's full-load curve).
+
+    Returns
+    -------
+    tuple
+        (caption, PNG bytes) in the report's order, and figure stem -> why it could not be drawn.
+    """
+    imgs: list[tuple[str, bytes]] = []
+    errors: dict[str, str] = {}
+    if prediction:
+        p = _prediction_figure(prediction)
+        if p is not None:
+            imgs.append(("held-out drive: model vs measurement", p))
+    if identification is not None:
+        from benchtwin.identification.figures import render_figures_png
+
+        imgs += list(render_figures_png(identification, errors=errors, specs=specs).items())
+    return imgs, errors
+
+
+def render_html(report: ValidationReport, specs: VehicleSpecs | None = None, *, figures: bool = True,
+                images: tuple[list[tuple[str, bytes]], dict[str, str]] | None = None) -> str:
+    """The report as one self-contained HTML document.
+
+    Parameters
+    ----------
+    report:
+        The validation report.
+    specs:
+        Public specs (for the figures).
+    figures:
+        Draw the figures section.
+    images:
+        The figures already drawn (:func:`figure_images`, e.g. beside the type B re-runs); None: drawn here.
+    """
     meta = report.meta
     n_fail = len(report.failures())
     verdict = "PASS" if report.passed else "FAIL"
@@ -213,19 +258,10 @@ def render_html(report: ValidationReport, specs: VehicleSpecs | None = None, *, 
     parts.append(_kv_table("flagged samples per channel", ch.get("flagged_samples", {}), "d"))
     parts.append(_kv_table("clipped (saturated) samples per channel", ch.get("clipped_samples", {}), "d"))
     if figures:
-        imgs: list[tuple[str, bytes]] = []
-        if report.prediction:
-            p = _prediction_figure(report.prediction)
-            if p is not None:
-                imgs.append(("held-out drive: model vs measurement", p))
-        if report.identification is not None:
-            from benchtwin.identification.figures import render_figures_png
-
-            errors: dict[str, str] = {}
-            imgs += list(render_figures_png(report.identification, errors=errors, specs=specs).items())
-            if errors:
-                parts.append("<p>figures not drawn: " + _e("; ".join(f"{k}: {v}" for k, v in errors.items()))
-                             + "</p>")
+        imgs, errors = images if images is not None else figure_images(report.prediction, report.identification,
+                                                                         specs)
+        if errors:
+            parts.append("<p>figures not drawn: " + _e("; ".join(f"{k}: {v}" for k, v in errors.items())) + "</p>")
         parts.append("<h2>Figures</h2>")
         for cap, data in imgs:
             b64 = base64.b64encode(data).decode("ascii")
@@ -235,9 +271,10 @@ def render_html(report: ValidationReport, specs: VehicleSpecs | None = None, *, 
     return "\n".join(parts)
 
 
-def write_html(report: ValidationReport, path: str | Path, specs: VehicleSpecs | None = None) -> Path:
-    """Write :func:`render_html` to ``path``."""
+def write_html(report: ValidationReport, path: str | Path, specs: VehicleSpecs | None = None, *,
+               images: tuple[list[tuple[str, bytes]], dict[str, str]] | None = None) -> Path:
+    """Write :func:`render_html` to ``path`` (``images``: the figures already drawn, see :func:`render_html`)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(render_html(report, specs), encoding="utf-8")
+    path.write_text(render_html(report, specs, images=images), encoding="utf-8")
     return path

@@ -28,7 +28,7 @@ from benchtwin.emulator.cache import cached_campaign
 from benchtwin.emulator.protocols import lazy_protocol
 from benchtwin.errors import BenchtwinError, ConfigError
 from benchtwin.identification.run import identify_all
-from benchtwin.recording import Flag, Recording
+from benchtwin.recording import Recording
 from benchtwin.sensors import devices, setup_for_trace
 from benchtwin.trace import SpooledTrace, Trace
 from benchtwin.validation.beside import Beside, side_stages_beside
@@ -45,6 +45,8 @@ from benchtwin.validation.families import (
     span_view,
     stitch_traces,
 )
+from benchtwin.validation.figures_beside import FIGURES, NOMINAL, FigureDrawer, drawn_images
+from benchtwin.validation.flag_counts import flag_counts
 from benchtwin.validation.holdout import predict_drive, prediction_checks, submodel_checks, without_window
 from benchtwin.validation.parameters import _budget, compare_with_truth, paper_estimation_fits
 from benchtwin.validation.predict import MapVehicle
@@ -204,19 +206,26 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     want_paper = prof == "realistic" and (fams is None or any(f.name == "transmission" for f in fams))
     side = None
     deferred = pending_save(rec)  # recording.mf4 of the streamed chain, not written yet
-    # the stages that do not read the type B budget, beside it (a campaign short enough for both sides' memory)
+    # the stages that do not read the type B budget, beside it (a campaign short enough for both sides' memory); a
+    # forked child also draws report.html's figures from the nominal fits (validation/figures_beside.py)
+    draw = SIDE_MODE == "fork" and out_dir is not None
     if side_stages_beside(SIDE_MODE, streamed=streamed, families=fams, campaign_s=checked.duration_s):
         side = cleanup.enter_context(Beside(partial(_side_stages, report, vehicle, setup, campaign, checked, rec,
-                                                    bench, prof, with_chain, want_paper, deferred=deferred),
-                                            SIDE_MODE))
+                                                    bench, prof, with_chain, want_paper, deferred=deferred,
+                                                    draw=draw), SIDE_MODE))
     elif deferred is not None:
         deferred.run()
+    draw = draw and side is not None
+    sent: list[None] = []  # the nominal result is pickled when put, before the type B re-runs add to it
     methods = None if fams is None else [m for f in fams for m in f.methods]
     # the type B re-runs shared with a worker forked when they are known (the same campaigns as the side stages)
     share = (cleanup.enter_context(ForkedShare())
              if type_b_worker_beside(streamed=streamed, families=fams, campaign_s=checked.duration_s) else None)
     result = identify_all(rec, vehicle.specs, methods=None if methods is None else list(dict.fromkeys(methods)),
-                          type_b=fams is None if type_b is None else type_b, type_b_share=share)
+                          type_b=fams is None if type_b is None else type_b, type_b_share=share,
+                          **({"on_nominal": lambda r: sent.append(side.put(NOMINAL, r))} if draw else {}))
+    if draw and not sent:  # an identification that handed out no nominal result
+        side.put(NOMINAL, result)
     t3 = time.perf_counter()
     give_back_freed_memory()
     if streamed:
@@ -230,7 +239,7 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
         "plant_seconds": round(trace.duration_s, 2),
         "bus_load": rec.meta.get("bus_load", {}),
         "clock_offsets_s": rec.meta.get("clock_offsets_s", {}),
-        **_flag_counts(rec),
+        **flag_counts(rec),
     }
     if side is not None:
         report.checks = side.get("chain") if with_chain else []
@@ -270,7 +279,8 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
             render_figures(result, out / "figures", specs=vehicle.specs)
         from benchtwin.validation.html import write_html
 
-        write_html(report, out / "report.html", specs=vehicle.specs)
+        images = drawn_images(side.get(FIGURES)) if draw else None
+        write_html(report, out / "report.html", specs=vehicle.specs, images=images)
     return report
 
 
@@ -283,54 +293,40 @@ SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
 
 def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
                  trace: Trace, rec: Recording, bench: SetupConfig, prof: str, with_chain: bool, want_paper: bool,
-                 channel: Any, *, deferred: DeferredSave | None = None) -> None:
+                 channel: Any, *, deferred: DeferredSave | None = None, draw: bool = False) -> None:
     """The stages run beside the identification, in the order :func:`_validate` runs them in line: the chain
     checks (``"chain"``), the paper's estimation fits (``"paper"``) and the prediction (``"prediction"``: the
     report's prediction, its checks and its seconds), which waits for the parameter checks' tolerances
     (``"tols"``) before its sub-model checks. While it waits (the parent still identifying), ``recording.mf4`` is
-    written (``deferred``; ``"saved"``: its path)."""
+    written (``deferred``; ``"saved"``: its path) and, with ``draw``, report.html's figures are drawn from the
+    nominal identification result (``"nominal"``; :class:`~benchtwin.validation.figures_beside.FigureDrawer`);
+    a prediction that never waits does both after it."""
+    drawer = FigureDrawer(channel, report, vehicle.specs) if draw else None
 
     def save() -> None:
         if deferred is not None and not deferred.done:
             channel.put("saved", str(deferred.run(workers=1)))  # one core: the parent's type B has the other
 
+    def tols() -> dict[str, Any]:
+        save()
+        if drawer is not None:
+            drawer.draw()
+        return channel.get("tols")
+
     if with_chain:
         channel.put("chain", chain_checks(trace, rec, bench, profile=prof, roles=None))
     channel.put("paper", _dropping(rec, paper_estimation_fits, rec, vehicle, trace) if want_paper else {})
     t = time.perf_counter()
-    checks = _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof,
-                       tols=lambda: (save(), channel.get("tols"))[1])
+    checks = _dropping(rec, _prediction, report, vehicle, setup, campaign, trace, rec, prof, tols=tols)
     channel.put("prediction", (report.prediction, checks, round(time.perf_counter() - t, 3)))
     save()  # a prediction that never waited
+    if drawer is not None:
+        drawer.draw()
 
 
 def _tolerances(report: ValidationReport) -> dict[str, Any]:
     """The tolerance of each check of the report by name (the sub-model checks propagate the parameters')."""
     return {c.name: c.tolerance for c in report.checks}
-
-
-#: samples of a channel whose flags are counted at a time
-_FLAG_BLOCK = 1 << 20
-
-
-def _flag_counts(rec: Recording) -> dict[str, dict[str, int]]:
-    """Flagged and clipped samples per channel, a block of each at a time (a lazy channel without a block reader is
-    read whole, and goes again)."""
-    flagged, clipped = {}, {}
-    kept = rec.loaded()
-    for k, c in rec.channels.items():
-        n_flag = n_clip = 0
-        for a in range(0, len(c), _FLAG_BLOCK):
-            f = c.block(a, a + _FLAG_BLOCK)[2]
-            n_flag += int(np.count_nonzero(f))
-            n_clip += int(np.count_nonzero(f & int(Flag.SATURATED)))
-        if n_flag:
-            flagged[k] = n_flag
-        if n_clip:
-            clipped[k] = n_clip
-        if k not in kept:
-            rec.drop([k])
-    return {"flagged_samples": flagged, "clipped_samples": clipped}
 
 
 def _dropping(rec: Recording, fn: Callable[..., _T], *args: Any, **kwargs: Any) -> _T:

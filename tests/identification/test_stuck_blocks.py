@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchtwin.identification import run as idrun
-from benchtwin.identification.run import STUCK_MIN_SAMPLES, stuck_channels
+from benchtwin.identification import stuck as idstuck
+from benchtwin.identification.stuck import STUCK_MIN_SAMPLES, stuck_channels
 from benchtwin.recording import Channel, Recording
 
 
@@ -44,8 +44,8 @@ def _cases(n: int = 30_000) -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("case", list(_cases()))
 def test_stuck_by_blocks_equals_the_whole_rule(blocks_only, monkeypatch, case: str, block: int) -> None:
     values = _cases()[case]
-    monkeypatch.setattr(idrun, "STUCK_BLOCK", block)
-    monkeypatch.setattr(idrun, "STUCK_HEAD", 64)  # the head settles nothing here: the blocks decide
+    monkeypatch.setattr(idstuck, "STUCK_BLOCK", block)
+    monkeypatch.setattr(idstuck, "STUCK_HEAD", 64)  # the head settles nothing here: the blocks decide
     n = len(values)
     ch = Channel("em_torque_nm", "Nm", np.arange(n) * 0.01, values, np.zeros(n, np.uint16), "motor")
     want = _whole(values)
