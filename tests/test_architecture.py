@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1] / "benchtwin"
 
 #: the picture, from the bottom up: a module may import its own layer and the layers below it
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
-    ("base", ("benchtwin", "benchtwin._heap", "benchtwin.errors", "benchtwin.lag", "benchtwin.mdf",
+    ("base", ("benchtwin", "benchtwin._heap", "benchtwin.errors", "benchtwin.lag", "benchtwin.lti", "benchtwin.mdf",
               "benchtwin.mf4stream", "benchtwin.roles", "benchtwin.segments")),
     ("recording", ("benchtwin.recording",)),
     ("config", ("benchtwin.config",)),
