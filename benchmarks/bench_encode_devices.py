@@ -49,8 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
 
-    import control  # noqa: F401  (imported by the plant's start in validate: not the encoder's time)
-    import scipy.signal  # noqa: F401
+    import scipy.signal  # noqa: F401  (imported by the plant's start in validate: not the encoder's time)
 
     import benchtwin.wire.merge as merge
     from benchtwin.config._base import scenario_path

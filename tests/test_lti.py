@@ -5,12 +5,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import control
 import numpy as np
 import pytest
 
 from benchtwin.lti import c2d
-
-control = pytest.importorskip("control")
 
 
 def _oracle(num: list[float], den: list[float], dt: float, method: str) -> tuple[np.ndarray, np.ndarray]:
