@@ -144,13 +144,15 @@ def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float 
     if s:
         lo_src, hi_src = to_source(float(tb[0]), s), to_source(float(tb[-1]), s)
         _, ts, vs, fl = window_of(c, float(lo_src) - MARGIN_S, float(hi_src) + MARGIN_S)
+        ts = to_ref(ts, s)  # elementwise: the shifted channel's timestamps, bit for bit
+        first, last = float(to_ref(first, s)), float(to_ref(last, s))
     else:
         _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
     if at_key is None:
-        ts, k, early, late, nxt, gap = _block_at(ts, s, first, last, step, tb)
+        k, early, late, nxt, gap = _block_at(ts, first, last, step, tb)
     else:  # a function of the timestamps (the time index's) and of the grid times only: shared by the re-runs
-        ts, k, early, late, nxt, gap = reused("strict_block_at", (time_index(c),), at_key,  # type: ignore[arg-type]
-                                              lambda: _block_at(ts, s, first, last, step, tb))
+        k, early, late, nxt, gap = reused("strict_block_at", (time_index(c),), at_key,  # type: ignore[arg-type]
+                                          lambda: _block_at(ts, first, last, step, tb))
     # Channel.at on the samples around the block (the same bracketing samples as on the whole channel)
     if step is None:
         v = vs[k].copy()
@@ -168,29 +170,27 @@ def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float 
     return v, blk
 
 
-def _block_at(ts: np.ndarray, s: Shift, first: float, last: float, step: float | None, tb: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """What :func:`_channel_block` takes from the window's timestamps ``ts`` (its own clock) and the grid times alone:
-    the timestamps on the reference clock, the sample at or before each grid time (clipped), the grid times before
-    the channel's first value (``idx < 0`` for a hold, before ``first`` for an interpolation) and after its last, and
-    for an interpolation the sample at or after each grid time (clipped) and the gap mask (None for a hold). A type B
-    re-run moves values, never timestamps: the draws of one component get these from the store."""
-    if s:
-        ts = to_ref(ts, s)  # elementwise: the shifted channel's timestamps, bit for bit
-        first, last = float(to_ref(first, s)), float(to_ref(last, s))
+def _block_at(ts: np.ndarray, first: float, last: float, step: float | None, tb: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """What :func:`_channel_block` takes from the window's timestamps ``ts`` and the grid times ``tb`` alone (both on
+    the reference clock, as ``first`` and ``last``): the sample at or before each grid time (clipped), the grid times
+    before the channel's first value (``idx < 0`` for a hold, before ``first`` for an interpolation) and after its
+    last, and for an interpolation the sample at or after each grid time (clipped) and the gap mask (None for a
+    hold). A type B re-run moves values, never timestamps: the draws of one component get these from the store (a
+    few arrays as long as the block, not the window's timestamps, which are read again with the values)."""
     # the sample at or before each grid time (one search, used by the hold, the flags and the gap mask)
     idx = np.searchsorted(ts, tb, side="right") - 1
     k = np.clip(idx, 0, ts.size - 1)
     early = idx < 0 if step is None else tb < first
     late = tb > last
     if step is None:
-        return ts, k, early, late, None, None
+        return k, early, late, None, None
     nxt = np.clip(np.searchsorted(ts, tb, side="left"), 0, ts.size - 1)
     # gap_mask: the grid point inside a step longer than 3 typical steps
     inside = (idx >= 0) & (idx < ts.size - 1)
     gap = np.zeros(tb.shape, dtype=bool)
     gap[inside] = (np.diff(ts)[idx[inside]] > 3.0 * step) & (tb[inside] > ts[idx[inside]])
-    return ts, k, early, late, nxt, gap
+    return k, early, late, nxt, gap
 
 
 
