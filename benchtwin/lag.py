@@ -27,7 +27,10 @@ def detect_lag(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarra
         b0, b1 = np.searchsorted(t_b, [window[0] - 2 * max_lag_s, window[1] + 2 * max_lag_s])
         t_a, x_a, t_b, x_b = t_a[a0:a1], x_a[a0:a1], t_b[b0:b1], x_b[b0:b1]
     good_a, good_b = np.isfinite(x_a), np.isfinite(x_b)
-    t_a, x_a, t_b, x_b = t_a[good_a], x_a[good_a], t_b[good_b], x_b[good_b]
+    if not good_a.all():  # all finite (the usual case): the same samples without copying them
+        t_a, x_a = t_a[good_a], x_a[good_a]
+    if not good_b.all():
+        t_b, x_b = t_b[good_b], x_b[good_b]
     if t_a.size < 10 or t_b.size < 10:
         return None
     lo, hi = max(t_a[0], t_b[0]) + max_lag_s, min(t_a[-1], t_b[-1]) - max_lag_s
@@ -42,6 +45,20 @@ def _central_hour(lo: float, hi: float) -> tuple[float, float]:
         mid = 0.5 * (lo + hi)
         lo, hi = mid - 1800.0, mid + 1800.0
     return lo, hi
+
+
+def _valid_correlation(b: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """``scipy.signal.correlate(b, a, mode="valid", method="fft")`` of two 1-D float64 arrays, ``b`` not shorter:
+    the same transforms (``next_fast_len`` of the full length, ``rfft`` of ``b`` and of ``a`` reversed, their
+    product, ``irfft``) and the same centred slice, so the same bits, without scipy's checks, axis bookkeeping and
+    dispatch per call (867 calls in the type B re-runs of the paper campaign)."""
+    from scipy import fft as sp_fft
+
+    full = b.size + a.size - 1
+    size = sp_fft.next_fast_len(full, True)
+    ret = sp_fft.irfft(sp_fft.rfft(b, size) * sp_fft.rfft(a[::-1], size), size)
+    start = (full - (b.size - a.size + 1)) // 2
+    return ret[start:start + b.size - a.size + 1]
 
 
 def _correlate(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarray, lo: float, hi: float,
@@ -65,10 +82,10 @@ def _correlate(t_a: np.ndarray, x_a: np.ndarray, t_b: np.ndarray, x_b: np.ndarra
     ea = float(np.sum(a * a))
     if ea == 0:
         return None
-    from scipy.signal import correlate
-
-    cov = correlate(b, a, mode="valid", method="fft")  # cov[j] = sum a[i] b[i + j], j = 0..2m
-    cs, cs2 = np.concatenate([[0.0], np.cumsum(b)]), np.concatenate([[0.0], np.cumsum(b * b)])
+    cov = _valid_correlation(b, a)  # cov[j] = sum a[i] b[i + j], j = 0..2m
+    cs, cs2 = np.zeros(b.size + 1), np.zeros(b.size + 1)  # running sums from 0: the same sums, no copy to prepend
+    np.cumsum(b, out=cs[1:])
+    np.cumsum(b * b, out=cs2[1:])
     s1 = cs[n:n + 2 * m + 1] - cs[:2 * m + 1]
     s2 = cs2[n:n + 2 * m + 1] - cs2[:2 * m + 1]
     var = s2 - s1 * s1 / n

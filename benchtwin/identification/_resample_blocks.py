@@ -124,8 +124,8 @@ def resample_strict(rec: Recording, names: Sequence[str], rate_hz: float, *, hol
     return t, out, bad
 
 
-def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float | None, tb: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float | None, tb: np.ndarray,
+                   at_key: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One channel at the grid times ``tb`` (reference clock) and their bad mask, read around them.
 
     ``first``, ``last``: the channel's first and last timestamps (its own clock); ``s``: its clock shift; ``step``:
@@ -136,7 +136,11 @@ def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float 
     shifted channel (``_shifted``), which the whole path takes. (The grid times put on the channel's clock instead,
     ``to_source(tb)``, interpolate with other weights in the last bits: 1,213 of the quick campaign's 9,217 shaft
     torques differed by up to 5e-10 N m with the shaft clock's drift, so a Recording read by blocks and the same
-    Recording in memory gave converter fits that differed in the last bits.)"""
+    Recording in memory gave converter fits that differed in the last bits.)
+
+    ``at_key`` (a channel read by blocks, whose time index the type B re-runs' moved copies share): everything the
+    grid times depend on, under which the time-only part (:func:`_block_at`) is kept in the type B store; a draw that
+    moves the channel's values then searches no timestamps (the same arrays: only the values are read again)."""
     if s:
         lo_src, hi_src = to_source(float(tb[0]), s), to_source(float(tb[-1]), s)
         _, ts, vs, fl = window_of(c, float(lo_src) - MARGIN_S, float(hi_src) + MARGIN_S)
@@ -144,30 +148,51 @@ def _channel_block(c: Channel, first: float, last: float, s: Shift, step: float 
         first, last = float(to_ref(first, s)), float(to_ref(last, s))
     else:
         _, ts, vs, fl = window_of(c, float(tb[0]) - MARGIN_S, float(tb[-1]) + MARGIN_S)
+    if at_key is None:
+        k, early, late, nxt, gap = _block_at(ts, first, last, step, tb)
+    else:  # a function of the timestamps (the time index's) and of the grid times only: shared by the re-runs
+        k, early, late, nxt, gap = reused("strict_block_at", (time_index(c),), at_key,  # type: ignore[arg-type]
+                                          lambda: _block_at(ts, first, last, step, tb))
     # Channel.at on the samples around the block (the same bracketing samples as on the whole channel)
-    # the sample at or before each grid time (one search, used by the hold, the flags and the gap mask)
-    idx = np.searchsorted(ts, tb, side="right") - 1
     if step is None:
-        v = vs[np.clip(idx, 0, ts.size - 1)].copy()
-        v[idx < 0] = np.nan
+        v = vs[k].copy()
     else:
         v = np.interp(tb, ts, vs)
-        v[tb < first] = np.nan
-    v[tb > last] = np.nan
+    v[early] = np.nan
+    v[late] = np.nan
     bad_bits = int(Flag.bad())
     # Recording.resample: not finite, or flagged at the sample at or before
-    k = np.clip(idx, 0, ts.size - 1)
     blk = ~np.isfinite(v) | ((fl[k] & bad_bits) != 0)
     if step is not None:
-        # strict_resample: the sample at or after flagged bad or not finite ...
-        nxt = np.clip(np.searchsorted(ts, tb, side="left"), 0, ts.size - 1)
+        # strict_resample: the sample at or after flagged bad or not finite, and the gap mask
         blk |= ((fl[nxt] & bad_bits) != 0) | ~np.isfinite(vs[nxt])
-        # ... and gap_mask: the grid point inside a step longer than 3 typical steps
-        inside = (idx >= 0) & (idx < ts.size - 1)
-        gap = np.zeros(tb.shape, dtype=bool)
-        gap[inside] = (np.diff(ts)[idx[inside]] > 3.0 * step) & (tb[inside] > ts[idx[inside]])
         blk |= gap
     return v, blk
+
+
+def _block_at(ts: np.ndarray, first: float, last: float, step: float | None, tb: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """What :func:`_channel_block` takes from the window's timestamps ``ts`` and the grid times ``tb`` alone (both on
+    the reference clock, as ``first`` and ``last``): the sample at or before each grid time (clipped), the grid times
+    before the channel's first value (``idx < 0`` for a hold, before ``first`` for an interpolation) and after its
+    last, and for an interpolation the sample at or after each grid time (clipped) and the gap mask (None for a
+    hold). A type B re-run moves values, never timestamps: the draws of one component get these from the store (a
+    few arrays as long as the block, not the window's timestamps, which are read again with the values)."""
+    # the sample at or before each grid time (one search, used by the hold, the flags and the gap mask)
+    idx = np.searchsorted(ts, tb, side="right") - 1
+    k = np.clip(idx, 0, ts.size - 1)
+    early = idx < 0 if step is None else tb < first
+    late = tb > last
+    if step is None:
+        return k, early, late, None, None
+    nxt = np.clip(np.searchsorted(ts, tb, side="left"), 0, ts.size - 1)
+    # gap_mask: the grid point inside a step longer than 3 typical steps
+    inside = (idx >= 0) & (idx < ts.size - 1)
+    gap = np.zeros(tb.shape, dtype=bool)
+    gap[inside] = (np.diff(ts)[idx[inside]] > 3.0 * step) & (tb[inside] > ts[idx[inside]])
+    return k, early, late, nxt, gap
+
+
 
 
 def grid_times(lo: float, step: float, i0: int, i1: int) -> np.ndarray:
@@ -234,8 +259,8 @@ class StrictGrid:
             # channel a type B re-run does not move is read around the block once for all re-runs (see _reuse)
             key = (float(first), float(last), s, step, self.lo, self.step, i0, i1)
             out[c.name], blk = reused("strict_block", (c,), key,  # type: ignore[arg-type]
-                                      lambda c=c, first=first, last=last, s=s, step=step:
-                                      _channel_block(c, first, last, s, step, t))
+                                      lambda c=c, first=first, last=last, s=s, step=step, key=key:
+                                      _channel_block(c, first, last, s, step, t, key))
             bad |= blk
         return t, out, bad
 

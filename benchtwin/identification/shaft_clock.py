@@ -48,7 +48,9 @@ def _window(rec: Recording, name: str, shift: Shift, lo: float, hi: float, order
     ch = rec[name]
     _, ts, vs, _fl = window_of(ch, float(to_source(lo, shift)), float(to_source(hi, shift)), ordered)
     good = np.isfinite(vs) & np.isfinite(ts)
-    return np.asarray(to_ref(ts[good], shift), dtype=float), np.asarray(vs[good], dtype=float)
+    if not good.all():  # all finite (the usual case): the same samples without copying them first
+        ts, vs = ts[good], vs[good]
+    return np.asarray(to_ref(ts, shift), dtype=float), np.asarray(vs, dtype=float)
 
 
 def _where(t: np.ndarray, x: np.ndarray, lo: float, hi: float, step_s: float = 0.1) -> float:

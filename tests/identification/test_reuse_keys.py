@@ -101,3 +101,32 @@ def test_the_grid_s_fingerprint_is_that_of_the_times_sampled(blocked) -> None:
             got = _sample_at(ch, t, False, _IndexCache(t), 0.0)
             np.testing.assert_array_equal(got[0], want[0])
             np.testing.assert_array_equal(got[1], want[1])
+
+
+@pytest.mark.parametrize("shifted", [False, True])
+def test_the_draws_of_a_moved_channel_share_its_timestamps_searches(blocked, monkeypatch, shifted: bool) -> None:
+    """Two re-runs that move the torque's values (a gain, an offset: lazy copies sharing its time index) read their
+    own values at every block, the very blocks computed without the store, while the searches among its timestamps
+    (``_block_at``) ran once, for the channel the copies were made from; the other channels' blocks come from the
+    store."""
+    names = [*NAMES, "gear_actual"] if "gear_actual" in blocked else list(NAMES)
+    shifts = {c.source: ClockShift(0.0123, -3e-5) for c in blocked.channels.values()} if shifted else None
+    draws = [perturbed(blocked, Component("em_torque_nm.gain", ("em_torque_nm",), "gain", 0.01)),
+             perturbed(blocked, Component("em_torque_nm.offset", ("em_torque_nm",), "offset", 0.5))]
+    want = [_blocks(d, names, shifts) for d in draws]
+    assert not np.array_equal(want[0][2][1]["em_torque_nm"], want[1][2][1]["em_torque_nm"])
+    searched: list[int] = []
+    plain = rb._block_at
+
+    def counted(ts, *rest):  # type: ignore[no-untyped-def]
+        searched.append(ts.size)
+        return plain(ts, *rest)
+
+    monkeypatch.setattr(rb, "_block_at", counted)
+    with reusing():
+        _blocks(blocked, names, shifts)  # the nominal channels: every channel's timestamps searched once a block
+        assert len(searched) == len(want[0]) * len(names)
+        searched.clear()
+        for d, w in zip(draws, want, strict=True):  # the moved copies: their values read, no timestamp searched
+            _equal(_blocks(d, names, shifts), w)
+            assert searched == []

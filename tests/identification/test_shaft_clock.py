@@ -124,3 +124,23 @@ def test_the_type_b_re_runs_share_the_lags_of_the_channels_they_do_not_move(monk
         assert len(calls) == 1
         assert roller_aligned_shifts(moved, {"dyno": DYNO_SHIFT}) == want_moved  # its own lags
         assert len(calls) == 2
+
+
+def test_non_finite_samples_are_left_out_of_the_tests_lags() -> None:
+    """A shaft torque with NaN samples gives the shifts, bit for bit, of the same channel with those samples removed
+    (the all-finite windows skip their copy; a window with a NaN must still drop it)."""
+    rec = _recording()
+    ch = rec["shaft_torque_nm"]
+    bad = np.zeros(len(ch), dtype=bool)
+    bad[::997] = True
+    holed, cut = Recording(), Recording()
+    for name, c in rec.channels.items():
+        holed.add(c if name != "shaft_torque_nm" else
+                  Channel(name, c.unit, c.timestamps, np.where(bad, np.nan, c.values), source=c.source))
+        cut.add(c if name != "shaft_torque_nm" else
+                Channel(name, c.unit, c.timestamps[~bad], c.values[~bad], source=c.source))
+    holed.segments = cut.segments = rec.segments
+    shifts = {"dyno": DYNO_SHIFT}
+    got, note = roller_aligned_shifts(holed, shifts)
+    expected, note_cut = roller_aligned_shifts(cut, shifts)
+    assert isinstance(got["telemetry"], ClockShift) and got == expected and note == note_cut
