@@ -16,6 +16,7 @@ longer needs.
 from __future__ import annotations
 
 import contextlib
+import gc
 import pickle
 import queue
 import threading
@@ -196,6 +197,10 @@ class Beside:
         self._run()
 
     def _child_main(self) -> None:
+        # the objects inherited from the parent are left out of this process's garbage collections: a full
+        # collection would walk (and, writing their headers, copy) every page of the parent's heap, for objects the
+        # job never frees (its own objects are collected as before)
+        gc.freeze()
         self._up_r.close()
         self._down_w.close()
         self._run()
