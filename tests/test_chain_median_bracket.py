@@ -66,3 +66,24 @@ def test_a_rank_on_a_count_boundary(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(vchain, "MEDIAN_CAP", 50)
     x = np.random.default_rng(9).permutation(np.r_[np.ones(1000), np.full(1001, 2.0)])
     assert vchain._bracketed(_parts(x), [1000], 2001, x) == [2.0]
+
+
+def test_a_sample_in_many_pieces_follows_steps_that_change_along_the_channel(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Steps whose values change along the channel (a channel's times round differently as they grow): the first
+    2.5 % of the steps are a value found nowhere else. The sample's pieces spread over the whole give the first
+    part its share, the bracket holds the median, and no selection pass is made. Mutant: ``SAMPLE_PIECES = 8`` (one
+    piece of eight lies in the first part: 12.5 % of the sample, the bracket [0.5, 0.5] misses the median 0):
+    ``_kth`` is called and the test fails."""
+    monkeypatch.setattr(vchain, "MEDIAN_CAP", 200)
+    monkeypatch.setattr(vchain, "SAMPLE_VALUES", 2048)
+    rng = np.random.default_rng(11)
+    n = 20_000
+    rest = np.where(rng.random(n - 500) < 0.52 / 0.975, 0.0, 1.0)  # 52 % of the whole 0.0, 45.5 % 1.0
+    x = np.r_[np.full(500, 0.5), rest]
+    passes: list[int] = []
+    kth = vchain._kth
+    monkeypatch.setattr(vchain, "_kth", lambda arrays, k, bins=4096: passes.append(k) or kth(arrays, k, bins))
+    n_vals = n - 1  # an even count: the median is the mean of two ranks, as for a channel's steps
+    got = vchain._median_of(_parts(x[:n_vals]), n_vals, lambda a, b: x[a:b])
+    assert got == float(np.median(x[:n_vals])) == 0.0
+    assert passes == []
