@@ -164,8 +164,9 @@ class Trace:
         """Time span covered by the trace."""
         return float(self.time_s[-1] - self.time_s[0]) if len(self) else 0.0
 
-    def slice_time(self, start_s: float, end_s: float) -> Trace:
-        """Return the part of the trace with ``start_s <= t < end_s`` (segments clipped)."""
+    def slice_time(self, start_s: float, end_s: float, *, lazy: bool = False) -> Trace:
+        """Return the part of the trace with ``start_s <= t < end_s`` (segments clipped); ``lazy`` is for a
+        :class:`SpooledTrace` (an in-memory Trace's part is cut at once)."""
         mask = (self.time_s >= start_s) & (self.time_s < end_s)
         segs = [s for s in self.segments if s.end_s > start_s and s.start_s < end_s]
         return Trace(self.time_s[mask], {k: v[mask] for k, v in self.channels.items()}, segs, dict(self.meta))
@@ -341,6 +342,29 @@ class _SpooledChannels(Mapping[str, np.ndarray]):
         return len(self._owner._dtypes)
 
 
+class _WindowChannels(Mapping[str, np.ndarray]):
+    """The channels of samples ``a:b`` of a :class:`SpooledTrace` (``slice_time(..., lazy=True)``): each read from its
+    file when first asked for, then kept."""
+
+    def __init__(self, owner: SpooledTrace, a: int, b: int) -> None:
+        self._owner, self._a, self._b = owner, a, b
+        self._got: dict[str, np.ndarray] = {}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._got:
+            self._got[name] = self._owner.read(name, self._a, self._b)
+        return self._got[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._owner._dtypes
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._owner._dtypes)
+
+    def __len__(self) -> int:
+        return len(self._owner._dtypes)
+
+
 class SpooledTrace(Trace):
     """A Trace appended piece by piece to raw files on disk, each channel read when used (whole or a time window).
 
@@ -425,11 +449,17 @@ class SpooledTrace(Trace):
             fh.seek(start * dt.itemsize)
             return np.fromfile(fh, dtype=dt, count=max(stop - start, 0))
 
-    def slice_time(self, start_s: float, end_s: float) -> Trace:
-        """The part with ``start_s <= t < end_s`` (an in-memory Trace): only that window is read."""
+    def slice_time(self, start_s: float, end_s: float, *, lazy: bool = False) -> Trace:
+        """The part with ``start_s <= t < end_s`` (an in-memory Trace): only that window is read; with ``lazy``
+        only the window of each channel asked for, when first asked for (kept; the files must stay until then)."""
         t = self.time_s
         a, b = int(np.searchsorted(t, start_s, side="left")), int(np.searchsorted(t, end_s, side="left"))
         segs = [s for s in self.segments if s.end_s > start_s and s.start_s < end_s]
+        if lazy:  # not Trace(...): its check of the channels' shapes would read them all
+            out = Trace.__new__(Trace)
+            out.time_s, out.segments, out.meta = np.asarray(t[a:b], dtype=np.float64), segs, dict(self.meta)
+            out.channels = _WindowChannels(self, a, b)  # type: ignore[assignment]
+            return out
         return Trace(t[a:b], {k: self.read(k, a, b) for k in self._dtypes}, segs, dict(self.meta))
 
     def close(self) -> None:
