@@ -8,10 +8,12 @@ Usage::
 Each source tree ``--root`` (put first on ``PYTHONPATH``; default: this one) runs ``validate --out`` ``--runs`` times,
 the trees taking turns, in a process of its own with ``SIDE_MODE = "fork"``. In the forked child the stage functions
 are wrapped to add up their CPU seconds (``time.process_time``: the child's threads) and their count, with the
-child's garbage collection seconds (``gc.callbacks``) and the child's whole CPU; a stage nested in another (the save
-and the figures run while the prediction waits) is counted in both. Prints each run and the median per tree and
-stage (``--keep``: each tree's last outputs kept). A paper-campaign run takes about a minute of CPU: run under
-the shared lock (``flock /tmp/benchtwin-heavy.lock nice -n 5 python benchmarks/bench_side_stages.py ...``).
+child's garbage collection seconds (``gc.callbacks``, the collecting thread's CPU) and the child's whole CPU (and the
+parent's garbage collection seconds and full collections: ``parent_gc``, ``parent_gc_full``); a stage nested in
+another (the save and the figures run while the prediction waits) is counted in both. Prints each run and the
+median per tree and stage (``--keep``: each tree's last outputs kept). A paper-campaign run takes about a minute of
+CPU: run under the shared lock
+(``flock /tmp/benchtwin-heavy.lock nice -n 5 python benchmarks/bench_side_stages.py ...``).
 """
 
 from __future__ import annotations
@@ -38,13 +40,16 @@ parent = os.getpid()
 acc = {}
 gc_s = [0.0, None]
 
+gc_parent = [0.0, None, 0]
+
 def on_gc(phase, info):
-    if os.getpid() == parent:
-        return
+    g = gc_parent if os.getpid() == parent else gc_s
     if phase == "start":
-        gc_s[1] = time.process_time()
-    elif gc_s[1] is not None:
-        gc_s[0] += time.process_time() - gc_s[1]
+        g[1] = time.thread_time()
+    elif g[1] is not None:
+        g[0] += time.thread_time() - g[1]
+        if g is gc_parent and info["generation"] == 2:
+            gc_parent[2] += 1
 
 def timed(owner, name, key):
     f = getattr(owner, name)
@@ -67,7 +72,6 @@ for owner, name in [(run, "chain_checks"), (run, "paper_estimation_fits"), (run,
 side = run._side_stages
 
 def child(*a, **k):
-    gc.callbacks.append(on_gc)
     c = time.process_time()
     try:
         return side(*a, **k)
@@ -78,11 +82,14 @@ def child(*a, **k):
             json.dump(acc, fh)
 
 run._side_stages = child
+gc.callbacks.append(on_gc)
 from benchtwin.cli import main
 try:
     main(sys.argv[1:])
 except SystemExit:
     pass
+with open(os.environ["SIDE_STAGES_OUT"] + ".parent", "w") as fh:
+    json.dump({"parent_gc": (gc_parent[0], 1), "parent_gc_full": (gc_parent[2], 1)}, fh)
 """
 
 
@@ -96,6 +103,7 @@ def _one(root: Path, campaign: str, setup: str, keep: Path | None) -> dict[str, 
         subprocess.run([sys.executable, "-c", _CODE, "validate", "--campaign", campaign, "--setup", setup,
                         "--out", str(res)], env=env, check=True, cwd=tmp, stdout=subprocess.DEVNULL)
         got = json.loads(out.read_text())
+        got.update(json.loads(Path(str(out) + ".parent").read_text()))
     return {k: v[0] for k, v in got.items()}
 
 
