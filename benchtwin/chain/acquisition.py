@@ -469,7 +469,7 @@ def _flag_counts(view: ChannelBlocks) -> dict[str, dict[str, int]]:
     flagged: dict[str, dict[str, int]] = {}
     for name in view.rec.channels:
         got = dict.fromkeys((k for k, _ in kinds), 0)
-        for _a, _t, _v, f in view.blocks(name):
+        for _a, _t, _v, f in view.blocks(name, columns="f"):
             for key, bit in kinds:
                 got[key] += int(np.count_nonzero(f & bit))
         for key, _ in kinds:
