@@ -8,7 +8,8 @@ Each repeat runs a fresh process: the campaign simulated test by test into
 :func:`benchtwin.chain.stream.run_chunked` (``keep_chunks=True``, ``defer_save=True``, the logs written to a
 temporary folder: what ``validate --out`` runs), with timers around ``Acquisition.finish`` and the module-level
 functions it calls (looked up in :mod:`benchtwin.chain.acquisition` by name; a part missing from the tree measured
-is left out), and around ``write_side_files`` (run just before ``finish``). Per part: the wall and the process CPU
+is left out; the clock offsets found on a thread beside the other passes, where the tree does: the wait for them),
+and around ``write_side_files`` (run just before ``finish``). Per part: the wall and the process CPU
 (all threads, ``time.process_time``: a part that runs helpers on threads counts them) while it runs; medians over
 the repeats. The chain before ``finish`` is not timed here (``bench_timeline.py`` and ``bench_overlap.py`` are the
 whole-run figures). Run it under the shared lock:
@@ -56,6 +57,13 @@ def measure(campaign_name: str, setup_name: str) -> dict[str, list[float]]:
     for name in PARTS:
         if hasattr(acq_mod, name):
             setattr(acq_mod, name, _timed(getattr(acq_mod, name), name, times))
+    try:  # the clock offsets found on a thread beside the other passes: the wait for them (and the check)
+        import benchtwin.chain.offsets_beside as beside_mod
+    except ImportError:
+        pass
+    else:
+        beside_mod.OffsetsBeside.result = _timed(beside_mod.OffsetsBeside.result, "clock_offsets (beside: wait)",
+                                                 times)
     stream_mod.write_side_files = _timed(stream_mod.write_side_files, "write_side_files", times)
     acq_mod.Acquisition.finish = _timed(acq_mod.Acquisition.finish, "finish", times)
     name = campaign_name if campaign_name.endswith(".toml") else f"{campaign_name}.toml"
@@ -100,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'part':28s} {'wall s':>8s} {'CPU s':>8s}")
     for n in names:
         print(f"{n:28s} {med[n][0]:8.3f} {med[n][1]:8.3f}")
-    inner = sum(med[n][0] for n in names if n in PARTS)
+    inner = sum(med[n][0] for n in names if n in PARTS or n.startswith("clock_offsets"))
     print(f"{'finish, outside the parts':28s} {med['finish'][0] - inner:8.3f}")
     if a.json:
         Path(a.json).write_text(json.dumps({"runs": runs, "medians": med}, indent=1))
