@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from benchtwin.chain.alignment import clock_offsets, detect_lag
+from benchtwin.chain.alignment import detect_lag
 from benchtwin.chain.blocks import BLOCK_SAMPLES, ChannelBlocks
 from benchtwin.chain.channel_store import ChannelStore
 from benchtwin.chain.decoding import (
@@ -51,6 +51,7 @@ from benchtwin.chain.decoding import (
 from benchtwin.chain.decoding import bus_load as _bus_load  # noqa: F401  (the name earlier code imports)
 from benchtwin.chain.deferred_save import DeferredSave
 from benchtwin.chain.faults import detect_faults
+from benchtwin.chain.offsets_beside import OffsetsBeside
 from benchtwin.chain.pollspool import PollSpool, decode_spooled
 from benchtwin.chain.streams import split_streams
 from benchtwin.config.setup import SetupConfig
@@ -353,6 +354,8 @@ class Acquisition:
     def close(self) -> None:
         """Remove the files of the chunks decoded so far (an acquisition given up before :meth:`finish`)."""
         self._finished = True
+        if getattr(self, "_beside", None) is not None:  # finish() failed with the offsets' thread reading the files
+            self._beside.join()
         self._store.cleanup()
 
     def __enter__(self) -> Acquisition:
@@ -401,6 +404,7 @@ class Acquisition:
         # each pass reads one block of one channel at a time (on disk: the flags written back block by block)
         view = ChannelBlocks(rec, self._store, self.block_samples)
         flag_truncations(view, self._events, self._of_bus)
+        self._beside = OffsetsBeside(view) if self.align else None  # the CAN channels' times and values are final
         decoded = set(rec.channels)
         emitted = decode_spooled(self._polls, self._polled, self._events, sink, self._store,
                                  min(self.block_samples, POLL_BLOCK), self.setup.name)
@@ -423,7 +427,7 @@ class Acquisition:
         drifts: dict[str, float] = {}
         detail: dict[str, dict[str, float]] = {"clock_drift_se_ppm": {}, "clock_offset_time_s": {}}
         if self.align:
-            found, drifts = clock_offsets(view, detail)  # the windows it uses, a block at a time
+            found, drifts = self._beside.result(view, detail)  # clock_offsets(view, detail), found beside
             offsets.update(found)
             if self._store.on_disk:
                 rec.drop()
@@ -469,7 +473,7 @@ def _flag_counts(view: ChannelBlocks) -> dict[str, dict[str, int]]:
     flagged: dict[str, dict[str, int]] = {}
     for name in view.rec.channels:
         got = dict.fromkeys((k for k, _ in kinds), 0)
-        for _a, _t, _v, f in view.blocks(name):
+        for _a, _t, _v, f in view.blocks(name, columns="f"):
             for key, bit in kinds:
                 got[key] += int(np.count_nonzero(f & bit))
         for key, _ in kinds:

@@ -125,7 +125,7 @@ class _Series:
         self.view, self.name, self.n = view, name, view.length(name)
 
     def read(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
-        t, v, _f = self.view.read(self.name, start, stop)
+        t, v, _f = self.view.read(self.name, start, stop, "tv")
         return t, v
 
     def time(self, index: int) -> float:

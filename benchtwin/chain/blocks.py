@@ -12,6 +12,7 @@ size (the tests compare blocks of a few samples with one block per channel).
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -51,41 +52,46 @@ class ChannelBlocks:
         """Samples of channel ``name`` (without reading it)."""
         return self.store.length(name) if self._stored(name) else len(self.rec.channels[name])
 
-    def blocks(self, name: str, *, write: bool = False, start: int = 0
-               ) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+    def blocks(self, name: str, *, write: bool = False, start: int = 0, columns: str = "tvf"
+               ) -> Iterator[tuple[int, Any, Any, Any]]:
         """``(first index, timestamps, values, flags)`` of each block of ``name`` from sample ``start`` on.
 
         With ``write``, what the loop's body changed in the block's flags (in place) is kept: written back to the
         store's file before the next block is read (in memory the flags are a view and change in place anyway).
-        The arrays must not be kept past the loop's step: they are the store's buffers or views.
+        The arrays must not be kept past the loop's step: they are the store's buffers or views. ``columns``: the
+        arrays given (``"t"``, ``"v"``, ``"f"``; the flags with ``write``), None in the others' places (not read).
         """
+        if write and "f" not in columns:
+            raise ValueError("ChannelBlocks.blocks: writing the flags back needs them read (columns with 'f')")
         n = self.length(name)
         if not self._stored(name):
             ch = self.rec.channels[name]
-            t, v, f = ch.timestamps, ch.values, ch.flags
+            arrays = tuple(x if c in columns else None for x, c in zip((ch.timestamps, ch.values, ch.flags), "tvf"))
             for a in range(start, n, self.size):
                 b = min(a + self.size, n)
-                yield a, t[a:b], v[a:b], f[a:b]
+                yield (a, *(x[a:b] if x is not None else None for x in arrays))
             return
         assert self.store is not None
         for a in range(start, n, self.size):
             b = min(a + self.size, n)
-            t, v, f = self.store.read_block(name, a, b)
+            t, v, f = self.store.read_block(name, a, b, columns)
             yield a, t, v, f
             if write:
                 self.store.write_flags(name, a, f)
 
-    def read(self, name: str, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def read(self, name: str, start: int, stop: int, columns: str = "tvf") -> tuple[Any, Any, Any]:
         """Timestamps, values and flags of samples ``start:stop`` of ``name`` (``0 <= start <= stop <= length``):
-        read from the store's files, or views of the arrays in memory (not to be changed)."""
+        read from the store's files, or views of the arrays in memory (not to be changed); ``columns``: the arrays
+        given, None in the others' places."""
         n = self.length(name)
         if not 0 <= start <= stop <= n:
             raise IndexError(f"channel {name!r} has {n} samples, no samples {start}:{stop}")
         if not self._stored(name):
             ch = self.rec.channels[name]
-            return ch.timestamps[start:stop], ch.values[start:stop], ch.flags[start:stop]
+            return tuple(x[start:stop] if c in columns else None  # type: ignore[return-value]
+                         for x, c in zip((ch.timestamps, ch.values, ch.flags), "tvf"))
         assert self.store is not None
-        return self.store.read_block(name, start, stop)
+        return self.store.read_block(name, start, stop, columns)
 
     def sample(self, name: str, index: int) -> float:
         """The timestamp of sample ``index`` of ``name`` (negative counts from the end)."""
@@ -96,13 +102,13 @@ class ChannelBlocks:
         if not self._stored(name):
             return float(self.rec.channels[name].timestamps[k])
         assert self.store is not None
-        return float(self.store.read_block(name, k, k + 1)[0][0])
+        return float(self.store.read_block(name, k, k + 1, "t")[0][0])
 
     def count_at_or_before(self, name: str, time_s: float) -> int:
         """How many samples of ``name`` are at or before ``time_s`` (``searchsorted(t, time_s, "right")`` of the
         whole, time-ordered channel), one block at a time."""
         k = 0
-        for _a, t, _v, _f in self.blocks(name):
+        for _a, t, _v, _f in self.blocks(name, columns="t"):
             j = int(np.searchsorted(t, time_s, side="right"))
             k += j
             if j < t.shape[0]:

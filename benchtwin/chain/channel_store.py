@@ -204,12 +204,15 @@ class ChannelStore:
         """Samples of channel ``name`` so far."""
         return self._entries[name].n
 
-    def read_block(self, name: str, start: int, stop: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def read_block(self, name: str, start: int, stop: int, columns: str = "tvf") -> tuple[Any, Any, Any]:
         """Timestamps, values and flags of samples ``start:stop`` of ``name`` read from its files (a store on disk;
-        the arrays are the caller's)."""
+        the arrays are the caller's); ``columns``: those read (``"t"``, ``"v"``, ``"f"``), None for the others."""
         if self._dir is None:
             raise ValueError("ChannelStore.read_block: the store keeps its samples in memory, not in files")
-        return self._block_reader(name)(start, stop)
+        if columns == "tvf":
+            return self._block_reader(name)(start, stop)
+        t, v, f = (self._read(name, k, start, stop - start) if c in columns else None for k, c in enumerate("tvf"))
+        return t, v, f
 
     def write_flags(self, name: str, start: int, flags: np.ndarray) -> None:
         """Write ``flags`` over the flags of samples ``start:start + len(flags)`` of ``name`` in its file."""

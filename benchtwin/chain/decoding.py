@@ -78,7 +78,7 @@ def flag_saturation(view: ChannelBlocks, devs: list[Device]) -> None:
                 continue
             span = (hi - lo) if lo is not None and hi is not None else max(abs(lo or 0.0), abs(hi or 0.0), 1.0)
             tol = 1e-3 * span
-            for _a, _t, v, f in view.blocks(role, write=True):
+            for _a, _t, v, f in view.blocks(role, write=True, columns="vf"):
                 at = np.zeros(v.shape[0], dtype=bool)
                 if hi is not None:
                     at |= v >= hi - tol
@@ -98,7 +98,7 @@ def flag_truncations(view: ChannelBlocks, events: list[TransportEvent], of_bus: 
             if not view.length(name):
                 continue
             k = view.count_at_or_before(name, e.time_s) - 1  # the last sample before the cut
-            for a, t, _v, f in view.blocks(name, write=True):
+            for a, t, _v, f in view.blocks(name, write=True, columns="tf"):
                 at = (t >= e.time_s) & (t <= e.end_s)
                 if a <= k < a + t.shape[0]:
                     at[k - a] = True

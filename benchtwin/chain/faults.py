@@ -57,13 +57,20 @@ def _period(view: ChannelBlocks, name: str, n: int) -> float:
     picked = np.empty(len(range(0, n - 1, step)), np.float64)
     got = 0
     prev: np.ndarray = np.zeros(0, np.float64)
-    for a, t, _v, _f in view.blocks(name):
+    for a, t, _v, _f in view.blocks(name, columns="t"):
         dt = np.diff(np.concatenate([prev, t]))  # steps a - len(prev) .. a + len(t) - 2
         some = dt[(prev.shape[0] - a) % step::step]
         picked[got:got + some.shape[0]] = some
         got += some.shape[0]
         prev = t[-1:].copy()
     return float(np.median(picked, overwrite_input=True))
+
+
+def _period_of(t: np.ndarray) -> float:
+    """:func:`_period` of a channel whose samples are all in ``t`` (one block: the same steps picked, the same
+    median)."""
+    step = max(1, (t.shape[0] - 1) // 100_000)
+    return float(np.median(np.diff(t)[::step].copy(), overwrite_input=True))
 
 
 def _channel_evidence(view: ChannelBlocks, devs: dict[str, Device]
@@ -81,15 +88,20 @@ def _channel_evidence(view: ChannelBlocks, devs: dict[str, Device]
         n = view.length(name)
         if dev is None or n < 10:
             continue
-        period = _period(view, name, n)
+        # a channel in one block: its period from the block the loop reads (read once)
+        one_block = n <= view.size
+        period = math.nan if one_block else _period(view, name, n)
         thr = max(GAP_MIN_PERIODS * period, GAP_MIN_S)
         counters = bool(getattr(dev, "counters", False))
         got: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {k: [] for k in kinds}
         clip: list[tuple[float, float]] = []
         run: list[float] | None = None  # the open run of saturated samples: [first time, last time, last index]
         t_prev = math.nan
-        for a, t, _v, f in view.blocks(name, write=True):
+        for a, t, _v, f in view.blocks(name, write=True, columns="tf"):
             m = t.shape[0]
+            if one_block:
+                period = _period_of(t)
+                thr = max(GAP_MIN_PERIODS * period, GAP_MIN_S)
             # gaps: before sample i of the block (i >= 1 globally), against the sample before it
             t_before = np.concatenate([[t_prev], t[:-1]]) if a > 0 else np.concatenate([[t[0]], t[:-1]])
             dt = t - t_before
@@ -179,7 +191,7 @@ def _stuck_evidence(view: ChannelBlocks, devs: list[Device]) -> list[tuple[str, 
             stops: list[np.ndarray] = []
             open_at = -1  # first reading of the run of equal readings open at the block's end, or -1
             v_prev, u_prev = math.nan, False
-            for a, _t, v, f in view.blocks(role):
+            for a, _t, v, f in view.blocks(role, columns="vf"):
                 usable = ((f & held) == 0) & np.isfinite(v)
                 vv = np.concatenate([[v_prev], v]) if a > 0 else v
                 uu = np.concatenate([[u_prev], usable]) if a > 0 else usable
@@ -214,7 +226,7 @@ def _stuck_evidence(view: ChannelBlocks, devs: list[Device]) -> list[tuple[str, 
 def _flag_stale(view: ChannelBlocks, name: str, ia: np.ndarray, ib: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Flag readings ``ia[k]:ib[k]`` of ``name`` STALE; the times of each run's first and last reading."""
     ta, tb = np.zeros(ia.size), np.zeros(ia.size)
-    for a, t, _v, f in view.blocks(name, write=True):
+    for a, t, _v, f in view.blocks(name, write=True, columns="tf"):
         m = t.shape[0]
         k0, k1 = int(np.searchsorted(ib, a, side="right")), int(np.searchsorted(ia, a + m, side="left"))
         if k1 <= k0:

@@ -1,6 +1,6 @@
 """The pressure module's poll log decoded block by block: what
 :func:`~benchtwin.sensors.pressure_decode.decode_pressure_polls` gives, bit for bit, holding one block of polls at a
-time however long the log.
+time however long the log (and the medians' values of at most :data:`HOLD_BLOCKS` blocks).
 
 The whole-log decoder judges the module's clock over the whole log
 (:func:`~benchtwin.sensors.poll_clock.poll_clock_evidence`): per-second medians of the answers' age, the medians of
@@ -9,7 +9,9 @@ of blocks:
 
 1. a scan: the counts, the uptime unwrapping's carry at each block's start, the runs of timeouts, and the
    per-second medians of the age (a second that straddles a block edge is carried into the next block);
-2. exact medians of the age and of its deviations (a radix selection on the values' bits, 16 bits a pass);
+2. exact medians of the age and of its deviations (a radix selection on the values' bits, 16 bits a pass; a log of
+   at most :data:`HOLD_BLOCKS` blocks of answers has its values held in the selection's first pass and the medians
+   taken by a partial sort of them: one pass instead of four, the same values);
 3. the median absolute deviation (the same selection);
 4. the decode proper: flags (timeouts, exceptions, transport drops, late answers, the clock's steps and drift),
    the time base and the held values, each block handed to ``emit``.
@@ -33,7 +35,10 @@ from benchtwin.wire.frames import POLL_OK, POLL_TIMEOUT, PollLog
 from benchtwin.wire.modbus_map import CHANNELS, REG_RAW, REG_STATUS, REG_UPTIME_HI, REG_UPTIME_LO, volts_to_counts
 from benchtwin.wire.quality import FLAG, DecodeSink
 
-__all__ = ["PollBlocks", "decode_pressure_poll_blocks", "select_ranks"]
+__all__ = ["HOLD_BLOCKS", "PollBlocks", "decode_pressure_poll_blocks", "select_ranks"]
+
+#: the median selections hold a value set whole (8 B a value) while it has at most this many blocks' values
+HOLD_BLOCKS = 8
 
 #: one block of a channel: (name, unit, timestamps, values, flags, source)
 Emit = Callable[[str, str, np.ndarray, np.ndarray, np.ndarray, str], None]
@@ -64,7 +69,8 @@ def _value(key: int) -> float:
     return float(np.array([bits], dtype=np.uint64).view(np.float64)[0])
 
 
-def select_ranks(blocks: Callable[[], Iterator[list[np.ndarray]]], ranks: list[list[int]]) -> list[list[float]]:
+def select_ranks(blocks: Callable[[], Iterator[list[np.ndarray]]], ranks: list[list[int]], hold: int = 0
+                 ) -> list[list[float]]:
     """Exact order statistics of several value sets read in blocks, four passes of 16 bits over the blocks.
 
     Parameters
@@ -73,6 +79,10 @@ def select_ranks(blocks: Callable[[], Iterator[list[np.ndarray]]], ranks: list[l
         Makes a new iterator over the blocks; each block is a list with one array per value set (float64, no NaN).
     ranks:
         Per value set, the sorted positions (0-based) wanted.
+    hold:
+        A value set of at most this many values is held whole in the first pass and its order statistics are
+        taken from it by a partial sort (one pass over the blocks instead of four; the same values: both find the
+        keys at those ranks); a larger set is held up to ``hold`` values and counted (0: every set counted).
 
     Returns
     -------
@@ -81,9 +91,12 @@ def select_ranks(blocks: Callable[[], Iterator[list[np.ndarray]]], ranks: list[l
     """
     prefix = [[0] * len(r) for r in ranks]
     left = [list(r) for r in ranks]
+    found: list[list[float] | None] = [None] * len(ranks)
     for shift in (48, 32, 16, 0):
         hist = [[np.zeros(1 << 16, np.int64) for _ in r] for r in ranks]
         held: list[list[np.ndarray]] = [[] for _ in ranks]  # small blocks are counted together
+        # in the first pass a set is held whole while it has at most `hold` values
+        spilled = [shift != 48 or hold <= 0 or found[s] is not None for s in range(len(ranks))]
 
         def count(s: int, shift: int = shift, hist: list = hist, held: list = held) -> None:
             k = np.concatenate(held[s])
@@ -95,20 +108,32 @@ def select_ranks(blocks: Callable[[], Iterator[list[np.ndarray]]], ranks: list[l
 
         for arrays in blocks():
             for s, x in enumerate(arrays):
-                if ranks[s] and x.size:
+                if ranks[s] and x.size and found[s] is None:
                     held[s].append(_keys(x))
-                    if sum(a.size for a in held[s]) >= 1 << 14:
+                    size = sum(a.size for a in held[s])
+                    if not spilled[s] and size > hold:
+                        spilled[s] = True
+                    if spilled[s] and size >= 1 << 14:
                         count(s)
         for s in range(len(ranks)):
-            if held[s]:
+            if not spilled[s] and ranks[s]:  # held whole: the keys at the ranks by a partial sort
+                k = np.concatenate(held[s]) if held[s] else np.zeros(0, np.uint64)
+                held[s] = []
+                k.partition(ranks[s])
+                found[s] = [_value(int(k[r])) for r in ranks[s]]
+            elif held[s]:
                 count(s)
         for s in range(len(ranks)):
+            if found[s] is not None:
+                continue
             for j in range(len(ranks[s])):
                 c = np.cumsum(hist[s][j])
                 b = int(np.searchsorted(c, left[s][j], side="right"))
                 left[s][j] -= int(c[b - 1]) if b else 0
                 prefix[s][j] = (prefix[s][j] << 16) | b
-    return [[_value(p) for p in ps] for ps in prefix]
+        if all(f is not None or not r for f, r in zip(found, ranks)):
+            break
+    return [f if f is not None else [_value(p) for p in ps] for f, ps in zip(found, prefix)]
 
 
 def _median_ranks(n: int) -> list[int]:
@@ -257,7 +282,7 @@ def decode_pressure_poll_blocks(src: PollBlocks, cfg: PressureConfig | None, sin
     judged = None
     if scan.n_ok:
         ranks = _median_ranks(scan.n_ok)
-        got = select_ranks(lambda: good(judge), [ranks, ranks if judge else []])
+        got = select_ranks(lambda: good(judge), [ranks, ranks if judge else []], HOLD_BLOCKS * block)
         offset = _median(got[0])
         if judge:
             centre = _median(got[1])
@@ -266,7 +291,7 @@ def decode_pressure_poll_blocks(src: PollBlocks, cfg: PressureConfig | None, sin
                 for _age, dev in good(True):
                     yield [np.abs(dev - centre)]
 
-            jitter = 1.4826 * _median(select_ranks(spread, [ranks])[0])
+            jitter = 1.4826 * _median(select_ranks(spread, [ranks], HOLD_BLOCKS * block)[0])
             period = 1.0 / cfg.update_hz if cfg is not None else 0.005
             declared = cfg.link.clock_drift_ppm if cfg is not None else 0.0
             judged = judge_age_medians(scan.first[0] + (has + 0.5) * block_s, m, jitter, period, declared, block_s)
