@@ -7,7 +7,8 @@ with numpy. The layout (start bit, length, byte order, signedness, scale, offset
 cantools Signal, so the DBC stays the single source of truth; tests check the result against
 ``cantools``' own ``encode``/``decode`` frame by frame. Unpacking runs in one small numba kernel per call
 (:func:`_unpack_kernel`: every wanted signal of a column of words, no GIL held) with the same integer arithmetic as
-the numpy expressions it replaced (:func:`_unpack_numpy`, kept as its reference: ``tests/chain/test_decode_kernels.py``).
+the numpy expressions it replaced (:func:`_unpack_numpy`, kept as its reference:
+``tests/chain/test_decode_kernels.py``).
 
 Bit numbering: for a little-endian (Intel) signal, cantools' ``start`` is the position of the least
 significant bit in the little-endian 64-bit integer of the data. For a big-endian (Motorola) signal,

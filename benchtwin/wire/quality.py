@@ -4,9 +4,9 @@ Every device's decoder (``benchtwin/sensors/<kind>.py``) uses these, so a lost, 
 frame is judged the same way on every bus: :func:`counter_flags` from a cyclic message counter,
 :func:`timing_flags` from the spacing of a stream without one, :func:`split_bad` for frames of the
 wrong length or content, and :func:`mark_after` for the sample after a transport drop. Decoded
-channels and the counts of what went wrong go into a :class:`DecodeSink`. :func:`counter_flags` tells the usual
-stream's counter in one small numba kernel (:func:`_counter_flags_kernel`, the same modular arithmetic as the
-numpy path it replaced, kept as its reference: ``tests/chain/test_decode_kernels.py``).
+channels and the counts of what went wrong go into a :class:`DecodeSink`. :func:`counter_flags` and
+:func:`split_bad` each run one small numba kernel (the same arithmetic as the numpy paths they
+replaced, kept as their references: ``tests/chain/test_decode_kernels.py``).
 """
 
 from __future__ import annotations
@@ -206,8 +206,48 @@ def split_bad(dlc: np.ndarray, length: int, extra_bad: np.ndarray | None = None
     Returns
     -------
     good, proto, n_bad
-        Boolean mask of the good frames, the flag column of the good frames, and the count of bad ones.
+        Boolean mask of the good frames, the flag column of the good frames, and the count of bad ones (a uint8
+        column of lengths in one numba kernel, :func:`_split_bad_kernel`; anything else by :func:`_split_bad_numpy`).
     """
+    if (isinstance(dlc, np.ndarray) and dlc.ndim == 1 and dlc.dtype == np.uint8
+            and (extra_bad is None or (isinstance(extra_bad, np.ndarray) and extra_bad.dtype == np.bool_
+                                       and extra_bad.shape == dlc.shape))):
+        extra = extra_bad if extra_bad is not None else np.zeros(0, np.bool_)
+        good, proto, nbad = _split_bad_kernel(dlc, int(length), extra, extra_bad is not None,
+                                              FLAG["PROTOCOL_ERROR"])
+        return good, proto, int(nbad)
+    return _split_bad_numpy(dlc, length, extra_bad)
+
+
+@numba.njit(cache=True, nogil=True)
+def _split_bad_kernel(dlc: np.ndarray, length: int, extra: np.ndarray, use_extra: bool, proto_bit: int
+                      ) -> tuple:  # pragma: no cover - numba
+    """:func:`_split_bad_numpy` in two passes: the good mask and the count of bad frames, then ``proto_bit`` on the
+    first good frame after one or more bad ones."""
+    n = dlc.size
+    good = np.empty(n, np.bool_)
+    nbad = 0
+    for i in range(n):
+        bad = (length != 0 and dlc[i] != length) or (use_extra and extra[i])
+        good[i] = not bad
+        if bad:
+            nbad += 1
+    proto = np.zeros(n - nbad, np.uint16)
+    seen, j = False, 0
+    for i in range(n):
+        if not good[i]:
+            seen = True
+        else:
+            if seen:
+                proto[j] = proto_bit
+                seen = False
+            j += 1
+    return good, proto, nbad
+
+
+def _split_bad_numpy(dlc: np.ndarray, length: int, extra_bad: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The numpy path of :func:`split_bad` (its reference)."""
     bad = dlc != length if length else np.zeros(dlc.shape[0], bool)
     if extra_bad is not None:
         bad = bad | extra_bad

@@ -1,7 +1,8 @@
 """The decoding's numba kernels against the numpy paths they replaced, value for value.
 
 ``MessageCodec.unpack_words`` (``codec._unpack_kernel`` vs ``codec._unpack_numpy``), ``quality.counter_flags``
-(``_counter_flags_kernel`` vs ``_counter_flags_numpy``) and the IVT's status flags (``ivt._status_flags`` vs
+(``_counter_flags_kernel`` vs ``_counter_flags_numpy``), ``quality.split_bad`` (``_split_bad_kernel`` vs
+``_split_bad_numpy``) and the IVT's status flags (``ivt._status_flags`` vs
 ``ivt._status_flags_numpy``) on random and edge inputs: empty, one frame, every bit pattern of a word's edges,
 wrapped, repeated and reordered counters. The expected flags of a few hand-made counter sequences come from the
 rule (a gap is a loss unless it is the "skip one, back one" of a reorder), not from either implementation.
@@ -15,9 +16,16 @@ import pytest
 from benchtwin.sensors.ivt import _status_flags, _status_flags_numpy, result_codecs
 from benchtwin.sensors.vehicle import message_codecs
 from benchtwin.wire.codec import SignalLayout, _unpack_kernel, _unpack_numpy
-from benchtwin.wire.quality import FLAG, _counter_flags_kernel, _counter_flags_numpy, counter_flags
+from benchtwin.wire.quality import (
+    FLAG,
+    _counter_flags_kernel,
+    _counter_flags_numpy,
+    _split_bad_numpy,
+    counter_flags,
+    split_bad,
+)
 
-LOST, DUP, OOO = FLAG["LOST_FRAME"], FLAG["DUPLICATE"], FLAG["OUT_OF_ORDER"]
+LOST, DUP, OOO, PE = FLAG["LOST_FRAME"], FLAG["DUPLICATE"], FLAG["OUT_OF_ORDER"], FLAG["PROTOCOL_ERROR"]
 
 EDGE_WORDS = [0, 2**64 - 1, 2**63, 1, 2**63 - 1, 0x8000000000000001, 0xFF, 0xFF00000000000000,
               0x0123456789ABCDEF, 0xFEDCBA9876543210, 0x00000000FFFFFFFF, 0xFFFFFFFF00000000]
@@ -138,3 +146,35 @@ def test_ivt_status_flags_match_numpy(n: int) -> None:
     if n:  # by the nibble: bit 0 OCS (counted), bit 1 out of range, bits 2-3 errors
         assert _status_flags(np.zeros(4, np.uint16), np.array([1, 1, 0, 8], np.int64), rf, ef) == 2
 
+
+
+@pytest.mark.parametrize(("dlc", "length", "extra", "good", "proto", "nbad"), [
+    ([8, 8, 8], 8, None, [1, 1, 1], [0, 0, 0], 0),
+    ([8, 5, 8, 8], 8, None, [1, 0, 1, 1], [0, PE, 0], 1),  # the good frame after it
+    ([5, 5, 8, 3], 8, None, [0, 0, 1, 0], [PE], 3),  # two bad before one good: one flag
+    ([3, 4, 8], 0, None, [1, 1, 1], [0, 0, 0], 0),  # length 0: any length is good
+    ([6, 6, 6, 6], 6, [0, 1, 0, 0], [1, 0, 1, 1], [0, PE, 0], 1),  # bad for another reason
+    ([], 8, None, [], [], 0),
+    ([7], 8, None, [0], [], 1),
+])
+def test_split_bad_by_the_rule(dlc: list[int], length: int, extra: list[int] | None, good: list[int],
+                               proto: list[int], nbad: int) -> None:
+    d = np.array(dlc, np.uint8)
+    e = None if extra is None else np.array(extra, bool)
+    for fn in (split_bad, _split_bad_numpy):
+        g, p, n = fn(d, length, e)
+        assert g.tolist() == [bool(x) for x in good] and p.tolist() == proto and n == nbad
+        assert g.dtype == np.bool_ and p.dtype == np.uint16 and isinstance(n, int)
+
+
+def test_split_bad_kernel_matches_numpy_on_random_streams() -> None:
+    rng = np.random.default_rng(5)
+    for trial in range(3000):
+        n = int(rng.integers(0, 50))
+        d = rng.choice(np.array([8, 8, 8, 8, 6, 0, 3], np.uint8), size=n)
+        length = int(rng.choice([8, 6, 0]))
+        e = rng.random(n) < 0.2 if trial % 2 else None
+        got, ref = split_bad(d, length, e), _split_bad_numpy(d, length, e)
+        assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1]) and got[2] == ref[2], trial
+    d16 = np.array([8, 5, 8], np.int16)  # another dtype: the numpy path
+    assert split_bad(d16, 8)[1].tolist() == [0, FLAG["PROTOCOL_ERROR"]]
