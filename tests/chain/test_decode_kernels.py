@@ -2,10 +2,11 @@
 
 ``MessageCodec.unpack_words`` (``codec._unpack_kernel`` vs ``codec._unpack_numpy``), ``quality.counter_flags``
 (``_counter_flags_kernel`` vs ``_counter_flags_numpy``), ``quality.split_bad`` (``_split_bad_kernel`` vs
-``_split_bad_numpy``) and the IVT's status flags (``ivt._status_flags`` vs
-``ivt._status_flags_numpy``) on random and edge inputs: empty, one frame, every bit pattern of a word's edges,
-wrapped, repeated and reordered counters. The expected flags of a few hand-made counter sequences come from the
-rule (a gap is a loss unless it is the "skip one, back one" of a reorder), not from either implementation.
+``_split_bad_numpy``), ``streams.hold_cut`` (vs the loop the acquisition ran before it) and the IVT's status
+flags (``ivt._status_flags`` vs ``ivt._status_flags_numpy``) on random and edge inputs: empty, one frame, every bit
+pattern of a word's edges, wrapped, repeated and reordered counters, ties and times going back. The expected flags
+of a few hand-made counter sequences come from the rule (a gap is a loss unless it is the "skip one, back one" of
+a reorder), not from either implementation.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchtwin.chain.streams import hold_cut
 from benchtwin.sensors.ivt import _status_flags, _status_flags_numpy, result_codecs
 from benchtwin.sensors.vehicle import message_codecs
 from benchtwin.wire.codec import SignalLayout, _unpack_kernel, _unpack_numpy
@@ -178,3 +180,31 @@ def test_split_bad_kernel_matches_numpy_on_random_streams() -> None:
         assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1]) and got[2] == ref[2], trial
     d16 = np.array([8, 5, 8], np.int16)  # another dtype: the numpy path
     assert split_bad(d16, 8)[1].tolist() == [0, FLAG["PROTOCOL_ERROR"]]
+
+
+def _hold_cut_before(t: np.ndarray, hold: int) -> int:
+    """What ``Acquisition._decode_stream`` computed before ``hold_cut`` (-1: times go back)."""
+    n = t.shape[0]
+    if n > 1 and bool(np.any(t[1:] < t[:-1])):
+        return -1
+    j = n - hold
+    while j > 0 and t[j] == t[j - 1]:
+        j -= 1
+    return max(j, 0)
+
+
+def test_hold_cut_matches_the_loop_it_replaced() -> None:
+    rng = np.random.default_rng(11)
+    for trial in range(3000):
+        n = int(rng.integers(0, 30))
+        t = np.cumsum(rng.choice([0.0, 0.0, 0.01, 0.02], size=n))  # ties: several frames at one time
+        if trial % 5 == 0 and n > 1:
+            i = int(rng.integers(1, n))
+            t[i] = t[i - 1] - 0.001  # back in time
+        hold = int(rng.integers(1, 10))
+        assert hold_cut(t, hold) == _hold_cut_before(t, hold), (t.tolist(), hold)
+    assert hold_cut(np.array([0.0, 1.0, 2.0, 2.0, 2.0, 3.0]), 2) == 2  # t[4] shares its time: back to the first 2.0
+    assert hold_cut(np.array([0.0, 1.0]), 8) == 0 and hold_cut(np.array([1.0, 0.5, 2.0]), 1) == -1
+    assert hold_cut(np.array([0.0, np.nan, 1.0]), 1) == 2  # NaN compares false, as before
+    with pytest.raises(ValueError):
+        hold_cut(np.zeros(3), 0)
