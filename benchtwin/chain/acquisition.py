@@ -53,7 +53,7 @@ from benchtwin.chain.deferred_save import DeferredSave
 from benchtwin.chain.faults import detect_faults
 from benchtwin.chain.offsets_beside import OffsetsBeside
 from benchtwin.chain.pollspool import PollSpool, decode_spooled
-from benchtwin.chain.streams import split_streams
+from benchtwin.chain.streams import hold_cut, split_streams
 from benchtwin.config.setup import SetupConfig
 from benchtwin.errors import DataError
 from benchtwin.recording import Flag, Recording
@@ -313,12 +313,10 @@ class Acquisition:
         n = t.shape[0]
         lo, hi = st.emitted_s, math.inf
         if not last:
-            if n > 1 and bool(np.any(t[1:] < t[:-1])):
+            j = hold_cut(t, HOLD_FRAMES)  # cut between two frame times, HOLD_FRAMES or more before the end
+            if j < 0:
                 raise DataError(f"{bus}:0x{cid:X}: frame times go back within the stream; a chunked acquisition "
                                 "needs each stream in time order (decode it in one piece with acquire())")
-            j = n - HOLD_FRAMES
-            while j > 0 and t[j] == t[j - 1]:  # cut between two frame times
-                j -= 1
             hi = max(lo, float(t[j])) if j > 0 else lo
         sink = DecodeSink()
         _decode_frames(dec, owner, bus, cid, t, dlc, words, drops, sink)

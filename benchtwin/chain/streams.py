@@ -6,7 +6,8 @@ records (a small numba kernel, no GIL held) writes each stream's three columns c
 instead of sorting the identifiers, gathering whole records per stream and copying their columns apart. The
 result is :func:`~benchtwin.chain.decoding.group_ids` followed by those per-stream copies, value for value
 (``tests/chain/test_split_streams.py`` checks it on malformed and edge frames). :func:`dlc_histogram` is the
-bus-load histogram of :class:`~benchtwin.chain.decoding.BusLoad` in one pass.
+bus-load histogram of :class:`~benchtwin.chain.decoding.BusLoad` in one pass, :func:`hold_cut` where a chunk's
+stream is cut (and whether its times go back).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 
 from benchtwin.wire.frames import FRAME_DTYPE
 
-__all__ = ["Streams", "dlc_histogram", "split_streams"]
+__all__ = ["Streams", "dlc_histogram", "hold_cut", "split_streams"]
 
 #: identifiers at or above this are not standard ones: never a known stream (as ``group_ids``' lookup table)
 _ID_LIMIT = 0x800
@@ -97,6 +98,33 @@ def _hist(dlc: np.ndarray, ext: np.ndarray) -> np.ndarray:  # pragma: no cover -
         d = dlc[i]
         out[(min(d, 15) << 1) | (1 if ext[i] else 0)] += 1
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _hold_cut(t: np.ndarray, hold: int) -> int:  # pragma: no cover - numba
+    n = t.size
+    for i in range(1, n):
+        if t[i] < t[i - 1]:
+            return -1
+    j = n - hold
+    while j > 0 and t[j] == t[j - 1]:
+        j -= 1
+    return max(j, 0)
+
+
+def hold_cut(t: np.ndarray, hold: int) -> int:
+    """Where a stream's frames (times ``t``) are cut to hold back at least its last ``hold`` frames: the index ``j``
+    of the first frame held back, moved back while it shares its time with the frame before it (0: every frame is
+    held back); -1 when the times go back somewhere (the stream is not in time order).
+
+    Raises
+    ------
+    ValueError
+        If ``hold`` is under 1.
+    """
+    if hold < 1:
+        raise ValueError(f"hold_cut: hold must be at least 1, got {hold}")
+    return int(_hold_cut(np.ascontiguousarray(t, dtype=np.float64), int(hold)))
 
 
 def _columns(frames: np.ndarray) -> tuple[np.ndarray, ...]:

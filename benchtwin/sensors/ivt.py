@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from functools import cache
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from benchtwin.config.setup import IVT_PLACES, ChannelErrors, FaultSpec, IvtConfig, LinkErrors, SetupConfig
@@ -103,6 +104,30 @@ def result_codecs(result_base_id: int = 0x521, name: str = "IVT") -> tuple[Messa
     """
     db = build_ivt(name, result_base_id)
     return tuple(MessageCodec(db.get_message_by_frame_id(result_base_id + k)) for k in range(len(RESULT_NAMES)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _status_flags(flags: np.ndarray, status: np.ndarray, range_flag: int, error_flag: int
+                  ) -> int:  # pragma: no cover - numba
+    """OR ``range_flag`` into ``flags`` where the status has the out-of-range bit, ``error_flag`` where it has the
+    measurement or system error bit (in place); return the count of frames with the over-current bit."""
+    n_ocs = 0
+    for i in range(status.size):
+        st = status[i]
+        if st & STATUS_OUT_OF_RANGE:
+            flags[i] |= range_flag
+        if st & (STATUS_MEAS_ERROR | STATUS_SYS_ERROR):
+            flags[i] |= error_flag
+        if st & STATUS_OCS:
+            n_ocs += 1
+    return n_ocs
+
+
+def _status_flags_numpy(flags: np.ndarray, status: np.ndarray, range_flag: int, error_flag: int) -> int:
+    """The numpy reference of :func:`_status_flags` (what the result decoder did before it)."""
+    flags[(status & STATUS_OUT_OF_RANGE) != 0] |= range_flag
+    flags[(status & (STATUS_MEAS_ERROR | STATUS_SYS_ERROR)) != 0] |= error_flag
+    return int(np.count_nonzero(status & STATUS_OCS))
 
 
 def _signal(codec: MessageCodec, suffix: str) -> str:
@@ -395,20 +420,20 @@ class IvtShunt(Device):
     def _result_decoder(self, k: int, codec: MessageCodec, channel: tuple[str, str, float]):
         name, unit, scale = channel
 
+        names = tuple(_signal(codec, role) for role in ("MuxID", "Counter", "Status", ""))  # unpacked in one pass
+        range_flag, error_flag = FLAG["OUT_OF_RANGE"] | FLAG["SATURATED"], FLAG["STATUS_ERROR"]
+
         def decode(s: FrameStream, sink: DecodeSink) -> None:
-            mux_bad = codec.unpack_words(s.words, [_signal(codec, "MuxID")])[_signal(codec, "MuxID")] != k
+            raw = codec.unpack_words(s.words, names)
+            mux_bad = raw[names[0]] != k
             corrupt = mux_bad & (s.dlc == codec.length)
             if corrupt.any():  # a full-length frame whose mux byte is not this identifier's result
                 sink.fault("corrupt_payload", self.name, s.t[corrupt])
             good, proto, nbad = split_bad(s.dlc, codec.length, mux_bad)
             sink.protocol_error(s.where, nbad)
-            raw = codec.unpack_words(s.words[good] if nbad else s.words)
-            counter, status = raw[_signal(codec, "Counter")], raw[_signal(codec, "Status")]
-            value = raw[_signal(codec, "")]
+            counter, status, value = (raw[n][good] if nbad else raw[n] for n in names[1:])
             flags = proto | counter_flags(counter, 4)
-            flags[(status & STATUS_OUT_OF_RANGE) != 0] |= FLAG["OUT_OF_RANGE"] | FLAG["SATURATED"]
-            flags[(status & (STATUS_MEAS_ERROR | STATUS_SYS_ERROR)) != 0] |= FLAG["STATUS_ERROR"]
-            n_ocs = int(np.count_nonzero(status & STATUS_OCS))
+            n_ocs = _status_flags(flags, status, range_flag, error_flag)
             if n_ocs:  # over-current detection is an event of the circuit, not a measurement error
                 sink.count("ivt_ocs_frames", self.name, n_ocs)
             t = s.t[good]

@@ -5,7 +5,10 @@ module compiles each cantools :class:`~cantools.database.can.Message` once into 
 a 64-bit integer view of the eight data bytes, then packs or unpacks whole columns of a frame table
 with numpy. The layout (start bit, length, byte order, signedness, scale, offset) is read from the
 cantools Signal, so the DBC stays the single source of truth; tests check the result against
-``cantools``' own ``encode``/``decode`` frame by frame.
+``cantools``' own ``encode``/``decode`` frame by frame. Unpacking runs in one small numba kernel per call
+(:func:`_unpack_kernel`: every wanted signal of a column of words, no GIL held) with the same integer arithmetic as
+the numpy expressions it replaced (:func:`_unpack_numpy`, kept as its reference:
+``tests/chain/test_decode_kernels.py``).
 
 Bit numbering: for a little-endian (Intel) signal, cantools' ``start`` is the position of the least
 significant bit in the little-endian 64-bit integer of the data. For a big-endian (Motorola) signal,
@@ -20,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from benchtwin.errors import FrameError
@@ -73,6 +77,52 @@ def u64_to_bytes(words: np.ndarray, little_endian: bool) -> np.ndarray:
     return words.astype("<u8" if little_endian else ">u8").view(np.uint8).reshape(-1, 8)
 
 
+@numba.njit(cache=True, nogil=True)
+def _unpack_kernel(le: np.ndarray, shift: np.ndarray, mask: np.ndarray, little: np.ndarray, signed: np.ndarray
+                   ) -> np.ndarray:  # pragma: no cover - numba
+    """Raw int64 values, one row per signal: ``(word >> shift) & mask`` of the little- or big-endian word,
+    sign-extended (the top bit of the signal moved to bit 63, then an arithmetic shift back) when signed."""
+    nsig, n = shift.size, le.size
+    out = np.empty((nsig, n), np.int64)
+    s8, s16, s32 = np.uint64(8), np.uint64(16), np.uint64(32)
+    m8, m16 = np.uint64(0x00FF00FF00FF00FF), np.uint64(0x0000FFFF0000FFFF)
+    for j in range(nsig):  # one plain loop per signal and case (vectorised by the compiler)
+        sh, mk, row = shift[j], mask[j], out[j]
+        k = np.uint64(64 - signed[j])
+        ki = np.int64(k)
+        if little[j]:
+            if signed[j]:
+                for i in range(n):
+                    row[i] = np.int64(((le[i] >> sh) & mk) << k) >> ki
+            else:
+                for i in range(n):
+                    row[i] = np.int64((le[i] >> sh) & mk)
+        else:  # the byte swap: adjacent bytes, then 16-bit halves, then 32-bit halves
+            for i in range(n):
+                w = le[i]
+                w = ((w >> s8) & m8) | ((w & m8) << s8)
+                w = ((w >> s16) & m16) | ((w & m16) << s16)
+                w = (w >> s32) | (w << s32)
+                u = (w >> sh) & mk
+                row[i] = np.int64(u << k) >> ki if signed[j] else np.int64(u)
+    return out
+
+
+def _unpack_numpy(sigs: list[SignalLayout], words_le: np.ndarray) -> list[np.ndarray]:
+    """The numpy reference of :func:`_unpack_kernel` (what :meth:`MessageCodec.unpack_words` computed before it)."""
+    le = np.asarray(words_le, dtype=np.uint64)
+    be = le.byteswap()
+    out = []
+    for sig in sigs:
+        u = ((le if sig.little_endian else be) >> np.uint64(sig.shift)) & sig.mask
+        if sig.signed:
+            k = 64 - sig.length
+            out.append(np.ascontiguousarray(u << np.uint64(k)).view(np.int64) >> np.int64(k))
+        else:
+            out.append(u.astype(np.int64))
+    return out
+
+
 def _layout(signal: Signal) -> SignalLayout:
     little = signal.byte_order == "little_endian"
     if little:
@@ -103,6 +153,7 @@ class MessageCodec:
         self.length = int(message.length)
         self.is_extended = bool(message.is_extended_frame)
         self.signals: dict[str, SignalLayout] = {s.name: _layout(s) for s in message.signals}
+        self._plans: dict[tuple[str, ...], tuple[np.ndarray, ...]] = {}
 
     def __repr__(self) -> str:
         return f"MessageCodec({self.name}, 0x{self.frame_id:X}, {list(self.signals)})"
@@ -168,22 +219,18 @@ class MessageCodec:
 
     def unpack_words(self, words_le: np.ndarray, names: list[str] | None = None) -> dict[str, np.ndarray]:
         """Like :meth:`unpack`, from the data as little-endian 64-bit words (``bytes_to_u64(data, True)``)."""
-        want = names if names is not None else list(self.signals)
-        need_be = any(not self.signals[n].little_endian for n in want)
-        le = np.asarray(words_le, dtype=np.uint64)
-        be = le.byteswap() if need_be else None
-        out: dict[str, np.ndarray] = {}
-        for name in want:
-            sig = self.signals[name]
-            words = le if sig.little_endian else be
-            u = (words >> np.uint64(sig.shift)) & sig.mask
-            if sig.signed:  # sign-extend: the signal's top bit to bit 63, then an arithmetic shift back
-                k = 64 - sig.length
-                v = np.ascontiguousarray(u << np.uint64(k)).view(np.int64) >> np.int64(k)
-            else:
-                v = u.astype(np.int64)
-            out[name] = v
-        return out
+        want = tuple(names) if names is not None else tuple(self.signals)
+        plan = self._plans.get(want)
+        if plan is None:  # the layout arrays of these signals (``signed``: the signal's length, 0 if unsigned)
+            sigs = [self.signals[n] for n in want]
+            plan = self._plans[want] = (
+                np.array([s.shift for s in sigs], np.uint64), np.array([int(s.mask) for s in sigs], np.uint64),
+                np.array([s.little_endian for s in sigs], np.bool_),
+                np.array([s.length if s.signed else 0 for s in sigs], np.int64))
+        le = np.ascontiguousarray(words_le, dtype=np.uint64)
+        if le.ndim != 1:  # the kernel takes a column of words
+            return dict(zip(want, _unpack_numpy([self.signals[n] for n in want], le)))
+        return dict(zip(want, _unpack_kernel(le, *plan)))
 
     def decode(self, data: np.ndarray, names: list[str] | None = None) -> dict[str, np.ndarray]:
         """Unpack and scale to physical values (float64)."""

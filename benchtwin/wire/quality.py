@@ -4,7 +4,9 @@ Every device's decoder (``benchtwin/sensors/<kind>.py``) uses these, so a lost, 
 frame is judged the same way on every bus: :func:`counter_flags` from a cyclic message counter,
 :func:`timing_flags` from the spacing of a stream without one, :func:`split_bad` for frames of the
 wrong length or content, and :func:`mark_after` for the sample after a transport drop. Decoded
-channels and the counts of what went wrong go into a :class:`DecodeSink`.
+channels and the counts of what went wrong go into a :class:`DecodeSink`. :func:`counter_flags` and
+:func:`split_bad` each run one small numba kernel (the same arithmetic as the numpy paths they
+replaced, kept as their references: ``tests/chain/test_decode_kernels.py``).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 
 from benchtwin.recording import Channel, Flag, Recording
@@ -24,10 +27,59 @@ __all__ = ["FLAG", "DecodeSink", "FrameStream", "counter_flags", "mark_after", "
 FLAG: dict[str, int] = {f.name: int(f) for f in Flag}
 
 
+@numba.njit(cache=True, nogil=True)
+def _counter_flags_kernel(c: np.ndarray, bits: int, lost_bit: int, dup_bit: int, ooo_bit: int
+                          ) -> np.ndarray:  # pragma: no cover - numba
+    """:func:`_counter_flags_numpy` in one pass (``bits`` at most 8): every difference of two counters is taken
+    mod ``2**bits`` (``& mask``), as the numpy path's uint8 and int16 differences are."""
+    n = c.size
+    flags = np.zeros(n, np.uint16)
+    mask = (1 << bits) - 1
+    half = (1 << bits) // 2
+    usual = True
+    for i in range(1, n):
+        if ((c[i] - c[i - 1]) & mask) != 1:
+            usual = False
+            break
+    if usual:
+        return flags
+    keep = np.empty(n, np.int64)  # the frames that do not repeat the counter before them
+    r = 0
+    for i in range(n):
+        if i > 0 and ((c[i] - c[i - 1]) & mask) == 0:
+            flags[i] = dup_bit
+        else:
+            keep[r] = i
+            r += 1
+    # judged without the duplicates (removing them never makes two kept neighbours equal)
+    for j in range(1, r):
+        cj, cp = c[keep[j]], c[keep[j - 1]]
+        d1 = (cj - cp) & mask
+        ooo = d1 > half
+        gap = d1 >= 2 and d1 <= half
+        nxt_back = False
+        if j < r - 1:
+            cn = c[keep[j + 1]]
+            nxt_back = ((cn - cj) & mask) > half and ((cj - cn) & mask) == 1
+        prev_ooo_d2 = False
+        if j >= 2:
+            cpp = c[keep[j - 2]]
+            prev_ooo_d2 = ((cp - cpp) & mask) > half and ((cj - cpp) & mask) == 1
+        f = 0
+        if gap and not nxt_back and not prev_ooo_d2:
+            f |= lost_bit
+        if ooo or (gap and nxt_back):
+            f |= ooo_bit
+        flags[keep[j]] = f
+    return flags
+
+
 def counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
     """LOST_FRAME / DUPLICATE / OUT_OF_ORDER from a cyclic counter (per sample, arrival order).
 
-    A repeated counter is a duplicate; the other samples are then judged without the duplicates.
+    A repeated counter is a duplicate; the other samples are then judged without the duplicates. An int64 column
+    of a counter of up to 8 bits is judged in one numba kernel (:func:`_counter_flags_kernel`), anything else by
+    the numpy path (:func:`_counter_flags_numpy`); the two agree flag for flag (``tests/chain/test_decode_kernels.py``).
 
     Parameters
     ----------
@@ -36,6 +88,13 @@ def counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
     bits:
         Width of the counter (it wraps at ``2**bits``).
     """
+    if isinstance(counter, np.ndarray) and counter.dtype == np.int64 and counter.ndim == 1 and 0 < bits <= 8:
+        return _counter_flags_kernel(counter, bits, FLAG["LOST_FRAME"], FLAG["DUPLICATE"], FLAG["OUT_OF_ORDER"])
+    return _counter_flags_numpy(counter, bits)
+
+
+def _counter_flags_numpy(counter: np.ndarray, bits: int) -> np.ndarray:
+    """The numpy path of :func:`counter_flags` (its reference)."""
     n = counter.shape[0]
     flags = np.zeros(n, dtype=np.uint16)
     if n < 2:
@@ -49,7 +108,7 @@ def counter_flags(counter: np.ndarray, bits: int) -> np.ndarray:
     dup[1:] = step == 0
     if dup.any():
         keep = np.flatnonzero(~dup)
-        flags[keep] = counter_flags(c_all[keep], bits)
+        flags[keep] = _counter_flags_numpy(c_all[keep], bits)
         flags[dup] |= FLAG["DUPLICATE"]
         return flags
     m = 1 << bits
@@ -147,8 +206,48 @@ def split_bad(dlc: np.ndarray, length: int, extra_bad: np.ndarray | None = None
     Returns
     -------
     good, proto, n_bad
-        Boolean mask of the good frames, the flag column of the good frames, and the count of bad ones.
+        Boolean mask of the good frames, the flag column of the good frames, and the count of bad ones (a uint8
+        column of lengths in one numba kernel, :func:`_split_bad_kernel`; anything else by :func:`_split_bad_numpy`).
     """
+    if (isinstance(dlc, np.ndarray) and dlc.ndim == 1 and dlc.dtype == np.uint8
+            and (extra_bad is None or (isinstance(extra_bad, np.ndarray) and extra_bad.dtype == np.bool_
+                                       and extra_bad.shape == dlc.shape))):
+        extra = extra_bad if extra_bad is not None else np.zeros(0, np.bool_)
+        good, proto, nbad = _split_bad_kernel(dlc, int(length), extra, extra_bad is not None,
+                                              FLAG["PROTOCOL_ERROR"])
+        return good, proto, int(nbad)
+    return _split_bad_numpy(dlc, length, extra_bad)
+
+
+@numba.njit(cache=True, nogil=True)
+def _split_bad_kernel(dlc: np.ndarray, length: int, extra: np.ndarray, use_extra: bool, proto_bit: int
+                      ) -> tuple:  # pragma: no cover - numba
+    """:func:`_split_bad_numpy` in two passes: the good mask and the count of bad frames, then ``proto_bit`` on the
+    first good frame after one or more bad ones."""
+    n = dlc.size
+    good = np.empty(n, np.bool_)
+    nbad = 0
+    for i in range(n):
+        bad = (length != 0 and dlc[i] != length) or (use_extra and extra[i])
+        good[i] = not bad
+        if bad:
+            nbad += 1
+    proto = np.zeros(n - nbad, np.uint16)
+    seen, j = False, 0
+    for i in range(n):
+        if not good[i]:
+            seen = True
+        else:
+            if seen:
+                proto[j] = proto_bit
+                seen = False
+            j += 1
+    return good, proto, nbad
+
+
+def _split_bad_numpy(dlc: np.ndarray, length: int, extra_bad: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The numpy path of :func:`split_bad` (its reference)."""
     bad = dlc != length if length else np.zeros(dlc.shape[0], bool)
     if extra_bad is not None:
         bad = bad | extra_bad
