@@ -48,7 +48,15 @@ def _typical_step(ch: Channel, s: Shift = 0.0) -> float:
         step = index.typical_step if not s else index.shifted_steps.get(s)
         if step is not None:
             return step
-    step = _typical_step_of(ch, s)
+    if index is not None and index.n == len(ch) and len(ch) > 1:
+        # the strided timestamps kept with the index: a moved copy's new clock map (the converter's shaft clock per
+        # draw) reads no block; the same steps, elementwise, and the same median
+        if index.step_pairs is None:
+            index.step_pairs = _step_pairs(ch)
+        x, y = index.step_pairs
+        step = float(np.median(to_ref(y, s) - to_ref(x, s) if s else y - x))
+    else:
+        step = _typical_step_of(ch, s)
     if index is not None:
         if s:
             index.shifted_steps[s] = step
@@ -70,6 +78,22 @@ def _typical_step_of(ch: Channel, s: Shift = 0.0) -> float:
         # on the reference clock (elementwise, as the shifted channel's); a copy: a view would keep the block's steps
         picked.append(np.diff(to_ref(ts, s) if s else ts)[::stride].copy())
     return float(np.median(np.concatenate(picked)))
+
+
+def _step_pairs(ch: Channel) -> tuple[np.ndarray, np.ndarray]:
+    """``(ts[j], ts[j + 1])`` at the strided steps ``j`` of :func:`_typical_step_of`, read block by block."""
+    n = len(ch)
+    stride = max(1, (n - 1) // 20000)
+    xs, ys = [], []
+    for a in range(0, n - 1, _STEP_BLOCK):
+        b = min(a + _STEP_BLOCK, n - 1)
+        first = -(-a // stride) * stride
+        if first >= b:
+            continue
+        ts = ch.block(first, b + 1)[0]
+        xs.append(ts[:-1][::stride].copy())
+        ys.append(ts[1:][::stride].copy())
+    return np.concatenate(xs), np.concatenate(ys)
 
 
 def _shifted(rec: Recording, names: Sequence[str], shifts: Mapping[str, Shift]) -> Recording:

@@ -21,11 +21,18 @@ campaign). Once full, a new result is not kept (it is computed again by each re-
 store) and the first blocks' results stay: with re-runs that walk the blocks in the same order, dropping the oldest
 instead would drop each block's result just before the next re-run asks for it. Arrays in a key (grid times, window
 edges) go in as :func:`fingerprint`, a digest of their bytes, not as the bytes themselves.
+
+A second store outlives one method: inside :func:`sharing_outputs` (one type B propagation), the output of a method
+that another method runs first in its re-runs (the transmission inside the converter's) is kept per moved Recording
+(:func:`moved_by`: the base Recording and the gain or offset step that moved it) by :func:`shared_output`, so the
+converter's step re-run takes the transmission's output of the transmission's own re-run of that very step. A
+rounding draw is not shared (the converter's draws move more roles, so its transmission inputs differ).
 """
 
 from __future__ import annotations
 
 import hashlib
+import pickle
 import threading
 import weakref
 from collections.abc import Callable, Hashable, Iterator
@@ -35,7 +42,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["STORE_BYTES", "fingerprint", "only_values", "reused", "reusing", "stored_bytes", "values_only"]
+__all__ = ["OUTPUT_BYTES", "STORE_BYTES", "fingerprint", "moved_by", "only_values", "reused", "reusing",
+           "shared_output", "sharing_outputs", "stored_bytes", "values_only"]
 
 T = TypeVar("T")
 
@@ -187,3 +195,91 @@ def reused(kind: str, arrays: tuple[np.ndarray, ...], key: Hashable, compute: Ca
                 store.entries[full] = (refs, _copy(out), size)
                 store.nbytes += size
     return out
+
+
+#: most bytes (pickled) of method outputs :func:`shared_output` keeps in one :func:`sharing_outputs` block; the paper
+#: campaign's transmission output pickles to about 115 kB, and its 4 step re-runs shared with the converter's keep
+#: 0.46 MB
+OUTPUT_BYTES = 8 * 2**20
+
+
+class _Outputs:
+    """Pickled method outputs by key, the objects their keys name by identity (held: their ids stay theirs), and
+    their total bytes."""
+
+    def __init__(self) -> None:
+        self.entries: dict[Hashable, tuple[bytes, tuple[Any, ...]]] = {}
+        self.nbytes = 0
+
+
+_outputs: _Outputs | None = None
+
+#: what moved the Recording of the type B step re-run running here (per thread; None: not such a re-run)
+_moved: ContextVar[Hashable | None] = ContextVar("moved_by", default=None)
+
+
+@contextmanager
+def sharing_outputs() -> Iterator[None]:
+    """Keep the outputs of the methods run by :func:`shared_output` for the duration of the block (re-entrant).
+
+    One :func:`~benchtwin.identification.uncertainty.propagate_type_b` call opens it: a method that another one runs
+    first (the transmission inside the converter's re-runs) then runs once per moved Recording, not once per
+    method that re-runs it.
+    """
+    global _outputs
+    with _lock:
+        outer = _outputs is not None
+        if not outer:
+            _outputs = _Outputs()
+    try:
+        yield
+    finally:
+        if not outer:
+            with _lock:
+                _outputs = None
+
+
+@contextmanager
+def moved_by(key: Hashable) -> Iterator[None]:
+    """Run the block as a type B re-run on the base Recording moved as ``key`` says (the same key: the very same
+    channels' values, e.g. the base Recording's id, a component's name, roles, kind and step)."""
+    token = _moved.set(key)
+    try:
+        yield
+    finally:
+        _moved.reset(token)
+
+
+def shared_output(name: str, key: Hashable, held: tuple[Any, ...], compute: Callable[[], T]) -> T:
+    """``compute()``, or a copy of what it gave before for the same method ``name``, ``key`` and moved Recording.
+
+    Only inside :func:`sharing_outputs` and a :func:`moved_by` block: elsewhere (the nominal run, a rounding draw,
+    no store) it computes. ``key`` holds everything else the output depends on; ``held`` are objects named in it by
+    ``id`` (kept alive with the entry, so an id cannot name another object meanwhile). The output is kept pickled
+    (a copy handed out is unpickled: callers may change it) while the outputs' bytes stay within
+    :data:`OUTPUT_BYTES`; one that does not pickle is not kept.
+    """
+    store = _outputs
+    moved = _moved.get()
+    if store is None or moved is None:
+        return compute()
+    full = (name, moved, key)
+    hit = store.entries.get(full)
+    if hit is not None:
+        return pickle.loads(hit[0])  # type: ignore[no-any-return]
+    out = compute()
+    try:
+        blob = pickle.dumps(out, protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception:  # an output that does not pickle is computed again by each re-run that needs it
+        return out
+    with _lock:
+        if _outputs is store and full not in store.entries and store.nbytes + len(blob) <= OUTPUT_BYTES:
+            store.entries[full] = (blob, held)
+            store.nbytes += len(blob)
+    return out
+
+
+def shared_output_bytes() -> int:
+    """Bytes of outputs the open :func:`sharing_outputs` block holds (0 outside it)."""
+    store = _outputs
+    return 0 if store is None else store.nbytes

@@ -26,6 +26,7 @@ from benchtwin.errors import (
 from benchtwin.identification._clock import ClockShift, Shift, source_shifts, to_ref, to_source
 from benchtwin.identification._derivative import runs, smooth_derivative
 from benchtwin.identification._reuse import fingerprint, reused
+from benchtwin.identification._sample_kernel import sample_block
 from benchtwin.recording import Channel, Flag, Recording
 from benchtwin.segments import inside_any, touched
 
@@ -187,6 +188,13 @@ def _sample_block(ts: np.ndarray, vs: np.ndarray, fl: np.ndarray, t: np.ndarray,
                   shift_s: Shift, k0: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """One block of :func:`_sample`; ``ts, vs, fl`` may be a part of the channel starting at its sample ``k0``
     (``fidx`` then holds whole-channel indices, so the weights are the same numbers as on the whole channel)."""
+    if ts.size and all(a.dtype == np.float64 for a in (ts, vs, t, fidx)) and fl.dtype == np.uint16:
+        # one pass free of the GIL with the same operations (_sample_kernel); a non-finite index: the NumPy path
+        affine = isinstance(shift_s, ClockShift)
+        offset, rate = (shift_s.offset_s, shift_s.rate) if isinstance(shift_s, ClockShift) else (shift_s, 0.0)
+        done, v, flagged = sample_block(ts, vs, fl, t, fidx, hold, affine, float(offset), float(rate), int(k0), _BAD)
+        if done:
+            return v, flagged
     n = ts.size
     first, last = to_ref(ts[0], shift_s), to_ref(ts[-1], shift_s)
     idx = np.floor(fidx).astype(np.int64)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from benchtwin.identification._signals import BAD_FLAGS, Shift, to_ref, to_source
+from benchtwin.identification._sum_kernels import window_sums
 
 __all__ = ["GROUP_S", "cut_windows", "running_sums", "window_groups"]
 
@@ -67,6 +68,10 @@ def running_sums(ts: np.ndarray, vals: np.ndarray, fl: np.ndarray, pair: tuple[n
     # near the window edges only (shifting the whole channel would cost a pass over every sample)
     lo = _edges(ts, shift, starts)
     hi = _edges(ts, shift, ends)
+    if _kernel_fits(vals, fl, pair):  # one pass free of the GIL: the same terms in the same order (_sum_kernels)
+        v2, f2 = pair if pair is not None else (vals, fl)
+        return window_sums(vals, fl, v2, f2, pair is not None, int(BAD_FLAGS), lo.astype(np.int64),
+                           np.maximum(hi, lo).astype(np.int64), float(c0), int(n0))
     # the samples of all windows, one after the other (windows may overlap: their samples then repeat)
     cnt_all = np.maximum(hi - lo, 0)
     off = np.concatenate(([0], np.cumsum(cnt_all)))
@@ -80,6 +85,13 @@ def running_sums(ts: np.ndarray, vals: np.ndarray, fl: np.ndarray, pair: tuple[n
     cs = np.cumsum(np.concatenate(([c0], np.where(good, v, 0.0))))  # sequential: c0 + x0, (c0 + x0) + x1, ...
     cn = np.concatenate(([n0], n0 + np.cumsum(good)))
     return cs[off], cn[off]
+
+
+def _kernel_fits(vals: np.ndarray, fl: np.ndarray, pair: tuple[np.ndarray, np.ndarray] | None) -> bool:
+    """Whether :func:`~benchtwin.identification._sum_kernels.window_sums` takes these arrays (float64 values, uint16
+    flags, one dimension): others keep the NumPy expression."""
+    arrays = [(vals, fl)] if pair is None else [(vals, fl), pair]
+    return all(v.dtype == np.float64 and f.dtype == np.uint16 and v.ndim == 1 and f.ndim == 1 for v, f in arrays)
 
 
 def _edges(ts: np.ndarray, shift: Shift, times: np.ndarray) -> np.ndarray:

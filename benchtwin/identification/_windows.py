@@ -89,6 +89,9 @@ class _TimeIndex:
         self.typical_step: float | None = None  #: kept by ``_resample_blocks._typical_step`` (the same)
         #: the same on the reference clock, per clock shift (``_resample_blocks._typical_step`` with a shift)
         self.shifted_steps: dict[object, float] = {}
+        #: the timestamps ``(ts[j], ts[j + 1])`` at every strided step ``j`` the typical step takes (kept by
+        #: ``_resample_blocks._typical_step``: its steps on any clock map without reading the channel again)
+        self.step_pairs: tuple[np.ndarray, np.ndarray] | None = None
 
 
 _indexes: dict[int, tuple[weakref.ref[Channel], _TimeIndex]] = {}

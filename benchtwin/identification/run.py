@@ -37,7 +37,7 @@ import inspect
 import logging
 import time
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from threadpoolctl import threadpool_limits
@@ -46,7 +46,7 @@ from benchtwin.config.specs import VehicleSpecs
 from benchtwin.errors import BenchtwinError, DataError, IdentificationError
 from benchtwin.identification import battery_rc
 from benchtwin.identification._fit import FitResult, IdentificationResult
-from benchtwin.identification._reuse import values_only
+from benchtwin.identification._reuse import shared_output, values_only
 from benchtwin.identification._signals import STATE_ROLES
 from benchtwin.identification.battery import identify_battery
 from benchtwin.identification.battery_map_free import (
@@ -419,10 +419,28 @@ def _rerun(name: str, specs: VehicleSpecs | None,
         out = IdentificationResult(meta={"ran": [], "skipped": {}, "seconds": {}})
         with values_only():  # propagate_type_b reads the changes of the values only
             for n in (*_DEPENDS.get(name, ()), name):
-                _run_method(known[n], rec, specs, out, options)
+                _run_method(_shared(known[n], specs, options), rec, specs, out, options)
         return out
 
     return run
+
+
+#: methods another method runs first in its re-runs, and that read no other result: their output on one moved
+#: Recording is shared by the re-runs of the methods of one type B propagation (``_reuse.shared_output``)
+_SHARED = frozenset(d for deps in _DEPENDS.values() for d in deps if d not in _DEPENDS)
+
+
+def _shared(m: Method, specs: VehicleSpecs | None, options: Mapping[str, Mapping[str, Any]]) -> Method:
+    """``m`` whose output goes through :func:`~benchtwin.identification._reuse.shared_output` when another method
+    runs it first (keyed by the specs and options objects: one ``identify_all`` call's)."""
+    if m.name not in _SHARED:
+        return m
+    inner = m.run
+
+    def run(rec: Recording, sp: VehicleSpecs | None, res: IdentificationResult, opts: Mapping[str, Any]) -> Any:
+        return shared_output(m.name, (id(specs), id(options)), (specs, options), lambda: inner(rec, sp, res, opts))
+
+    return replace(m, run=run)
 
 
 def _run_method(m: Method, recording: Recording, specs: VehicleSpecs | None, result: IdentificationResult,

@@ -30,6 +30,7 @@ from benchtwin.identification._signals import (
     time_ordered,
     to_source,
 )
+from benchtwin.identification._sum_kernels import centred_sums
 from benchtwin.identification._window_sums import cut_windows, running_sums, window_groups
 from benchtwin.identification._windows import MARGIN_S, reads_by_block, window_of
 from benchtwin.identification.steady_windowed import find_steady_windows_by_piece, window_stats
@@ -326,11 +327,14 @@ def detect_steady(dt: float, signals: Mapping[str, np.ndarray], tolerances: Mapp
         tol = tolerances[name]
         # window sums from cumulative sums (shifted by the median for accuracy)
         ref = float(np.median(x[fin])) if fin.any() else 0.0
-        xc = np.where(fin, x - ref, 0.0)
-        i = np.arange(n, dtype=float)
-        c1 = np.concatenate(([0.0], np.cumsum(xc)))
-        c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
-        ci = np.concatenate(([0.0], np.cumsum(i * xc)))
+        if x.ndim == 1:  # one pass free of the GIL, the same numbers (_sum_kernels; x is float64 here)
+            c1, c2, ci, _cn = centred_sums(x, ref, True)
+        else:
+            xc = np.where(fin, x - ref, 0.0)
+            i = np.arange(n, dtype=float)
+            c1 = np.concatenate(([0.0], np.cumsum(xc)))
+            c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
+            ci = np.concatenate(([0.0], np.cumsum(i * xc)))
         s1 = c1[w:] - c1[:-w]
         s2 = c2[w:] - c2[:-w]
         si = ci[w:] - ci[:-w]

@@ -48,7 +48,7 @@ import numpy as np
 
 from benchtwin.identification._fit import IdentificationResult
 from benchtwin.identification._level_errors import BAD_BITS, add_level_errors, block_level_errors
-from benchtwin.identification._reuse import reusing
+from benchtwin.identification._reuse import moved_by, reusing, sharing_outputs
 from benchtwin.identification._windows import reads_by_block, share_time_index
 from benchtwin.identification.type_b_share import TypeBShare, run_shared
 from benchtwin.recording import Channel, Flag, LazyChannel, Recording
@@ -360,7 +360,9 @@ def _propagate_step(recording: Recording, task: _Task) -> _Done:
     for n, f in enumerate(SPLIT_STEPS, start=1):
         step = comp if f == 1.0 else replace(comp, u=comp.u * f)
         try:
-            res = run(perturbed(recording, step))
+            # the same base and step: the same moved channels (a method that another re-runs first is run once)
+            with moved_by((id(recording), step.source, step.roles, step.kind, step.u)):
+                res = run(perturbed(recording, step))
         except Exception as exc:  # a perturbed run that breaks: the last good difference (if any), said in meta
             fail = f"{fits[0]} / {comp.source}: {type(exc).__name__}: {exc}" + (f" (at {f:+g} u)" if n > 1 else "")
             note = [f"{fits[0]} / {comp.source}: a split changes at +1 u ({_diff(split0, first_split)}); the "
@@ -441,6 +443,15 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         if nominal:
             split0 = splits(result.fits, fits)
             tasks.append([(fits, nominal, comp, run, split0) for comp in components(recording, roles)])
+    with sharing_outputs():  # what one method's re-runs give another's (the transmission inside the converter's)
+        done = _dispatch(recording, tasks, n_draws, workers, share)
+    return _combine(result, tasks, done, n_draws, sorted(table))
+
+
+def _dispatch(recording: Recording, tasks: list[list[_Task]], n_draws: int, workers: int | None,
+              share: TypeBShare | None) -> list[_Done]:
+    """The units' results in the tasks' order: on a shared worker, method by method (a lazy Recording), or all on
+    the threads."""
     lazy = any(isinstance(c, LazyChannel) for c in recording.channels.values())
     n_threads = max(1, int(workers if workers is not None else WORKERS))
     if share is not None and tasks:
@@ -465,6 +476,13 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
         with reusing(), ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="type_b") as pool:
             futures = {i: pool.submit(_propagate_one, recording, flat[i], n_draws) for i in order}
             done = [futures[i].result() for i in range(len(flat))]
+    return done
+
+
+def _combine(result: IdentificationResult, tasks: list[list[_Task]], done: list[_Done], n_draws: int,
+             roles: list[str]) -> dict[str, Any]:
+    """Each parameter's type B contributions from the units' changes (in place), and the summary (``roles``: those
+    the Recording declares)."""
     contrib: dict[str, dict[str, float]] = {}
     dof: dict[str, dict[str, float]] = {}
     reruns, failed, held = 0, [], []
@@ -485,5 +503,5 @@ def propagate_type_b(result: IdentificationResult, recording: Recording,
             c = contrib.get(f"{fk}.{pk}")
             if c:
                 p.combine_type_b(c, dof.get(f"{fk}.{pk}"), keep=True)
-    return {"declared": True, "roles": sorted(table), "reruns": reruns, "resolution_draws": n_draws,
+    return {"declared": True, "roles": roles, "reruns": reruns, "resolution_draws": n_draws,
             "resolution_rel_u": round(1.0 / math.sqrt(2.0 * n_draws), 4), "failed": failed, "split_held": held}
