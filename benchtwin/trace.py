@@ -342,27 +342,19 @@ class _SpooledChannels(Mapping[str, np.ndarray]):
         return len(self._owner._dtypes)
 
 
-class _WindowChannels(Mapping[str, np.ndarray]):
+class _WindowChannels(_SpooledChannels):
     """The channels of samples ``a:b`` of a :class:`SpooledTrace` (``slice_time(..., lazy=True)``): each read from its
     file when first asked for, then kept."""
 
     def __init__(self, owner: SpooledTrace, a: int, b: int) -> None:
-        self._owner, self._a, self._b = owner, a, b
+        super().__init__(owner)
+        self._a, self._b = a, b
         self._got: dict[str, np.ndarray] = {}
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name not in self._got:
             self._got[name] = self._owner.read(name, self._a, self._b)
         return self._got[name]
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._owner._dtypes
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._owner._dtypes)
-
-    def __len__(self) -> int:
-        return len(self._owner._dtypes)
 
 
 class SpooledTrace(Trace):
