@@ -9,7 +9,7 @@ that the sensors rely on.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -392,13 +392,8 @@ class SpooledTrace(Trace):
 
     def append(self, piece: Trace) -> None:
         """Append the next piece (same channels, after the last one in time); its segments and meta data."""
-        names = list(piece.channels)
-        if self._dtypes and names != list(self._dtypes):
-            raise DataError(f"trace piece has channels {sorted(set(names) ^ set(self._dtypes))} unlike the first piece")
-        end = self._last if self._n else -np.inf
-        if len(piece) and not piece.time_s[0] > end:
-            raise DataError(f"trace piece starts at {piece.time_s[0]:.6g} s, not after the last one ({end:.6g} s)")
-        for name in names:
+        self._check(piece)
+        for name in piece.channels:
             v = np.asarray(piece.channels[name])
             self._dtypes.setdefault(name, v.dtype)
             with self._path(name).open("ab") as fh:
@@ -407,6 +402,32 @@ class SpooledTrace(Trace):
             raise DataError("the spooled Trace is closed: its files are gone")
         with (self._dir / "time_s.raw").open("ab") as fh:
             np.ascontiguousarray(piece.time_s, dtype=np.float64).tofile(fh)
+        self._note(piece)
+
+    def adopt(self, piece: Trace) -> None:
+        """Count the next piece as appended where its samples are in the files already: appended by the copy of this
+        spool a forked process holds (its files are this one's) before the piece was handed over. The same checks
+        and bookkeeping as :meth:`append`, nothing written."""
+        self._check(piece)
+        for name in piece.channels:
+            self._dtypes.setdefault(name, np.asarray(piece.channels[name]).dtype)
+        self._note(piece)
+
+    def appended(self, pieces: Iterable[Trace]) -> Iterator[Trace]:
+        """Yield ``pieces``, each appended (:meth:`append`) before it is yielded."""
+        for piece in pieces:
+            self.append(piece)
+            yield piece
+
+    def _check(self, piece: Trace) -> None:
+        names = list(piece.channels)
+        if self._dtypes and names != list(self._dtypes):
+            raise DataError(f"trace piece has channels {sorted(set(names) ^ set(self._dtypes))} unlike the first piece")
+        end = self._last if self._n else -np.inf
+        if len(piece) and not piece.time_s[0] > end:
+            raise DataError(f"trace piece starts at {piece.time_s[0]:.6g} s, not after the last one ({end:.6g} s)")
+
+    def _note(self, piece: Trace) -> None:
         if len(piece):
             self._first = float(piece.time_s[0]) if not self._n else self._first
             self._last = float(piece.time_s[-1])

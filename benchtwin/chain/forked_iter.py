@@ -46,6 +46,8 @@ T = TypeVar("T")
 _LEN = struct.Struct("<Q")
 #: a pipe this large (bytes; Linux caps it at /proc/sys/fs/pipe-max-size) takes a large array in fewer system calls
 _PIPE_BYTES = 1 << 20
+#: buffers per readv/writev call (POSIX's IOV_MAX on Linux)
+_IOV_MAX = 1024
 
 
 class ForkedProducerError(BenchtwinError, RuntimeError):
@@ -163,9 +165,9 @@ class ForkedIter(Generic[T]):
                     self._reap()
                     raise _rebuilt(head[1], head[2])
                 _, sizes, made_s = head
-                data = self._read_exact(sizes[0])
-                buffers = [self._read_into(np.empty(n, dtype=np.uint8)) for n in sizes[1:]]
-                item = pickle.loads(data, buffers=buffers)
+                parts = [np.empty(n, dtype=np.uint8) for n in sizes]
+                self._read_into(*parts)  # every part in as few reads as the pipe allows (each gives up the GIL)
+                item = pickle.loads(memoryview(parts[0]), buffers=parts[1:])
                 self.made_s = made_s
                 yield item
         finally:
@@ -178,23 +180,30 @@ class ForkedIter(Generic[T]):
         return pickle.loads(self._read_exact(_LEN.unpack(raw)[0]))
 
     def _read_exact(self, n: int, *, eof_ok: bool = False) -> memoryview | None:
-        out = self._read_into(np.empty(n, dtype=np.uint8), eof_ok=eof_ok)
-        return None if out is None else memoryview(out)
+        out = np.empty(n, dtype=np.uint8)
+        return memoryview(out) if self._read_into(out, eof_ok=eof_ok) else None
 
-    def _read_into(self, buf: np.ndarray, *, eof_ok: bool = False) -> Any:
+    def _read_into(self, *bufs: np.ndarray, eof_ok: bool = False) -> bool:
+        """Fill ``bufs`` in order from the pipe (False: the pipe ended before a byte, with ``eof_ok``)."""
         assert self._fd is not None
-        view = memoryview(buf)
-        got = 0
-        while got < len(view):
-            k = os.readv(self._fd, [view[got:]])
+        views = [memoryview(b).cast("B") for b in bufs if b.nbytes]
+        first = True
+        while views:
+            k = os.readv(self._fd, views[:_IOV_MAX])
             if k == 0:
-                if eof_ok and got == 0:
-                    return None
+                if eof_ok and first:
+                    return False
                 code = self._reap() if self.pid is not None else None
                 raise ForkedProducerError(f"the producer's process ended (exit code {code}) in the middle of an "
                                           "item")
-            got += k
-        return buf
+            first = False
+            while k:  # drop the views filled, trim the one filled in part
+                n = min(k, len(views[0]))
+                views[0] = views[0][n:]
+                k -= n
+                if not len(views[0]):
+                    views.pop(0)
+        return True
 
     # -- the child's end ----------------------------------------------------------------------------------------
     def _child_main(self, fd: int, parent: int) -> None:
@@ -238,17 +247,22 @@ def _write_main(fd: int, sent: queue.Queue) -> None:
         while (msg := sent.get()) is not None:
             head, parts = msg
             blob = pickle.dumps(head, protocol=5)
-            _write_all(fd, _LEN.pack(len(blob)) + blob)
-            for part in parts:
-                _write_all(fd, memoryview(part).cast("B"))
+            _write_all(fd, [_LEN.pack(len(blob)) + blob, *parts])
     except OSError:
         os._exit(1)  # the parent closed its end: it no longer wants the items
 
 
-def _write_all(fd: int, data: Any) -> None:
-    view = memoryview(data)
-    while len(view):
-        view = view[os.write(fd, view):]
+def _write_all(fd: int, parts: list[Any]) -> None:
+    """Write ``parts`` in order, in as few system calls as the pipe allows."""
+    views = [v for v in (memoryview(p).cast("B") for p in parts) if len(v)]
+    while views:
+        k = os.writev(fd, views[:_IOV_MAX])
+        while k:
+            n = min(k, len(views[0]))
+            views[0] = views[0][n:]
+            k -= n
+            if not len(views[0]):
+                views.pop(0)
 
 
 def _bigger_pipe(fd: int) -> None:

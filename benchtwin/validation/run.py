@@ -124,8 +124,12 @@ def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign
 
     Returns the Trace, the Recording (both read from disk when used; closed with ``cleanup``) and the seconds spent
     in the plant (making the tests and spooling the truth)."""
-    plant = cleanup.enter_context(ForkedIter(partial(iter_campaign, vehicle, campaign), plant_mode))
     truth = cleanup.enter_context(SpooledTrace())
+    forked = plant_mode == "fork"  # the child spools the truth into this spool's files; this process counts it
+    plant = cleanup.enter_context(ForkedIter((lambda: truth.appended(iter_campaign(vehicle, campaign))) if forked
+                                             else partial(iter_campaign, vehicle, campaign), plant_mode))
+    if forked:  # while the child makes its first test, this process loads the plant's compiled code too (once, not
+        next(iter_campaign(vehicle, campaign), None)  # again in the side stages' child: it inherits it)
     plant_s = 0.0
     bar = None
     if progress:
@@ -139,7 +143,7 @@ def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign
         nonlocal plant_s
         for k, piece in enumerate(plant):
             t = time.perf_counter()
-            truth.append(piece)
+            (truth.adopt if forked else truth.append)(piece)
             plant_s += plant.made_s + time.perf_counter() - t
             if bar is not None:  # a test's full block, even if it ended early (as benchtwin simulate shows it)
                 bar.update(round(sum(steps[:k + 1]) / campaign.plant_rate_hz) - bar.n)
