@@ -217,3 +217,22 @@ def test_validate_runs_the_plant_in_a_child_and_raises_its_error(monkeypatch) ->
     with pytest.raises(SimulationError, match="'quick': the plant left its physical domain") as info:
         vrun.validate(load_vehicle(), _paper_setup(), load_campaign("quick.toml"), figures=False)
     assert f"in process {os.getpid()}" not in str(info.value)  # raised in the child, re-raised here
+
+
+def test_the_objects_are_frozen_while_the_child_lives_and_thawed_after() -> None:
+    """Frozen (out of the collector's walk) on both sides while they share pages; the parent's collector gets them
+    back once the child is gone, and a freeze the caller made is left to the caller."""
+    import gc
+
+    assert gc.get_freeze_count() == 0
+    with ForkedIter(partial(_arrays, 2), "fork") as it:
+        assert gc.get_freeze_count() > 0
+        assert len(list(it)) == 2
+    assert gc.get_freeze_count() == 0
+    gc.freeze()
+    try:
+        with ForkedIter(partial(_arrays, 2), "fork") as it:
+            list(it)
+        assert gc.get_freeze_count() > 0  # still the caller's (a few of its objects may have been freed)
+    finally:
+        gc.unfreeze()

@@ -21,6 +21,7 @@ in whatever state those threads left them).
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 import pickle
 import queue
@@ -87,10 +88,16 @@ class ForkedIter(Generic[T]):
         self._fd: int | None = None
         self._ended = False
         self._used = False
+        self._froze = False
 
     # -- the parent's end ---------------------------------------------------------------------------------------
     def __enter__(self) -> ForkedIter[T]:
         if self.mode == "fork":
+            # the objects made so far out of the collector's sight on both sides: a collection that walked them would
+            # write to every page that holds one, and a page written is copied (both processes then hold it)
+            self._froze = gc.get_freeze_count() == 0
+            if self._froze:
+                gc.freeze()
             r, w = os.pipe()
             parent = os.getpid()
             pid = os.fork()
@@ -114,6 +121,9 @@ class ForkedIter(Generic[T]):
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+        if self._froze:
+            self._froze = False
+            gc.unfreeze()  # the child has ended: nothing to share any more
 
     def _reap(self) -> int:
         """Wait for the child; its exit status (as ``waitstatus_to_exitcode``)."""
