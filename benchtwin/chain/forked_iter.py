@@ -47,6 +47,8 @@ T = TypeVar("T")
 _LEN = struct.Struct("<Q")
 #: a pipe this large (bytes; Linux caps it at /proc/sys/fs/pipe-max-size) takes a large array in fewer system calls
 _PIPE_BYTES = 1 << 20
+#: the alignment (bytes) of each array's data in the block an item is read into
+_ALIGN = 64
 #: buffers per readv/writev call (POSIX's IOV_MAX on Linux)
 _IOV_MAX = 1024
 
@@ -175,9 +177,9 @@ class ForkedIter(Generic[T]):
                     self._reap()
                     raise _rebuilt(head[1], head[2])
                 _, sizes, made_s = head
-                parts = [np.empty(n, dtype=np.uint8) for n in sizes]
-                self._read_into(*parts)  # every part in as few reads as the pipe allows (each gives up the GIL)
-                item = pickle.loads(memoryview(parts[0]), buffers=parts[1:])
+                head_bytes, arrays = np.empty(sizes[0], dtype=np.uint8), _one_block(sizes[1:])
+                self._read_into(head_bytes, *arrays)  # in as few reads as the pipe allows (each gives up the GIL)
+                item = pickle.loads(memoryview(head_bytes), buffers=arrays)
                 self.made_s = made_s
                 yield item
         finally:
@@ -249,6 +251,15 @@ class ForkedIter(Generic[T]):
             code = 1
         finally:
             os._exit(code)  # the parent's files, temporary folders and exit handlers stay the parent's
+
+
+def _one_block(sizes: list[int]) -> list[np.ndarray]:
+    """Buffers of ``sizes`` bytes cut from one allocation (each start aligned to 64 bytes): an item's arrays come and go
+    together as one block of memory, as the producer's rows of one array did, not as many small ones that leave the
+    heap in pieces."""
+    starts = np.concatenate([[0], np.cumsum([-(-n // _ALIGN) * _ALIGN for n in sizes])]).astype(int)
+    block = np.empty(int(starts[-1]), dtype=np.uint8)
+    return [block[a:a + n] for a, n in zip(starts[:-1], sizes, strict=True)]
 
 
 def _write_main(fd: int, sent: queue.Queue) -> None:
