@@ -4,9 +4,11 @@
 a child forked when the context is entered, so the producer's CPU is spent under the child's own interpreter lock,
 not under the one this process's threads share. Each item is pickled (protocol 5: a numpy array's data travels out
 of band, written straight from the child's array and read straight into the array the parent unpickles, one copy
-through the kernel each way); a thread of the child writes item k while the producer makes item k + 1, so up to
-``depth`` items wait, made, in the child. The items, their order, their bits and the producer's exceptions are the
-producer's own; only where the work runs changes (a numpy view arrives as an array of its own).
+through the kernel each way). With ``depth`` 1 (the default) the child makes item k + 1 once the parent has read item
+k (all but the pipe's buffer), so it makes the next while the parent works on the last one and holds one item at a
+time; a larger ``depth`` has a thread of the child write while the producer runs ahead. The items, their order, their
+bits and the producer's exceptions are the producer's own; only where the work runs changes (a numpy view arrives as
+an array of its own).
 
 Failures: the producer's exception is re-raised by the parent's iteration with its type and message (the child's
 traceback added as a note; an exception that does not pickle back raises :class:`ForkedProducerError` with its
@@ -31,6 +33,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator
+from functools import partial
 from typing import Any, Generic, TypeVar
 
 import numpy as np
@@ -68,7 +71,8 @@ class ForkedIter(Generic[T]):
     mode:
         ``"fork"`` or ``"thread"`` (:data:`FORK_MODES`).
     depth:
-        Items the child makes ahead of the one being sent (each held in the child's memory until sent).
+        Items the child holds made and not yet read whole by the parent, the one being written included (each in the
+        child's memory until then).
 
     Attributes
     ----------
@@ -224,9 +228,12 @@ class ForkedIter(Generic[T]):
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it ends this child
             _end_with_parent(parent)
             _bigger_pipe(fd)
-            sent: queue.Queue = queue.Queue(maxsize=self.depth)
-            writer = threading.Thread(target=_write_main, args=(fd, sent), name="forked-iter-send", daemon=True)
-            writer.start()
+            sent: queue.Queue = queue.Queue(maxsize=self.depth - 1 or 1)
+            writer = None
+            if self.depth > 1:  # the producer runs ahead while a thread writes (one item held more)
+                writer = threading.Thread(target=_write_main, args=(fd, sent), name="forked-iter-send", daemon=True)
+                writer.start()
+            put = sent.put if writer is not None else partial(_send, fd)
             try:
                 it = iter(self.make_iter())
                 while True:
@@ -240,13 +247,16 @@ class ForkedIter(Generic[T]):
                     data = pickle.dumps(item, protocol=5, buffer_callback=buffers.append)
                     del item
                     raws = [b.raw() for b in buffers]
-                    sent.put((("item", [len(data), *(r.nbytes for r in raws)], made_s), [data, *raws]))
+                    put((("item", [len(data), *(r.nbytes for r in raws)], made_s), [data, *raws]))
                     del data, raws, buffers
-                sent.put((("end",), []))
+                put((("end",), []))
+            except _PipeGoneError:
+                raise
             except BaseException as exc:  # every failure of the producer is the parent's to raise
-                sent.put(((("error", *_packed(exc))), []))
-            sent.put(None)
-            writer.join()
+                put(((("error", *_packed(exc))), []))
+            if writer is not None:
+                sent.put(None)
+                writer.join()
         except BaseException:  # the pipe is gone (the parent ended): nothing to tell anyone
             code = 1
         finally:
@@ -266,11 +276,23 @@ def _write_main(fd: int, sent: queue.Queue) -> None:
     """The child's writer: each message's head, then its parts, until ``None`` (a write error ends the child)."""
     try:
         while (msg := sent.get()) is not None:
-            head, parts = msg
-            blob = pickle.dumps(head, protocol=5)
-            _write_all(fd, [_LEN.pack(len(blob)) + blob, *parts])
-    except OSError:
+            _send(fd, msg)
+    except _PipeGoneError:
         os._exit(1)  # the parent closed its end: it no longer wants the items
+
+
+def _send(fd: int, msg: tuple[tuple[Any, ...], list[Any]]) -> None:
+    """One message: its head pickled, with its length before it, then its parts."""
+    head, parts = msg
+    blob = pickle.dumps(head, protocol=5)
+    try:
+        _write_all(fd, [_LEN.pack(len(blob)) + blob, *parts])
+    except OSError as exc:
+        raise _PipeGoneError from exc
+
+
+class _PipeGoneError(Exception):
+    """The parent closed its end of the pipe: it no longer wants the items."""
 
 
 def _write_all(fd: int, parts: list[Any]) -> None:
