@@ -293,9 +293,10 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
 #: (``"fork"``, where the system has ``os.fork``), on a thread (``"thread"``: the GIL leaves it nothing to gain) or
 #: after it (``"off"``); see :mod:`benchtwin.validation.beside` and benchmarks/bench_overlap.py
 SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
-#: where a streamed ``validate`` runs the plant: in a child forked before the chain starts (``"fork"``: its CPU off
-#: the chain's interpreter lock; benchtwin/chain/forked_iter.py) or on the chain's prefetch thread (``"thread"``)
-PLANT_MODE: str = "fork" if hasattr(os, "fork") else "thread"
+#: where a streamed ``validate`` runs the plant: in a child forked before the chain starts (``"fork"``, needs
+#: ``os.fork``: its CPU off the chain's interpreter lock; benchtwin/chain/forked_iter.py) or on the chain's prefetch
+#: thread (``"thread"``, the default: no whole-run gain measured forked, +60 MB of peak PSS; benchmarks/RESULTS.md)
+PLANT_MODE: str = "thread"
 
 
 def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
