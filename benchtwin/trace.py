@@ -413,6 +413,22 @@ class SpooledTrace(Trace):
             self._dtypes.setdefault(name, np.asarray(piece.channels[name]).dtype)
         self._note(piece)
 
+    def counted(self) -> dict[str, Any]:
+        """What this spool has counted of the pieces appended (for :meth:`take_counted` of the copy of it in the
+        process that forked this one: its files are this one's)."""
+        return {"dtypes": dict(self._dtypes), "n": self._n, "first": self._first, "last": self._last,
+                "segments": list(self.segments), "meta": dict(self.meta)}
+
+    def take_counted(self, counted: dict[str, Any]) -> None:
+        """Count what a forked copy of this spool appended into the files (its :meth:`counted`): nothing is written;
+        the count may only grow (a copy of another spool, or an older count, is refused)."""
+        if counted["n"] < self._n or list(counted["dtypes"])[:len(self._dtypes)] != list(self._dtypes):
+            raise DataError("a spool's count that does not extend this one's")
+        self._dtypes = dict(counted["dtypes"])
+        self._n, self._first, self._last = counted["n"], counted["first"], counted["last"]
+        self.segments = list(counted["segments"])
+        self.meta = dict(counted["meta"])
+
     def appended(self, pieces: Iterable[Trace]) -> Iterator[Trace]:
         """Yield ``pieces``, each appended (:meth:`append`) before it is yielded."""
         for piece in pieces:

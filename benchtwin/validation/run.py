@@ -47,6 +47,7 @@ from benchtwin.validation.families import (
 )
 from benchtwin.validation.figures_beside import FIGURES, NOMINAL, FigureDrawer, drawn_images
 from benchtwin.validation.flag_counts import flag_counts
+from benchtwin.validation.forked_chain import measured_forked
 from benchtwin.validation.holdout import predict_drive, prediction_checks, submodel_checks, without_window
 from benchtwin.validation.parameters import _budget, compare_with_truth, paper_estimation_fits
 from benchtwin.validation.predict import MapVehicle
@@ -115,16 +116,17 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
 
 
 def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
-                            out_dir: str | Path | None, cleanup: ExitStack, *, progress: bool = False,
-                            plant_mode: str = "thread") -> tuple[SpooledTrace, Recording, float]:
+                            out_dir: str | Path | None, cleanup: ExitStack, *, progress: bool = False, plant_mode:
+                            str = "thread", producer_mode: str = "thread") -> tuple[SpooledTrace, Recording, float]:
     """The campaign simulated test by test straight into the chain: the truth spooled to raw files, the Recording
     read from the acquisition's raw chunk files (``recording.mf4`` written into ``out_dir``); one test in memory.
     The plant runs in a child forked first (``plant_mode`` ``"fork"``, before this process has threads) or on the
-    chain's prefetch thread (``"thread"``).
-
+    chain's prefetch thread (``"thread"``); ``producer_mode`` ``"fork"``: all of the chain's producer in one child.
     Returns the Trace, the Recording (both read from disk when used; closed with ``cleanup``) and the seconds spent
     in the plant (making the tests and spooling the truth)."""
     truth = cleanup.enter_context(SpooledTrace())
+    if producer_mode == "fork":
+        return truth, *measured_forked(vehicle, setup, campaign, out_dir, cleanup, truth, progress)
     forked = plant_mode == "fork"  # the child spools the truth into this spool's files; this process counts it
     plant = cleanup.enter_context(ForkedIter((lambda: truth.appended(iter_campaign(vehicle, campaign))) if forked
                                              else partial(iter_campaign, vehicle, campaign), plant_mode))
@@ -177,7 +179,7 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     saver = None
     if streamed:  # the plant test by test into the chain: neither the Trace nor the Recording held whole
         trace, rec, plant_s = _simulated_and_measured(vehicle, setup, campaign, out_dir, cleanup, progress=progress,
-                                                      plant_mode=PLANT_MODE)
+                                                      plant_mode=PLANT_MODE, producer_mode=CHAIN_PRODUCER_MODE)
         checked = trace
         t0 = t1 - plant_s
     elif fams is None:
@@ -297,6 +299,8 @@ SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
 #: ``os.fork``: its CPU off the chain's interpreter lock; benchtwin/chain/forked_iter.py) or on the chain's prefetch
 #: thread (``"thread"``, the default: no whole-run gain measured forked, +60 MB of peak PSS; benchmarks/RESULTS.md)
 PLANT_MODE: str = "thread"
+#: the chain's producer (plant, truth spool, encode, deliver) in a forked child ("fork"; validation/forked_chain.py)
+CHAIN_PRODUCER_MODE: str = "thread"
 
 
 def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
