@@ -41,6 +41,10 @@ __all__ = ["PRODUCER_MODES", "SLICE_S", "run_chunked", "time_slices", "trace_pie
 #: where :func:`run_chunked` runs its producer (the pieces, their encoding and delivery): ``"thread"`` on a prefetch
 #: thread of this process, ``"fork"`` in a child forked when the chain starts (benchtwin/chain/forked_iter.py)
 PRODUCER_MODES = FORK_MODES
+#: chunks the forked producer holds made and not yet read whole (:class:`~benchtwin.chain.forked_iter.ForkedIter`'s
+#: ``depth``): 2, the child makes the next chunk while its writer thread sends the last one and this process decodes
+#: the one before (measured: benchmarks/RESULTS.md)
+PRODUCER_DEPTH = 2
 
 #: plant seconds per chunk of :func:`time_slices` (two 60-s draw blocks of the encoders)
 SLICE_S = 120.0
@@ -144,7 +148,8 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
     trace_meta: dict[str, Any] = {}
     segments = []
     # the producer first (forked before this process has a thread or an open file of the chain's own)
-    producer = ForkedIter(partial(_produced, pieces, setup, seed, notes), producer_mode)
+    producer = ForkedIter(partial(_produced, pieces, setup, seed, notes), producer_mode,
+                          depth=PRODUCER_DEPTH if producer_mode == "fork" else 1)
     producer.__enter__()
     if producer_mode == "fork" and while_forked is not None:
         try:
