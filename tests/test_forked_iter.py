@@ -214,6 +214,7 @@ def _one_test_then_fails(vehicle, campaign) -> Iterator[Trace]:
 def test_validate_runs_the_plant_in_a_child_and_raises_its_error(monkeypatch) -> None:
     monkeypatch.setattr(vrun, "iter_campaign", _one_test_then_fails)
     monkeypatch.setattr(vrun, "PLANT_MODE", "fork")
+    monkeypatch.setattr(vrun, "CHAIN_PRODUCER_MODE", "thread")  # the plant alone forked, not the chain's producer
     with pytest.raises(SimulationError, match="'quick': the plant left its physical domain") as info:
         vrun.validate(load_vehicle(), _paper_setup(), load_campaign("quick.toml"), figures=False)
     assert f"in process {os.getpid()}" not in str(info.value)  # raised in the child, re-raised here

@@ -299,8 +299,8 @@ SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
 #: ``os.fork``: its CPU off the chain's interpreter lock; benchtwin/chain/forked_iter.py) or on the chain's prefetch
 #: thread (``"thread"``, the default: no whole-run gain measured forked, +60 MB of peak PSS; benchmarks/RESULTS.md)
 PLANT_MODE: str = "thread"
-#: the chain's producer (plant, truth spool, encode, deliver) in a forked child ("fork"; validation/forked_chain.py)
-CHAIN_PRODUCER_MODE: str = "thread"
+#: the chain's producer (plant, truth spool, encode, deliver) forked ("fork"; validation/forked_chain.py) or "thread"
+CHAIN_PRODUCER_MODE: str = "fork" if hasattr(os, "fork") else "thread"
 
 
 def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,

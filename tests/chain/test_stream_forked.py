@@ -140,7 +140,7 @@ def test_validate_stream_forked_counts_the_childs_truth_and_plant_seconds(seen) 
     vehicle, setup, campaign = load_vehicle(), PAPER, load_campaign("quick.toml")
     want = list(iter_campaign(vehicle, campaign))
     with ExitStack() as stack:
-        truth, rec, plant_s = vrun._simulated_and_measured(vehicle, setup, campaign, None, stack,
+        truth, rec, plant_s = vrun._simulated_and_measured(vehicle, setup, campaign, None, stack, progress=True,
                                                            producer_mode="fork")
         assert len(seen) == 1 and seen[0].mode == "fork"
         assert plant_s > 0.0
@@ -152,3 +152,20 @@ def test_validate_stream_forked_counts_the_childs_truth_and_plant_seconds(seen) 
         with ExitStack() as again:
             _, rec2, _ = vrun._simulated_and_measured(vehicle, setup, campaign, None, again)
             assert_same_recording(rec, rec2)
+
+
+def _one_test_then_fails(vehicle, campaign) -> Iterator[Trace]:
+    it = iter_campaign(vehicle, campaign)
+    yield next(it)
+    raise SimulationError(f"campaign {campaign.name!r}: the plant left its physical domain in process {os.getpid()}")
+
+
+def test_validate_forks_the_chains_producer_and_raises_its_error(monkeypatch: pytest.MonkeyPatch, seen) -> None:
+    import benchtwin.validation.forked_chain as fchain
+
+    assert vrun.CHAIN_PRODUCER_MODE == "fork"  # the default where os.fork is
+    monkeypatch.setattr(fchain, "iter_campaign", _one_test_then_fails)
+    with pytest.raises(SimulationError, match="'quick': the plant left its physical domain") as info:
+        vrun.validate(load_vehicle(), PAPER, load_campaign("quick.toml"), figures=False)
+    assert f"in process {os.getpid()}" not in str(info.value)  # raised in the child, re-raised here
+    assert len(seen) == 1 and _gone(seen[0].forked_pid)
