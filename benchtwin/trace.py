@@ -9,7 +9,7 @@ that the sensors rely on.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -408,13 +408,8 @@ class SpooledTrace(Trace):
 
     def append(self, piece: Trace) -> None:
         """Append the next piece (same channels, after the last one in time); its segments and meta data."""
-        names = list(piece.channels)
-        if self._dtypes and names != list(self._dtypes):
-            raise DataError(f"trace piece has channels {sorted(set(names) ^ set(self._dtypes))} unlike the first piece")
-        end = self._last if self._n else -np.inf
-        if len(piece) and not piece.time_s[0] > end:
-            raise DataError(f"trace piece starts at {piece.time_s[0]:.6g} s, not after the last one ({end:.6g} s)")
-        for name in names:
+        self._check(piece)
+        for name in piece.channels:
             v = np.asarray(piece.channels[name])
             self._dtypes.setdefault(name, v.dtype)
             with self._path(name).open("ab") as fh:
@@ -423,6 +418,48 @@ class SpooledTrace(Trace):
             raise DataError("the spooled Trace is closed: its files are gone")
         with (self._dir / "time_s.raw").open("ab") as fh:
             np.ascontiguousarray(piece.time_s, dtype=np.float64).tofile(fh)
+        self._note(piece)
+
+    def adopt(self, piece: Trace) -> None:
+        """Count the next piece as appended where its samples are in the files already: appended by the copy of this
+        spool a forked process holds (its files are this one's) before the piece was handed over. The same checks
+        and bookkeeping as :meth:`append`, nothing written."""
+        self._check(piece)
+        for name in piece.channels:
+            self._dtypes.setdefault(name, np.asarray(piece.channels[name]).dtype)
+        self._note(piece)
+
+    def counted(self) -> dict[str, Any]:
+        """What this spool has counted of the pieces appended (for :meth:`take_counted` of the copy of it in the
+        process that forked this one: its files are this one's)."""
+        return {"dtypes": dict(self._dtypes), "n": self._n, "first": self._first, "last": self._last,
+                "segments": list(self.segments), "meta": dict(self.meta)}
+
+    def take_counted(self, counted: dict[str, Any]) -> None:
+        """Count what a forked copy of this spool appended into the files (its :meth:`counted`): nothing is written;
+        the count may only grow (a copy of another spool, or an older count, is refused)."""
+        if counted["n"] < self._n or list(counted["dtypes"])[:len(self._dtypes)] != list(self._dtypes):
+            raise DataError("a spool's count that does not extend this one's")
+        self._dtypes = dict(counted["dtypes"])
+        self._n, self._first, self._last = counted["n"], counted["first"], counted["last"]
+        self.segments = list(counted["segments"])
+        self.meta = dict(counted["meta"])
+
+    def appended(self, pieces: Iterable[Trace]) -> Iterator[Trace]:
+        """Yield ``pieces``, each appended (:meth:`append`) before it is yielded."""
+        for piece in pieces:
+            self.append(piece)
+            yield piece
+
+    def _check(self, piece: Trace) -> None:
+        names = list(piece.channels)
+        if self._dtypes and names != list(self._dtypes):
+            raise DataError(f"trace piece has channels {sorted(set(names) ^ set(self._dtypes))} unlike the first piece")
+        end = self._last if self._n else -np.inf
+        if len(piece) and not piece.time_s[0] > end:
+            raise DataError(f"trace piece starts at {piece.time_s[0]:.6g} s, not after the last one ({end:.6g} s)")
+
+    def _note(self, piece: Trace) -> None:
         if len(piece):
             self._first = float(piece.time_s[0]) if not self._n else self._first
             self._last = float(piece.time_s[-1])

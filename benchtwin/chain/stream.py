@@ -15,8 +15,9 @@ needs the whole run is done at the end from what was counted on the way: the bus
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import ExitStack, closing
+from functools import partial
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -26,6 +27,7 @@ import numpy as np
 from benchtwin.chain.acquisition import Acquisition, AcquisitionInput
 from benchtwin.chain.buslog import DEFAULT_START, BusLogWriter, read_mf4, write_blf
 from benchtwin.chain.delivery import iter_delivered
+from benchtwin.chain.forked_iter import FORK_MODES, ForkedIter
 from benchtwin.chain.logfolder import bus_channel, damaged_from_spans, write_side_files
 from benchtwin.chain.prefetch import prefetch
 from benchtwin.config.setup import SetupConfig
@@ -34,7 +36,15 @@ from benchtwin.sensors.imperfections import truncate_log
 from benchtwin.trace import Trace
 from benchtwin.wire.frames import FrameTable, TransportEvent
 
-__all__ = ["SLICE_S", "run_chunked", "time_slices", "trace_pieces"]
+__all__ = ["PRODUCER_MODES", "SLICE_S", "run_chunked", "time_slices", "trace_pieces"]
+
+#: where :func:`run_chunked` runs its producer (the pieces, their encoding and delivery): ``"thread"`` on a prefetch
+#: thread of this process, ``"fork"`` in a child forked when the chain starts (benchtwin/chain/forked_iter.py)
+PRODUCER_MODES = FORK_MODES
+#: chunks the forked producer holds made and not yet read whole (:class:`~benchtwin.chain.forked_iter.ForkedIter`'s
+#: ``depth``): 2, the child makes the next chunk while its writer thread sends the last one and this process decodes
+#: the one before (measured: benchmarks/RESULTS.md)
+PRODUCER_DEPTH = 2
 
 #: plant seconds per chunk of :func:`time_slices` (two 60-s draw blocks of the encoders)
 SLICE_S = 120.0
@@ -79,7 +89,9 @@ def time_slices(pieces: Iterable[Trace], max_s: float = SLICE_S) -> Iterator[Tra
 def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 0,
                 out_dir: str | Path | None = None, *, blf: bool = False,
                 meta: dict[str, Any] | None = None, save_recording: bool = True,
-                keep_chunks: bool = False, defer_save: bool = False) -> Recording:
+                keep_chunks: bool = False, defer_save: bool = False, producer_mode: str = "thread",
+                notes: list[Any] | None = None, on_notes: Callable[[list[Any]], None] | None = None,
+                while_forked: Callable[[], None] | None = None) -> Recording:
     """The batch chain over a Trace given in pieces, one chunk in memory at a time.
 
     Parameters
@@ -109,6 +121,19 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
     defer_save:
         With ``keep_chunks``, ``out_dir`` and ``save_recording``: ``recording.mf4`` is written when the caller runs
         :func:`~benchtwin.chain.deferred_save.pending_save` of the Recording (at the latest when it is closed).
+    producer_mode:
+        Where the pieces are iterated, encoded and delivered (:data:`PRODUCER_MODES`): on a prefetch thread of this
+        process (``"thread"``) or in a child process forked before this function starts a thread or opens a file
+        (``"fork"``: the chunks come through a pipe, bit for bit; the pieces' iterator runs in the child, so what
+        it changes stays there but for ``notes``). The output is the same in both.
+    notes:
+        A list the pieces' iterator appends to (on the producer's side) as it makes the pieces: after each
+        delivered chunk (and once at the end) what it holds is taken and handed to ``on_notes`` in this thread,
+        before the chunk is used (in ``"fork"`` mode pickled across with the chunk).
+    on_notes:
+        Called with the notes taken (a list; empty where none were made) once per delivered chunk and at the end.
+    while_forked:
+        ``"fork"`` mode: called in this process once the child is forked, while it makes the first chunk.
 
     Returns
     -------
@@ -116,19 +141,28 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
         Equal to the one :func:`benchtwin.chain.acquisition.acquire` decodes of the raw logs written (opened
         lazily from ``recording.mf4`` with ``out_dir`` and ``save_recording``).
     """
+    if producer_mode not in PRODUCER_MODES:
+        raise ValueError(f"producer_mode {producer_mode!r}: one of {', '.join(PRODUCER_MODES)}")
     out = Path(out_dir) if out_dir is not None else None
     start = DEFAULT_START
     trace_meta: dict[str, Any] = {}
     segments = []
-
-    def tracked(it: Iterable[Trace]) -> Iterator[Trace]:
-        for piece in it:
-            trace_meta.clear()
-            trace_meta.update(piece.meta)
-            yield piece
-
-    acq = Acquisition(setup, out / "recording.mf4" if out is not None and save_recording else None,
-                      keep_chunks=keep_chunks)
+    # the producer first (forked before this process has a thread or an open file of the chain's own)
+    producer = ForkedIter(partial(_produced, pieces, setup, seed, notes), producer_mode,
+                          depth=PRODUCER_DEPTH if producer_mode == "fork" else 1)
+    producer.__enter__()
+    if producer_mode == "fork" and while_forked is not None:
+        try:
+            while_forked()
+        except BaseException:
+            producer.close()
+            raise
+    try:
+        acq = Acquisition(setup, out / "recording.mf4" if out is not None and save_recording else None,
+                          keep_chunks=keep_chunks)
+    except BaseException:
+        producer.close()
+        raise
     spans: dict[str, list[float]] = {}  # bus -> [first, last, frames] as logged
     bitrates: dict[str, int] = {}
     events: list[TransportEvent] = []
@@ -136,12 +170,19 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
         out.mkdir(parents=True, exist_ok=True)
     try:
         with ExitStack() as stack:
+            stack.callback(producer.close)
             writers: dict[str, BusLogWriter] = {}
-            # the pieces (and the plant, when they come from it) are encoded and delivered on a second thread
-            # while this one writes and decodes the previous chunk (stopped and joined on an error here)
-            delivered = stack.enter_context(closing(prefetch(iter_delivered(tracked(pieces), setup, seed),
-                                                             name="deliver")))
-            for got in delivered:
+            # the pieces (and the plant, when they come from it) are encoded and delivered on a second thread (or in
+            # the forked child) while this one writes and decodes the previous chunk (stopped on an error here)
+            delivered = iter(producer) if producer_mode == "fork" else prefetch(iter(producer), name="deliver")
+            delivered = stack.enter_context(closing(delivered))
+            for got, last_meta, taken in delivered:
+                trace_meta.clear()
+                trace_meta.update(last_meta)
+                if on_notes is not None:
+                    on_notes(taken)
+                if got is None:  # the producer's end: its last word
+                    continue
                 segments += got.segments
                 events += got.events
                 chunk = AcquisitionInput(events=list(got.events), polls=dict(got.polls), start_time=start)
@@ -182,6 +223,31 @@ def run_chunked(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None = 
                               channel=bus_channel(setup, bus), start_time=start)
         return acq.finish(segments=segments, meta=run_meta, defer_save=defer_save)
     except BaseException:
+        producer.close()
         acq.close()  # the chunk files go; the raw logs written so far are kept
         raise
+
+
+def _produced(pieces: Iterable[Trace], setup: SetupConfig, seed: int | None,
+              notes: list[Any] | None) -> Iterator[tuple[AcquisitionInput | None, dict[str, Any], list[Any]]]:
+    """:func:`run_chunked`'s producer: each delivered chunk with the meta of the last piece read so far and the notes
+    taken since the last chunk; at the end ``None`` with the last piece's meta and the notes left."""
+    meta: dict[str, Any] = {}
+
+    def tracked(it: Iterable[Trace]) -> Iterator[Trace]:
+        for piece in it:
+            meta.clear()
+            meta.update(piece.meta)
+            yield piece
+
+    def taken() -> list[Any]:
+        if notes is None:
+            return []
+        out = list(notes)
+        notes.clear()
+        return out
+
+    for got in iter_delivered(tracked(pieces), setup, seed):
+        yield got, dict(meta), taken()
+    yield None, dict(meta), taken()
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import time
@@ -18,6 +17,7 @@ import numpy as np
 from benchtwin._heap import give_back_freed_memory
 from benchtwin.chain.batch import run_batch
 from benchtwin.chain.deferred_save import DeferredSave, pending_save
+from benchtwin.chain.forked_iter import ForkedIter
 from benchtwin.chain.stream import run_chunked, time_slices
 from benchtwin.config._base import StrictModel
 from benchtwin.config.campaign import CampaignConfig, CycleTest
@@ -47,6 +47,7 @@ from benchtwin.validation.families import (
 )
 from benchtwin.validation.figures_beside import FIGURES, NOMINAL, FigureDrawer, drawn_images
 from benchtwin.validation.flag_counts import flag_counts
+from benchtwin.validation.forked_chain import measured_forked
 from benchtwin.validation.holdout import predict_drive, prediction_checks, submodel_checks, without_window
 from benchtwin.validation.parameters import _budget, compare_with_truth, paper_estimation_fits
 from benchtwin.validation.predict import MapVehicle
@@ -115,14 +116,22 @@ def validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfi
 
 
 def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
-                            out_dir: str | Path | None, cleanup: ExitStack, *,
-                            progress: bool = False) -> tuple[SpooledTrace, Recording, float]:
+                            out_dir: str | Path | None, cleanup: ExitStack, *, progress: bool = False, plant_mode:
+                            str = "thread", producer_mode: str = "thread") -> tuple[SpooledTrace, Recording, float]:
     """The campaign simulated test by test straight into the chain: the truth spooled to raw files, the Recording
     read from the acquisition's raw chunk files (``recording.mf4`` written into ``out_dir``); one test in memory.
-
+    The plant runs in a child forked first (``plant_mode`` ``"fork"``, before this process has threads) or on the
+    chain's prefetch thread (``"thread"``); ``producer_mode`` ``"fork"``: all of the chain's producer in one child.
     Returns the Trace, the Recording (both read from disk when used; closed with ``cleanup``) and the seconds spent
-    in the plant."""
+    in the plant (making the tests and spooling the truth)."""
     truth = cleanup.enter_context(SpooledTrace())
+    if producer_mode == "fork":
+        return truth, *measured_forked(vehicle, setup, campaign, out_dir, cleanup, truth, progress)
+    forked = plant_mode == "fork"  # the child spools the truth into this spool's files; this process counts it
+    plant = cleanup.enter_context(ForkedIter((lambda: truth.appended(iter_campaign(vehicle, campaign))) if forked
+                                             else partial(iter_campaign, vehicle, campaign), plant_mode))
+    if forked:  # while the child makes its first test, this process loads the plant's compiled code too (once, not
+        next(iter_campaign(vehicle, campaign), None)  # again in the side stages' child: it inherits it)
     plant_s = 0.0
     bar = None
     if progress:
@@ -134,14 +143,10 @@ def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign
 
     def pieces() -> Iterator[Trace]:
         nonlocal plant_s
-        it = iter_campaign(vehicle, campaign)
-        for k in itertools.count():
+        for k, piece in enumerate(plant):
             t = time.perf_counter()
-            piece = next(it, None)
-            if piece is None:
-                return
-            truth.append(piece)
-            plant_s += time.perf_counter() - t
+            (truth.adopt if forked else truth.append)(piece)
+            plant_s += plant.made_s + time.perf_counter() - t
             if bar is not None:  # a test's full block, even if it ended early (as benchtwin simulate shows it)
                 bar.update(round(sum(steps[:k + 1]) / campaign.plant_rate_hz) - bar.n)
             yield from time_slices([piece])  # the chain's memory bounded by a slice, not by the longest test
@@ -173,7 +178,8 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
     bench = setup
     saver = None
     if streamed:  # the plant test by test into the chain: neither the Trace nor the Recording held whole
-        trace, rec, plant_s = _simulated_and_measured(vehicle, setup, campaign, out_dir, cleanup, progress=progress)
+        trace, rec, plant_s = _simulated_and_measured(vehicle, setup, campaign, out_dir, cleanup, progress=progress,
+                                                      plant_mode=PLANT_MODE, producer_mode=CHAIN_PRODUCER_MODE)
         checked = trace
         t0 = t1 - plant_s
     elif fams is None:
@@ -289,6 +295,12 @@ def _validate(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConf
 #: (``"fork"``, where the system has ``os.fork``), on a thread (``"thread"``: the GIL leaves it nothing to gain) or
 #: after it (``"off"``); see :mod:`benchtwin.validation.beside` and benchmarks/bench_overlap.py
 SIDE_MODE: str = "fork" if hasattr(os, "fork") else "off"
+#: where a streamed ``validate`` runs the plant: in a child forked before the chain starts (``"fork"``, needs
+#: ``os.fork``: its CPU off the chain's interpreter lock; benchtwin/chain/forked_iter.py) or on the chain's prefetch
+#: thread (``"thread"``, the default: no whole-run gain measured forked, +60 MB of peak PSS; benchmarks/RESULTS.md)
+PLANT_MODE: str = "thread"
+#: the chain's producer (plant, truth spool, encode, deliver) forked ("fork"; validation/forked_chain.py) or "thread"
+CHAIN_PRODUCER_MODE: str = "fork" if hasattr(os, "fork") else "thread"
 
 
 def _side_stages(report: ValidationReport, vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,
