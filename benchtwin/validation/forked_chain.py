@@ -9,6 +9,7 @@ what the child's spool counted, the plant's seconds and the progress bar from th
 from __future__ import annotations
 
 import itertools
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack
@@ -24,7 +25,22 @@ from benchtwin.emulator.protocols import lazy_protocol
 from benchtwin.recording import Recording
 from benchtwin.trace import SpooledTrace, Trace
 
-__all__ = ["measured_forked"]
+__all__ = ["fork_if_alone", "measured_forked"]
+
+
+def fork_if_alone(mode: str) -> str:
+    """``mode``, but ``"thread"`` where ``mode`` is ``"fork"`` and this process already runs other Python threads.
+
+    A child forked beside a running thread inherits every lock that thread holds (the logging module's, an I/O
+    buffer's, a library's) in whatever state it is, and may wait on one for ever; so ``validate`` called from a program
+    with threads of its own (a GUI, a server, a worker's thread pool) keeps its chain's producer in a thread of this
+    process: the same results (the producer's items are the same wherever it runs), without the fork's speed. tqdm's
+    monitor (left running by an earlier progress bar) is not counted: it waits on an event between its looks at the
+    bars, and the child touches no bar.
+    """
+    here = threading.current_thread()
+    others = [t for t in threading.enumerate() if t is not here and type(t).__name__ != "TMonitor"]
+    return "thread" if mode == "fork" and others else mode
 
 
 def measured_forked(vehicle: VehicleConfig, setup: SetupConfig, campaign: CampaignConfig,

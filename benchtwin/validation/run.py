@@ -47,7 +47,7 @@ from benchtwin.validation.families import (
 )
 from benchtwin.validation.figures_beside import FIGURES, NOMINAL, FigureDrawer, drawn_images
 from benchtwin.validation.flag_counts import flag_counts
-from benchtwin.validation.forked_chain import measured_forked
+from benchtwin.validation.forked_chain import fork_if_alone, measured_forked
 from benchtwin.validation.holdout import predict_drive, prediction_checks, submodel_checks, without_window
 from benchtwin.validation.parameters import _budget, compare_with_truth, paper_estimation_fits
 from benchtwin.validation.predict import MapVehicle
@@ -125,9 +125,9 @@ def _simulated_and_measured(vehicle: VehicleConfig, setup: SetupConfig, campaign
     Returns the Trace, the Recording (both read from disk when used; closed with ``cleanup``) and the seconds spent
     in the plant (making the tests and spooling the truth)."""
     truth = cleanup.enter_context(SpooledTrace())
-    if producer_mode == "fork":
+    if fork_if_alone(producer_mode) == "fork":
         return truth, *measured_forked(vehicle, setup, campaign, out_dir, cleanup, truth, progress)
-    forked = plant_mode == "fork"  # the child spools the truth into this spool's files; this process counts it
+    forked = (plant_mode := fork_if_alone(plant_mode)) == "fork"  # the child spools the truth; this process counts it
     plant = cleanup.enter_context(ForkedIter((lambda: truth.appended(iter_campaign(vehicle, campaign))) if forked
                                              else partial(iter_campaign, vehicle, campaign), plant_mode))
     if forked:  # while the child makes its first test, this process loads the plant's compiled code too (once, not

@@ -169,3 +169,28 @@ def test_validate_forks_the_chains_producer_and_raises_its_error(monkeypatch: py
         vrun.validate(load_vehicle(), PAPER, load_campaign("quick.toml"), figures=False)
     assert f"in process {os.getpid()}" not in str(info.value)  # raised in the child, re-raised here
     assert len(seen) == 1 and _gone(seen[0].forked_pid)
+
+
+def test_validate_beside_a_running_thread_keeps_the_producer_in_this_process(monkeypatch: pytest.MonkeyPatch,
+                                                                               seen) -> None:
+    """A program with a thread of its own: forking beside it could leave the child a lock that thread holds, so the
+    chain's producer runs here (the plant's error is raised in this process) and no child is made."""
+    import threading
+
+    import benchtwin.validation.forked_chain as fchain
+
+    monkeypatch.setattr(fchain, "iter_campaign", _one_test_then_fails)
+    monkeypatch.setattr(vrun, "iter_campaign", _one_test_then_fails)
+    done = threading.Event()
+    other = threading.Thread(target=done.wait, name="the program's own thread", daemon=True)
+    other.start()
+    try:
+        assert fchain.fork_if_alone("fork") == "thread" and fchain.fork_if_alone("thread") == "thread"
+        with pytest.raises(SimulationError, match="'quick': the plant left its physical domain") as info:
+            vrun.validate(load_vehicle(), PAPER, load_campaign("quick.toml"), figures=False)
+    finally:
+        done.set()
+        other.join()
+    assert f"in process {os.getpid()}" in str(info.value)  # made in this process: nothing forked
+    assert all(it.forked_pid is None for it in seen)
+    assert fchain.fork_if_alone("fork") == "fork"  # the thread gone (tqdm's monitor, left by a bar, not counted)
