@@ -25,6 +25,9 @@ No ``assert`` is used for validation anywhere in the package.
 
 from __future__ import annotations
 
+import pickle
+import traceback
+
 __all__ = [
     "BenchtwinError",
     "CanopenError",
@@ -42,6 +45,7 @@ __all__ = [
     "SimulationError",
     "TransportError",
     "TransportTimeoutError",
+    "packed_exception",
 ]
 
 
@@ -123,3 +127,18 @@ class CollinearError(IdentificationError):
 
 class FitFailedError(IdentificationError, RuntimeError):
     """An iterative fit did not converge."""
+
+
+def packed_exception(exc: BaseException) -> tuple[bytes | None, str]:
+    """``exc`` for another process: pickled (None where it does not pickle back) and its traceback's text.
+
+    The forked stages (the chain's producer, the side stages) send a failure this way; the receiving side raises the
+    same exception with the text as a note, or an error of its own with the text where it did not pickle.
+    """
+    text = "".join(traceback.format_exception(exc))
+    try:
+        data: bytes | None = pickle.dumps(exc)
+        pickle.loads(data)
+    except Exception:  # an exception that does not survive pickling travels as text
+        data = None
+    return data, text

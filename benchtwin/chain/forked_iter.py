@@ -31,14 +31,13 @@ import signal
 import struct
 import threading
 import time
-import traceback
 from collections.abc import Callable, Iterable, Iterator
 from functools import partial
 from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from benchtwin.errors import BenchtwinError
+from benchtwin.errors import BenchtwinError, packed_exception
 
 __all__ = ["FORK_MODES", "ForkedIter", "ForkedProducerError"]
 
@@ -253,7 +252,7 @@ class ForkedIter(Generic[T]):
             except _PipeGoneError:
                 raise
             except BaseException as exc:  # every failure of the producer is the parent's to raise
-                put(((("error", *_packed(exc))), []))
+                put(((("error", *packed_exception(exc))), []))
             if writer is not None:
                 sent.put(None)
                 writer.join()
@@ -329,17 +328,6 @@ def _end_with_parent(parent: int) -> None:
         return
     if os.getppid() != parent:  # the parent ended before the request was made
         os._exit(1)
-
-
-def _packed(exc: BaseException) -> tuple[bytes | None, str]:
-    """The exception pickled (None where it does not pickle back) and its traceback's text."""
-    text = "".join(traceback.format_exception(exc))
-    try:
-        data: bytes | None = pickle.dumps(exc)
-        pickle.loads(data)
-    except Exception:  # an exception that does not survive pickling travels as text
-        data = None
-    return data, text
 
 
 def _rebuilt(data: bytes | None, text: str) -> BaseException:

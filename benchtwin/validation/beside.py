@@ -20,11 +20,10 @@ import gc
 import pickle
 import queue
 import threading
-import traceback
 from collections.abc import Callable
 from typing import Any, Literal
 
-from benchtwin.errors import BenchtwinError
+from benchtwin.errors import BenchtwinError, packed_exception
 
 __all__ = ["MODES", "SIDE_MAX_CAMPAIGN_S", "Beside", "SideStageError", "side_stages_beside"]
 
@@ -189,7 +188,7 @@ class Beside:
         try:
             self.job(_Channel(self))
         except BaseException as exc:  # every failure of the job is the parent's to raise
-            self._send_to_parent(_ERROR, exc if self.mode == "thread" else _packed(exc))
+            self._send_to_parent(_ERROR, exc if self.mode == "thread" else packed_exception(exc))
         else:
             self._send_to_parent(_DONE, None)
 
@@ -219,17 +218,6 @@ class _Pickled:
 
     def __reduce__(self) -> tuple[Any, ...]:
         return (_Pickled, (self.data,))
-
-
-def _packed(exc: BaseException) -> tuple[bytes | None, str]:
-    """The exception pickled (None where it does not pickle back) and its traceback's text."""
-    text = "".join(traceback.format_exception(exc))
-    try:
-        data: bytes | None = pickle.dumps(exc)
-        pickle.loads(data)
-    except Exception:  # an exception that does not survive pickling travels as text
-        data = None
-    return data, text
 
 
 def _rebuilt(packed: tuple[bytes | None, str] | None) -> BaseException:

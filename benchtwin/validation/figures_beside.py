@@ -13,7 +13,8 @@ from __future__ import annotations
 from typing import Any
 
 from benchtwin.config.specs import VehicleSpecs
-from benchtwin.validation.beside import _packed, _rebuilt
+from benchtwin.errors import packed_exception
+from benchtwin.validation.beside import _rebuilt
 from benchtwin.validation.report import ValidationReport
 
 __all__ = ["FigureDrawer", "drawn_images"]
@@ -57,7 +58,7 @@ class FigureDrawer:
 
             drawn: Any = figure_images(self.report.prediction, nominal, self.specs)
         except Exception as exc:  # raised by the parent where it draws in line
-            drawn = _Failed(_packed(exc))
+            drawn = _Failed(packed_exception(exc))
         self.channel.put(FIGURES, drawn)
 
 
