@@ -108,6 +108,12 @@ def _unpack_kernel(le: np.ndarray, shift: np.ndarray, mask: np.ndarray, little: 
     return out
 
 
+#: columns shorter than this are unpacked by NumPy, not by the compiled kernel (the same values): a live device's
+#: frame or two gains nothing from it, and where no compiled copy is cached (a new machine or kernel) its first call
+#: compiles for seconds, longer than a live command's answer may take
+KERNEL_MIN_WORDS = 256
+
+
 def _unpack_numpy(sigs: list[SignalLayout], words_le: np.ndarray) -> list[np.ndarray]:
     """The numpy reference of :func:`_unpack_kernel` (what :meth:`MessageCodec.unpack_words` computed before it)."""
     le = np.asarray(words_le, dtype=np.uint64)
@@ -228,7 +234,7 @@ class MessageCodec:
                 np.array([s.little_endian for s in sigs], np.bool_),
                 np.array([s.length if s.signed else 0 for s in sigs], np.int64))
         le = np.ascontiguousarray(words_le, dtype=np.uint64)
-        if le.ndim != 1:  # the kernel takes a column of words
+        if le.ndim != 1 or le.size < KERNEL_MIN_WORDS:  # the kernel takes a column of words, worth it when long
             return dict(zip(want, _unpack_numpy([self.signals[n] for n in want], le)))
         return dict(zip(want, _unpack_kernel(le, *plan)))
 

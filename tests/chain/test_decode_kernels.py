@@ -208,3 +208,25 @@ def test_hold_cut_matches_the_loop_it_replaced() -> None:
     assert hold_cut(np.array([0.0, np.nan, 1.0]), 1) == 2  # NaN compares false, as before
     with pytest.raises(ValueError):
         hold_cut(np.zeros(3), 0)
+
+
+def test_a_short_column_is_unpacked_without_the_kernel_and_the_same(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A live device's frame or two never waits for the kernel (its first call compiles where no cached copy
+    exists); the values are the kernel's all the same, and a long column still takes the kernel."""
+    from benchtwin.wire import codec as codec_mod
+
+    codec = result_codecs(0x521, "IVT_test")[0]
+    names = list(codec.signals)
+    w = _words(codec_mod.KERNEL_MIN_WORDS, seed=11)
+    short = w[:codec_mod.KERNEL_MIN_WORDS - 1]
+    kernel = _unpack_kernel(np.ascontiguousarray(short), *_plan([codec.signals[n] for n in names]))
+
+    def refused(*args: object) -> None:
+        raise AssertionError("the kernel was called for a short column")
+
+    monkeypatch.setattr(codec_mod, "_unpack_kernel", refused)
+    got = codec.unpack_words(short)
+    assert all(np.array_equal(got[n], k) and got[n].dtype == k.dtype for n, k in zip(names, kernel, strict=True))
+    assert codec.unpack_words(w[:1])[names[0]].shape == (1,)
+    with pytest.raises(AssertionError, match="kernel was called"):
+        codec.unpack_words(w)  # KERNEL_MIN_WORDS words: the kernel's
