@@ -10,7 +10,7 @@ Usage::
 Each repeat runs the stage once per mode (taking turns), after one untimed warm-up run per mode, on the campaign's
 tests (no identification). Modes: ``fork`` (``producer_mode="fork"``: benchtwin/validation/forked_chain.py),
 ``thread`` (the plant and the encoding on the chain's prefetch thread, the default); ``fork:N`` forked with
-``PRODUCER_DEPTH`` N (chunks the child holds made, default 1). For each run: the stage's wall
+``PRODUCER_DEPTH`` N (chunks the child holds made; plain ``fork``: the shipped depth). For each run: the stage's wall
 seconds, the CPU seconds of this process and of the child (``os.times``, the child's once it is waited for),
 ``run_chunked``'s wall seconds, the seconds the chain's main thread waits for the next chunk (summed over the chunks:
 ``queue.get`` of the prefetch thread, or the pipe's reads and unpickling forked), forked: the seconds this process
@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import threading
 import time
 from contextlib import ExitStack
 from typing import Any
 
-from bench_plant_fork import _children, _pss_mb
+from bench_plant_fork import _children, _pss_mb, compare_modes, timed
 
 
 def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]:
@@ -44,27 +43,13 @@ def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]
     copied = [0.0, 0.0]  # seconds, bytes
     chained = [0.0]
 
-    def timed(it: Any) -> Any:
-        try:
-            while True:
-                t = time.perf_counter()
-                try:
-                    item = next(it)
-                except StopIteration:
-                    return
-                finally:
-                    waited.append(time.perf_counter() - t)
-                yield item
-        finally:
-            it.close()
-
     def timed_prefetch(items: Any, depth: int = 1, *, name: str = "prefetch") -> Any:
-        return timed(prefetch(items, depth, name=name))
+        return timed(prefetch(items, depth, name=name), waited)
 
     class TimedForked(ForkedIter):
         def __iter__(self) -> Any:
             it = super().__iter__()
-            return timed(it) if self.mode == "fork" else it
+            return timed(it, waited) if self.mode == "fork" else it
 
         def _read_into(self, *bufs: Any, eof_ok: bool = False) -> bool:
             t = time.perf_counter()
@@ -85,7 +70,8 @@ def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]
             chained[0] = time.perf_counter() - t
 
     mode, _, depth = mode.partition(":")
-    stream.PRODUCER_DEPTH = int(depth or 1)
+    shipped_depth = stream.PRODUCER_DEPTH
+    stream.PRODUCER_DEPTH = int(depth or shipped_depth)
     saved = stream.prefetch, stream.ForkedIter, vrun.run_chunked, fchain.run_chunked
     stream.prefetch, stream.ForkedIter = timed_prefetch, TimedForked  # type: ignore[assignment,misc]
     vrun.run_chunked = fchain.run_chunked = timed_chunked  # type: ignore[assignment]
@@ -127,7 +113,7 @@ def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]
                 "pss_mb": peak["self"], "child_pss_mb": peak["child"], "pss_sum_mb": peak["sum"]}
     finally:
         stream.prefetch, stream.ForkedIter, vrun.run_chunked, fchain.run_chunked = saved  # type: ignore[misc]
-        stream.PRODUCER_DEPTH = 1
+        stream.PRODUCER_DEPTH = shipped_depth
 
 
 def main() -> None:
@@ -137,27 +123,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="runs per mode (default 3)")
     ap.add_argument("--warmup", type=int, default=1, choices=(0, 1), help="untimed runs per mode first (default 1)")
     ap.add_argument("--modes", default="fork,thread", help="comma-separated producer modes (default fork,thread)")
-    args = ap.parse_args()
-    from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
-
-    camp = args.campaign if args.campaign.endswith(".toml") else str(scenario_path("campaigns",
-                                                                                    f"{args.campaign}.toml"))
-    vehicle, setup = load_vehicle(), load_setup(scenario_path("setups", f"{args.setup}.toml"))
-    campaign = load_campaign(camp)
-    modes = args.modes.split(",")
-    for mode in modes * args.warmup:
-        _run(mode, vehicle, setup, campaign)
-    rows: dict[str, list[dict[str, float]]] = {m: [] for m in modes}
-    for k in range(args.repeat):
-        for mode in modes:
-            r = _run(mode, vehicle, setup, campaign)
-            rows[mode].append(r)
-            print(f"run {k} {mode:6s} " + ", ".join(f"{n} {v:.2f}" for n, v in r.items()), flush=True)
-    print(f"load {os.getloadavg()[0]:.2f}; medians of {args.repeat}:")
-    for mode in modes:
-        med = {n: statistics.median(r[n] for r in rows[mode]) for n in rows[mode][0]}
-        print(f"  {mode:6s} " + ", ".join(f"{n} {v:.2f}" for n, v in med.items()))
-
+    compare_modes(ap.parse_args(), _run)
 
 if __name__ == "__main__":
     main()

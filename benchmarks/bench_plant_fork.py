@@ -54,6 +54,47 @@ def _children() -> list[int]:
     return out
 
 
+def timed(it: Any, waited: list[float]) -> Any:
+    """Yield ``it``'s items, appending to ``waited`` the seconds each took to come (closing ``it`` at the end)."""
+    try:
+        while True:
+            t = time.perf_counter()
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+            finally:
+                waited.append(time.perf_counter() - t)
+            yield item
+    finally:
+        it.close()
+
+
+def compare_modes(args: argparse.Namespace, run: Any) -> None:
+    """Load the scenario of ``args`` (``campaign``, ``setup``), run ``run(mode, vehicle, setup, campaign)`` for each
+    of ``args.modes`` taking turns (after ``args.warmup`` untimed rounds), ``args.repeat`` times; print every run and
+    the medians per mode."""
+    from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
+
+    camp = args.campaign if args.campaign.endswith(".toml") else str(scenario_path("campaigns",
+                                                                                    f"{args.campaign}.toml"))
+    vehicle, setup = load_vehicle(), load_setup(scenario_path("setups", f"{args.setup}.toml"))
+    campaign = load_campaign(camp)
+    modes = args.modes.split(",")
+    for mode in modes * args.warmup:  # warm-up: numba caches, first-touch of the libraries
+        run(mode, vehicle, setup, campaign)
+    rows: dict[str, list[dict[str, float]]] = {m: [] for m in modes}
+    for k in range(args.repeat):
+        for mode in modes:
+            r = run(mode, vehicle, setup, campaign)
+            rows[mode].append(r)
+            print(f"run {k} {mode:6s} " + ", ".join(f"{n} {v:.2f}" for n, v in r.items()), flush=True)
+    print(f"load {os.getloadavg()[0]:.2f}; medians of {args.repeat}:")
+    for mode in modes:
+        med = {n: statistics.median(r[n] for r in rows[mode]) for n in rows[mode][0]}
+        print(f"  {mode:6s} " + ", ".join(f"{n} {v:.2f}" for n, v in med.items()))
+
+
 def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]:
     import benchtwin.chain.stream as stream
     import benchtwin.validation.run as vrun
@@ -63,19 +104,7 @@ def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]
     chained = [0.0]
 
     def timed_prefetch(items: Any, depth: int = 1, *, name: str = "prefetch") -> Any:
-        it = prefetch(items, depth, name=name)
-        try:
-            while True:
-                t = time.perf_counter()
-                try:
-                    item = next(it)
-                except StopIteration:
-                    return
-                finally:
-                    waited.append(time.perf_counter() - t)
-                yield item
-        finally:
-            it.close()
+        return timed(prefetch(items, depth, name=name), waited)
 
     real_chunked = vrun.run_chunked
 
@@ -102,7 +131,15 @@ def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]
                     peak["child_private"] = max(peak["child_private"], private)
 
         sampler = threading.Thread(target=sample, daemon=True)
-        sampler.start()
+        real_forked = vrun.ForkedIter
+
+        class SampledForked(real_forked):  # type: ignore[misc,valid-type]
+            def __enter__(self) -> Any:  # the sampler's thread once the child is forked (validate forks only where
+                out = super().__enter__()  # no other thread runs: forked_chain.fork_if_alone)
+                sampler.start()
+                return out
+
+        vrun.ForkedIter = SampledForked  # type: ignore[misc]
         t0, c0 = time.perf_counter(), os.times()
         with ExitStack() as stack:
             _, _, plant_s = vrun._simulated_and_measured(vehicle, setup, campaign, None, stack, plant_mode=mode)
@@ -118,6 +155,7 @@ def _run(mode: str, vehicle: Any, setup: Any, campaign: Any) -> dict[str, float]
                 "child_private_mb": peak["child_private"], "pss_sum_mb": peak["sum"]}
     finally:
         stream.prefetch, vrun.run_chunked = prefetch, real_chunked  # type: ignore[assignment]
+        vrun.ForkedIter = real_forked  # type: ignore[misc]
 
 
 def main() -> None:
@@ -128,27 +166,7 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=1, choices=(0, 1),
                     help="untimed runs per mode first (default 1; 0: the first run is this process's first, cold)")
     ap.add_argument("--modes", default="fork,thread", help="comma-separated plant modes (default fork,thread)")
-    args = ap.parse_args()
-    from benchtwin.config import load_campaign, load_setup, load_vehicle, scenario_path
-
-    camp = args.campaign if args.campaign.endswith(".toml") else str(scenario_path("campaigns",
-                                                                                    f"{args.campaign}.toml"))
-    vehicle, setup = load_vehicle(), load_setup(scenario_path("setups", f"{args.setup}.toml"))
-    campaign = load_campaign(camp)
-    modes = args.modes.split(",")
-    for mode in modes * args.warmup:  # warm-up: numba caches, first-touch of the libraries
-        _run(mode, vehicle, setup, campaign)
-    rows: dict[str, list[dict[str, float]]] = {m: [] for m in modes}
-    for k in range(args.repeat):
-        for mode in modes:
-            r = _run(mode, vehicle, setup, campaign)
-            rows[mode].append(r)
-            print(f"run {k} {mode:6s} " + ", ".join(f"{n} {v:.2f}" for n, v in r.items()), flush=True)
-    print(f"load {os.getloadavg()[0]:.2f}; medians of {args.repeat}:")
-    for mode in modes:
-        med = {n: statistics.median(r[n] for r in rows[mode]) for n in rows[mode][0]}
-        print(f"  {mode:6s} " + ", ".join(f"{n} {v:.2f}" for n, v in med.items()))
-
+    compare_modes(ap.parse_args(), _run)
 
 if __name__ == "__main__":
     main()
